@@ -1,0 +1,58 @@
+# depthsense — set-up, demo, tests. Every target installs what it needs itself:
+# the PyPI wheel torch==2.11.0 (libtorch for tch 0.24) into .venv/, Rust crates via cargo.
+#
+#   make demo   synthetic world → prepare → train → eval → runs/demo/report/
+#   make test   the whole test suite (Rust + the nuScenes devkit check of the synthetic world)
+
+SHELL := /bin/bash
+PYTHON ?= python3
+TORCH_VERSION := 2.11.0
+VENV := $(CURDIR)/.venv
+STAMP := $(VENV)/.depthsense-setup-$(TORCH_VERSION)
+
+export VIRTUAL_ENV := $(VENV)
+export PATH := $(VENV)/bin:$(PATH)
+export LIBTORCH_USE_PYTORCH := 1
+
+CARGO ?= cargo
+BIN := target/release/depthsense
+
+.PHONY: all setup build demo test bench fmt clippy check clean-venv
+
+all: build
+
+# The venv: torch (libtorch + CUDA runtime wheels; runs on CPU-only machines too),
+# numpy, and the official nuScenes devkit used by the format check of the synthetic world.
+$(STAMP):
+	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" numpy nuscenes-devkit
+	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
+	@touch $@
+
+setup: $(STAMP)
+
+build: setup
+	$(CARGO) build --release -p depthsense-cli
+
+demo: build
+	$(BIN) demo --out runs/demo
+
+test: setup
+	DEPTHSENSE_REQUIRE_DEVKIT=1 $(CARGO) test --workspace
+
+bench: build
+	$(BIN) bench data --out runs/bench/data.json
+	$(BIN) bench synth --out runs/bench/synth.json
+	$(BIN) bench model --out runs/bench/model.json
+	$(BIN) bench train --out runs/bench/train.json
+
+fmt:
+	$(CARGO) fmt --all
+
+clippy: setup
+	$(CARGO) clippy --workspace --all-targets -- -D warnings
+
+check: fmt clippy test
+
+clean-venv:
+	rm -rf $(VENV)

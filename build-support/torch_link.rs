@@ -1,0 +1,52 @@
+// Shared by the build scripts of every crate that links libtorch (model, train, cli).
+// `include!`d, not a crate: build scripts cannot share code otherwise.
+//
+// Two link facts (see DEVELOPERS.md / README "Set-up"):
+// 1. rustc links with `--as-needed`, which silently drops `libtorch_cuda.so` because no
+//    symbol of it is referenced directly; CUDA then looks absent at run time. We re-add it
+//    between `--no-as-needed` ... `--as-needed`.
+// 2. An rpath to the wheel's `torch/lib` so binaries, tests and benches run without
+//    `LD_LIBRARY_PATH` on the machine that built them.
+
+fn torch_lib_dir() -> Option<std::path::PathBuf> {
+    println!("cargo:rerun-if-env-changed=VIRTUAL_ENV");
+    println!("cargo:rerun-if-env-changed=LIBTORCH");
+    if let Ok(libtorch) = std::env::var("LIBTORCH") {
+        return Some(std::path::PathBuf::from(libtorch).join("lib"));
+    }
+    let python = if std::env::var_os("VIRTUAL_ENV").is_some() {
+        "python"
+    } else {
+        "python3"
+    };
+    let out = std::process::Command::new(python)
+        .args([
+            "-c",
+            "import torch, os; print(os.path.join(os.path.dirname(torch.__file__), 'lib'))",
+        ])
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        return None;
+    }
+    let dir = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    (!dir.is_empty()).then(|| std::path::PathBuf::from(dir))
+}
+
+fn link_torch() {
+    let Some(dir) = torch_lib_dir() else {
+        println!("cargo:warning=torch not found by the active python: run `make setup` and build through `make` (or `source .venv/bin/activate`)");
+        return;
+    };
+    let target_os = std::env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
+    if target_os != "linux" {
+        return;
+    }
+    println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+    if dir.join("libtorch_cuda.so").exists() {
+        println!("cargo:rustc-link-arg=-L{}", dir.display());
+        println!("cargo:rustc-link-arg=-Wl,--no-as-needed");
+        println!("cargo:rustc-link-arg=-ltorch_cuda");
+        println!("cargo:rustc-link-arg=-Wl,--as-needed");
+    }
+}

@@ -1,0 +1,13 @@
+pub mod bench;
+pub mod bench_data;
+pub mod bench_model;
+pub mod bench_synth;
+pub mod bench_train;
+pub mod demo;
+pub mod eval;
+pub mod inspect;
+pub mod model_info;
+pub mod predict;
+pub mod prepare;
+pub mod synth;
+pub mod train;

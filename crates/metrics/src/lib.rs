@@ -1,0 +1,1 @@
+//! Depth metrics and report tables (SPEC §9). Pure Rust, no torch.

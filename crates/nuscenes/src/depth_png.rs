@@ -1,0 +1,196 @@
+//! KITTI-style 16-bit depth PNGs (SPEC §3): value = round(depth_m × 256), 0 = no data.
+//!
+//! Shared by `prep` (training-frame maps), `synth` (rendered truth) and `train`
+//! (predictions), so that every map in the project has one encoding.
+
+use std::path::Path;
+
+use crate::fsutil::write_atomic;
+
+/// Scale between metres and the stored 16-bit value.
+pub const DEPTH_SCALE: f32 = 256.0;
+/// Largest depth a 16-bit map can hold (65535 / 256 ≈ 255.996 m).
+pub const MAX_DEPTH_M: f32 = u16::MAX as f32 / DEPTH_SCALE;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DepthPngError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: cannot decode PNG: {reason}")]
+    Decode { path: String, reason: String },
+    #[error("{path}: expected a 16-bit single-channel PNG, found {found}")]
+    Format { path: String, found: String },
+    #[error("depth map has {got} values but {width}x{height} needs {want}")]
+    Size {
+        width: u32,
+        height: u32,
+        got: usize,
+        want: usize,
+    },
+}
+
+/// A depth map in metres, row-major, `0.0` where there is no data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthMap {
+    pub width: u32,
+    pub height: u32,
+    pub depth_m: Vec<f32>,
+}
+
+impl DepthMap {
+    pub fn zeros(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            depth_m: vec![0.0; width as usize * height as usize],
+        }
+    }
+
+    /// Depth at pixel (u = column, v = row).
+    pub fn at(&self, u: u32, v: u32) -> f32 {
+        self.depth_m[v as usize * self.width as usize + u as usize]
+    }
+
+    /// Number of pixels holding data.
+    pub fn valid_count(&self) -> usize {
+        self.depth_m.iter().filter(|d| **d > 0.0).count()
+    }
+}
+
+/// Metres → stored value. Non-finite and non-positive depths become 0 (no data);
+/// depths beyond [`MAX_DEPTH_M`] saturate.
+pub fn encode_value(depth_m: f32) -> u16 {
+    if !depth_m.is_finite() || depth_m <= 0.0 {
+        return 0;
+    }
+    // A tiny positive depth must not turn into "no data".
+    (depth_m * DEPTH_SCALE).round().clamp(1.0, u16::MAX as f32) as u16
+}
+
+/// Stored value → metres.
+pub fn decode_value(value: u16) -> f32 {
+    value as f32 / DEPTH_SCALE
+}
+
+/// Encode a depth map as 16-bit grayscale PNG bytes.
+pub fn encode_png(map: &DepthMap) -> Result<Vec<u8>, DepthPngError> {
+    let want = map.width as usize * map.height as usize;
+    if map.depth_m.len() != want {
+        return Err(DepthPngError::Size {
+            width: map.width,
+            height: map.height,
+            got: map.depth_m.len(),
+            want,
+        });
+    }
+    let values: Vec<u16> = map.depth_m.iter().map(|d| encode_value(*d)).collect();
+    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
+        map.width, map.height, values,
+    )
+    .ok_or_else(|| DepthPngError::Size {
+        width: map.width,
+        height: map.height,
+        got: map.depth_m.len(),
+        want,
+    })?;
+    let mut out = std::io::Cursor::new(Vec::with_capacity(want));
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| DepthPngError::Decode {
+            path: "<memory>".into(),
+            reason: e.to_string(),
+        })?;
+    Ok(out.into_inner())
+}
+
+/// Write a depth map atomically (temp file + rename).
+pub fn write_depth_png(path: &Path, map: &DepthMap) -> Result<(), DepthPngError> {
+    let bytes = encode_png(map)?;
+    write_atomic(path, &bytes).map_err(|source| DepthPngError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+/// Decode 16-bit PNG bytes into metres. `name` only labels errors.
+pub fn decode_png(bytes: &[u8], name: &str) -> Result<DepthMap, DepthPngError> {
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).map_err(|e| {
+        DepthPngError::Decode {
+            path: name.to_string(),
+            reason: e.to_string(),
+        }
+    })?;
+    let found = format!("{:?}", img.color());
+    let luma = match img {
+        image::DynamicImage::ImageLuma16(buf) => buf,
+        _ => {
+            return Err(DepthPngError::Format {
+                path: name.to_string(),
+                found,
+            })
+        }
+    };
+    let (width, height) = luma.dimensions();
+    let depth_m = luma.into_raw().into_iter().map(decode_value).collect();
+    Ok(DepthMap {
+        width,
+        height,
+        depth_m,
+    })
+}
+
+/// Read a 16-bit depth PNG into metres.
+pub fn read_depth_png(path: &Path) -> Result<DepthMap, DepthPngError> {
+    let bytes = std::fs::read(path).map_err(|source| DepthPngError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    decode_png(&bytes, &path.display().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn value_scale_is_256_per_metre() {
+        assert_eq!(encode_value(1.0), 256);
+        assert_eq!(encode_value(10.5), 2688);
+        assert_eq!(encode_value(0.0), 0);
+        assert_eq!(encode_value(-3.0), 0);
+        assert_eq!(encode_value(f32::NAN), 0);
+        assert_eq!(encode_value(1e-4), 1);
+        assert_eq!(encode_value(1000.0), u16::MAX);
+        assert_eq!(decode_value(2688), 10.5);
+    }
+
+    #[test]
+    fn png_round_trip_keeps_quantised_depths() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.png");
+        let mut map = DepthMap::zeros(5, 3);
+        map.depth_m[0] = 1.0;
+        map.depth_m[7] = 42.123;
+        map.depth_m[14] = 79.99;
+        write_depth_png(&path, &map).unwrap();
+        let back = read_depth_png(&path).unwrap();
+        assert_eq!((back.width, back.height), (5, 3));
+        for (a, b) in map.depth_m.iter().zip(&back.depth_m) {
+            assert!((a - b).abs() <= 0.5 / DEPTH_SCALE, "{a} vs {b}");
+        }
+        assert_eq!(back.valid_count(), 3);
+        assert_eq!(back.at(2, 1), (42.123f32 * 256.0).round() / 256.0);
+    }
+
+    #[test]
+    fn eight_bit_png_is_rejected_with_its_name() {
+        let img = image::GrayImage::new(2, 2);
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Png).unwrap();
+        let err = decode_png(bytes.get_ref(), "x/y.png").unwrap_err();
+        assert!(err.to_string().contains("x/y.png"), "{err}");
+    }
+}

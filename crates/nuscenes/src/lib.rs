@@ -1,0 +1,5 @@
+//! nuScenes tables, indexes, sensor file readers, calibration/pose geometry and projection
+//! (SPEC §2). No torch here: this crate builds and tests in seconds.
+
+pub mod depth_png;
+pub mod fsutil;

@@ -1,0 +1,131 @@
+//! The on-disk layout of `depthsense prepare` output — the contract between `prep`
+//! (writer) and `train` (reader). Changing a name here changes both.
+//!
+//! ```text
+//! O/index.json                 PreparedIndex
+//! O/<sample_token>/image.png   800x350 RGB8 (SPEC §3: ×0.5, top 100 rows cropped)
+//!                 /lidar_sparse.png    16-bit depth×256, keyframe LIDAR_TOP, nearest wins
+//!                 /lidar_dense.png     16-bit depth×256, ±K sweeps, occlusion-filtered
+//!                 /lowheight_mask.png  8-bit, 255 where the sparse GT point is 0.3–2.0 m above ground
+//!                 /radar_raw.png       16-bit depth×256, one pixel per radar point
+//!                 /radar_height.png    16-bit depth×256, height-extended strips
+//!                 /meta.json           SampleMeta
+//! ```
+//! A sample directory is complete iff `meta.json` exists: it is written last, and the
+//! directory is first assembled under a temporary name and renamed into place.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Training frame width (SPEC §3).
+pub const FRAME_W: u32 = 800;
+/// Training frame height (SPEC §3).
+pub const FRAME_H: u32 = 350;
+/// Full-resolution → training-frame scale.
+pub const FRAME_SCALE: f64 = 0.5;
+/// Rows cropped from the top of the half-resolution image.
+pub const FRAME_CROP_TOP: u32 = 100;
+
+pub const INDEX_FILE: &str = "index.json";
+pub const IMAGE_FILE: &str = "image.png";
+pub const LIDAR_SPARSE_FILE: &str = "lidar_sparse.png";
+pub const LIDAR_DENSE_FILE: &str = "lidar_dense.png";
+pub const LOWHEIGHT_MASK_FILE: &str = "lowheight_mask.png";
+pub const RADAR_RAW_FILE: &str = "radar_raw.png";
+pub const RADAR_HEIGHT_FILE: &str = "radar_height.png";
+pub const META_FILE: &str = "meta.json";
+
+/// Scene condition derived from the lower-cased scene description (SPEC §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Condition {
+    Day,
+    Night,
+    Rain,
+}
+
+/// Conditions of a scene: "night" and/or "rain" in its description, else day.
+/// A scene that is both night and rain belongs to both rows (splits/README).
+pub fn conditions_of(description: &str) -> Vec<Condition> {
+    let d = description.to_lowercase();
+    let mut out = Vec::new();
+    if d.contains("night") {
+        out.push(Condition::Night);
+    }
+    if d.contains("rain") {
+        out.push(Condition::Rain);
+    }
+    if out.is_empty() {
+        out.push(Condition::Day);
+    }
+    out
+}
+
+/// Everything `train`/`eval` need to know about one prepared sample besides the maps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SampleMeta {
+    pub sample_token: String,
+    pub scene_token: String,
+    pub scene_name: String,
+    /// Conditions of the scene (usually one; night+rain scenes carry both).
+    pub conditions: Vec<Condition>,
+    pub timestamp_us: i64,
+    /// sample_data tokens used: "CAM_FRONT", "LIDAR_TOP", "RADAR_FRONT", … → token of the keyframe.
+    pub sample_data_tokens: BTreeMap<String, String>,
+    /// Training-frame intrinsics, row-major 3x3 (fx, fy, cx, cy already ×0.5 and cy −100).
+    pub intrinsics_frame: [[f64; 3]; 3],
+    /// Full-resolution intrinsics from calibrated_sensor, row-major 3x3.
+    pub intrinsics_full: [[f64; 3]; 3],
+    /// 4x4 row-major camera_from_lidar transform (keyframe sweep, both ego poses applied).
+    pub cam_from_lidar: [[f64; 4]; 4],
+    /// Per radar channel, 4x4 row-major camera_from_radar of its keyframe sweep.
+    pub cam_from_radar: BTreeMap<String, [[f64; 4]; 4]>,
+    /// Counts: "lidar_points", "lidar_in_image", "lidar_dense_pixels", "radar_points",
+    /// "radar_in_image", "radar_filtered_out", "nan_dropped", …
+    pub counts: BTreeMap<String, u64>,
+    /// Preparation settings that produced the maps (sweeps, channels, filters, K …).
+    pub settings: serde_json::Value,
+}
+
+/// One line of `index.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IndexEntry {
+    pub sample_token: String,
+    pub scene_token: String,
+    pub scene_name: String,
+    /// Split names this sample belongs to (e.g. ["train"], ["test", "test-night"], ["all"]).
+    pub splits: Vec<String>,
+    pub conditions: Vec<Condition>,
+    /// Directory relative to the index file (normally the sample token).
+    pub dir: String,
+}
+
+/// `O/index.json`: every prepared sample.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PreparedIndex {
+    /// Dataset version folder the samples came from (e.g. "v1.0-mini", "v1.0-synth").
+    pub version: String,
+    pub samples: Vec<IndexEntry>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conditions_follow_description_words() {
+        assert_eq!(conditions_of("Night, parking lot"), vec![Condition::Night]);
+        assert_eq!(conditions_of("RAIN, trucks"), vec![Condition::Rain]);
+        assert_eq!(
+            conditions_of("Night, rain, wet road"),
+            vec![Condition::Night, Condition::Rain]
+        );
+        assert_eq!(conditions_of("Parked cars, peds"), vec![Condition::Day]);
+    }
+
+    #[test]
+    fn condition_serialises_lowercase() {
+        assert_eq!(serde_json::to_string(&Condition::Night).unwrap(), "\"night\"");
+    }
+}

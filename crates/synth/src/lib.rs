@@ -1,0 +1,1 @@
+//! The synthetic nuScenes-format world (the embedded default dataset).

@@ -1,0 +1,1 @@
+//! Data loader, training, evaluation, inference and experiments.
