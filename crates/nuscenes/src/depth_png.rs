@@ -88,15 +88,14 @@ pub fn encode_png(map: &DepthMap) -> Result<Vec<u8>, DepthPngError> {
         });
     }
     let values: Vec<u16> = map.depth_m.iter().map(|d| encode_value(*d)).collect();
-    let img = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(
-        map.width, map.height, values,
-    )
-    .ok_or_else(|| DepthPngError::Size {
-        width: map.width,
-        height: map.height,
-        got: map.depth_m.len(),
-        want,
-    })?;
+    let img =
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(map.width, map.height, values)
+            .ok_or(DepthPngError::Size {
+            width: map.width,
+            height: map.height,
+            got: map.depth_m.len(),
+            want,
+        })?;
     let mut out = std::io::Cursor::new(Vec::with_capacity(want));
     img.write_to(&mut out, image::ImageFormat::Png)
         .map_err(|e| DepthPngError::Decode {

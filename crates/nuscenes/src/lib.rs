@@ -2,4 +2,11 @@
 //! (SPEC §2). No torch here: this crate builds and tests in seconds.
 
 pub mod depth_png;
+pub mod error;
 pub mod fsutil;
+pub mod geometry;
+pub mod pcd;
+pub mod tables;
+
+pub use error::{NuError, Result};
+pub use tables::{NuScenes, Token};

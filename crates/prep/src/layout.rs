@@ -126,6 +126,9 @@ mod tests {
 
     #[test]
     fn condition_serialises_lowercase() {
-        assert_eq!(serde_json::to_string(&Condition::Night).unwrap(), "\"night\"");
+        assert_eq!(
+            serde_json::to_string(&Condition::Night).unwrap(),
+            "\"night\""
+        );
     }
 }

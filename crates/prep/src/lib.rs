@@ -1,4 +1,11 @@
 //! Training-frame maps from raw nuScenes (SPEC §3–5): lidar GT, radar raw / height-extended
 //! inputs, and the `prepare` pipeline with caching.
 
+pub mod bench;
+pub mod inspect;
 pub mod layout;
+pub mod maps;
+pub mod pipeline;
+pub mod splits;
+
+pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary};

@@ -1,1 +1,23 @@
-//! Data loader, training, evaluation, inference and experiments.
+//! Data loader, training, evaluation, inference and the end-to-end demo.
+//!
+//! - [`data`]: reads `depthsense prepare` output, SPEC §8 augmentation, parallel prefetching
+//!   loader, deterministic train/validation partition;
+//! - [`sgd`]: SGD with momentum whose state can be saved (exact resume);
+//! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
+//! - [`evaluate`]: `eval` (SPEC §10 tables 1–3 as Markdown, CSV, JSON; radar drop);
+//! - [`predict`]: depth for a prepared sample or raw files;
+//! - [`demo`]: synth → prepare → train RGB-only and fusion → eval → report;
+//! - [`bench`]: training and loader throughput;
+//! - [`plot`]: curves and depth pictures.
+
+pub mod bench;
+pub mod data;
+pub mod demo;
+pub mod error;
+pub mod evaluate;
+pub mod plot;
+pub mod predict;
+pub mod sgd;
+pub mod trainer;
+
+pub use error::TrainError;

@@ -1,8 +1,109 @@
+//! `depthsense predict`: depth for a prepared sample, a sample token of a dataroot, or raw
+//! files (JPEG + radar PCDs + calibration JSON).
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[derive(clap::Args)]
-pub struct Args {}
+use depthsense_model::checkpoint;
+use depthsense_train::predict::{
+    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs,
+};
+use depthsense_train::trainer::radar_input_for;
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not implemented yet")
+#[derive(clap::Args)]
+pub struct Args {
+    /// Checkpoint written by `train`.
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
+    #[arg(long, conflicts_with_all = ["token", "image"])]
+    sample: Option<PathBuf>,
+    /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
+    #[arg(long, requires = "dataroot", conflicts_with = "image")]
+    token: Option<String>,
+    /// nuScenes-format dataroot for --token.
+    #[arg(long)]
+    dataroot: Option<PathBuf>,
+    /// Version folder for --token.
+    #[arg(long, default_value = "v1.0-mini")]
+    version: String,
+    /// Input 3: a 1600x900 CAM_FRONT JPEG (with --radar and --calibration).
+    #[arg(long, requires = "calibration")]
+    image: Option<PathBuf>,
+    /// Radar .pcd files for --image (repeat the flag or separate with commas).
+    #[arg(long, value_delimiter = ',')]
+    radar: Vec<PathBuf>,
+    /// Calibration JSON for --image: {"camera_intrinsic": 3x3 (full resolution),
+    /// "cam_from_radar": {"<radar file name>": 4x4 row-major}}.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// Keep every radar point (disable the devkit filters) for --image / --token.
+    #[arg(long)]
+    no_radar_filters: bool,
+    /// Output directory: depth.png (16-bit, depth×256), depth_color.png, radar_overlay.png,
+    /// image.png.
+    #[arg(long, default_value = "predict")]
+    out: PathBuf,
+    /// Depth of the far end of the colour map, metres.
+    #[arg(long, default_value_t = 80.0)]
+    max_depth: f32,
+    /// Device: auto, cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let input = if let Some(dir) = &a.sample {
+        input_from_prepared(dir)?
+    } else if let Some(token) = &a.token {
+        let dataroot = a
+            .dataroot
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
+        let opts = depthsense_prep::PrepareOptions {
+            dataroot: dataroot.clone(),
+            version: a.version.clone(),
+            radar_filters: !a.no_radar_filters,
+            ..depthsense_prep::PrepareOptions::default()
+        };
+        input_from_token(dataroot, &a.version, token, &opts)?
+    } else if let Some(jpeg) = &a.image {
+        let calib = a
+            .calibration
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("--image needs --calibration"))?;
+        input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
+    } else {
+        anyhow::bail!("give one input: --sample DIR, --token T --dataroot D, or --image J --radar P --calibration C");
+    };
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let loaded = checkpoint::load(&a.checkpoint, device)?;
+    let radar = radar_input_for(&loaded.config, None)?;
+    let depth = predict(&loaded.net, &input, radar, device)?;
+    let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
+    let valid: Vec<f32> = depth.depth_m.iter().copied().filter(|d| *d > 0.0).collect();
+    let mean = valid.iter().map(|d| *d as f64).sum::<f64>() / valid.len().max(1) as f64;
+    eprintln!(
+        "{}: {}x{} depth, mean {mean:.2} m, {} radar pixels",
+        input.name,
+        depth.width,
+        depth.height,
+        input.radar_raw.valid_count()
+    );
+    if let Some(gt) = &input.gt {
+        let (mut n, mut se) = (0usize, 0f64);
+        for (p, g) in depth.depth_m.iter().zip(&gt.depth_m) {
+            if *g > 0.0 && *g <= 80.0 {
+                n += 1;
+                se += ((p.clamp(1.0, 80.0) - g) as f64).powi(2);
+            }
+        }
+        if n > 0 {
+            eprintln!("RMSE against lidar ({n} px, ≤ 80 m): {:.3} m", (se / n as f64).sqrt());
+        }
+    }
+    for f in files {
+        println!("{}", f.display());
+    }
+    Ok(ExitCode::SUCCESS)
 }

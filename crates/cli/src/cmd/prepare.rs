@@ -1,8 +1,93 @@
+//! `depthsense prepare`: raw nuScenes → training-frame maps (SPEC §3–5).
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[derive(clap::Args)]
-pub struct Args {}
+use depthsense_prep::{prepare, PrepareOptions};
+use indicatif::{ProgressBar, ProgressStyle};
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not implemented yet")
+#[derive(clap::Args)]
+pub struct Args {
+    /// nuScenes dataroot (holds samples/, sweeps/ and the version folder).
+    #[arg(long)]
+    dataroot: PathBuf,
+    /// Version folder inside the dataroot: v1.0-mini, v1.0-trainval, v1.0-test, v1.0-synth, …
+    #[arg(long, default_value = "v1.0-mini")]
+    version: String,
+    /// Output directory: one sub-directory per keyframe plus index.json.
+    #[arg(long)]
+    out: PathBuf,
+    /// Scene split: train, test, test-day, test-night, test-rain, official-train,
+    /// official-val or all (synthetic worlds have their own scene tokens: use all).
+    #[arg(long, default_value = "all")]
+    split: String,
+    /// Radar sweeps per channel: the keyframe sweep and N−1 previous ones.
+    #[arg(long, default_value_t = 5)]
+    radar_sweeps: usize,
+    /// Radar channels to accumulate (comma-separated).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "RADAR_FRONT,RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT"
+    )]
+    radar_channels: Vec<String>,
+    /// K: the dense lidar target accumulates the keyframe sweep ±K sweeps (0 = keyframe only).
+    #[arg(long, default_value_t = 0)]
+    lidar_sweeps: usize,
+    /// Keep every radar point (disable the devkit filters invalid_state == 0,
+    /// dyn_prop 0..=6, ambig_state == 3).
+    #[arg(long)]
+    no_radar_filters: bool,
+    /// Move radar points of older sweeps by (vx_comp, vy_comp) × Δt to the camera time.
+    #[arg(long)]
+    radar_velocity_compensation: bool,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Exit with status 0 even when some samples failed (they are still listed).
+    #[arg(long)]
+    keep_going: bool,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let opts = PrepareOptions {
+        dataroot: a.dataroot,
+        version: a.version,
+        out: a.out,
+        split: a.split,
+        radar_sweeps: a.radar_sweeps,
+        radar_channels: a.radar_channels,
+        lidar_sweeps: a.lidar_sweeps,
+        radar_filters: !a.no_radar_filters,
+        radar_velocity_compensation: a.radar_velocity_compensation,
+        jobs: a.jobs,
+        keep_going: a.keep_going,
+    };
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{spinner} prepare [{bar:40}] {pos}/{len} keyframes  {per_sec}  ETA {eta}",
+        )?
+        .progress_chars("=> "),
+    );
+    let t = std::time::Instant::now();
+    let s = prepare(&opts, &pb)?;
+    pb.finish_and_clear();
+    let secs = t.elapsed().as_secs_f64();
+    for (token, reason) in &s.failed {
+        eprintln!("failed {token}: {reason}");
+    }
+    eprintln!(
+        "prepared {} keyframes in {secs:.1} s ({:.1}/s), {} already done, {} failed → {}",
+        s.prepared,
+        s.prepared as f64 / secs.max(1e-9),
+        s.skipped_existing,
+        s.failed.len(),
+        opts.out.display()
+    );
+    if !s.failed.is_empty() && !opts.keep_going {
+        eprintln!("(use --keep-going to exit 0 despite failed samples)");
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -1,8 +1,104 @@
+//! `depthsense synth`: generate the synthetic nuScenes-format world.
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[derive(clap::Args)]
-pub struct Args {}
+use anyhow::Context;
+use depthsense_synth::{SynthConfig, Weather};
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not implemented yet")
+#[derive(clap::Args)]
+pub struct Args {
+    /// Output dataroot (created; a previous synthetic world there is replaced, any other
+    /// non-empty folder is refused).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Number of scenes.
+    #[arg(long, default_value_t = 10)]
+    scenes: usize,
+    /// Keyframes (2 Hz samples) per scene; a scene lasts (keyframes − 1) × 0.5 s.
+    #[arg(long, default_value_t = 20)]
+    keyframes_per_scene: usize,
+    /// Random seed; the same seed gives byte-identical output.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Condition mix: comma-separated day, night, rain, optionally weighted
+    /// (e.g. "day=0.5,night=0.25,rain=0.25"); scenes are allocated in proportion.
+    #[arg(long, default_value = "day=0.5,night=0.25,rain=0.25")]
+    conditions: String,
+    /// Name of the version folder holding the tables.
+    #[arg(long, default_value = "v1.0-synth")]
+    version_name: String,
+    /// Worker threads (0 = all cores); does not change the output.
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Use the small demo preset (8 scenes × 10 keyframes) instead of --scenes/--keyframes-per-scene.
+    #[arg(long)]
+    demo: bool,
+    /// Also (or only, with --from-dataroot) write a contact sheet PNG: day / night / rain
+    /// keyframes with lidar and radar points overlaid, coloured by depth.
+    #[arg(long)]
+    contact_sheet: Option<PathBuf>,
+    /// Make the contact sheet from this existing dataroot instead of generating a world.
+    #[arg(long, requires = "contact_sheet")]
+    from_dataroot: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    if let Some(root) = &args.from_dataroot {
+        let sheet = args.contact_sheet.as_ref().context("--contact-sheet is required")?;
+        depthsense_synth::contact_sheet(root, &args.version_name, sheet)?;
+        println!("contact sheet: {}", sheet.display());
+        return Ok(ExitCode::SUCCESS);
+    }
+    let out = args
+        .out
+        .clone()
+        .context("--out is required (the dataroot to write)")?;
+    let mut cfg = if args.demo {
+        SynthConfig::demo()
+    } else {
+        SynthConfig {
+            scenes: args.scenes,
+            keyframes_per_scene: args.keyframes_per_scene,
+            ..SynthConfig::default()
+        }
+    };
+    cfg.seed = args.seed;
+    cfg.conditions = SynthConfig::parse_conditions(&args.conditions)?;
+    cfg.version_name = args.version_name.clone();
+    cfg.jobs = args.jobs;
+    let pb = indicatif::ProgressBar::new(0);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template(
+            "synth {bar:40} {pos}/{len} frames  {elapsed_precise} (eta {eta})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let s = depthsense_synth::generate(&out, &cfg, &pb)
+        .with_context(|| format!("generating the synthetic world into {}", out.display()))?;
+    pb.finish_and_clear();
+    let per_s = s.keyframes as f64 / s.seconds.max(1e-9);
+    println!(
+        "{} scenes ({} day, {} night, {} rain), {} keyframes, {} sample_data, {:.1} MB in {:.1} s ({:.2} keyframes/s incl. all sweeps)",
+        s.scenes,
+        s.conditions[Weather::Day as usize],
+        s.conditions[Weather::Night as usize],
+        s.conditions[Weather::Rain as usize],
+        s.keyframes,
+        s.sample_data,
+        s.bytes as f64 / 1e6,
+        s.seconds,
+        per_s
+    );
+    println!("dataroot: {}  version: {}", out.display(), cfg.version_name);
+    println!(
+        "next: depthsense prepare --dataroot {} --version {} --split all --out <prepared>",
+        out.display(),
+        cfg.version_name
+    );
+    if let Some(sheet) = &args.contact_sheet {
+        depthsense_synth::contact_sheet(&out, &cfg.version_name, sheet)?;
+        println!("contact sheet: {}", sheet.display());
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -1,8 +1,209 @@
+//! `depthsense train`: train a depth network on prepared data (SPEC §8).
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-#[derive(clap::Args)]
-pub struct Args {}
+use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
+use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use depthsense_train::data::{RadarInput, TargetKind};
+use depthsense_train::trainer::{train, TrainOptions};
+use indicatif::{ProgressBar, ProgressStyle};
 
-pub fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not implemented yet")
+#[derive(clap::Args)]
+pub struct Args {
+    /// Prepared data directory (output of `depthsense prepare`, holds index.json).
+    #[arg(long)]
+    data: PathBuf,
+    /// Model preset: paper, released or tiny.
+    #[arg(long, default_value = "paper")]
+    config: String,
+    /// Run directory: config.json, metrics.jsonl, curves.png, last/best checkpoints.
+    #[arg(long, default_value = "runs/train")]
+    out: PathBuf,
+    /// Override the preset's fusion: late, early or none (RGB only).
+    #[arg(long)]
+    fusion: Option<String>,
+    /// Override the preset's head: ordinal, l1 or l2.
+    #[arg(long)]
+    head: Option<String>,
+    /// Disable the spatial attention module of late fusion.
+    #[arg(long)]
+    no_attention: bool,
+    /// Epochs (paper: 40).
+    #[arg(long, default_value_t = 40)]
+    epochs: usize,
+    /// Batch size (paper: 8).
+    #[arg(long, default_value_t = 8)]
+    batch_size: usize,
+    /// Initial learning rate (paper: 1e-3).
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Power of the per-iteration polynomial decay to 0 (paper: 0.9).
+    #[arg(long, default_value_t = 0.9)]
+    lr_power: f64,
+    /// SGD momentum (paper: 0.9).
+    #[arg(long, default_value_t = 0.9)]
+    momentum: f64,
+    /// Weight decay (paper: 1e-4).
+    #[arg(long, default_value_t = 1e-4)]
+    weight_decay: f64,
+    /// Seed of initialisation, shuffling, augmentation and dropout.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
+    /// Mixed precision (bf16 autocast of the forward pass; CUDA only, ignored on CPU).
+    #[arg(long)]
+    amp: bool,
+    /// torchvision ResNet state dict (e.g. resnet101.pth) to initialise the RGB encoder.
+    #[arg(long)]
+    backbone_weights: Option<PathBuf>,
+    /// Continue exactly from OUT/last.safetensors (same options required).
+    #[arg(long)]
+    resume: bool,
+    /// Data-loader threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Batches decoded ahead of the training step.
+    #[arg(long, default_value_t = 4)]
+    prefetch: usize,
+    /// Radar map(s) for the radar channels: height, raw or raw-height (default: from the
+    /// model's radar_channels: 1 → height, 2 → raw-height).
+    #[arg(long)]
+    radar_input: Option<String>,
+    /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
+    #[arg(long, default_value = "dense")]
+    target: String,
+    /// Disable flip and brightness/colour/gamma jitter.
+    #[arg(long)]
+    no_augment: bool,
+    /// Without train/test split lists (e.g. synthetic data), every N-th scene (sorted by
+    /// name) is held out for validation.
+    #[arg(long, default_value_t = 5)]
+    val_every_scene: usize,
+    /// Validate on at most this many held-out samples (evenly spaced).
+    #[arg(long)]
+    max_val_samples: Option<usize>,
+    /// Train on at most this many batches per epoch (quick runs).
+    #[arg(long)]
+    max_batches_per_epoch: Option<usize>,
+    /// Also write OUT/last.safetensors every N iterations (0 = only at epoch ends).
+    #[arg(long, default_value_t = 0)]
+    checkpoint_every: u64,
+    /// Stop after this global iteration (checkpointed; continue with --resume).
+    #[arg(long)]
+    stop_after: Option<u64>,
+    /// Validation protocol beyond the cap: mask (drop) or clamp (peers').
+    #[arg(long, default_value = "mask")]
+    protocol: String,
+    /// Validation aggregation: image (per image, then mean) or pooled (over all pixels).
+    #[arg(long, default_value = "image")]
+    aggregate: String,
+}
+
+pub fn parse_fusion(s: &str) -> anyhow::Result<Fusion> {
+    Ok(match s {
+        "late" => Fusion::Late,
+        "early" => Fusion::Early,
+        "none" | "rgb" => Fusion::None,
+        o => anyhow::bail!("unknown fusion {o:?} (late, early, none)"),
+    })
+}
+
+pub fn parse_head(s: &str) -> anyhow::Result<HeadKind> {
+    Ok(match s {
+        "ordinal" => HeadKind::Ordinal,
+        "l1" => HeadKind::L1,
+        "l2" => HeadKind::L2,
+        o => anyhow::bail!("unknown head {o:?} (ordinal, l1, l2)"),
+    })
+}
+
+pub fn progress_bar(prefix: &str) -> ProgressBar {
+    let pb = ProgressBar::new(0);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>6.bold} [{bar:30}] {pos}/{len} {elapsed_precise} ETA {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb.set_prefix(prefix.to_string());
+    pb
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let mut model = ModelConfig::preset(&a.config)?;
+    if let Some(f) = &a.fusion {
+        model.fusion = parse_fusion(f)?;
+        if model.fusion != Fusion::Late {
+            model.attention = false;
+        }
+    }
+    if let Some(h) = &a.head {
+        model.head = parse_head(h)?;
+    }
+    if a.no_attention {
+        model.attention = false;
+    }
+    let opts = TrainOptions {
+        data: a.data,
+        out: a.out.clone(),
+        model,
+        epochs: a.epochs,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        lr_power: a.lr_power,
+        momentum: a.momentum,
+        weight_decay: a.weight_decay,
+        seed: a.seed,
+        device: a.device,
+        amp: a.amp,
+        backbone_weights: a.backbone_weights,
+        resume: a.resume,
+        jobs: a.jobs,
+        prefetch: a.prefetch,
+        radar_input: a.radar_input.as_deref().map(str::parse::<RadarInput>).transpose()?,
+        target: match a.target.as_str() {
+            "dense" => TargetKind::Dense,
+            "sparse" => TargetKind::Sparse,
+            o => anyhow::bail!("unknown target {o:?} (dense, sparse)"),
+        },
+        augment: !a.no_augment,
+        val_every_scene: a.val_every_scene,
+        max_val_samples: a.max_val_samples,
+        max_batches_per_epoch: a.max_batches_per_epoch,
+        checkpoint_every: a.checkpoint_every,
+        stop_after: a.stop_after,
+        eval: EvalConfig {
+            protocol: a.protocol.parse::<Protocol>()?,
+            aggregate: a.aggregate.parse::<Aggregate>()?,
+            ..EvalConfig::default()
+        },
+    };
+    let pb = progress_bar("train");
+    let s = train(&opts, &pb)?;
+    pb.finish();
+    let first = s.val.first().map_or(f64::NAN, |v| v.rmse);
+    let last = s.val.last().map_or(f64::NAN, |v| v.rmse);
+    eprintln!(
+        "{} iterations of {} in {:.1} s ({:.2} img/s); validation RMSE {first:.3} m → {last:.3} m \
+         (best {:.3} m) on {} held-out samples ({})",
+        s.iterations_done,
+        s.total_iterations,
+        s.seconds,
+        s.train_images_per_s,
+        s.best_val_rmse,
+        s.partition.val.len(),
+        s.partition.method
+    );
+    if s.interrupted {
+        eprintln!(
+            "stopped at iteration {} as asked; continue with --resume",
+            s.iterations_done
+        );
+    }
+    eprintln!("run directory: {}", a.out.display());
+    Ok(ExitCode::SUCCESS)
 }

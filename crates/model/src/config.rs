@@ -1,0 +1,388 @@
+//! Network configuration with named presets (SPEC §6, §6.1, §7).
+
+use serde::{Deserialize, Serialize};
+
+use crate::ModelError;
+
+/// How radar enters the network (SPEC §6 "Variants").
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[serde(rename_all = "lowercase")]
+pub enum Fusion {
+    /// Separate radar branch, features concatenated before the head (paper, released).
+    Late,
+    /// Radar channels concatenated to the RGB input of one encoder.
+    Early,
+    /// RGB only; the radar tensor is ignored.
+    None,
+}
+
+/// Output head and its loss (SPEC §7 and the ablation of §10.4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[serde(rename_all = "lowercase")]
+pub enum HeadKind {
+    /// DORN ordinal regression over SID bins (2K channels, pairs (a_k, b_k)).
+    Ordinal,
+    /// One channel, depth in metres, L1 loss.
+    L1,
+    /// One channel, depth in metres, L2 loss.
+    L2,
+}
+
+/// Stem of a ResNet encoder.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[serde(rename_all = "lowercase")]
+pub enum StemKind {
+    /// torchvision: 7x7/2 conv, BN, ReLU, 3x3/2 max-pool; layer1 input = width.
+    Torchvision,
+    /// DORN deep stem (SPEC §6.1 image path): 3x3/2 (→w), 3x3 (→w), 3x3 (→2w), 3x3/2 max-pool.
+    Deep,
+    /// The released radar stem (SPEC §6.1 radar path): 3x3/2, 3x3, 3x3, 7x7/2 (→2w), 7x7/4 max-pool.
+    Radar,
+}
+
+/// Image decoder over C2..C4 (SPEC §6).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[serde(rename_all = "lowercase")]
+pub enum DecoderKind {
+    /// Paper: top-down pyramid, levels upsampled to stride 8 and concatenated (3·ch).
+    Topdown,
+    /// Released: FPN levels reduced to stride 32 by 7x7/4, 3x3/2, 3x3/1 convs (3·ch).
+    Released,
+}
+
+/// Radar branch of late fusion (SPEC §6 / §6.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[serde(rename_all = "lowercase")]
+pub enum RadarBranchKind {
+    /// Paper: ResNet-18 basic blocks [2,2,2,2], torchvision stem, layer4 upsampled.
+    Basic,
+    /// Released: radar stem, bottlenecks [2,2,2,2] strides 1/2/1/1 dilations 1/1/2/4, then
+    /// `conv_radar` 1x1 convs to `radar_out_channels`.
+    Bottleneck,
+}
+
+/// Spacing-increasing discretisation (SPEC §7).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct SidConfig {
+    /// K, the number of ordinal bins (80).
+    pub bins: i64,
+    /// α, the first threshold in metres (1).
+    pub alpha_m: f64,
+    /// β, the last threshold in metres (80).
+    pub beta_m: f64,
+    /// Subtracted from decoded depths (DORN-radar uses 0.3 m; 0 by default). SPEC §7.
+    pub decode_offset_m: f64,
+}
+
+impl Default for SidConfig {
+    fn default() -> Self {
+        SidConfig { bins: 80, alpha_m: 1.0, beta_m: 80.0, decode_offset_m: 0.0 }
+    }
+}
+
+/// The whole network description. Every variant is a field here (CONTRIBUTING).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct ModelConfig {
+    /// Preset this config started from (informational).
+    pub name: String,
+    /// RGB encoder depth: 18, 34, 50 or 101 (SPEC §6).
+    pub backbone_depth: u32,
+    /// Base width of the RGB encoder (64 = torchvision).
+    pub backbone_width: i64,
+    /// Stem of the RGB encoder.
+    pub stem: StemKind,
+    /// Image decoder.
+    pub decoder: DecoderKind,
+    /// Channels of each decoder level (256 in SPEC §6).
+    pub decoder_channels: i64,
+    /// Radar fusion.
+    pub fusion: Fusion,
+    /// CBAM spatial attention on the fused features (SPEC §6 "Fusion (paper)").
+    pub attention: bool,
+    /// Output head.
+    pub head: HeadKind,
+    /// Hidden channels of the head's first 1x1 conv.
+    pub head_channels: i64,
+    /// Dropout2d before the head's first 1x1 conv as well (released: yes; paper: no).
+    pub head_pre_dropout: bool,
+    /// Dropout2d probability in the head (0.5).
+    pub dropout: f64,
+    /// Radar input channels: 1 (height-extended or raw) or 7 (raw + 6 MER), SPEC §5.
+    pub radar_channels: i64,
+    /// Radar branch architecture (late fusion).
+    pub radar_branch: RadarBranchKind,
+    /// Base width of the radar branch (64 in SPEC §6).
+    pub radar_width: i64,
+    /// Channels of the radar features entering fusion (released `conv_radar`: 512; for the
+    /// basic branch this is fixed by the branch: 8·radar_width, and the field is ignored).
+    pub radar_out_channels: i64,
+    /// Ordinal discretisation and decoding.
+    pub sid: SidConfig,
+    /// align_corners of the bilinear upsampling of head outputs (released: true). SPEC §6.
+    pub align_corners: bool,
+    /// Full-resolution output height (350, SPEC §3).
+    pub out_height: i64,
+    /// Full-resolution output width (800, SPEC §3).
+    pub out_width: i64,
+}
+
+impl ModelConfig {
+    /// The paper's network (SPEC §6): ResNet-101, top-down decoder over C2–C4, ResNet-18
+    /// radar branch, late fusion with spatial attention, ordinal head K = 80.
+    pub fn paper() -> Self {
+        ModelConfig {
+            name: "paper".into(),
+            backbone_depth: 101,
+            backbone_width: 64,
+            stem: StemKind::Torchvision,
+            decoder: DecoderKind::Topdown,
+            decoder_channels: 256,
+            fusion: Fusion::Late,
+            attention: true,
+            head: HeadKind::Ordinal,
+            head_channels: 512,
+            head_pre_dropout: false,
+            dropout: 0.5,
+            radar_channels: 1,
+            radar_branch: RadarBranchKind::Basic,
+            radar_width: 64,
+            radar_out_channels: 512,
+            sid: SidConfig::default(),
+            align_corners: true,
+            out_height: 350,
+            out_width: 800,
+        }
+    }
+
+    /// The authors' released architecture, parameter for parameter (SPEC §6.1):
+    /// 68,399,904 trainable parameters.
+    pub fn released() -> Self {
+        ModelConfig {
+            name: "released".into(),
+            backbone_depth: 101,
+            backbone_width: 64,
+            stem: StemKind::Deep,
+            decoder: DecoderKind::Released,
+            decoder_channels: 256,
+            fusion: Fusion::Late,
+            attention: false,
+            head: HeadKind::Ordinal,
+            head_channels: 2048,
+            head_pre_dropout: true,
+            dropout: 0.5,
+            radar_channels: 1,
+            radar_branch: RadarBranchKind::Bottleneck,
+            radar_width: 64,
+            radar_out_channels: 512,
+            sid: SidConfig::default(),
+            align_corners: true,
+            out_height: 350,
+            out_width: 800,
+        }
+    }
+
+    /// A small network for tests and CPU demos: the paper's layout (ResNet-18 RGB encoder,
+    /// top-down decoder, ResNet-18 radar branch, late fusion, attention, ordinal K = 80) at
+    /// base width 16 (RGB) / 8 (radar) with 32-channel decoder and head: about 1 M parameters
+    /// and 0.9 G multiply-adds per 350x800 image, so that a batch-4 training step at 350x800
+    /// takes about a second on two CPU cores. `--set width=32 --set decoder-channels=64
+    /// --set head-channels=64 --set radar-width=16` gives a 3.7 M-parameter variant.
+    pub fn tiny() -> Self {
+        ModelConfig {
+            name: "tiny".into(),
+            backbone_depth: 18,
+            backbone_width: 16,
+            decoder_channels: 32,
+            head_channels: 32,
+            radar_width: 8,
+            radar_out_channels: 64,
+            ..Self::paper()
+        }
+    }
+
+    /// A preset by name: `paper`, `released` or `tiny`.
+    pub fn preset(name: &str) -> Result<ModelConfig, ModelError> {
+        match name.trim().to_ascii_lowercase().as_str() {
+            "paper" => Ok(Self::paper()),
+            "released" => Ok(Self::released()),
+            "tiny" => Ok(Self::tiny()),
+            other => Err(ModelError::UnknownPreset(other.to_string())),
+        }
+    }
+
+    /// Number of channels the head produces at low resolution (2K ordinal, 1 regression).
+    pub fn head_out_channels(&self) -> i64 {
+        match self.head {
+            HeadKind::Ordinal => 2 * self.sid.bins,
+            HeadKind::L1 | HeadKind::L2 => 1,
+        }
+    }
+
+    /// Checks every field; the network constructor calls it.
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |m: String| Err(ModelError::InvalidConfig(m));
+        if ![18, 34, 50, 101].contains(&self.backbone_depth) {
+            return bad(format!("backbone_depth {} (expected 18, 34, 50 or 101)", self.backbone_depth));
+        }
+        if self.backbone_width < 1 || self.decoder_channels < 1 || self.head_channels < 1 {
+            return bad("backbone_width, decoder_channels and head_channels must be ≥ 1".into());
+        }
+        if self.stem == StemKind::Radar {
+            return bad("stem `radar` is only used inside the released radar branch".into());
+        }
+        if self.fusion != Fusion::None && self.radar_channels < 1 {
+            return bad(format!("radar_channels {} with fusion {:?}", self.radar_channels, self.fusion));
+        }
+        if self.fusion == Fusion::Late && (self.radar_width < 1 || self.radar_out_channels < 1) {
+            return bad("radar_width and radar_out_channels must be ≥ 1".into());
+        }
+        if !(0.0..1.0).contains(&self.dropout) {
+            return bad(format!("dropout {} (expected 0 ≤ p < 1)", self.dropout));
+        }
+        let s = &self.sid;
+        if s.bins < 1 || !(s.alpha_m > 0.0) || !(s.beta_m > s.alpha_m) {
+            return bad(format!("sid {s:?}: need bins ≥ 1 and 0 < alpha_m < beta_m"));
+        }
+        if self.out_height < 1 || self.out_width < 1 {
+            return bad("out_height and out_width must be ≥ 1".into());
+        }
+        Ok(())
+    }
+}
+
+fn parse_bool(key: &str, v: &str) -> Result<bool, ModelError> {
+    match v.to_ascii_lowercase().as_str() {
+        "1" | "true" | "on" | "yes" => Ok(true),
+        "0" | "false" | "off" | "no" => Ok(false),
+        _ => Err(ModelError::InvalidConfig(format!("{key}={v}: expected on/off"))),
+    }
+}
+
+fn parse_num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, ModelError> {
+    v.parse().map_err(|_| ModelError::InvalidConfig(format!("{key}={v}: not a number")))
+}
+
+impl ModelConfig {
+    /// Names accepted by [`ModelConfig::set_option`].
+    pub const OPTION_KEYS: &'static [&'static str] = &[
+        "backbone (18|34|50|101)",
+        "width (RGB base width)",
+        "fusion (late|early|none)",
+        "attention (on|off)",
+        "head (ordinal|l1|l2)",
+        "radar-channels (1|7)",
+        "radar-branch (basic|bottleneck)",
+        "radar-width",
+        "decoder (topdown|released)",
+        "decoder-channels",
+        "stem (torchvision|deep)",
+        "head-channels",
+        "dropout",
+        "bins",
+        "alpha",
+        "beta",
+        "decode-offset (metres)",
+        "align-corners (on|off)",
+        "out-height",
+        "out-width",
+    ];
+
+    /// Sets one option by name (CLI `--set key=value`), then validates the config.
+    pub fn set_option(&mut self, key: &str, value: &str) -> Result<(), ModelError> {
+        let v = value.trim();
+        let lower = v.to_ascii_lowercase();
+        let enum_err = |k: &str| ModelError::InvalidConfig(format!("{k}={v}: unknown value"));
+        match key.trim().replace('_', "-").as_str() {
+            "backbone" | "backbone-depth" | "depth" => self.backbone_depth = parse_num(key, v)?,
+            "width" | "backbone-width" => self.backbone_width = parse_num(key, v)?,
+            "fusion" => {
+                self.fusion = match lower.as_str() {
+                    "late" => Fusion::Late,
+                    "early" => Fusion::Early,
+                    "none" | "rgb" => Fusion::None,
+                    _ => return Err(enum_err(key)),
+                }
+            }
+            "attention" => self.attention = parse_bool(key, v)?,
+            "head" | "loss" => {
+                self.head = match lower.as_str() {
+                    "ordinal" => HeadKind::Ordinal,
+                    "l1" => HeadKind::L1,
+                    "l2" => HeadKind::L2,
+                    _ => return Err(enum_err(key)),
+                }
+            }
+            "radar-channels" => self.radar_channels = parse_num(key, v)?,
+            "radar-branch" => {
+                self.radar_branch = match lower.as_str() {
+                    "basic" => RadarBranchKind::Basic,
+                    "bottleneck" => RadarBranchKind::Bottleneck,
+                    _ => return Err(enum_err(key)),
+                }
+            }
+            "radar-width" => self.radar_width = parse_num(key, v)?,
+            "radar-out-channels" => self.radar_out_channels = parse_num(key, v)?,
+            "decoder" => {
+                self.decoder = match lower.as_str() {
+                    "topdown" => DecoderKind::Topdown,
+                    "released" => DecoderKind::Released,
+                    _ => return Err(enum_err(key)),
+                }
+            }
+            "decoder-channels" => self.decoder_channels = parse_num(key, v)?,
+            "stem" => {
+                self.stem = match lower.as_str() {
+                    "torchvision" => StemKind::Torchvision,
+                    "deep" => StemKind::Deep,
+                    _ => return Err(enum_err(key)),
+                }
+            }
+            "head-channels" => self.head_channels = parse_num(key, v)?,
+            "head-pre-dropout" => self.head_pre_dropout = parse_bool(key, v)?,
+            "dropout" => self.dropout = parse_num(key, v)?,
+            "bins" => self.sid.bins = parse_num(key, v)?,
+            "alpha" | "alpha-m" => self.sid.alpha_m = parse_num(key, v)?,
+            "beta" | "beta-m" => self.sid.beta_m = parse_num(key, v)?,
+            "decode-offset" | "decode-offset-m" => self.sid.decode_offset_m = parse_num(key, v)?,
+            "align-corners" => self.align_corners = parse_bool(key, v)?,
+            "out-height" => self.out_height = parse_num(key, v)?,
+            "out-width" => self.out_width = parse_num(key, v)?,
+            other => {
+                return Err(ModelError::InvalidConfig(format!(
+                    "unknown option `{other}`; known: {}",
+                    Self::OPTION_KEYS.join(", ")
+                )))
+            }
+        }
+        self.validate()
+    }
+
+    /// Applies `key=value` strings in order.
+    pub fn with_options<S: AsRef<str>>(mut self, options: &[S]) -> Result<ModelConfig, ModelError> {
+        for o in options {
+            let o = o.as_ref();
+            let (k, v) = o
+                .split_once('=')
+                .ok_or_else(|| ModelError::InvalidConfig(format!("`{o}`: expected key=value")))?;
+            self.set_option(k, v)?;
+        }
+        Ok(self)
+    }
+
+    /// Resolves `--config`: a preset name (`paper`, `released`, `tiny`), a JSON file holding a
+    /// `ModelConfig`, or a depthsense checkpoint (`.safetensors`, its stored config).
+    pub fn resolve(spec: &str) -> Result<ModelConfig, ModelError> {
+        let path = std::path::Path::new(spec);
+        if !path.is_file() {
+            return Self::preset(spec);
+        }
+        if path.extension().is_some_and(|e| e == "safetensors") {
+            return Ok(crate::checkpoint::read_config(path)?.0);
+        }
+        let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
+        let cfg: ModelConfig = serde_json::from_str(&text)
+            .map_err(|e| ModelError::format(path, format!("not a model config JSON: {e}")))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}

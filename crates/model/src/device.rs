@@ -1,0 +1,39 @@
+//! Device selection (`--device auto|cpu|cuda|cuda:N`).
+
+use tch::{Cuda, Device};
+
+use crate::ModelError;
+
+/// Parses `auto` (CUDA device 0 when libtorch sees a GPU, else CPU), `cpu`, `cuda` (= `cuda:0`)
+/// or `cuda:N`. Asking for CUDA explicitly without a usable GPU is an error, not a silent
+/// fall-back to the CPU.
+pub fn parse_device(s: &str) -> Result<Device, ModelError> {
+    let s = s.trim().to_ascii_lowercase();
+    match s.as_str() {
+        "auto" => Ok(Device::cuda_if_available()),
+        "cpu" => Ok(Device::Cpu),
+        _ => {
+            let idx = if s == "cuda" || s == "gpu" {
+                0
+            } else if let Some(n) = s.strip_prefix("cuda:") {
+                n.parse::<usize>().map_err(|_| ModelError::InvalidDevice(s.clone()))?
+            } else {
+                return Err(ModelError::InvalidDevice(s));
+            };
+            let count = if Cuda::is_available() { Cuda::device_count() } else { 0 };
+            if (idx as i64) >= count {
+                return Err(ModelError::CudaUnavailable(s, count));
+            }
+            Ok(Device::Cuda(idx))
+        }
+    }
+}
+
+/// A short human description (`cpu`, `cuda:0`).
+pub fn describe(device: Device) -> String {
+    match device {
+        Device::Cpu => "cpu".to_string(),
+        Device::Cuda(i) => format!("cuda:{i}"),
+        other => format!("{other:?}").to_ascii_lowercase(),
+    }
+}

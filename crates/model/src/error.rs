@@ -1,0 +1,86 @@
+//! Errors of the model crate.
+
+use std::path::PathBuf;
+
+/// One tensor whose shape differs between a file and the network.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ShapeMismatch {
+    /// Variable name in the network (`rgb.layer1.0.conv1.weight`).
+    pub name: String,
+    /// Shape expected by the network.
+    pub expected: Vec<i64>,
+    /// Shape found in the file.
+    pub found: Vec<i64>,
+}
+
+fn list_mismatches(m: &[ShapeMismatch]) -> String {
+    m.iter()
+        .map(|s| format!("\n  {}: network {:?}, file {:?}", s.name, s.expected, s.found))
+        .collect()
+}
+
+fn list_names(names: &[String]) -> String {
+    names.iter().map(|n| format!("\n  {n}")).collect()
+}
+
+/// Everything that can go wrong building, running, saving or loading a network.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// `ModelConfig::preset` got a name it does not know.
+    #[error("unknown model preset `{0}` (expected one of: paper, released, tiny)")]
+    UnknownPreset(String),
+    /// A configuration field has a value the network cannot be built with.
+    #[error("invalid model config: {0}")]
+    InvalidConfig(String),
+    /// `parse_device` got a string it does not understand.
+    #[error("invalid device `{0}` (expected auto, cpu, cuda or cuda:N)")]
+    InvalidDevice(String),
+    /// CUDA was asked for explicitly but libtorch sees no usable GPU.
+    #[error("device `{0}` requested but CUDA is not available (libtorch sees {1} GPUs; is libtorch_cuda linked and a driver present?)")]
+    CudaUnavailable(String, i64),
+    /// Reading or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file is truncated, foreign or otherwise not what was expected.
+    #[error("{path}: {msg}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        msg: String,
+    },
+    /// Tensors in a file have other shapes than the network's variables.
+    #[error("{path}: {} tensor(s) with mismatching shapes:{}", .mismatches.len(), list_mismatches(.mismatches))]
+    ShapeMismatch {
+        /// The file.
+        path: PathBuf,
+        /// Every offending tensor.
+        mismatches: Vec<ShapeMismatch>,
+    },
+    /// Variables of the network are absent from a checkpoint that must cover it fully.
+    #[error("{path}: {} network variable(s) missing from the file:{}", .names.len(), list_names(.names))]
+    MissingTensors {
+        /// The file.
+        path: PathBuf,
+        /// The missing variable names.
+        names: Vec<String>,
+    },
+    /// An error from libtorch.
+    #[error("libtorch: {0}")]
+    Torch(#[from] tch::TchError),
+}
+
+impl ModelError {
+    pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Self {
+        ModelError::Io { path: path.to_path_buf(), source }
+    }
+    pub(crate) fn format(path: &std::path::Path, msg: impl Into<String>) -> Self {
+        ModelError::Format { path: path.to_path_buf(), msg: msg.into() }
+    }
+}

@@ -1,0 +1,308 @@
+//! The DepthSense network (SPEC §6): RGB encoder, decoder, radar branch, fusion, head.
+
+use tch::{nn, Kind, Tensor};
+
+use crate::config::{DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, StemKind};
+use crate::layers::{BlockKind, Conv, MacRows, ResNet, ResNetSpec, P};
+use crate::{ordinal, ModelError};
+
+fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {
+    let (_, _, h, w) = x.size4().expect("4-d feature map");
+    if (h, w) == hw {
+        x.shallow_clone()
+    } else if nearest {
+        x.upsample_nearest2d([hw.0, hw.1], None, None)
+    } else {
+        x.upsample_bilinear2d([hw.0, hw.1], false, None, None)
+    }
+}
+
+fn hw_of(x: &Tensor) -> (i64, i64) {
+    let s = x.size();
+    (s[s.len() - 2], s[s.len() - 1])
+}
+
+/// Image decoder over C2..C4 (SPEC §6).
+enum Decoder {
+    /// Paper: laterals 1x1(b) → ch, nearest ×2 top-down addition, 3x3(b) smoothing, the three
+    /// levels upsampled (bilinear) to the finest (stride 8) and concatenated → 3·ch.
+    Topdown { lateral: [Conv; 3], smooth: [Conv; 3] },
+    /// Released (SPEC §6.1): FPN P3..P5 then `convfeat1` 7x7/4, `convfeat2` 3x3/2,
+    /// `convfeat3` 3x3/1 + ReLU to stride 32, concatenated → 3·ch.
+    Released { lateral: [Conv; 3], smooth: [Conv; 3], feat: [Conv; 3] },
+}
+
+impl Decoder {
+    fn new(p: &P, kind: DecoderKind, cin: [i64; 3], ch: i64) -> Decoder {
+        match kind {
+            DecoderKind::Topdown => {
+                let d = p.sub("decoder");
+                let lat = |i: usize| Conv::new(&d.sub(&format!("lateral{}", i + 2)), cin[i], ch, 1, 1, 0, 1, true);
+                let sm = |i: usize| Conv::new(&d.sub(&format!("smooth{}", i + 2)), ch, ch, 3, 1, 1, 1, true);
+                Decoder::Topdown { lateral: [lat(0), lat(1), lat(2)], smooth: [sm(0), sm(1), sm(2)] }
+            }
+            DecoderKind::Released => {
+                let d = p.sub("decoder");
+                let f = d.sub("fpn");
+                // P3 ← C2, P4 ← C3, P5 ← C4.
+                let lat = |i: usize| Conv::new(&f.sub(&format!("P{}_1", i + 3)), cin[i], ch, 1, 1, 0, 1, true);
+                let sm = |i: usize| Conv::new(&f.sub(&format!("P{}_2", i + 3)), ch, ch, 3, 1, 1, 1, true);
+                let feat = [
+                    Conv::new(&d.sub("convfeat1"), ch, ch, 7, 4, 2, 1, false),
+                    Conv::new(&d.sub("convfeat2"), ch, ch, 3, 2, 1, 1, false),
+                    Conv::new(&d.sub("convfeat3"), ch, ch, 3, 1, 1, 1, false),
+                ];
+                Decoder::Released { lateral: [lat(0), lat(1), lat(2)], smooth: [sm(0), sm(1), sm(2)], feat }
+            }
+        }
+    }
+
+    /// Top-down pyramid: [t2, t3, t4] after smoothing (finest first).
+    fn pyramid(lateral: &[Conv; 3], smooth: &[Conv; 3], c: &[Tensor]) -> [Tensor; 3] {
+        let t4 = lateral[2].forward(&c[3]);
+        let t3 = lateral[1].forward(&c[2]) + resize_to(&t4, hw_of(&c[2]), true);
+        let t2 = lateral[0].forward(&c[1]) + resize_to(&t3, hw_of(&c[1]), true);
+        [smooth[0].forward(&t2), smooth[1].forward(&t3), smooth[2].forward(&t4)]
+    }
+
+    /// C1..C4 → `[B,3·ch,h,w]` (h,w = C2's size for top-down, C4's for released).
+    fn forward(&self, c: &[Tensor]) -> Tensor {
+        match self {
+            Decoder::Topdown { lateral, smooth } => {
+                let [p2, p3, p4] = Self::pyramid(lateral, smooth, c);
+                let hw = hw_of(&p2);
+                Tensor::cat(&[p2, resize_to(&p3, hw, false), resize_to(&p4, hw, false)], 1)
+            }
+            Decoder::Released { lateral, smooth, feat } => {
+                let [p3, p4, p5] = Self::pyramid(lateral, smooth, c);
+                let f3 = feat[2].forward(&p5).relu();
+                let hw = hw_of(&f3);
+                let f1 = resize_to(&feat[0].forward(&p3).relu(), hw, false);
+                let f2 = resize_to(&feat[1].forward(&p4).relu(), hw, false);
+                Tensor::cat(&[f1, f2, f3], 1)
+            }
+        }
+    }
+
+    fn count(&self, sizes: &[(i64, i64)], rows: &mut MacRows) -> (i64, i64) {
+        let (lateral, smooth) = match self {
+            Decoder::Topdown { lateral, smooth } | Decoder::Released { lateral, smooth, .. } => (lateral, smooth),
+        };
+        for i in 0..3 {
+            let o = lateral[i].count(sizes[i + 1], rows);
+            smooth[i].count(o, rows);
+        }
+        match self {
+            Decoder::Topdown { .. } => sizes[1],
+            Decoder::Released { feat, .. } => {
+                feat[0].count(sizes[1], rows);
+                feat[1].count(sizes[2], rows);
+                feat[2].count(sizes[3], rows)
+            }
+        }
+    }
+
+    fn out_channels(&self) -> i64 {
+        match self {
+            Decoder::Topdown { smooth, .. } | Decoder::Released { smooth, .. } => 3 * smooth[0].out_channels(),
+        }
+    }
+}
+
+/// Radar branch of late fusion (SPEC §6 / §6.1).
+struct RadarBranch {
+    resnet: ResNet,
+    /// Released `conv_radar.0` / `conv_radar.2` 1x1(b) + ReLU.
+    post: Option<[Conv; 2]>,
+    out_channels: i64,
+}
+
+impl RadarBranch {
+    fn new(p: &P, cfg: &ModelConfig) -> RadarBranch {
+        let r = p.sub("radar");
+        match cfg.radar_branch {
+            RadarBranchKind::Basic => {
+                let spec = ResNetSpec::standard(18, cfg.radar_channels, cfg.radar_width, StemKind::Torchvision);
+                let resnet = ResNet::new(&r, &spec);
+                let out_channels = resnet.channels[3];
+                RadarBranch { resnet, post: None, out_channels }
+            }
+            RadarBranchKind::Bottleneck => {
+                let spec = ResNetSpec {
+                    in_channels: cfg.radar_channels,
+                    width: cfg.radar_width,
+                    stem: StemKind::Radar,
+                    block: BlockKind::Bottleneck,
+                    blocks: [2, 2, 2, 2],
+                    strides: [1, 2, 1, 1],
+                    dilations: [1, 1, 2, 4],
+                };
+                let resnet = ResNet::new(&r, &spec);
+                let c = resnet.channels[3];
+                let o = cfg.radar_out_channels;
+                let cr = r.sub("conv_radar");
+                let post = [Conv::new(&cr.sub("0"), c, o, 1, 1, 0, 1, true), Conv::new(&cr.sub("2"), o, o, 1, 1, 0, 1, true)];
+                RadarBranch { resnet, post: Some(post), out_channels: o }
+            }
+        }
+    }
+
+    /// `[B,C,H,W]` scaled radar → `[B,out,H/32,W/32]`.
+    fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
+        let mut y = self.resnet.forward_t(x, train).pop().expect("4 levels");
+        if let Some([a, b]) = &self.post {
+            y = b.forward(&a.forward(&y).relu()).relu();
+        }
+        y
+    }
+
+    fn count(&self, hw: (i64, i64), rows: &mut MacRows) {
+        let mut o = *self.resnet.count(hw, rows).last().expect("4 levels");
+        if let Some([a, b]) = &self.post {
+            o = a.count(o, rows);
+            b.count(o, rows);
+        }
+    }
+}
+
+/// The DepthSense network. Build with [`DepthNet::new`]; variables live in the caller's
+/// VarStore under `rgb.`, `decoder.`, `radar.`, `attention.`, `head.`.
+pub struct DepthNet {
+    cfg: ModelConfig,
+    rgb: ResNet,
+    decoder: Decoder,
+    radar: Option<RadarBranch>,
+    attention: Option<Conv>,
+    head1: Conv,
+    head2: Conv,
+}
+
+impl std::fmt::Debug for DepthNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DepthNet").field("config", &self.cfg).finish_non_exhaustive()
+    }
+}
+
+impl DepthNet {
+    /// Creates the variables of `cfg` under `p` (usually `vs.root()`).
+    pub fn new(p: &nn::Path, cfg: &ModelConfig) -> Result<DepthNet, ModelError> {
+        cfg.validate()?;
+        let root = P::root(p);
+        let in_ch = 3 + if cfg.fusion == Fusion::Early { cfg.radar_channels } else { 0 };
+        let spec = ResNetSpec::standard(cfg.backbone_depth, in_ch, cfg.backbone_width, cfg.stem);
+        let rgb = ResNet::new(&root.sub("rgb"), &spec);
+        let ch = rgb.channels;
+        let decoder = Decoder::new(&root, cfg.decoder, [ch[1], ch[2], ch[3]], cfg.decoder_channels);
+        let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(&root, cfg));
+        let fused = decoder.out_channels() + radar.as_ref().map_or(0, |r| r.out_channels);
+        // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → sigmoid.
+        let attention = cfg.attention.then(|| Conv::new(&root.sub("attention").sub("conv"), 2, 1, 7, 1, 3, 1, true));
+        let h = root.sub("head");
+        let head1 = Conv::new(&h.sub("conv1"), fused, cfg.head_channels, 1, 1, 0, 1, true);
+        let head2 = Conv::new(&h.sub("conv2"), cfg.head_channels, cfg.head_out_channels(), 1, 1, 0, 1, true);
+        Ok(DepthNet { cfg: cfg.clone(), rgb, decoder, radar, attention, head1, head2 })
+    }
+
+    /// The configuration the network was built from.
+    pub fn config(&self) -> &ModelConfig {
+        &self.cfg
+    }
+
+    /// Raw head output at low resolution: image `[B,3,H,W]` (ImageNet-normalised), radar
+    /// `[B,C,H,W]` in metres (0 = none; ignored when fusion = none) → `[B,2K,h,w]` ordinal
+    /// logits (channel 2k = a_k, 2k+1 = b_k) or `[B,1,h,w]` depth in metres.
+    /// h×w is stride 8 (top-down decoder) or 32 (released decoder).
+    pub fn forward_logits_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+        let cfg = &self.cfg;
+        // The network sees radar depth scaled by 1/β (the caller passes metres).
+        let radar_scaled = || radar.to_kind(image.kind()) * (1.0 / cfg.sid.beta_m);
+        let input = match cfg.fusion {
+            Fusion::Early => Tensor::cat(&[image.shallow_clone(), radar_scaled()], 1),
+            _ => image.shallow_clone(),
+        };
+        let c = self.rgb.forward_t(&input, train);
+        let mut f = self.decoder.forward(&c);
+        if let Some(rb) = &self.radar {
+            let r = resize_to(&rb.forward_t(&radar_scaled(), train), hw_of(&f), false);
+            f = Tensor::cat(&[f, r], 1);
+        }
+        if let Some(att) = &self.attention {
+            let mean = f.mean_dim(1, true, f.kind());
+            let (max, _) = f.max_dim(1, true);
+            f = &f * att.forward(&Tensor::cat(&[mean, max], 1)).sigmoid();
+        }
+        if cfg.head_pre_dropout {
+            f = f.feature_dropout(cfg.dropout, train);
+        }
+        let y = self.head1.forward(&f).relu().feature_dropout(cfg.dropout, train);
+        let y = self.head2.forward(&y);
+        match cfg.head {
+            HeadKind::Ordinal => y,
+            // Regression heads: depth in metres, bounded to (0, β).
+            HeadKind::L1 | HeadKind::L2 => y.sigmoid() * cfg.sid.beta_m,
+        }
+    }
+
+    /// Head output at low resolution (see [`DepthNet::forward_logits_t`] for inputs):
+    /// ordinal → `[B,K,h,w]` logit differences z_k = b_k − a_k (SPEC §7); regression →
+    /// `[B,1,h,w]` depth in metres.
+    pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+        let y = self.forward_logits_t(image, radar, train);
+        match self.cfg.head {
+            HeadKind::Ordinal => ordinal::pair_differences(&y),
+            HeadKind::L1 | HeadKind::L2 => y,
+        }
+    }
+
+    /// Scalar training loss of a [`DepthNet::forward_t`] output against `target_m`
+    /// `[B,1,H,W]` (metres, 0 = invalid), upsampling to the target's size internally.
+    pub fn loss(&self, out: &Tensor, target_m: &Tensor) -> Tensor {
+        let ac = self.cfg.align_corners;
+        match self.cfg.head {
+            HeadKind::Ordinal => ordinal::ordinal_loss(out, target_m, &self.cfg.sid, ac),
+            HeadKind::L1 => ordinal::regression_loss(out, target_m, false, ac),
+            HeadKind::L2 => ordinal::regression_loss(out, target_m, true, ac),
+        }
+    }
+
+    /// Depth `[B,1,out_height,out_width]` in metres from a [`DepthNet::forward_t`] output.
+    pub fn decode(&self, out: &Tensor) -> Tensor {
+        self.decode_to(out, self.cfg.out_height, self.cfg.out_width)
+    }
+
+    /// Depth `[B,1,height,width]` in metres from a [`DepthNet::forward_t`] output.
+    pub fn decode_to(&self, out: &Tensor, height: i64, width: i64) -> Tensor {
+        let ac = self.cfg.align_corners;
+        match self.cfg.head {
+            HeadKind::Ordinal => ordinal::ordinal_decode(out, &self.cfg.sid, height, width, ac),
+            HeadKind::L1 | HeadKind::L2 => {
+                (ordinal::upsample(out, height, width, ac).to_kind(Kind::Float) - self.cfg.sid.decode_offset_m)
+                    .clamp_min(0.0)
+            }
+        }
+    }
+
+    /// Resolution of the head output for an input of `height`×`width`.
+    pub fn head_resolution(&self, height: i64, width: i64) -> (i64, i64) {
+        let mut rows = MacRows::new();
+        let sizes = self.rgb.count((height, width), &mut rows);
+        self.decoder.count(&sizes, &mut rows)
+    }
+
+    /// Multiply-adds per conv layer for one image of `height`×`width` (analytic, SPEC §6
+    /// shapes), in network order; bilinear upsampling, pooling and the loss are not counted.
+    pub fn mac_rows(&self, height: i64, width: i64) -> MacRows {
+        let mut rows = MacRows::new();
+        let sizes = self.rgb.count((height, width), &mut rows); // C1..C4
+        let hw = self.decoder.count(&sizes, &mut rows);
+        if let Some(r) = &self.radar {
+            r.count((height, width), &mut rows);
+        }
+        if let Some(a) = &self.attention {
+            a.count(hw, &mut rows);
+        }
+        let o = self.head1.count(hw, &mut rows);
+        self.head2.count(o, &mut rows);
+        rows
+    }
+}

@@ -1,0 +1,600 @@
+//! Reading and writing PyTorch `torch.save` files (the zip format of torch ≥ 1.6: an archive
+//! holding `<name>/data.pkl`, a pickle whose tensors point by persistent id to raw
+//! little-endian storages `<name>/data/<key>`), without Python.
+//!
+//! The reader implements the pickle opcodes `torch.save` emits (protocols 2–4) and rebuilds
+//! `torch._utils._rebuild_tensor_v2` / `_rebuild_parameter` tensors; `collections.OrderedDict`
+//! becomes a dict; any other class becomes an opaque object that keeps its constructor
+//! arguments and `BUILD` state, so pickled `nn.Module`s can still be walked for tensors.
+
+use std::collections::HashMap;
+use std::io::{Read, Write};
+use std::path::Path;
+
+use tch::{Device, Kind, Tensor};
+
+use crate::ModelError;
+
+/// A pickled value.
+#[derive(Debug, Clone)]
+pub enum Value {
+    /// `None`.
+    None,
+    /// `bool`.
+    Bool(bool),
+    /// `int`.
+    Int(i64),
+    /// `float`.
+    Float(f64),
+    /// `str`.
+    Str(String),
+    /// `bytes`.
+    Bytes(Vec<u8>),
+    /// `tuple`.
+    Tuple(Vec<Value>),
+    /// `list` (and sets).
+    List(Vec<Value>),
+    /// `dict` / `OrderedDict`, insertion order kept.
+    Dict(Vec<(Value, Value)>),
+    /// A global reference `module.name`.
+    Global(String, String),
+    /// A storage referenced by persistent id.
+    Storage {
+        /// Storage class name (`FloatStorage`, …).
+        dtype: String,
+        /// Key of the storage record (`data/<key>`).
+        key: String,
+    },
+    /// A tensor view into a storage.
+    Tensor(TensorRef),
+    /// Any other object: its class/callable, arguments and `BUILD` state.
+    Object {
+        /// The callable that built it.
+        class: Box<Value>,
+        /// Its arguments.
+        args: Vec<Value>,
+        /// State given by `BUILD` (`None` when absent).
+        state: Box<Value>,
+    },
+    /// The pickle MARK (internal).
+    Mark,
+}
+
+/// Where a tensor's data lives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TensorRef {
+    /// Storage record key.
+    pub storage_key: String,
+    /// Storage class name (`FloatStorage`).
+    pub storage_type: String,
+    /// Offset in elements.
+    pub offset: i64,
+    /// Shape.
+    pub size: Vec<i64>,
+    /// Strides in elements.
+    pub stride: Vec<i64>,
+}
+
+fn storage_kind(name: &str) -> Option<(Kind, usize)> {
+    Some(match name {
+        "FloatStorage" => (Kind::Float, 4),
+        "DoubleStorage" => (Kind::Double, 8),
+        "HalfStorage" => (Kind::Half, 2),
+        "BFloat16Storage" => (Kind::BFloat16, 2),
+        "LongStorage" => (Kind::Int64, 8),
+        "IntStorage" => (Kind::Int, 4),
+        "ShortStorage" => (Kind::Int16, 2),
+        "CharStorage" => (Kind::Int8, 1),
+        "ByteStorage" | "UntypedStorage" => (Kind::Uint8, 1),
+        "BoolStorage" => (Kind::Bool, 1),
+        _ => return None,
+    })
+}
+
+fn storage_name(kind: Kind) -> Option<&'static str> {
+    Some(match kind {
+        Kind::Float => "FloatStorage",
+        Kind::Double => "DoubleStorage",
+        Kind::Half => "HalfStorage",
+        Kind::BFloat16 => "BFloat16Storage",
+        Kind::Int64 => "LongStorage",
+        Kind::Int => "IntStorage",
+        Kind::Int16 => "ShortStorage",
+        Kind::Int8 => "CharStorage",
+        Kind::Uint8 => "ByteStorage",
+        Kind::Bool => "BoolStorage",
+        _ => return None,
+    })
+}
+
+struct Reader<'a> {
+    b: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
+        if self.pos + n > self.b.len() {
+            return Err(format!("pickle truncated at byte {} (wanted {n} more)", self.pos));
+        }
+        let s = &self.b[self.pos..self.pos + n];
+        self.pos += n;
+        Ok(s)
+    }
+    fn u8(&mut self) -> Result<u8, String> {
+        Ok(self.take(1)?[0])
+    }
+    fn u32(&mut self) -> Result<u32, String> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().map_err(|_| "short read")?))
+    }
+    fn u64(&mut self) -> Result<u64, String> {
+        Ok(u64::from_le_bytes(self.take(8)?.try_into().map_err(|_| "short read")?))
+    }
+    fn line(&mut self) -> Result<String, String> {
+        let start = self.pos;
+        while self.pos < self.b.len() && self.b[self.pos] != b'\n' {
+            self.pos += 1;
+        }
+        if self.pos >= self.b.len() {
+            return Err("pickle truncated inside GLOBAL".into());
+        }
+        let s = String::from_utf8_lossy(&self.b[start..self.pos]).into_owned();
+        self.pos += 1;
+        Ok(s)
+    }
+}
+
+fn as_ints(v: &Value) -> Option<Vec<i64>> {
+    match v {
+        Value::Tuple(xs) | Value::List(xs) => xs.iter().map(|x| if let Value::Int(i) = x { Some(*i) } else { None }).collect(),
+        _ => None,
+    }
+}
+
+fn reduce(callable: Value, args: Value) -> Result<Value, String> {
+    let args = match args {
+        Value::Tuple(a) => a,
+        other => vec![other],
+    };
+    if let Value::Global(m, n) = &callable {
+        match (m.as_str(), n.as_str()) {
+            ("collections", "OrderedDict") | ("builtins", "dict") => return Ok(Value::Dict(Vec::new())),
+            ("torch._utils", "_rebuild_tensor_v2") | ("torch._utils", "_rebuild_tensor") => {
+                let (storage_type, storage_key) = match args.first() {
+                    Some(Value::Storage { dtype, key }) => (dtype.clone(), key.clone()),
+                    _ => return Err("_rebuild_tensor without a storage".into()),
+                };
+                let offset = match args.get(1) {
+                    Some(Value::Int(o)) => *o,
+                    _ => return Err("_rebuild_tensor: bad storage offset".into()),
+                };
+                let size = args.get(2).and_then(as_ints).ok_or("_rebuild_tensor: bad size")?;
+                let stride = args.get(3).and_then(as_ints).ok_or("_rebuild_tensor: bad stride")?;
+                return Ok(Value::Tensor(TensorRef { storage_key, storage_type, offset, size, stride }));
+            }
+            ("torch._utils", "_rebuild_parameter") | ("torch._utils", "_rebuild_parameter_with_state") => {
+                return args.into_iter().next().ok_or_else(|| "_rebuild_parameter without data".into());
+            }
+            _ => {}
+        }
+    }
+    Ok(Value::Object { class: Box::new(callable), args, state: Box::new(Value::None) })
+}
+
+/// Parses a pickle stream (the persistent ids of `torch.save` become [`Value::Storage`]).
+pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
+    let mut r = Reader { b: bytes, pos: 0 };
+    let mut stack: Vec<Value> = Vec::new();
+    let mut memo: HashMap<u32, Value> = HashMap::new();
+    let pop = |stack: &mut Vec<Value>| stack.pop().ok_or_else(|| "pickle stack underflow".to_string());
+    let pop_mark = |stack: &mut Vec<Value>| -> Result<Vec<Value>, String> {
+        let i = stack.iter().rposition(|v| matches!(v, Value::Mark)).ok_or("pickle: MARK not found")?;
+        let items = stack.split_off(i + 1);
+        stack.pop();
+        Ok(items)
+    };
+    loop {
+        let op = r.u8()?;
+        match op {
+            0x80 => {
+                r.u8()?;
+            } // PROTO
+            0x95 => {
+                r.u64()?;
+            } // FRAME
+            b'.' => return pop(&mut stack),
+            b'}' => stack.push(Value::Dict(Vec::new())),
+            b']' | 0x8f => stack.push(Value::List(Vec::new())),
+            b')' => stack.push(Value::Tuple(Vec::new())),
+            b'(' => stack.push(Value::Mark),
+            b'N' => stack.push(Value::None),
+            0x88 => stack.push(Value::Bool(true)),
+            0x89 => stack.push(Value::Bool(false)),
+            b'q' => {
+                let i = r.u8()? as u32;
+                memo.insert(i, stack.last().cloned().ok_or("BINPUT on empty stack")?);
+            }
+            b'r' => {
+                let i = r.u32()?;
+                memo.insert(i, stack.last().cloned().ok_or("LONG_BINPUT on empty stack")?);
+            }
+            0x94 => {
+                let i = memo.len() as u32;
+                memo.insert(i, stack.last().cloned().ok_or("MEMOIZE on empty stack")?);
+            }
+            b'h' => {
+                let i = r.u8()? as u32;
+                stack.push(memo.get(&i).cloned().ok_or(format!("BINGET {i}: not in memo"))?);
+            }
+            b'j' => {
+                let i = r.u32()?;
+                stack.push(memo.get(&i).cloned().ok_or(format!("LONG_BINGET {i}: not in memo"))?);
+            }
+            b'X' | 0x8c | 0x8d => {
+                let n = match op {
+                    b'X' => r.u32()? as usize,
+                    0x8c => r.u8()? as usize,
+                    _ => r.u64()? as usize,
+                };
+                stack.push(Value::Str(String::from_utf8_lossy(r.take(n)?).into_owned()));
+            }
+            b'U' | b'T' | b'B' | b'C' => {
+                let n = if op == b'U' || op == b'C' { r.u8()? as usize } else { r.u32()? as usize };
+                let data = r.take(n)?.to_vec();
+                stack.push(if op == b'U' || op == b'T' {
+                    Value::Str(String::from_utf8_lossy(&data).into_owned())
+                } else {
+                    Value::Bytes(data)
+                });
+            }
+            b'c' => {
+                let m = r.line()?;
+                let n = r.line()?;
+                stack.push(Value::Global(m, n));
+            }
+            0x93 => {
+                let n = pop(&mut stack)?;
+                let m = pop(&mut stack)?;
+                match (m, n) {
+                    (Value::Str(m), Value::Str(n)) => stack.push(Value::Global(m, n)),
+                    _ => return Err("STACK_GLOBAL with non-string operands".into()),
+                }
+            }
+            b'Q' => {
+                let pid = pop(&mut stack)?;
+                let items = match pid {
+                    Value::Tuple(t) => t,
+                    _ => return Err("persistent id is not a tuple".into()),
+                };
+                match (items.first(), items.get(1), items.get(2)) {
+                    (Some(Value::Str(tag)), Some(st), Some(Value::Str(key))) if tag == "storage" => {
+                        let dtype = match st {
+                            Value::Global(_, n) => n.clone(),
+                            Value::Str(s) => s.clone(),
+                            _ => "UntypedStorage".into(),
+                        };
+                        stack.push(Value::Storage { dtype, key: key.clone() });
+                    }
+                    _ => return Err("persistent id is not a ('storage', type, key, …) tuple".into()),
+                }
+            }
+            b'J' => stack.push(Value::Int(r.u32()? as i32 as i64)),
+            b'K' => stack.push(Value::Int(r.u8()? as i64)),
+            b'M' => {
+                let b = r.take(2)?;
+                stack.push(Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64));
+            }
+            0x8a => {
+                let n = r.u8()? as usize;
+                let b = r.take(n)?;
+                if n > 8 {
+                    return Err("LONG1 wider than 64 bits".into());
+                }
+                let mut v: i64 = 0;
+                for (i, x) in b.iter().enumerate() {
+                    v |= (*x as i64) << (8 * i);
+                }
+                if n > 0 && n < 8 && b[n - 1] & 0x80 != 0 {
+                    v -= 1i64 << (8 * n);
+                }
+                stack.push(Value::Int(v));
+            }
+            b'G' => {
+                let b = r.take(8)?;
+                stack.push(Value::Float(f64::from_be_bytes(b.try_into().map_err(|_| "short read")?)));
+            }
+            0x85..=0x87 => {
+                let n = (op - 0x84) as usize;
+                if stack.len() < n {
+                    return Err("pickle stack underflow in TUPLEn".into());
+                }
+                let items = stack.split_off(stack.len() - n);
+                stack.push(Value::Tuple(items));
+            }
+            b't' => {
+                let items = pop_mark(&mut stack)?;
+                stack.push(Value::Tuple(items));
+            }
+            b'l' => {
+                let items = pop_mark(&mut stack)?;
+                stack.push(Value::List(items));
+            }
+            b'd' => {
+                let items = pop_mark(&mut stack)?;
+                let mut d = Vec::new();
+                let mut it = items.into_iter();
+                while let (Some(k), Some(v)) = (it.next(), it.next()) {
+                    d.push((k, v));
+                }
+                stack.push(Value::Dict(d));
+            }
+            0x91 => {
+                let items = pop_mark(&mut stack)?;
+                stack.push(Value::List(items));
+            }
+            b'R' | 0x81 => {
+                let args = pop(&mut stack)?;
+                let callable = pop(&mut stack)?;
+                stack.push(reduce(callable, args)?);
+            }
+            b'b' => {
+                let st = pop(&mut stack)?;
+                match stack.last_mut() {
+                    Some(Value::Object { state, .. }) => *state = Box::new(st),
+                    Some(_) => {} // OrderedDict attributes (`_metadata`) etc.: ignored
+                    None => return Err("BUILD on empty stack".into()),
+                }
+            }
+            b's' => {
+                let v = pop(&mut stack)?;
+                let k = pop(&mut stack)?;
+                match stack.last_mut() {
+                    Some(Value::Dict(d)) => d.push((k, v)),
+                    _ => return Err("SETITEM on a non-dict".into()),
+                }
+            }
+            b'u' => {
+                let items = pop_mark(&mut stack)?;
+                match stack.last_mut() {
+                    Some(Value::Dict(d)) => {
+                        let mut it = items.into_iter();
+                        while let (Some(k), Some(v)) = (it.next(), it.next()) {
+                            d.push((k, v));
+                        }
+                    }
+                    _ => return Err("SETITEMS on a non-dict".into()),
+                }
+            }
+            b'a' => {
+                let v = pop(&mut stack)?;
+                match stack.last_mut() {
+                    Some(Value::List(l)) => l.push(v),
+                    _ => return Err("APPEND on a non-list".into()),
+                }
+            }
+            b'e' | 0x90 => {
+                let items = pop_mark(&mut stack)?;
+                match stack.last_mut() {
+                    Some(Value::List(l)) => l.extend(items),
+                    _ => return Err("APPENDS on a non-list".into()),
+                }
+            }
+            b'0' => {
+                pop(&mut stack)?;
+            }
+            b'2' => {
+                let v = stack.last().cloned().ok_or("DUP on empty stack")?;
+                stack.push(v);
+            }
+            other => return Err(format!("unsupported pickle opcode 0x{other:02x} at byte {}", r.pos - 1)),
+        }
+    }
+}
+
+/// Walks a parsed `torch.save` object and returns every tensor with a dotted name: a state
+/// dict `{name: tensor}` as is; nested dicts (`{"state_dict": {...}}`, `{"model": {...}}`)
+/// with their keys joined by `.`; pickled `nn.Module`s through `_parameters`, `_buffers` and
+/// `_modules`.
+pub fn collect_tensors(v: &Value) -> Vec<(String, TensorRef)> {
+    fn walk(v: &Value, prefix: &str, out: &mut Vec<(String, TensorRef)>) {
+        let join = |k: &str| if prefix.is_empty() { k.to_string() } else { format!("{prefix}.{k}") };
+        match v {
+            Value::Tensor(t) => out.push((prefix.to_string(), t.clone())),
+            Value::Dict(d) => {
+                for (k, v) in d {
+                    let key = match k {
+                        Value::Str(s) => s.clone(),
+                        Value::Int(i) => i.to_string(),
+                        _ => continue,
+                    };
+                    // nn.Module state: flatten `_parameters`, `_buffers`, `_modules` away.
+                    if matches!(key.as_str(), "_parameters" | "_buffers" | "_modules") {
+                        walk(v, prefix, out);
+                    } else if key.starts_with('_') && prefix.is_empty() && !matches!(v, Value::Tensor(_)) {
+                        continue;
+                    } else {
+                        walk(v, &join(&key), out);
+                    }
+                }
+            }
+            Value::Object { state, .. } => walk(state, prefix, out),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk(v, "", &mut out);
+    out
+}
+
+/// Reads every tensor of a `torch.save` zip file onto the CPU (dotted names, file order).
+pub fn read_torch_file(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
+    let file = std::fs::File::open(path).map_err(|e| ModelError::io(path, e))?;
+    let mut magic = [0u8; 4];
+    {
+        let mut f = &file;
+        if f.read_exact(&mut magic).is_err() || &magic[..2] != b"PK" {
+            return Err(ModelError::format(
+                path,
+                "not a zip-format torch.save file (written by torch ≥ 1.6); a legacy-format or foreign \
+                 file: re-save it with torch.save(torch.load(f), g)",
+            ));
+        }
+    }
+    let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file))
+        .map_err(|e| ModelError::format(path, format!("not a readable zip archive: {e}")))?;
+    let pkl_name = zip
+        .file_names()
+        .find(|n| *n == "data.pkl" || n.ends_with("/data.pkl"))
+        .map(str::to_string)
+        .ok_or_else(|| ModelError::format(path, "zip archive without data.pkl: not a torch.save file"))?;
+    let prefix = pkl_name.trim_end_matches("data.pkl").to_string();
+    let mut read_entry = |name: &str| -> Result<Vec<u8>, ModelError> {
+        let mut e = zip.by_name(name).map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
+        let mut buf = Vec::with_capacity(e.size() as usize);
+        e.read_to_end(&mut buf).map_err(|e| ModelError::format(path, format!("record {name} unreadable (truncated?): {e}")))?;
+        Ok(buf)
+    };
+    if let Ok(order) = read_entry(&format!("{prefix}byteorder")) {
+        if order.trim_ascii() != b"little" {
+            return Err(ModelError::format(path, "big-endian torch.save files are not supported"));
+        }
+    }
+    let pkl = read_entry(&pkl_name)?;
+    let value = parse_pickle(&pkl).map_err(|e| ModelError::format(path, format!("{pkl_name}: {e}")))?;
+    let refs = collect_tensors(&value);
+    if refs.is_empty() {
+        return Err(ModelError::format(path, "the pickle holds no tensors"));
+    }
+    let mut storages: HashMap<String, Vec<u8>> = HashMap::new();
+    let mut out = Vec::with_capacity(refs.len());
+    for (name, t) in refs {
+        let (kind, es) = storage_kind(&t.storage_type)
+            .ok_or_else(|| ModelError::format(path, format!("tensor {name}: unsupported storage {}", t.storage_type)))?;
+        if !storages.contains_key(&t.storage_key) {
+            let data = read_entry(&format!("{prefix}data/{}", t.storage_key))?;
+            storages.insert(t.storage_key.clone(), data);
+        }
+        let data = &storages[&t.storage_key];
+        let numel = data.len() / es;
+        // Bounds check of the strided view against the storage.
+        let last: i64 = t.offset + t.size.iter().zip(&t.stride).map(|(s, st)| (s - 1).max(0) * st).sum::<i64>();
+        let empty = t.size.iter().any(|&s| s == 0);
+        if !empty && (t.offset < 0 || last as usize >= numel) {
+            return Err(ModelError::format(
+                path,
+                format!("tensor {name}: view {:?}/{:?}+{} exceeds its storage of {numel} elements (truncated?)", t.size, t.stride, t.offset),
+            ));
+        }
+        let flat = Tensor::f_from_data_size(&data[..numel * es], &[numel as i64], kind)?;
+        let tensor = if empty {
+            Tensor::f_zeros(&t.size, (kind, Device::Cpu))?
+        } else {
+            flat.f_as_strided(&t.size, &t.stride, t.offset)?.f_contiguous()?
+        };
+        out.push((name, tensor));
+    }
+    Ok(out)
+}
+
+struct PickleWriter {
+    out: Vec<u8>,
+}
+
+impl PickleWriter {
+    fn op(&mut self, b: u8) {
+        self.out.push(b);
+    }
+    fn string(&mut self, s: &str) {
+        self.op(b'X');
+        self.out.extend_from_slice(&(s.len() as u32).to_le_bytes());
+        self.out.extend_from_slice(s.as_bytes());
+    }
+    fn int(&mut self, i: i64) {
+        if let Ok(v) = i32::try_from(i) {
+            self.op(b'J');
+            self.out.extend_from_slice(&v.to_le_bytes());
+        } else {
+            self.op(0x8a);
+            self.op(8);
+            self.out.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    fn global(&mut self, m: &str, n: &str) {
+        self.op(b'c');
+        self.out.extend_from_slice(format!("{m}\n{n}\n").as_bytes());
+    }
+    fn int_tuple(&mut self, xs: &[i64]) {
+        self.op(b'(');
+        for &x in xs {
+            self.int(x);
+        }
+        self.op(b't');
+    }
+}
+
+/// Writes named tensors as a `torch.save`-compatible zip file holding an `OrderedDict` state
+/// dict (what `torch.save(model.state_dict(), path)` produces; `torch.load` reads it back,
+/// also with `weights_only=True`). Written atomically.
+pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Result<(), ModelError> {
+    let mut w = PickleWriter { out: vec![0x80, 2] };
+    w.global("collections", "OrderedDict");
+    w.op(b')');
+    w.op(b'R');
+    w.op(b'(');
+    let mut blobs = Vec::new();
+    for (i, (name, t)) in tensors.iter().enumerate() {
+        let t = t.detach().to_device(Device::Cpu).contiguous();
+        let st = storage_name(t.kind())
+            .ok_or_else(|| ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind())))?;
+        let numel = t.numel();
+        let es = t.kind().elt_size_in_bytes();
+        let mut buf = vec![0u8; numel * es];
+        t.f_copy_data_u8(&mut buf, numel)?;
+        let size = t.size();
+        let mut stride = vec![1i64; size.len()];
+        for d in (0..size.len().saturating_sub(1)).rev() {
+            stride[d] = stride[d + 1] * size[d + 1].max(1);
+        }
+        w.string(name);
+        w.global("torch._utils", "_rebuild_tensor_v2");
+        w.op(b'(');
+        w.op(b'(');
+        w.string("storage");
+        w.global("torch", st);
+        w.string(&i.to_string());
+        w.string("cpu");
+        w.int(numel as i64);
+        w.op(b't');
+        w.op(b'Q');
+        w.int(0);
+        w.int_tuple(&size);
+        w.int_tuple(&stride);
+        w.op(0x89);
+        w.global("collections", "OrderedDict");
+        w.op(b')');
+        w.op(b'R');
+        w.op(b't');
+        w.op(b'R');
+        blobs.push(buf);
+    }
+    w.op(b'u');
+    w.op(b'.');
+    let mut cursor = std::io::Cursor::new(Vec::new());
+    {
+        let mut z = zip::ZipWriter::new(&mut cursor);
+        let opts = zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
+        let mut put = |name: &str, data: &[u8]| -> Result<(), ModelError> {
+            z.start_file(format!("archive/{name}"), opts)
+                .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
+            z.write_all(data).map_err(|e| ModelError::io(path, e))
+        };
+        put("data.pkl", &w.out)?;
+        put("byteorder", b"little")?;
+        for (i, b) in blobs.iter().enumerate() {
+            put(&format!("data/{i}"), b)?;
+        }
+        put("version", b"3\n")?;
+        z.finish().map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
+    }
+    crate::checkpoint::write_atomic(path, cursor.get_ref())
+}

@@ -1,0 +1,70 @@
+//! Mixed precision: bf16 autocast on CUDA.
+//!
+//! `tch::autocast` enables libtorch's CUDA autocast, whose default dtype is fp16; libtorch
+//! 2.11 exports `at::autocast::set_autocast_dtype(DeviceType, ScalarType)` (C++ symbol), which
+//! we call to select bf16.
+
+use tch::Cuda;
+
+extern "C" {
+    // void at::autocast::set_autocast_dtype(c10::DeviceType, c10::ScalarType); both enums are
+    // int8-backed; CUDA = 1, BFloat16 = 15, Half = 5.
+    #[link_name = "_ZN2at8autocast18set_autocast_dtypeEN3c1010DeviceTypeENS1_10ScalarTypeE"]
+    fn at_autocast_set_autocast_dtype(device_type: i8, dtype: i8);
+}
+
+/// Autocast dtype on CUDA.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Precision {
+    /// No autocast.
+    Fp32,
+    /// CUDA autocast to bfloat16.
+    Bf16,
+    /// CUDA autocast to float16.
+    Fp16,
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.to_ascii_lowercase().as_str() {
+            "fp32" | "f32" | "float" => Ok(Precision::Fp32),
+            "bf16" | "bfloat16" => Ok(Precision::Bf16),
+            "fp16" | "f16" | "half" => Ok(Precision::Fp16),
+            o => Err(format!("unknown precision `{o}` (fp32, bf16, fp16)")),
+        }
+    }
+}
+
+/// Runs `f` under CUDA autocast with the given dtype (no effect on the CPU or for fp32).
+pub fn with_autocast<T>(precision: Precision, f: impl FnOnce() -> T) -> T {
+    if precision == Precision::Fp32 || !Cuda::is_available() {
+        return f();
+    }
+    let dtype = if precision == Precision::Bf16 { 15 } else { 5 };
+    // SAFETY: plain C++ function taking two int8-backed enums by value; it only sets a
+    // thread-local/global dtype and cannot fail for CUDA with a floating dtype.
+    unsafe { at_autocast_set_autocast_dtype(1, dtype) };
+    tch::autocast(true, f)
+}
+
+/// The same logical NCHW tensor with channels-last (NHWC) strides (tch has no memory-format
+/// API; permute → contiguous → permute back gives the layout cuDNN's NHWC kernels use).
+pub fn channels_last(t: &tch::Tensor) -> tch::Tensor {
+    if t.dim() != 4 {
+        return t.shallow_clone();
+    }
+    t.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+}
+
+/// Converts every 4-d variable (conv weights) of `vs` to channels-last storage in place.
+pub fn vs_to_channels_last(vs: &tch::nn::VarStore) {
+    tch::no_grad(|| {
+        for (_, mut v) in vs.variables() {
+            if v.dim() == 4 {
+                let cl = channels_last(&v);
+                v.set_data(&cl);
+            }
+        }
+    })
+}

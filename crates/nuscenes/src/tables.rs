@@ -1,0 +1,1231 @@
+//! nuScenes tables and indexes (SPEC §2).
+//!
+//! Tokens are 32-hex strings; they are stored as `u128` ([`Token`]) so that 2.6 M
+//! `sample_data` rows load in seconds with little memory. Rows are parsed with
+//! `serde_json::from_slice` into borrowing structs and converted one at a time (a streaming
+//! sequence visitor), so the largest intermediate is the file buffer itself.
+//! Tokens that are not 32 hex digits are accepted too (hashed, with the text kept aside).
+//!
+//! Partial version folders are allowed: rows the data does not reference may be absent.
+//! References are resolved when used, and a dangling one is a [`NuError::MissingToken`]
+//! naming the row, the field and the missing token.
+
+use std::collections::HashMap;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use serde::de::{Deserializer, SeqAccess, Visitor};
+use serde::Deserialize;
+
+use crate::error::{NuError, Result};
+
+/// A nuScenes token (32 hex digits packed into 128 bits).
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
+pub struct Token(pub u128);
+
+/// Hex digit values; 0x80 marks a non-digit (upper case is not a nuScenes token).
+static HEX: [u8; 256] = {
+    let mut t = [0x80u8; 256];
+    let mut i = 0;
+    while i < 10 {
+        t[b'0' as usize + i] = i as u8;
+        i += 1;
+    }
+    let mut i = 0;
+    while i < 6 {
+        t[b'a' as usize + i] = 10 + i as u8;
+        i += 1;
+    }
+    t
+};
+
+static HAS_EXOTIC: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+static EXOTIC: Mutex<Option<HashMap<u128, String>>> = Mutex::new(None);
+
+impl Token {
+    /// Parse a token; `""` and `null` are handled by the callers as "no token".
+    pub fn parse(s: &str) -> Token {
+        if s.len() == 32 {
+            let mut v: u128 = 0;
+            let mut bad = 0u8;
+            for b in s.bytes() {
+                let d = HEX[b as usize];
+                bad |= d;
+                v = (v << 4) | (d & 0x0f) as u128;
+            }
+            if bad & 0x80 == 0 {
+                return Token(v);
+            }
+        }
+        // Non-hex token: FNV-1a 128-bit hash, text kept for display.
+        let mut h: u128 = 0x6c62272e07bb014262b821756295c58d;
+        for b in s.bytes() {
+            h ^= b as u128;
+            h = h.wrapping_mul(0x0000000001000000000000000000013B);
+        }
+        if let Ok(mut g) = EXOTIC.lock() {
+            g.get_or_insert_with(HashMap::new)
+                .entry(h)
+                .or_insert_with(|| s.to_string());
+            HAS_EXOTIC.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+        Token(h)
+    }
+}
+
+impl fmt::Display for Token {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if HAS_EXOTIC.load(std::sync::atomic::Ordering::Relaxed) {
+            if let Ok(g) = EXOTIC.lock() {
+                if let Some(s) = g.as_ref().and_then(|m| m.get(&self.0)) {
+                    return f.write_str(s);
+                }
+            }
+        }
+        write!(f, "{:032x}", self.0)
+    }
+}
+
+impl fmt::Debug for Token {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Token({self})")
+    }
+}
+
+/// Hasher for [`Token`] keys: tokens are already uniformly random, so folding the 128 bits
+/// (with a multiply for non-hex hashed tokens) is enough and much faster than SipHash.
+#[derive(Default, Clone, Copy)]
+pub struct TokenHasher(u64);
+
+impl std::hash::Hasher for TokenHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.0 = (self.0.rotate_left(5) ^ *b as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+        }
+    }
+    fn write_u128(&mut self, v: u128) {
+        self.0 = ((v as u64) ^ ((v >> 64) as u64)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
+
+/// `HashMap` keyed by [`Token`] with [`TokenHasher`].
+pub type TokenMap<V> = HashMap<Token, V, std::hash::BuildHasherDefault<TokenHasher>>;
+
+fn opt_token(s: Option<&str>) -> Option<Token> {
+    match s {
+        None | Some("") => None,
+        Some(s) => Some(Token::parse(s)),
+    }
+}
+
+// ---------------------------------------------------------------- records
+
+#[derive(Debug, Clone)]
+pub struct Scene {
+    pub token: Token,
+    pub log_token: Token,
+    pub nbr_samples: u32,
+    pub first_sample_token: Option<Token>,
+    pub last_sample_token: Option<Token>,
+    pub name: String,
+    pub description: String,
+}
+
+#[derive(Debug, Clone)]
+pub struct Sample {
+    pub token: Token,
+    pub timestamp_us: i64,
+    pub prev: Option<Token>,
+    pub next: Option<Token>,
+    pub scene_token: Token,
+}
+
+#[derive(Debug, Clone)]
+pub struct SampleData {
+    pub token: Token,
+    pub sample_token: Option<Token>,
+    pub ego_pose_token: Token,
+    pub calibrated_sensor_token: Token,
+    pub timestamp_us: i64,
+    pub is_key_frame: bool,
+    pub width: u32,
+    pub height: u32,
+    /// Relative to the dataroot.
+    pub filename: Box<str>,
+    pub prev: Option<Token>,
+    pub next: Option<Token>,
+}
+
+#[derive(Debug, Clone)]
+pub struct CalibratedSensor {
+    pub token: Token,
+    pub sensor_token: Token,
+    pub translation: [f64; 3],
+    /// w, x, y, z (SPEC §2).
+    pub rotation: [f64; 4],
+    /// Row-major 3x3; `None` for non-camera sensors.
+    pub camera_intrinsic: Option<[[f64; 3]; 3]>,
+}
+
+#[derive(Debug, Clone)]
+pub struct EgoPose {
+    pub token: Token,
+    pub timestamp_us: i64,
+    /// w, x, y, z (SPEC §2).
+    pub rotation: [f64; 4],
+    pub translation: [f64; 3],
+}
+
+#[derive(Debug, Clone)]
+pub struct Sensor {
+    pub token: Token,
+    pub channel: String,
+    pub modality: String,
+}
+
+#[derive(Debug, Clone)]
+pub struct Log {
+    pub token: Token,
+    pub logfile: String,
+    pub vehicle: String,
+    pub date_captured: String,
+    pub location: String,
+}
+
+#[derive(Debug, Clone)]
+pub struct SampleAnnotation {
+    pub token: Token,
+    pub sample_token: Token,
+    pub instance_token: Token,
+    pub attribute_tokens: Vec<Token>,
+    pub translation: [f64; 3],
+    /// width, length, height (devkit order).
+    pub size: [f64; 3],
+    pub rotation: [f64; 4],
+    pub prev: Option<Token>,
+    pub next: Option<Token>,
+}
+
+#[derive(Debug, Clone)]
+pub struct Instance {
+    pub token: Token,
+    pub category_token: Token,
+}
+
+#[derive(Debug, Clone)]
+pub struct Category {
+    pub token: Token,
+    pub name: String,
+}
+
+#[derive(Debug, Clone)]
+pub struct Attribute {
+    pub token: Token,
+    pub name: String,
+}
+
+// ------------------------------------------------------------ raw (borrowed) rows
+
+#[derive(Deserialize)]
+struct RawScene<'a> {
+    #[serde(borrow)]
+    token: &'a str,
+    log_token: &'a str,
+    #[serde(default)]
+    nbr_samples: u32,
+    first_sample_token: Option<&'a str>,
+    last_sample_token: Option<&'a str>,
+    #[serde(borrow, default)]
+    name: std::borrow::Cow<'a, str>,
+    #[serde(borrow, default)]
+    description: std::borrow::Cow<'a, str>,
+}
+
+#[derive(Deserialize)]
+struct RawSample<'a> {
+    token: &'a str,
+    timestamp: i64,
+    prev: Option<&'a str>,
+    next: Option<&'a str>,
+    scene_token: &'a str,
+}
+
+#[derive(Deserialize)]
+struct RawSampleData<'a> {
+    token: &'a str,
+    sample_token: Option<&'a str>,
+    ego_pose_token: &'a str,
+    calibrated_sensor_token: &'a str,
+    timestamp: i64,
+    #[serde(default)]
+    is_key_frame: bool,
+    #[serde(default)]
+    height: u32,
+    #[serde(default)]
+    width: u32,
+    #[serde(borrow)]
+    filename: std::borrow::Cow<'a, str>,
+    prev: Option<&'a str>,
+    next: Option<&'a str>,
+}
+
+#[derive(Deserialize)]
+struct RawCalib<'a> {
+    token: &'a str,
+    sensor_token: &'a str,
+    translation: [f64; 3],
+    rotation: [f64; 4],
+    #[serde(default)]
+    camera_intrinsic: Vec<Vec<f64>>,
+}
+
+#[derive(Deserialize)]
+struct RawEgo<'a> {
+    token: &'a str,
+    timestamp: i64,
+    rotation: [f64; 4],
+    translation: [f64; 3],
+}
+
+#[derive(Deserialize)]
+struct RawSensor<'a> {
+    token: &'a str,
+    #[serde(borrow)]
+    channel: std::borrow::Cow<'a, str>,
+    #[serde(borrow, default)]
+    modality: std::borrow::Cow<'a, str>,
+}
+
+#[derive(Deserialize)]
+struct RawLog<'a> {
+    token: &'a str,
+    #[serde(borrow, default)]
+    logfile: std::borrow::Cow<'a, str>,
+    #[serde(borrow, default)]
+    vehicle: std::borrow::Cow<'a, str>,
+    #[serde(borrow, default)]
+    date_captured: std::borrow::Cow<'a, str>,
+    #[serde(borrow, default)]
+    location: std::borrow::Cow<'a, str>,
+}
+
+#[derive(Deserialize)]
+struct RawAnn<'a> {
+    token: &'a str,
+    sample_token: &'a str,
+    instance_token: &'a str,
+    #[serde(borrow, default)]
+    attribute_tokens: Vec<&'a str>,
+    translation: [f64; 3],
+    size: [f64; 3],
+    rotation: [f64; 4],
+    prev: Option<&'a str>,
+    next: Option<&'a str>,
+}
+
+#[derive(Deserialize)]
+struct RawInstance<'a> {
+    token: &'a str,
+    category_token: &'a str,
+}
+
+#[derive(Deserialize)]
+struct RawNamed<'a> {
+    token: &'a str,
+    #[serde(borrow)]
+    name: std::borrow::Cow<'a, str>,
+}
+
+/// Stream a JSON list, converting each borrowed row as it is parsed.
+fn parse_rows<'de, R, T, F>(bytes: &'de [u8], path: &Path, f: F) -> Result<Vec<T>>
+where
+    R: Deserialize<'de>,
+    F: FnMut(R) -> T,
+{
+    struct V<R, T, F>(F, std::marker::PhantomData<(R, T)>);
+    impl<'de, R: Deserialize<'de>, T, F: FnMut(R) -> T> Visitor<'de> for V<R, T, F> {
+        type Value = Vec<T>;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("a JSON list of table rows")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(
+            mut self,
+            mut seq: A,
+        ) -> std::result::Result<Vec<T>, A::Error> {
+            let mut out = Vec::with_capacity(seq.size_hint().unwrap_or(0));
+            while let Some(r) = seq.next_element::<R>()? {
+                out.push((self.0)(r));
+            }
+            Ok(out)
+        }
+    }
+    let mut de = serde_json::Deserializer::from_slice(bytes);
+    let rows = de
+        .deserialize_seq(V(f, std::marker::PhantomData))
+        .and_then(|v| de.end().map(|_| v))
+        .map_err(|e| NuError::Json {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+    Ok(rows)
+}
+
+/// Bytes read per chunk by [`parse_table_chunked`].
+const CHUNK_BYTES: usize = 32 << 20;
+
+/// Parse a big table file (a JSON list of objects) in chunks: each chunk is split into
+/// complete top-level rows by a small scanner (strings and nesting aware), and the rows are
+/// parsed in parallel by `parse`, which gets one row's bytes. Memory stays at one chunk plus
+/// the converted rows; rows keep file order. `Ok(None)` when the file is absent and not
+/// `required`.
+fn parse_table_chunked<T, F>(
+    dir: &Path,
+    name: &str,
+    required: bool,
+    parse: F,
+) -> Result<Option<Vec<T>>>
+where
+    T: Send,
+    F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
+{
+    parse_table_chunked_sized(dir, name, required, parse, CHUNK_BYTES)
+}
+
+fn parse_table_chunked_sized<T, F>(
+    dir: &Path,
+    name: &str,
+    required: bool,
+    parse: F,
+    chunk_bytes: usize,
+) -> Result<Option<Vec<T>>>
+where
+    T: Send,
+    F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
+{
+    use rayon::prelude::*;
+    use std::io::Read;
+    let path = dir.join(format!("{name}.json"));
+    let mut file = match std::fs::File::open(&path) {
+        Ok(f) => f,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && !required => return Ok(None),
+        Err(e) => return Err(NuError::io(&path, e)),
+    };
+    let json_err = |reason: String| NuError::Json {
+        path: path.display().to_string(),
+        reason,
+    };
+    let mut out: Vec<T> = Vec::new();
+    let mut buf: Vec<u8> = Vec::with_capacity(chunk_bytes + 4096);
+    // Scanner state, valid at `scan` (always outside rows once a chunk is handed over).
+    let mut started = false; // seen '['
+    let mut finished = false; // seen the closing ']'
+    let mut eof = false;
+    let mut row_no = 0usize;
+    while !eof {
+        // Top up the buffer.
+        let old = buf.len();
+        buf.resize(old + chunk_bytes, 0);
+        let mut filled = old;
+        while filled < buf.len() {
+            let n = file
+                .read(&mut buf[filled..])
+                .map_err(|e| NuError::io(&path, e))?;
+            if n == 0 {
+                eof = true;
+                break;
+            }
+            filled += n;
+        }
+        buf.truncate(filled);
+        // Scan complete rows.
+        let mut spans: Vec<(usize, usize)> = Vec::new();
+        let mut i = 0;
+        let mut keep_from = buf.len();
+        while i < buf.len() {
+            let b = buf[i];
+            if finished {
+                if !b.is_ascii_whitespace() {
+                    return Err(json_err(format!(
+                        "trailing characters after the list at row {row_no}"
+                    )));
+                }
+                i += 1;
+                continue;
+            }
+            if !started {
+                match b {
+                    b'[' => started = true,
+                    b if b.is_ascii_whitespace() => {}
+                    _ => return Err(json_err("expected a JSON list of table rows".into())),
+                }
+                i += 1;
+                continue;
+            }
+            match b {
+                b'{' => {
+                    // Find the end of this object.
+                    let start = i;
+                    // Only braces and strings matter for finding the end of an object.
+                    let mut depth = 0usize;
+                    let mut end = None;
+                    while let Some(k) = memchr::memchr3(b'"', b'{', b'}', &buf[i..]) {
+                        i += k;
+                        match buf[i] {
+                            b'"' => {
+                                // Skip the string, honouring backslash escapes.
+                                i += 1;
+                                loop {
+                                    match memchr::memchr2(b'"', b'\\', &buf[i..]) {
+                                        Some(k) if buf[i + k] == b'\\' => i += k + 2,
+                                        Some(k) => {
+                                            i += k + 1;
+                                            break;
+                                        }
+                                        None => {
+                                            i = buf.len() + 1;
+                                            break;
+                                        }
+                                    }
+                                    if i >= buf.len() {
+                                        break;
+                                    }
+                                }
+                                if i > buf.len() {
+                                    break;
+                                }
+                            }
+                            b'{' => {
+                                depth += 1;
+                                i += 1;
+                            }
+                            _ => {
+                                depth -= 1;
+                                i += 1;
+                                if depth == 0 {
+                                    end = Some(i);
+                                    break;
+                                }
+                            }
+                        }
+                        if i >= buf.len() {
+                            break;
+                        }
+                    }
+                    match end {
+                        Some(e) => {
+                            spans.push((start, e));
+                            row_no += 1;
+                        }
+                        None => {
+                            keep_from = start;
+                            break;
+                        }
+                    }
+                }
+                b']' => {
+                    finished = true;
+                    i += 1;
+                }
+                b',' => i += 1,
+                b if b.is_ascii_whitespace() => i += 1,
+                _ => {
+                    return Err(json_err(format!(
+                        "row {row_no}: expected an object, found {:?}",
+                        b as char
+                    )))
+                }
+            }
+        }
+        let first_row = row_no - spans.len();
+        let parsed: Vec<std::result::Result<Vec<T>, String>> = spans
+            .par_chunks(2048)
+            .enumerate()
+            .map(|(ci, chunk)| {
+                chunk
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &(a, b))| {
+                        parse(&buf[a..b])
+                            .map_err(|e| format!("row {}: {e}", first_row + ci * 2048 + k))
+                    })
+                    .collect()
+            })
+            .collect();
+        for r in parsed {
+            out.extend(r.map_err(json_err)?);
+        }
+        if keep_from < buf.len() {
+            buf.drain(..keep_from);
+        } else {
+            buf.clear();
+        }
+        if eof && !buf.is_empty() {
+            return Err(json_err(format!("truncated: row {row_no} is not complete")));
+        }
+    }
+    if !finished {
+        return Err(json_err(if started {
+            format!("truncated: the list is not closed after {row_no} rows")
+        } else {
+            "empty file: expected a JSON list".into()
+        }));
+    }
+    Ok(Some(out))
+}
+
+fn read_table(dir: &Path, name: &str, required: bool) -> Result<Option<(PathBuf, Vec<u8>)>> {
+    let p = dir.join(format!("{name}.json"));
+    match std::fs::read(&p) {
+        Ok(b) => Ok(Some((p, b))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && !required => Ok(None),
+        Err(e) => Err(NuError::io(&p, e)),
+    }
+}
+
+fn index_of<T>(rows: &[T], tok: impl Fn(&T) -> Token) -> TokenMap<u32> {
+    let mut m = TokenMap::with_capacity_and_hasher(rows.len(), Default::default());
+    for (i, r) in rows.iter().enumerate() {
+        m.insert(tok(r), i as u32);
+    }
+    m
+}
+
+/// A loaded nuScenes version folder with its indexes.
+pub struct NuScenes {
+    pub dataroot: PathBuf,
+    pub version: String,
+    pub scene: Vec<Scene>,
+    pub sample: Vec<Sample>,
+    pub sample_data: Vec<SampleData>,
+    pub calibrated_sensor: Vec<CalibratedSensor>,
+    pub ego_pose: Vec<EgoPose>,
+    pub sensor: Vec<Sensor>,
+    pub log: Vec<Log>,
+    /// `None` when the version has no annotations (e.g. v1.0-test, synthetic worlds).
+    pub sample_annotation: Option<Vec<SampleAnnotation>>,
+    pub instance: Vec<Instance>,
+    pub category: Vec<Category>,
+    pub attribute: Vec<Attribute>,
+
+    scene_idx: TokenMap<u32>,
+    sample_idx: TokenMap<u32>,
+    sd_idx: TokenMap<u32>,
+    calib_idx: TokenMap<u32>,
+    ego_idx: TokenMap<u32>,
+    sensor_idx: TokenMap<u32>,
+    log_idx: TokenMap<u32>,
+    ann_idx: TokenMap<u32>,
+    instance_idx: TokenMap<u32>,
+    category_idx: TokenMap<u32>,
+    attribute_idx: TokenMap<u32>,
+    /// sample → [(channel, keyframe sample_data index)].
+    sample_keyframes: TokenMap<Vec<(Box<str>, u32)>>,
+    /// scene → sample indices ordered by timestamp.
+    scene_samples: TokenMap<Vec<u32>>,
+    /// sample → annotation indices.
+    sample_anns: TokenMap<Vec<u32>>,
+}
+
+/// Row counts per table (for `inspect`).
+pub type RowCounts = Vec<(&'static str, usize)>;
+
+macro_rules! getter {
+    ($fn:ident, $ty:ty, $vec:ident, $idx:ident, $name:literal) => {
+        /// Row by token, or a `MissingToken` error naming the referring row.
+        pub fn $fn(
+            &self,
+            token: Token,
+            table: &'static str,
+            from: Token,
+            field: &'static str,
+        ) -> Result<&$ty> {
+            self.$idx
+                .get(&token)
+                .map(|&i| &self.$vec[i as usize])
+                .ok_or_else(|| NuError::MissingToken {
+                    table,
+                    token: from.to_string(),
+                    field,
+                    target: $name,
+                    missing: token.to_string(),
+                })
+        }
+    };
+}
+
+impl NuScenes {
+    /// Load `dataroot/version/*.json`.
+    pub fn load(dataroot: &Path, version: &str) -> Result<NuScenes> {
+        let dir = dataroot.join(version);
+        if !dir.is_dir() {
+            return Err(NuError::Io {
+                path: dir.display().to_string(),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    "version folder not found",
+                ),
+            });
+        }
+        // The big tables are parsed chunk by chunk, rows in parallel.
+        let sample_data = parse_table_chunked(&dir, "sample_data", true, |b| {
+            let r: RawSampleData = serde_json::from_slice(b)?;
+            Ok(SampleData {
+                token: Token::parse(r.token),
+                sample_token: opt_token(r.sample_token),
+                ego_pose_token: Token::parse(r.ego_pose_token),
+                calibrated_sensor_token: Token::parse(r.calibrated_sensor_token),
+                timestamp_us: r.timestamp,
+                is_key_frame: r.is_key_frame,
+                width: r.width,
+                height: r.height,
+                filename: r.filename.into(),
+                prev: opt_token(r.prev),
+                next: opt_token(r.next),
+            })
+        })?
+        .unwrap_or_default();
+        let ego_pose = parse_table_chunked(&dir, "ego_pose", true, |b| {
+            let r: RawEgo = serde_json::from_slice(b)?;
+            Ok(EgoPose {
+                token: Token::parse(r.token),
+                timestamp_us: r.timestamp,
+                rotation: r.rotation,
+                translation: r.translation,
+            })
+        })?
+        .unwrap_or_default();
+        let sample_annotation = parse_table_chunked(&dir, "sample_annotation", false, |b| {
+            let r: RawAnn = serde_json::from_slice(b)?;
+            Ok(SampleAnnotation {
+                token: Token::parse(r.token),
+                sample_token: Token::parse(r.sample_token),
+                instance_token: Token::parse(r.instance_token),
+                attribute_tokens: r.attribute_tokens.iter().map(|t| Token::parse(t)).collect(),
+                translation: r.translation,
+                size: r.size,
+                rotation: r.rotation,
+                prev: opt_token(r.prev),
+                next: opt_token(r.next),
+            })
+        })?;
+        let mut small = Self::load_small(&dir)?;
+        small.sample_annotation = sample_annotation;
+        Ok(Self::assemble(
+            dataroot,
+            version,
+            small,
+            sample_data,
+            ego_pose,
+        ))
+    }
+
+    fn load_small(dir: &Path) -> Result<Small> {
+        let need = |n: &str| -> Result<(PathBuf, Vec<u8>)> {
+            Ok(read_table(dir, n, true)?.unwrap_or_default())
+        };
+        let (p, b) = need("scene")?;
+        let scene = parse_rows(&b, &p, |r: RawScene| Scene {
+            token: Token::parse(r.token),
+            log_token: Token::parse(r.log_token),
+            nbr_samples: r.nbr_samples,
+            first_sample_token: opt_token(r.first_sample_token),
+            last_sample_token: opt_token(r.last_sample_token),
+            name: r.name.into_owned(),
+            description: r.description.into_owned(),
+        })?;
+        let (p, b) = need("sample")?;
+        let sample = parse_rows(&b, &p, |r: RawSample| Sample {
+            token: Token::parse(r.token),
+            timestamp_us: r.timestamp,
+            prev: opt_token(r.prev),
+            next: opt_token(r.next),
+            scene_token: Token::parse(r.scene_token),
+        })?;
+        let (p, b) = need("calibrated_sensor")?;
+        let calibrated_sensor = parse_rows(&b, &p, |r: RawCalib| {
+            let k = &r.camera_intrinsic;
+            let camera_intrinsic = if k.len() == 3 && k.iter().all(|row| row.len() == 3) {
+                Some([
+                    [k[0][0], k[0][1], k[0][2]],
+                    [k[1][0], k[1][1], k[1][2]],
+                    [k[2][0], k[2][1], k[2][2]],
+                ])
+            } else {
+                None
+            };
+            CalibratedSensor {
+                token: Token::parse(r.token),
+                sensor_token: Token::parse(r.sensor_token),
+                translation: r.translation,
+                rotation: r.rotation,
+                camera_intrinsic,
+            }
+        })?;
+        let (p, b) = need("sensor")?;
+        let sensor = parse_rows(&b, &p, |r: RawSensor| Sensor {
+            token: Token::parse(r.token),
+            channel: r.channel.into_owned(),
+            modality: r.modality.into_owned(),
+        })?;
+        let (p, b) = need("log")?;
+        let log = parse_rows(&b, &p, |r: RawLog| Log {
+            token: Token::parse(r.token),
+            logfile: r.logfile.into_owned(),
+            vehicle: r.vehicle.into_owned(),
+            date_captured: r.date_captured.into_owned(),
+            location: r.location.into_owned(),
+        })?;
+        let instance = match read_table(dir, "instance", false)? {
+            Some((p, b)) => parse_rows(&b, &p, |r: RawInstance| Instance {
+                token: Token::parse(r.token),
+                category_token: Token::parse(r.category_token),
+            })?,
+            None => Vec::new(),
+        };
+        let named = |n: &str| -> Result<Vec<(Token, String)>> {
+            match read_table(dir, n, false)? {
+                Some((p, b)) => parse_rows(&b, &p, |r: RawNamed| {
+                    (Token::parse(r.token), r.name.into_owned())
+                }),
+                None => Ok(Vec::new()),
+            }
+        };
+        let category = named("category")?
+            .into_iter()
+            .map(|(token, name)| Category { token, name })
+            .collect();
+        let attribute = named("attribute")?
+            .into_iter()
+            .map(|(token, name)| Attribute { token, name })
+            .collect();
+        Ok(Small {
+            scene,
+            sample,
+            calibrated_sensor,
+            sensor,
+            log,
+            sample_annotation: None,
+            instance,
+            category,
+            attribute,
+        })
+    }
+
+    fn assemble(
+        dataroot: &Path,
+        version: &str,
+        s: Small,
+        sample_data: Vec<SampleData>,
+        ego_pose: Vec<EgoPose>,
+    ) -> NuScenes {
+        let ((sd_idx, ego_idx), (sample_idx, calib_idx)) = rayon::join(
+            || {
+                rayon::join(
+                    || index_of(&sample_data, |r| r.token),
+                    || index_of(&ego_pose, |r| r.token),
+                )
+            },
+            || {
+                (
+                    index_of(&s.sample, |r| r.token),
+                    index_of(&s.calibrated_sensor, |r| r.token),
+                )
+            },
+        );
+        let sensor_idx = index_of(&s.sensor, |r| r.token);
+        // Channel of each calibrated sensor.
+        let calib_channel: TokenMap<&str> = s
+            .calibrated_sensor
+            .iter()
+            .filter_map(|c| {
+                sensor_idx
+                    .get(&c.sensor_token)
+                    .map(|&i| (c.token, s.sensor[i as usize].channel.as_str()))
+            })
+            .collect();
+        let mut sample_keyframes: TokenMap<Vec<(Box<str>, u32)>> = TokenMap::default();
+        for (i, sd) in sample_data.iter().enumerate() {
+            if !sd.is_key_frame {
+                continue;
+            }
+            if let (Some(st), Some(ch)) = (
+                sd.sample_token,
+                calib_channel.get(&sd.calibrated_sensor_token),
+            ) {
+                sample_keyframes
+                    .entry(st)
+                    .or_default()
+                    .push(((*ch).into(), i as u32));
+            }
+        }
+        let mut scene_samples: TokenMap<Vec<u32>> = TokenMap::default();
+        for (i, smp) in s.sample.iter().enumerate() {
+            scene_samples
+                .entry(smp.scene_token)
+                .or_default()
+                .push(i as u32);
+        }
+        for v in scene_samples.values_mut() {
+            v.sort_by_key(|&i| (s.sample[i as usize].timestamp_us, i));
+        }
+        let mut sample_anns: TokenMap<Vec<u32>> = TokenMap::default();
+        let ann_idx = match &s.sample_annotation {
+            Some(a) => {
+                for (i, r) in a.iter().enumerate() {
+                    sample_anns
+                        .entry(r.sample_token)
+                        .or_default()
+                        .push(i as u32);
+                }
+                index_of(a, |r| r.token)
+            }
+            None => TokenMap::default(),
+        };
+        NuScenes {
+            dataroot: dataroot.to_path_buf(),
+            version: version.to_string(),
+            scene_idx: index_of(&s.scene, |r| r.token),
+            log_idx: index_of(&s.log, |r| r.token),
+            instance_idx: index_of(&s.instance, |r| r.token),
+            category_idx: index_of(&s.category, |r| r.token),
+            attribute_idx: index_of(&s.attribute, |r| r.token),
+            sample_idx,
+            sd_idx,
+            calib_idx,
+            ego_idx,
+            sensor_idx,
+            ann_idx,
+            sample_keyframes,
+            scene_samples,
+            sample_anns,
+            scene: s.scene,
+            sample: s.sample,
+            sample_data,
+            calibrated_sensor: s.calibrated_sensor,
+            ego_pose,
+            sensor: s.sensor,
+            log: s.log,
+            sample_annotation: s.sample_annotation,
+            instance: s.instance,
+            category: s.category,
+            attribute: s.attribute,
+        }
+    }
+
+    getter!(get_scene, Scene, scene, scene_idx, "scene");
+    getter!(get_sample, Sample, sample, sample_idx, "sample");
+    getter!(
+        get_sample_data,
+        SampleData,
+        sample_data,
+        sd_idx,
+        "sample_data"
+    );
+    getter!(
+        get_calibrated_sensor,
+        CalibratedSensor,
+        calibrated_sensor,
+        calib_idx,
+        "calibrated_sensor"
+    );
+    getter!(get_ego_pose, EgoPose, ego_pose, ego_idx, "ego_pose");
+    getter!(get_sensor, Sensor, sensor, sensor_idx, "sensor");
+    getter!(get_log, Log, log, log_idx, "log");
+    getter!(get_instance, Instance, instance, instance_idx, "instance");
+    getter!(get_category, Category, category, category_idx, "category");
+    getter!(
+        get_attribute,
+        Attribute,
+        attribute,
+        attribute_idx,
+        "attribute"
+    );
+
+    /// Annotation by token (None when absent).
+    pub fn annotation(&self, token: Token) -> Option<&SampleAnnotation> {
+        let i = *self.ann_idx.get(&token)?;
+        self.sample_annotation.as_ref().map(|a| &a[i as usize])
+    }
+
+    /// Sample-data row by token, if present.
+    pub fn sample_data_opt(&self, token: Token) -> Option<&SampleData> {
+        self.sd_idx
+            .get(&token)
+            .map(|&i| &self.sample_data[i as usize])
+    }
+
+    /// The keyframe sample_data of `channel` for `sample`.
+    pub fn keyframe(&self, sample: Token, channel: &str) -> Option<&SampleData> {
+        self.sample_keyframes
+            .get(&sample)?
+            .iter()
+            .find(|(c, _)| &**c == channel)
+            .map(|&(_, i)| &self.sample_data[i as usize])
+    }
+
+    /// Channels with a keyframe in `sample`.
+    pub fn keyframe_channels(&self, sample: Token) -> Vec<&str> {
+        self.sample_keyframes
+            .get(&sample)
+            .map(|v| v.iter().map(|(c, _)| &**c).collect())
+            .unwrap_or_default()
+    }
+
+    /// Samples of `scene` ordered by timestamp.
+    pub fn scene_samples(&self, scene: Token) -> Vec<&Sample> {
+        self.scene_samples
+            .get(&scene)
+            .map(|v| v.iter().map(|&i| &self.sample[i as usize]).collect())
+            .unwrap_or_default()
+    }
+
+    /// Annotations of `sample` (empty without annotations).
+    pub fn sample_annotations(&self, sample: Token) -> Vec<&SampleAnnotation> {
+        match (&self.sample_annotation, self.sample_anns.get(&sample)) {
+            (Some(a), Some(v)) => v.iter().map(|&i| &a[i as usize]).collect(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// Channel name of a sample_data row (through calibrated_sensor → sensor).
+    pub fn channel_of(&self, sd: &SampleData) -> Result<&str> {
+        let cs = self.get_calibrated_sensor(
+            sd.calibrated_sensor_token,
+            "sample_data",
+            sd.token,
+            "calibrated_sensor_token",
+        )?;
+        let s = self.get_sensor(
+            cs.sensor_token,
+            "calibrated_sensor",
+            cs.token,
+            "sensor_token",
+        )?;
+        Ok(&s.channel)
+    }
+
+    /// Up to `n` sweeps going backwards (`prev`) from `sd`, starting with `sd` itself.
+    /// The chain ends early at the first prev that is empty or absent from the table.
+    pub fn sweeps_back<'a>(&'a self, sd: &'a SampleData, n: usize) -> Vec<&'a SampleData> {
+        self.chain(sd, n, |s| s.prev)
+    }
+
+    /// Up to `n` sweeps going forwards (`next`), starting with `sd` itself.
+    pub fn sweeps_forward<'a>(&'a self, sd: &'a SampleData, n: usize) -> Vec<&'a SampleData> {
+        self.chain(sd, n, |s| s.next)
+    }
+
+    fn chain<'a>(
+        &'a self,
+        sd: &'a SampleData,
+        n: usize,
+        step: impl Fn(&SampleData) -> Option<Token>,
+    ) -> Vec<&'a SampleData> {
+        let mut out = Vec::with_capacity(n);
+        let mut cur = Some(sd);
+        while let Some(s) = cur {
+            if out.len() >= n {
+                break;
+            }
+            out.push(s);
+            cur = step(s).and_then(|t| self.sample_data_opt(t));
+        }
+        out
+    }
+
+    /// Absolute path of a sample_data file.
+    pub fn path_of(&self, sd: &SampleData) -> PathBuf {
+        self.dataroot.join(&*sd.filename)
+    }
+
+    /// Row counts per table.
+    pub fn row_counts(&self) -> RowCounts {
+        vec![
+            ("scene", self.scene.len()),
+            ("sample", self.sample.len()),
+            ("sample_data", self.sample_data.len()),
+            ("calibrated_sensor", self.calibrated_sensor.len()),
+            ("ego_pose", self.ego_pose.len()),
+            ("sensor", self.sensor.len()),
+            ("log", self.log.len()),
+            (
+                "sample_annotation",
+                self.sample_annotation.as_ref().map_or(0, |a| a.len()),
+            ),
+            ("instance", self.instance.len()),
+            ("category", self.category.len()),
+            ("attribute", self.attribute.len()),
+        ]
+    }
+}
+
+struct Small {
+    scene: Vec<Scene>,
+    sample: Vec<Sample>,
+    calibrated_sensor: Vec<CalibratedSensor>,
+    sensor: Vec<Sensor>,
+    log: Vec<Log>,
+    sample_annotation: Option<Vec<SampleAnnotation>>,
+    instance: Vec<Instance>,
+    category: Vec<Category>,
+    attribute: Vec<Attribute>,
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) fn kf0() -> Option<PathBuf> {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
+        if p.is_dir() {
+            Some(p)
+        } else {
+            eprintln!("skipping: fixture absent at {}", p.display());
+            None
+        }
+    }
+
+    #[test]
+    fn token_round_trip() {
+        let s = "ca9a282c9e77460f8360f564131a8af5";
+        assert_eq!(Token::parse(s).to_string(), s);
+        let t = Token::parse("synthetic-scene-0");
+        assert_eq!(t.to_string(), "synthetic-scene-0");
+        assert_ne!(t, Token::parse("synthetic-scene-1"));
+    }
+
+    #[test]
+    fn loads_partial_fixture_with_indexes() {
+        let Some(root) = kf0() else { return };
+        let nu = NuScenes::load(&root, "v1.0-mini").unwrap();
+        assert_eq!(nu.sample.len(), 1);
+        assert_eq!(nu.sample_data.len(), 3);
+        assert!(nu.sample_annotation.is_none());
+        let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
+        let cam = nu.keyframe(st, "CAM_FRONT").unwrap();
+        assert_eq!(cam.timestamp_us, 1532402927612460);
+        assert_eq!(nu.channel_of(cam).unwrap(), "CAM_FRONT");
+        let lidar = nu.keyframe(st, "LIDAR_TOP").unwrap();
+        assert!(lidar.next.is_none()); // JSON null
+        let radar = nu.keyframe(st, "RADAR_FRONT").unwrap();
+        // next points at a row absent from the partial table: the chain stops there.
+        assert!(radar.next.is_some());
+        assert_eq!(nu.sweeps_forward(radar, 5).len(), 1);
+        assert_eq!(nu.sweeps_back(radar, 5).len(), 1);
+        let scene = &nu.scene[0];
+        assert_eq!(nu.scene_samples(scene.token).len(), 1);
+        assert_eq!(
+            nu.get_log(scene.log_token, "scene", scene.token, "log_token")
+                .unwrap()
+                .location,
+            "singapore-onenorth"
+        );
+    }
+
+    #[test]
+    fn chunked_parser_handles_strings_braces_and_chunk_edges() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut text = String::from(" [\n");
+        let names: Vec<String> = (0..50).map(|i| format!("a{{b}}\\\"c\\\\ ,[{i}]")).collect();
+        for (i, n) in names.iter().enumerate() {
+            if i > 0 {
+                text.push_str(",\n");
+            }
+            text.push_str(&format!(
+                "{{\"token\": \"{i}\", \"name\": \"{n}\", \"nested\": {{\"x\": [1, {{}}]}}}}"
+            ));
+        }
+        text.push_str("\n]\n");
+        std::fs::write(dir.path().join("t.json"), &text).unwrap();
+        #[derive(Deserialize)]
+        struct R {
+            name: String,
+        }
+        let expect: Vec<String> = serde_json::from_str::<Vec<serde_json::Value>>(&text)
+            .unwrap()
+            .iter()
+            .map(|v| v["name"].as_str().unwrap().to_string())
+            .collect();
+        for chunk in [7, 16, 61, 1000, 1 << 20] {
+            let rows = parse_table_chunked_sized(
+                dir.path(),
+                "t",
+                true,
+                |b| serde_json::from_slice::<R>(b).map(|r| r.name),
+                chunk,
+            )
+            .unwrap()
+            .unwrap();
+            assert_eq!(rows, expect, "chunk {chunk}");
+        }
+        // Truncated and malformed files name the file.
+        std::fs::write(dir.path().join("t.json"), &text[..text.len() / 2]).unwrap();
+        let err = parse_table_chunked_sized(
+            dir.path(),
+            "t",
+            true,
+            |b| serde_json::from_slice::<R>(b),
+            64,
+        )
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(err.contains("t.json") && err.contains("truncated"), "{err}");
+        std::fs::write(dir.path().join("t.json"), "{}").unwrap();
+        assert!(parse_table_chunked_sized(
+            dir.path(),
+            "t",
+            true,
+            |b| serde_json::from_slice::<R>(b),
+            64
+        )
+        .is_err());
+        assert!(parse_table_chunked_sized(
+            dir.path(),
+            "absent",
+            false,
+            |b| serde_json::from_slice::<R>(b),
+            64
+        )
+        .unwrap()
+        .is_none());
+    }
+
+    #[test]
+    fn missing_token_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let v = dir.path().join("v");
+        std::fs::create_dir_all(&v).unwrap();
+        for t in [
+            "scene",
+            "sample",
+            "calibrated_sensor",
+            "ego_pose",
+            "sensor",
+            "log",
+        ] {
+            std::fs::write(v.join(format!("{t}.json")), "[]").unwrap();
+        }
+        std::fs::write(
+            v.join("sample_data.json"),
+            r#"[{"token":"aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa","sample_token":"","ego_pose_token":"bbbbbbbbbbbbbbbbbbbbbbbbbbbbbbbb","calibrated_sensor_token":"cccccccccccccccccccccccccccccccc","timestamp":1,"is_key_frame":false,"filename":"x","prev":"","next":""}]"#,
+        )
+        .unwrap();
+        let nu = NuScenes::load(dir.path(), "v").unwrap();
+        let err = nu.channel_of(&nu.sample_data[0]).unwrap_err().to_string();
+        assert!(
+            err.contains("sample_data row aaaaaaaa")
+                && err.contains("calibrated_sensor_token")
+                && err.contains("cccccccc"),
+            "{err}"
+        );
+        std::fs::write(v.join("sample.json"), "[{\"token\": 3}]").unwrap();
+        let err = NuScenes::load(dir.path(), "v").err().unwrap().to_string();
+        assert!(err.contains("sample.json"), "{err}");
+        assert!(NuScenes::load(dir.path(), "nope").is_err());
+    }
+}

@@ -1,0 +1,320 @@
+//! Training-frame maps (SPEC §3–5): image, sparse/dense lidar, low-height mask, radar raw
+//! and height-extended. Pure functions over points and transforms; the pipeline does I/O.
+
+use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_nuscenes::geometry::{apply_f32, to_frame, Camera, Rigid};
+use depthsense_nuscenes::pcd::RadarPoint;
+
+use crate::layout::{FRAME_CROP_TOP, FRAME_H, FRAME_W};
+
+/// Low-height band above the ground, metres (SPEC §4).
+pub const LOW_HEIGHT_MIN_M: f32 = 0.3;
+pub const LOW_HEIGHT_MAX_M: f32 = 2.0;
+/// Height extension of radar points (SPEC §5).
+pub const RADAR_H_UP_M: f32 = 1.5;
+pub const RADAR_H_DOWN_M: f32 = 0.25;
+
+/// Occlusion filter of the dense target (SPEC §4): a point is dropped when a nearer point of
+/// the accumulated map lies within ±`OCC_RX` columns and ±`OCC_RY` rows and
+/// `d > OCC_REL · d_near + OCC_ABS_M`.
+pub const OCC_RX: i64 = 2;
+pub const OCC_RY: i64 = 1;
+pub const OCC_REL: f32 = 1.1;
+pub const OCC_ABS_M: f32 = 0.5;
+
+const N: usize = (FRAME_W * FRAME_H) as usize;
+
+/// Nearest-wins raster in the training frame plus a per-pixel payload (e.g. height).
+#[derive(Debug, Clone)]
+pub struct Raster {
+    pub depth_m: Vec<f32>,
+    pub payload: Vec<f32>,
+    /// Points that landed in the frame (before nearest-wins).
+    pub in_frame: u64,
+}
+
+impl Default for Raster {
+    fn default() -> Self {
+        Raster {
+            depth_m: vec![0.0; N],
+            payload: vec![0.0; N],
+            in_frame: 0,
+        }
+    }
+}
+
+impl Raster {
+    /// Put depth `d` at pixel (x, y) if the pixel is empty or holds a farther depth
+    /// (nearest wins, SPEC §4).
+    #[inline]
+    pub fn splat(&mut self, x: u32, y: u32, d: f32, payload: f32) {
+        let i = y as usize * FRAME_W as usize + x as usize;
+        let cur = self.depth_m[i];
+        if cur == 0.0 || d < cur {
+            self.depth_m[i] = d;
+            self.payload[i] = payload;
+        }
+    }
+
+    pub fn to_depth_map(&self) -> DepthMap {
+        DepthMap {
+            width: FRAME_W,
+            height: FRAME_H,
+            depth_m: self.depth_m.clone(),
+        }
+    }
+
+    pub fn valid(&self) -> u64 {
+        self.depth_m.iter().filter(|d| **d > 0.0).count() as u64
+    }
+}
+
+/// Project sensor-frame points through `cam_from_sensor` into the training frame, nearest
+/// wins. `height` gives the per-point payload (e.g. ego-frame z). Returns the raster.
+pub fn project_points(
+    points: &[[f32; 3]],
+    cam_from_sensor: &Rigid,
+    cam: &Camera,
+    payload: impl Fn(usize) -> f32,
+) -> Raster {
+    let mut r = Raster::default();
+    project_into(&mut r, points, cam_from_sensor, cam, payload);
+    r
+}
+
+/// Like [`project_points`] but adds to an existing raster.
+pub fn project_into(
+    r: &mut Raster,
+    points: &[[f32; 3]],
+    cam_from_sensor: &Rigid,
+    cam: &Camera,
+    payload: impl Fn(usize) -> f32,
+) {
+    let m = cam_from_sensor.to_f32();
+    for (i, p) in points.iter().enumerate() {
+        let pc = apply_f32(&m, *p);
+        if let Some((u, v, d)) = cam.project(pc) {
+            if let Some((x, y)) = to_frame(u, v) {
+                r.in_frame += 1;
+                r.splat(x, y, d, payload(i));
+            }
+        }
+    }
+}
+
+/// Low-height mask (SPEC §4): 255 where the winning point's ego-frame height is in
+/// [0.3, 2.0] m, else 0. `r.payload` must hold the heights.
+pub fn lowheight_mask(r: &Raster) -> Vec<u8> {
+    r.depth_m
+        .iter()
+        .zip(&r.payload)
+        .map(|(d, h)| {
+            if *d > 0.0 && (LOW_HEIGHT_MIN_M..=LOW_HEIGHT_MAX_M).contains(h) {
+                255
+            } else {
+                0
+            }
+        })
+        .collect()
+}
+
+/// Occlusion filter over an accumulated nearest-wins map (SPEC §4); returns how many
+/// pixels were cleared.
+pub fn occlusion_filter(depth_m: &mut [f32]) -> u64 {
+    let w = FRAME_W as i64;
+    let h = FRAME_H as i64;
+    let src = depth_m.to_vec();
+    let mut removed = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let d = src[(y * w + x) as usize];
+            if d <= 0.0 {
+                continue;
+            }
+            let mut near = d;
+            for yy in (y - OCC_RY).max(0)..=(y + OCC_RY).min(h - 1) {
+                for xx in (x - OCC_RX).max(0)..=(x + OCC_RX).min(w - 1) {
+                    let n = src[(yy * w + xx) as usize];
+                    if n > 0.0 && n < near {
+                        near = n;
+                    }
+                }
+            }
+            if d > OCC_REL * near + OCC_ABS_M {
+                depth_m[(y * w + x) as usize] = 0.0;
+                removed += 1;
+            }
+        }
+    }
+    removed
+}
+
+/// Radar raw and height-extended maps (SPEC §5) from camera-frame radar points.
+pub fn radar_maps(points_cam: &[[f32; 3]], cam: &Camera, raw: &mut Raster, height: &mut Raster) {
+    for p in points_cam {
+        let Some((u, v, d)) = cam.project(*p) else {
+            continue;
+        };
+        if let Some((x, y)) = to_frame(u, v) {
+            raw.in_frame += 1;
+            raw.splat(x, y, d, 0.0);
+        }
+        // Vertical strip v − h_up·fy/d … v + h_down·fy/d at full resolution, nearest wins,
+        // reduced to the frame rows it covers.
+        let fy = cam.fy as f32;
+        let v0 = (v - RADAR_H_UP_M * fy / d).max(0.0);
+        let v1 = (v + RADAR_H_DOWN_M * fy / d).min(cam.height as f32 - 1.0);
+        let x = (u * 0.5).floor() as i64;
+        if x < 0 || x >= FRAME_W as i64 {
+            continue;
+        }
+        let y0 = ((v0 * 0.5).floor() as i64 - FRAME_CROP_TOP as i64).max(0);
+        let y1 = ((v1 * 0.5).floor() as i64 - FRAME_CROP_TOP as i64).min(FRAME_H as i64 - 1);
+        if y0 <= y1 {
+            height.in_frame += 1;
+        }
+        for y in y0..=y1 {
+            height.splat(x as u32, y as u32, d, 0.0);
+        }
+    }
+}
+
+/// Sensor-frame radar positions, optionally velocity-compensated by `dt_s` seconds
+/// (x += vx_comp·dt, y += vy_comp·dt; SPEC §2).
+pub fn radar_positions(points: &[RadarPoint], dt_s: Option<f32>) -> Vec<[f32; 3]> {
+    points
+        .iter()
+        .map(|p| match dt_s {
+            Some(dt) => [p.x + p.vx_comp * dt, p.y + p.vy_comp * dt, p.z],
+            None => [p.x, p.y, p.z],
+        })
+        .collect()
+}
+
+/// 1600x900 RGB8 → 800x350 (SPEC §3): 2x2 box average to 800x450, then the top 100 rows
+/// are cropped. `rgb` is row-major RGB8 of `w`x`h`; `w`, `h` must be 1600x900.
+pub fn image_to_frame(rgb: &[u8], w: u32, h: u32) -> Option<Vec<u8>> {
+    if w != 2 * FRAME_W || h != 2 * (FRAME_H + FRAME_CROP_TOP) || rgb.len() != (w * h * 3) as usize
+    {
+        return None;
+    }
+    let fw = FRAME_W as usize;
+    let stride = w as usize * 3;
+    let mut out = vec![0u8; fw * FRAME_H as usize * 3];
+    for y in 0..FRAME_H as usize {
+        let sy = 2 * (y + FRAME_CROP_TOP as usize);
+        let r0 = &rgb[sy * stride..(sy + 1) * stride];
+        let r1 = &rgb[(sy + 1) * stride..(sy + 2) * stride];
+        let o = &mut out[y * fw * 3..(y + 1) * fw * 3];
+        for x in 0..fw {
+            for c in 0..3 {
+                let a = r0[6 * x + c] as u16 + r0[6 * x + 3 + c] as u16;
+                let b = r1[6 * x + c] as u16 + r1[6 * x + 3 + c] as u16;
+                o[3 * x + c] = ((a + b + 2) / 4) as u8;
+            }
+        }
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera {
+            fx: 1000.0,
+            fy: 1000.0,
+            cx: 800.0,
+            cy: 450.0,
+            width: 1600,
+            height: 900,
+        }
+    }
+
+    #[test]
+    fn nearest_wins_regardless_of_order() {
+        // Two points on the same ray: far first, then near; and the reverse.
+        let pts = [[1.0, 0.5, 20.0], [0.5, 0.25, 10.0]];
+        for order in [[0, 1], [1, 0]] {
+            let p: Vec<[f32; 3]> = order.iter().map(|&i| pts[i]).collect();
+            let r = project_points(&p, &Rigid::IDENTITY, &cam(), |_| 0.0);
+            // u = 850, v = 475 → frame (425, 137)
+            let i = 137 * 800 + 425;
+            assert_eq!(r.depth_m[i], 10.0);
+            assert_eq!(r.valid(), 1);
+        }
+    }
+
+    #[test]
+    fn u_is_column_and_v_is_row() {
+        // x to the right → column, y downward → row.
+        let r = project_points(&[[2.0, 0.0, 10.0]], &Rigid::IDENTITY, &cam(), |_| 0.0);
+        // u = 1000, v = 450 → (500, 125)
+        assert_eq!(r.depth_m[125 * 800 + 500], 10.0);
+    }
+
+    #[test]
+    fn radar_height_strip_extent_and_nearest() {
+        let mut raw = Raster::default();
+        let mut hm = Raster::default();
+        // d = 10: strip from v−150 to v+25 at full res → frame rows 125−75 … 125+12.
+        radar_maps(
+            &[[0.0, 0.0, 10.0], [0.0, 0.0, 20.0]],
+            &cam(),
+            &mut raw,
+            &mut hm,
+        );
+        let col = 400;
+        let rows: Vec<usize> = (0..350)
+            .filter(|y| hm.depth_m[y * 800 + col] > 0.0)
+            .collect();
+        // The far point's strip is shorter; the near one covers rows 50..=137.
+        assert_eq!(*rows.first().unwrap(), 50);
+        assert_eq!(*rows.last().unwrap(), 137);
+        assert!(rows.iter().all(|y| hm.depth_m[y * 800 + col] == 10.0));
+        assert_eq!(raw.depth_m[125 * 800 + 400], 10.0);
+        assert_eq!(raw.valid(), 1);
+    }
+
+    #[test]
+    fn image_reduction_crop_offset() {
+        let (w, h) = (1600u32, 900u32);
+        let mut rgb = vec![0u8; (w * h * 3) as usize];
+        // Mark full-res rows 200,201 (→ frame row 0) and 198,199 (cropped).
+        for x in 0..w as usize {
+            for c in 0..3 {
+                rgb[(200 * w as usize + x) * 3 + c] = 100;
+                rgb[(201 * w as usize + x) * 3 + c] = 200;
+                rgb[(199 * w as usize + x) * 3 + c] = 255;
+            }
+        }
+        let f = image_to_frame(&rgb, w, h).unwrap();
+        assert_eq!(f.len(), 800 * 350 * 3);
+        assert_eq!(f[0], 150);
+        assert_eq!(f[800 * 3], 0);
+        assert!(image_to_frame(&rgb[..10], 5, 2).is_none());
+    }
+
+    #[test]
+    fn occlusion_filter_drops_hidden_background() {
+        let mut d = vec![0f32; N];
+        d[100 * 800 + 100] = 10.0;
+        d[100 * 800 + 101] = 30.0; // background next to foreground: hidden
+        d[101 * 800 + 300] = 30.0; // isolated: kept
+        d[101 * 800 + 301] = 31.0; // consistent neighbour: kept
+        assert_eq!(occlusion_filter(&mut d), 1);
+        assert_eq!(d[100 * 800 + 101], 0.0);
+        assert_eq!(d[101 * 800 + 301], 31.0);
+    }
+
+    #[test]
+    fn lowheight_band() {
+        let mut r = Raster::default();
+        r.splat(0, 0, 5.0, 0.1);
+        r.splat(1, 0, 5.0, 1.0);
+        r.splat(2, 0, 5.0, 2.5);
+        let m = lowheight_mask(&r);
+        assert_eq!(&m[..3], &[0, 255, 0]);
+    }
+}

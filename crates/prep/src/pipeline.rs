@@ -1,0 +1,704 @@
+//! The `prepare` pipeline: raw nuScenes keyframes → training-frame maps on disk
+//! (layout in [`crate::layout`]).
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::geometry::{
+    cam_from_sensor, ego_from_sensor, global_from_ego, rotation_from_wxyz, Camera,
+};
+use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
+use depthsense_nuscenes::tables::{NuScenes, Sample, SampleAnnotation, SampleData, Token};
+use depthsense_nuscenes::NuError;
+use rayon::prelude::*;
+
+use crate::layout::{self, conditions_of, IndexEntry, PreparedIndex, SampleMeta};
+use crate::maps::{self, Raster};
+
+pub use crate::splits::split_scene_tokens;
+
+/// Options of `depthsense prepare`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PrepareOptions {
+    pub dataroot: PathBuf,
+    /// Version folder name, e.g. "v1.0-mini", "v1.0-trainval", "v1.0-synth".
+    pub version: String,
+    pub out: PathBuf,
+    /// Split name (see `splits::SPLIT_NAMES`); "all" = every scene of the version.
+    pub split: String,
+    /// Radar sweeps per channel: the keyframe sweep and N−1 previous ones (SPEC §2).
+    pub radar_sweeps: usize,
+    pub radar_channels: Vec<String>,
+    /// K: the dense lidar target accumulates keyframe ±K sweeps (SPEC §4).
+    pub lidar_sweeps: usize,
+    /// Devkit default radar filters (SPEC §2).
+    pub radar_filters: bool,
+    /// Radar velocity compensation (vx_comp, vy_comp × Δt) for multi-sweep radar.
+    pub radar_velocity_compensation: bool,
+    /// Worker threads; 0 = all cores.
+    pub jobs: usize,
+    /// Exit status 0 even when some samples failed.
+    pub keep_going: bool,
+}
+
+impl Default for PrepareOptions {
+    fn default() -> Self {
+        Self {
+            dataroot: PathBuf::from("data/nuscenes"),
+            version: "v1.0-mini".into(),
+            out: PathBuf::from("data/prepared"),
+            split: "all".into(),
+            radar_sweeps: 5,
+            radar_channels: vec![
+                "RADAR_FRONT".into(),
+                "RADAR_FRONT_LEFT".into(),
+                "RADAR_FRONT_RIGHT".into(),
+            ],
+            lidar_sweeps: 0,
+            radar_filters: true,
+            radar_velocity_compensation: false,
+            jobs: 0,
+            keep_going: false,
+        }
+    }
+}
+
+/// What a `prepare` run did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PrepareSummary {
+    pub prepared: usize,
+    pub skipped_existing: usize,
+    /// (sample token, reason) of every sample that could not be prepared.
+    pub failed: Vec<(String, String)>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PrepError {
+    #[error(transparent)]
+    Nu(#[from] depthsense_nuscenes::NuError),
+    #[error("unknown split {0:?}; expected one of train, test, test-day, test-night, test-rain, official-train, official-val, all")]
+    UnknownSplit(String),
+    #[error("split {split:?} matches no scene of {version} ({scenes} scenes); synthetic or partial datasets have their own scene tokens: use --split all")]
+    EmptySplit {
+        split: String,
+        version: String,
+        scenes: usize,
+    },
+    #[error("{path}: {reason}")]
+    Output { path: String, reason: String },
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Speed above which an annotated object counts as moving (m/s).
+pub const MOVING_SPEED_MPS: f64 = 0.5;
+/// Margin added to every side of a moving box before removing points (m).
+pub const BOX_MARGIN_M: f64 = 0.25;
+
+/// Time spent per stage, summed over samples (seconds).
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct StageTimes {
+    pub decode_s: f64,
+    pub project_s: f64,
+    pub encode_s: f64,
+    pub write_s: f64,
+}
+
+/// The maps of one sample, in memory.
+pub struct SampleMaps {
+    pub meta: SampleMeta,
+    /// 800x350 RGB8.
+    pub image_rgb: Vec<u8>,
+    pub lidar_sparse: DepthMap,
+    pub lidar_dense: DepthMap,
+    pub lowheight_mask: Vec<u8>,
+    pub radar_raw: DepthMap,
+    pub radar_height: DepthMap,
+}
+
+fn io_err(path: &Path, e: std::io::Error) -> PrepError {
+    PrepError::Nu(NuError::io(path, e))
+}
+
+/// A box of a moving object in the global frame.
+struct MovingBox {
+    center: [f64; 3],
+    /// global_from_box rotation.
+    rot: [[f64; 3]; 3],
+    half: [f64; 3],
+    speed_mps: f64,
+    timestamp_us: i64,
+}
+
+/// Moving-object rule (documented in the README): an annotation is moving when its speed,
+/// from the neighbouring annotations of the same instance (devkit `box_velocity`: next −
+/// prev over their sample times), exceeds 0.5 m/s, or when it carries an attribute whose name
+/// ends in ".moving" or is "cycle.with_rider".
+fn moving_boxes(nu: &NuScenes, sample: &Sample) -> Vec<MovingBox> {
+    let anns = nu.sample_annotations(sample.token);
+    let ts = |a: &SampleAnnotation| {
+        nu.get_sample(a.sample_token, "sample_annotation", a.token, "sample_token")
+            .ok()
+            .map(|s| s.timestamp_us)
+    };
+    let mut out = Vec::new();
+    for a in anns {
+        let prev = a.prev.and_then(|t| nu.annotation(t));
+        let next = a.next.and_then(|t| nu.annotation(t));
+        let (p0, p1) = (prev.unwrap_or(a), next.unwrap_or(a));
+        let speed = match (ts(p0), ts(p1)) {
+            (Some(t0), Some(t1)) if t1 > t0 => {
+                let d: f64 = (0..3)
+                    .map(|i| (p1.translation[i] - p0.translation[i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                d / ((t1 - t0) as f64 * 1e-6)
+            }
+            _ => 0.0,
+        };
+        let attr_moving = a.attribute_tokens.iter().any(|t| {
+            nu.get_attribute(*t, "sample_annotation", a.token, "attribute_tokens")
+                .map(|at| at.name.ends_with(".moving") || at.name == "cycle.with_rider")
+                .unwrap_or(false)
+        });
+        if speed <= MOVING_SPEED_MPS && !attr_moving {
+            continue;
+        }
+        let Ok(rot) = rotation_from_wxyz(a.rotation, &format!("sample_annotation {}", a.token))
+        else {
+            continue;
+        };
+        // size = (width, length, height); box x axis is the length (devkit).
+        out.push(MovingBox {
+            center: a.translation,
+            rot,
+            half: [a.size[1] / 2.0, a.size[0] / 2.0, a.size[2] / 2.0],
+            speed_mps: speed.max(if attr_moving { 1.0 } else { 0.0 }),
+            timestamp_us: sample.timestamp_us,
+        });
+    }
+    out
+}
+
+/// Everything a worker needs besides the tables.
+struct Job<'a> {
+    nu: &'a NuScenes,
+    opts: &'a PrepareOptions,
+    times: &'a Mutex<StageTimes>,
+}
+
+/// Compute all maps of one sample (no writing).
+pub fn compute_sample(
+    nu: &NuScenes,
+    sample: &Sample,
+    opts: &PrepareOptions,
+) -> Result<SampleMaps, PrepError> {
+    let times = Mutex::new(StageTimes::default());
+    compute(
+        &Job {
+            nu,
+            opts,
+            times: &times,
+        },
+        sample,
+    )
+}
+
+fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
+    let nu = job.nu;
+    let opts = job.opts;
+    let mut decode_s = 0.0;
+    let mut project_s = 0.0;
+    let cam_sd = nu.keyframe(sample.token, "CAM_FRONT").ok_or_else(|| {
+        PrepError::Nu(NuError::BadRecord {
+            table: "sample",
+            token: sample.token.to_string(),
+            reason: "has no CAM_FRONT keyframe in sample_data".into(),
+        })
+    })?;
+    let lidar_sd = nu.keyframe(sample.token, "LIDAR_TOP").ok_or_else(|| {
+        PrepError::Nu(NuError::BadRecord {
+            table: "sample",
+            token: sample.token.to_string(),
+            reason: "has no LIDAR_TOP keyframe in sample_data".into(),
+        })
+    })?;
+    let cam_cs = nu.get_calibrated_sensor(
+        cam_sd.calibrated_sensor_token,
+        "sample_data",
+        cam_sd.token,
+        "calibrated_sensor_token",
+    )?;
+    let k = cam_cs.camera_intrinsic.ok_or_else(|| {
+        PrepError::Nu(NuError::BadRecord {
+            table: "calibrated_sensor",
+            token: cam_cs.token.to_string(),
+            reason: "CAM_FRONT calibration has no 3x3 camera_intrinsic".into(),
+        })
+    })?;
+    let (w, h) = if cam_sd.width > 0 {
+        (cam_sd.width, cam_sd.height)
+    } else {
+        (1600, 900)
+    };
+    let cam = Camera::from_intrinsic(&k, w, h);
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+
+    // Image.
+    let t = Instant::now();
+    let img_path = nu.path_of(cam_sd);
+    let jpeg = std::fs::read(&img_path).map_err(|e| io_err(&img_path, e))?;
+    let rgb = image::load_from_memory(&jpeg)
+        .map_err(|e| {
+            PrepError::Nu(NuError::Image {
+                path: img_path.display().to_string(),
+                reason: e.to_string(),
+            })
+        })?
+        .into_rgb8();
+    let (iw, ih) = rgb.dimensions();
+    let image_rgb = maps::image_to_frame(rgb.as_raw(), iw, ih).ok_or_else(|| {
+        PrepError::Nu(NuError::Image {
+            path: img_path.display().to_string(),
+            reason: format!("expected a 1600x900 image, found {iw}x{ih}"),
+        })
+    })?;
+    decode_s += t.elapsed().as_secs_f64();
+
+    // Sparse lidar GT and low-height mask: keyframe sweep only (SPEC §4).
+    let t = Instant::now();
+    let lidar_path = nu.path_of(lidar_sd);
+    let scan = read_lidar_pcd_bin(&lidar_path)?;
+    decode_s += t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let pts: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    let cam_from_lidar = cam_from_sensor(nu, lidar_sd, cam_sd)?;
+    let ego_from_lidar = ego_from_sensor(nu, lidar_sd)?.to_f32();
+    let heights: Vec<f32> = pts
+        .iter()
+        .map(|p| depthsense_nuscenes::geometry::apply_f32(&ego_from_lidar, *p)[2])
+        .collect();
+    let sparse = maps::project_points(&pts, &cam_from_lidar, &cam, |i| heights[i]);
+    let lowheight_mask = maps::lowheight_mask(&sparse);
+    counts.insert("lidar_points".into(), pts.len() as u64);
+    counts.insert("lidar_in_image".into(), sparse.in_frame);
+    counts.insert("lidar_sparse_pixels".into(), sparse.valid());
+    counts.insert(
+        "lowheight_pixels".into(),
+        lowheight_mask.iter().filter(|v| **v > 0).count() as u64,
+    );
+    let mut nan_dropped = scan.nan_dropped as u64;
+    project_s += t.elapsed().as_secs_f64();
+
+    // Dense target: ±K sweeps through their own ego poses, moving boxes removed (SPEC §4).
+    let kk = opts.lidar_sweeps;
+    let annotations_present = nu.sample_annotation.is_some();
+    let mut dense = Raster {
+        depth_m: sparse.depth_m.clone(),
+        payload: vec![0.0; sparse.payload.len()],
+        in_frame: sparse.in_frame,
+    };
+    let mut moving_removed = 0u64;
+    let mut sweeps_used = 1u64;
+    if kk > 0 {
+        let mut others: Vec<&SampleData> = nu
+            .sweeps_back(lidar_sd, kk + 1)
+            .into_iter()
+            .skip(1)
+            .collect();
+        others.extend(nu.sweeps_forward(lidar_sd, kk + 1).into_iter().skip(1));
+        // Moving boxes of the scene's samples, for the sweep's nearest keyframe.
+        let scene_samples = nu.scene_samples(sample.scene_token);
+        let mut box_cache: Vec<(i64, Vec<MovingBox>)> = Vec::new();
+        if annotations_present {
+            let lo = others
+                .iter()
+                .map(|s| s.timestamp_us)
+                .min()
+                .unwrap_or(sample.timestamp_us)
+                - 600_000;
+            let hi = others
+                .iter()
+                .map(|s| s.timestamp_us)
+                .max()
+                .unwrap_or(sample.timestamp_us)
+                + 600_000;
+            for s in scene_samples
+                .iter()
+                .filter(|s| s.timestamp_us >= lo && s.timestamp_us <= hi)
+            {
+                box_cache.push((s.timestamp_us, moving_boxes(nu, s)));
+            }
+        }
+        let cam_from_global = global_from_ego(nu, cam_sd)?
+            .compose(&ego_from_sensor(nu, cam_sd)?)
+            .inverse();
+        for sw in others {
+            let t = Instant::now();
+            let p = nu.path_of(sw);
+            let s = read_lidar_pcd_bin(&p)?;
+            decode_s += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            nan_dropped += s.nan_dropped as u64;
+            let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_sensor(nu, sw)?);
+            let g = global_from_sensor.to_f32();
+            let boxes = box_cache
+                .iter()
+                .min_by_key(|(ts, _)| (ts - sw.timestamp_us).abs())
+                .map(|(_, b)| b.as_slice())
+                .unwrap_or(&[]);
+            let mut kept: Vec<[f32; 3]> = Vec::with_capacity(s.points.len());
+            for q in &s.points {
+                let pg = depthsense_nuscenes::geometry::apply_f32(&g, [q[0], q[1], q[2]]);
+                let inside = boxes.iter().any(|b| {
+                    let dt = ((b.timestamp_us - sw.timestamp_us).abs() as f64) * 1e-6;
+                    let m = BOX_MARGIN_M + b.speed_mps * dt;
+                    let d = [
+                        pg[0] as f64 - b.center[0],
+                        pg[1] as f64 - b.center[1],
+                        pg[2] as f64 - b.center[2],
+                    ];
+                    (0..3).all(|a| {
+                        let l = b.rot[0][a] * d[0] + b.rot[1][a] * d[1] + b.rot[2][a] * d[2];
+                        l.abs() <= b.half[a] + m
+                    })
+                });
+                if inside {
+                    moving_removed += 1;
+                } else {
+                    kept.push(pg);
+                }
+            }
+            maps::project_into(&mut dense, &kept, &cam_from_global, &cam, |_| 0.0);
+            sweeps_used += 1;
+            project_s += t.elapsed().as_secs_f64();
+        }
+    }
+    let t = Instant::now();
+    let occluded = maps::occlusion_filter(&mut dense.depth_m);
+    project_s += t.elapsed().as_secs_f64();
+    counts.insert("lidar_dense_sweeps".into(), sweeps_used);
+    counts.insert("lidar_dense_pixels".into(), dense.valid());
+    counts.insert("lidar_dense_occluded_removed".into(), occluded);
+    counts.insert("lidar_moving_removed".into(), moving_removed);
+
+    // Radar (SPEC §5): N sweeps of each chosen channel.
+    let mut radar_raw = Raster::default();
+    let mut radar_height = Raster::default();
+    let mut radar_points = 0u64;
+    let mut radar_filtered = 0u64;
+    let mut cam_from_radar = BTreeMap::new();
+    let mut sd_tokens = BTreeMap::new();
+    sd_tokens.insert("CAM_FRONT".to_string(), cam_sd.token.to_string());
+    sd_tokens.insert("LIDAR_TOP".to_string(), lidar_sd.token.to_string());
+    let mut radar_missing = Vec::new();
+    for ch in &opts.radar_channels {
+        let Some(kf) = nu.keyframe(sample.token, ch) else {
+            radar_missing.push(ch.clone());
+            continue;
+        };
+        sd_tokens.insert(ch.clone(), kf.token.to_string());
+        for (si, sw) in nu
+            .sweeps_back(kf, opts.radar_sweeps.max(1))
+            .into_iter()
+            .enumerate()
+        {
+            let t = Instant::now();
+            let p = nu.path_of(sw);
+            let scan = read_radar_pcd(&p)?;
+            decode_s += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            nan_dropped += scan.nan_dropped as u64;
+            let (pts, out) = scan.filtered(opts.radar_filters);
+            radar_filtered += out as u64;
+            radar_points += pts.len() as u64;
+            let dt = opts
+                .radar_velocity_compensation
+                .then(|| (cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
+            let pos = maps::radar_positions(&pts, dt);
+            let tf = cam_from_sensor(nu, sw, cam_sd)?;
+            if si == 0 {
+                cam_from_radar.insert(ch.clone(), tf.to_mat4());
+            }
+            let m = tf.to_f32();
+            let pc: Vec<[f32; 3]> = pos
+                .iter()
+                .map(|q| depthsense_nuscenes::geometry::apply_f32(&m, *q))
+                .collect();
+            maps::radar_maps(&pc, &cam, &mut radar_raw, &mut radar_height);
+            project_s += t.elapsed().as_secs_f64();
+        }
+    }
+    counts.insert("radar_points".into(), radar_points);
+    counts.insert("radar_in_image".into(), radar_raw.in_frame);
+    counts.insert("radar_raw_pixels".into(), radar_raw.valid());
+    counts.insert("radar_height_pixels".into(), radar_height.valid());
+    counts.insert("radar_filtered_out".into(), radar_filtered);
+    counts.insert("nan_dropped".into(), nan_dropped);
+
+    let scene = nu.get_scene(sample.scene_token, "sample", sample.token, "scene_token")?;
+    let settings = serde_json::json!({
+        "version": nu.version,
+        "split": opts.split,
+        "radar_sweeps": opts.radar_sweeps,
+        "radar_channels": opts.radar_channels,
+        "radar_channels_missing": radar_missing,
+        "radar_filters": opts.radar_filters,
+        "radar_velocity_compensation": opts.radar_velocity_compensation,
+        "radar_h_up_m": maps::RADAR_H_UP_M,
+        "radar_h_down_m": maps::RADAR_H_DOWN_M,
+        "lidar_sweeps_k": kk,
+        "occlusion_filter": {"rx": maps::OCC_RX, "ry": maps::OCC_RY, "rel": maps::OCC_REL, "abs_m": maps::OCC_ABS_M},
+        "moving_objects": if annotations_present {
+            format!("removed from non-keyframe sweeps: boxes of annotations moving faster than {MOVING_SPEED_MPS} m/s or with a moving attribute, +{BOX_MARGIN_M} m + speed·|Δt| margin")
+        } else {
+            "not removed: this version has no sample_annotation table".to_string()
+        },
+        "annotations_present": annotations_present,
+        "lowheight_band_m": [maps::LOW_HEIGHT_MIN_M, maps::LOW_HEIGHT_MAX_M],
+    });
+    let meta = SampleMeta {
+        sample_token: sample.token.to_string(),
+        scene_token: scene.token.to_string(),
+        scene_name: scene.name.clone(),
+        conditions: conditions_of(&scene.description),
+        timestamp_us: sample.timestamp_us,
+        sample_data_tokens: sd_tokens,
+        intrinsics_frame: cam.frame_intrinsics(),
+        intrinsics_full: cam.intrinsics(),
+        cam_from_lidar: cam_from_lidar.to_mat4(),
+        cam_from_radar,
+        counts,
+        settings,
+    };
+    if let Ok(mut tm) = job.times.lock() {
+        tm.decode_s += decode_s;
+        tm.project_s += project_s;
+    }
+    Ok(SampleMaps {
+        meta,
+        image_rgb,
+        lidar_sparse: sparse.to_depth_map(),
+        lidar_dense: dense.to_depth_map(),
+        lowheight_mask,
+        radar_raw: radar_raw.to_depth_map(),
+        radar_height: radar_height.to_depth_map(),
+    })
+}
+
+fn encode_rgb_png(rgb: &[u8], w: u32, h: u32, gray: bool) -> Result<Vec<u8>, PrepError> {
+    use image::ImageEncoder;
+    let mut out = Vec::with_capacity(rgb.len() / 2);
+    let enc = image::codecs::png::PngEncoder::new_with_quality(
+        &mut out,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Adaptive,
+    );
+    let ct = if gray {
+        image::ExtendedColorType::L8
+    } else {
+        image::ExtendedColorType::Rgb8
+    };
+    enc.write_image(rgb, w, h, ct)
+        .map_err(|e| PrepError::Other(format!("PNG encode: {e}")))?;
+    Ok(out)
+}
+
+/// Encode and write one sample atomically: files go to a temporary sibling directory,
+/// `meta.json` last, then the directory is renamed into place.
+fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Result<(), PrepError> {
+    let t = Instant::now();
+    let fw = layout::FRAME_W;
+    let fh = layout::FRAME_H;
+    let depth = |m: &DepthMap| encode_png(m).map_err(|e| PrepError::Other(e.to_string()));
+    let files: Vec<(&str, Vec<u8>)> = vec![
+        (
+            layout::IMAGE_FILE,
+            encode_rgb_png(&maps.image_rgb, fw, fh, false)?,
+        ),
+        (layout::LIDAR_SPARSE_FILE, depth(&maps.lidar_sparse)?),
+        (layout::LIDAR_DENSE_FILE, depth(&maps.lidar_dense)?),
+        (
+            layout::LOWHEIGHT_MASK_FILE,
+            encode_rgb_png(&maps.lowheight_mask, fw, fh, true)?,
+        ),
+        (layout::RADAR_RAW_FILE, depth(&maps.radar_raw)?),
+        (layout::RADAR_HEIGHT_FILE, depth(&maps.radar_height)?),
+        (
+            layout::META_FILE,
+            serde_json::to_vec_pretty(&maps.meta).map_err(|e| PrepError::Other(e.to_string()))?,
+        ),
+    ];
+    let encode_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let final_dir = out.join(&maps.meta.sample_token);
+    let tmp = out.join(format!(
+        ".tmp-{}-{}",
+        maps.meta.sample_token,
+        std::process::id()
+    ));
+    let res = (|| -> Result<(), PrepError> {
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).map_err(|e| io_err(&tmp, e))?;
+        }
+        std::fs::create_dir_all(&tmp).map_err(|e| io_err(&tmp, e))?;
+        for (name, bytes) in &files {
+            let p = tmp.join(name);
+            std::fs::write(&p, bytes).map_err(|e| io_err(&p, e))?;
+        }
+        if final_dir.exists() {
+            // An incomplete directory (no meta.json) from an older run.
+            std::fs::remove_dir_all(&final_dir).map_err(|e| io_err(&final_dir, e))?;
+        }
+        std::fs::rename(&tmp, &final_dir).map_err(|e| io_err(&final_dir, e))
+    })();
+    if res.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    if let Ok(mut tm) = times.lock() {
+        tm.encode_s += encode_s;
+        tm.write_s += t.elapsed().as_secs_f64();
+    }
+    res
+}
+
+/// Samples of the chosen split in scene order, with their scenes' split names.
+pub fn select_samples<'a>(nu: &'a NuScenes, split: &str) -> Result<Vec<&'a Sample>, PrepError> {
+    let wanted = split_scene_tokens(split)?;
+    let mut scenes: Vec<_> = nu.scene.iter().collect();
+    if let Some(w) = &wanted {
+        scenes.retain(|s| w.contains(&s.token.to_string()));
+        if scenes.is_empty() {
+            return Err(PrepError::EmptySplit {
+                split: split.to_string(),
+                version: nu.version.clone(),
+                scenes: nu.scene.len(),
+            });
+        }
+    }
+    Ok(scenes
+        .iter()
+        .flat_map(|s| nu.scene_samples(s.token))
+        .collect())
+}
+
+/// Prepare every keyframe of the chosen split (see the crate docs and `layout`).
+/// Finished samples (with `meta.json`) are skipped; failed samples are listed in the summary.
+pub fn prepare(
+    opts: &PrepareOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<PrepareSummary, PrepError> {
+    prepare_timed(opts, progress).map(|(s, _)| s)
+}
+
+/// [`prepare`] that also returns the time per stage (for `bench data`).
+pub fn prepare_timed(
+    opts: &PrepareOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<(PrepareSummary, StageTimes), PrepError> {
+    let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
+    let samples = select_samples(&nu, &opts.split)?;
+    std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
+    // Stale temporary directories from an interrupted run.
+    if let Ok(rd) = std::fs::read_dir(&opts.out) {
+        for e in rd.flatten() {
+            if e.file_name().to_string_lossy().starts_with(".tmp-") {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+    let done = |s: &Sample| {
+        opts.out
+            .join(s.token.to_string())
+            .join(layout::META_FILE)
+            .is_file()
+    };
+    let (existing, todo): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| done(s));
+    progress.set_length(todo.len() as u64);
+    let times = Mutex::new(StageTimes::default());
+    let job = Job {
+        nu: &nu,
+        opts,
+        times: &times,
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.jobs)
+        .build()
+        .map_err(|e| PrepError::Other(format!("thread pool: {e}")))?;
+    let results: Vec<(Token, Result<(), PrepError>)> = pool.install(|| {
+        todo.par_iter()
+            .map(|s| {
+                let r = compute(&job, s).and_then(|m| write_sample(&opts.out, &m, &times));
+                progress.inc(1);
+                (s.token, r)
+            })
+            .collect()
+    });
+    let mut summary = PrepareSummary {
+        skipped_existing: existing.len(),
+        ..Default::default()
+    };
+    let mut ok: HashSet<Token> = existing.iter().map(|s| s.token).collect();
+    for (t, r) in results {
+        match r {
+            Ok(()) => {
+                summary.prepared += 1;
+                ok.insert(t);
+            }
+            Err(e) => summary.failed.push((t.to_string(), e.to_string())),
+        }
+    }
+    write_index(&nu, opts, &samples, &ok)?;
+    let t = times.into_inner().unwrap_or_default();
+    Ok((summary, t))
+}
+
+/// Merge this run's complete samples into `O/index.json` (entries of other runs are kept).
+fn write_index(
+    nu: &NuScenes,
+    opts: &PrepareOptions,
+    samples: &[&Sample],
+    ok: &HashSet<Token>,
+) -> Result<(), PrepError> {
+    let path = opts.out.join(layout::INDEX_FILE);
+    let mut index: PreparedIndex = match std::fs::read(&path) {
+        Ok(b) => serde_json::from_slice(&b).unwrap_or_default(),
+        Err(_) => PreparedIndex::default(),
+    };
+    index.version = nu.version.clone();
+    let mut pos: std::collections::HashMap<String, usize> = index
+        .samples
+        .iter()
+        .enumerate()
+        .map(|(i, e)| (e.sample_token.clone(), i))
+        .collect();
+    for s in samples.iter().filter(|s| ok.contains(&s.token)) {
+        let scene = nu.get_scene(s.scene_token, "sample", s.token, "scene_token")?;
+        let scene_tok = scene.token.to_string();
+        let mut splits = crate::splits::splits_of_scene(&scene_tok);
+        if splits.is_empty() {
+            splits.push("all".into());
+        }
+        let entry = IndexEntry {
+            sample_token: s.token.to_string(),
+            scene_token: scene_tok,
+            scene_name: scene.name.clone(),
+            splits,
+            conditions: conditions_of(&scene.description),
+            dir: s.token.to_string(),
+        };
+        match pos.get(&entry.sample_token) {
+            Some(&i) => index.samples[i] = entry,
+            None => {
+                pos.insert(entry.sample_token.clone(), index.samples.len());
+                index.samples.push(entry);
+            }
+        }
+    }
+    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| PrepError::Other(e.to_string()))?;
+    write_atomic(&path, &bytes).map_err(|e| io_err(&path, e))
+}

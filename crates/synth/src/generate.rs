@@ -1,0 +1,863 @@
+//! Planning the sensor timeline of every scene, rendering all frames in parallel and writing
+//! the dataroot: `<version>/*.json`, `samples/`, `sweeps/`, `truth/`, `maps/`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::pcd::{encode_lidar_pcd_bin, encode_radar_pcd_binary};
+use glam::{DQuat, DVec2};
+use rayon::prelude::*;
+
+use crate::calib::{self, Mount, IMG_H, IMG_W};
+use crate::rng::{hash_str, name_token, token, Rng};
+use crate::tables::*;
+use crate::world::{ActorKind, Ground, Motion, World, STATIC_OBJ_BASE};
+use crate::{camera, lidar, radar, SynthConfig, SynthError, SynthSummary, Weather};
+
+/// File name of the marker written at the dataroot (config + summary).
+pub const MARKER_FILE: &str = ".depthsense-synth.json";
+/// Truth folder (per-pixel depth of every CAM_FRONT keyframe).
+pub const TRUTH_DIR: &str = "truth";
+/// Annotate actors within this distance of the ego.
+const ANNOTATE_RANGE_M: f64 = 70.0;
+/// Lidar sweeps before the first / after the last keyframe.
+const LIDAR_PAD: usize = 5;
+/// Map resolution (m per pixel) of the semantic prior PNG; load with
+/// `NuScenes(..., map_resolution=1.0)` to query it.
+pub const MAP_RES_M: f64 = 1.0;
+
+const T_BASE_US: i64 = 1_700_000_000_000_000;
+
+fn ts_us(scene: usize, t: f64) -> i64 {
+    T_BASE_US + scene as i64 * 3_600_000_000 + (t * 1e6).round() as i64
+}
+
+fn q_wxyz(q: DQuat) -> [f64; 4] {
+    [q.w, q.x, q.y, q.z]
+}
+
+#[derive(Debug, Clone)]
+enum JobKind {
+    Cam { truth: String },
+    Lidar,
+    Radar { mount: Mount },
+}
+
+#[derive(Debug, Clone)]
+struct Job {
+    scene: usize,
+    kind: JobKind,
+    t: f64,
+    /// sample_data token (also the ego_pose token).
+    token: String,
+    filename: String,
+    salt: u64,
+}
+
+#[derive(Default)]
+struct JobOut {
+    bytes: u64,
+    /// Points per object (keyframe annotation counts).
+    counts: Vec<(u32, u32)>,
+}
+
+struct ScenePlan {
+    world: World,
+    logfile: String,
+    /// Keyframe times (lidar) and sample tokens.
+    kf_t: Vec<f64>,
+    sample_tokens: Vec<String>,
+}
+
+/// The condition of each scene: a balanced, deterministic allocation of the mix.
+pub fn allocate_conditions(n: usize, mix: &[(Weather, f64)]) -> Vec<Weather> {
+    let total: f64 = mix.iter().map(|m| m.1.max(0.0)).sum();
+    let mut given = vec![0usize; mix.len()];
+    let mut out = Vec::with_capacity(n);
+    for i in 0..n {
+        // Pick the condition furthest behind its quota.
+        let mut best = 0;
+        let mut best_def = f64::NEG_INFINITY;
+        for (j, m) in mix.iter().enumerate() {
+            let quota = (i + 1) as f64 * m.1.max(0.0) / total;
+            let def = quota - given[j] as f64;
+            if m.1 > 0.0 && def > best_def + 1e-12 {
+                best_def = def;
+                best = j;
+            }
+        }
+        given[best] += 1;
+        out.push(mix[best].0);
+    }
+    out
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError + '_ {
+    move |source| SynthError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// Generate the world into `out` (see [`crate::generate`]).
+pub fn generate(
+    out: &Path,
+    cfg: &SynthConfig,
+    progress: &indicatif::ProgressBar,
+) -> Result<SynthSummary, SynthError> {
+    let start = Instant::now();
+    cfg.validate()?;
+    // Refuse to overwrite anything that is not a previous synthetic world.
+    if out.exists() {
+        let non_empty = std::fs::read_dir(out)
+            .map_err(io_err(out))?
+            .next()
+            .is_some();
+        if non_empty && !out.join(MARKER_FILE).exists() {
+            return Err(SynthError::Exists(out.display().to_string()));
+        }
+    }
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&parent).map_err(io_err(&parent))?;
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "synth".into());
+    let tmp = parent.join(format!(".{name}.synth-tmp-{}", std::process::id()));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+    }
+    let result = generate_into(&tmp, cfg, progress);
+    match result {
+        Ok(mut summary) => {
+            if out.exists() {
+                std::fs::remove_dir_all(out).map_err(io_err(out))?;
+            }
+            std::fs::rename(&tmp, out).map_err(io_err(out))?;
+            summary.version_dir = out.join(&cfg.version_name);
+            summary.seconds = start.elapsed().as_secs_f64();
+            Ok(summary)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&tmp);
+            Err(e)
+        }
+    }
+}
+
+fn generate_into(
+    root: &Path,
+    cfg: &SynthConfig,
+    progress: &indicatif::ProgressBar,
+) -> Result<SynthSummary, SynthError> {
+    let seed = cfg.seed;
+    let m = cfg.keyframes_per_scene;
+    let weathers = allocate_conditions(cfg.scenes, &cfg.conditions);
+    let mounts = calib::all_mounts();
+    let radar_mounts: Vec<Mount> = calib::RADAR_CHANNELS
+        .iter()
+        .map(|c| calib::radar(c))
+        .collect();
+
+    // Fixed tables.
+    let mut tb = Tables::default();
+    let cats = [
+        ("vehicle.car", "Vehicle designed primarily for personal use, e.g. sedans, hatch-backs, wagons, vans, mini-vans, SUVs and jeeps."),
+        ("vehicle.truck", "Vehicles primarily designed to haul cargo including pick-ups, lorrys, trucks and semi-tractors."),
+        ("vehicle.bus.rigid", "Rigid bus."),
+        ("human.pedestrian.adult", "Adult subcategory."),
+    ];
+    for (n, d) in cats {
+        tb.category.push(Category {
+            token: name_token("category", n),
+            name: n.into(),
+            description: d.into(),
+        });
+    }
+    let attrs = [
+        ("vehicle.moving", "Vehicle is moving."),
+        ("vehicle.stopped", "Vehicle, with a driver/rider in/on it, is currently stationary but has an intent to move."),
+        ("vehicle.parked", "Vehicle is stationary (usually for longer duration) with no immediate intent to move."),
+        ("pedestrian.moving", "The human is moving."),
+        ("pedestrian.standing", "The human is standing."),
+    ];
+    for (n, d) in attrs {
+        tb.attribute.push(Attribute {
+            token: name_token("attribute", n),
+            name: n.into(),
+            description: d.into(),
+        });
+    }
+    for (i, (lvl, d)) in [
+        ("v0-40", "visibility of whole object is between 0 and 40%"),
+        ("v40-60", "visibility of whole object is between 40 and 60%"),
+        ("v60-80", "visibility of whole object is between 60 and 80%"),
+        (
+            "v80-100",
+            "visibility of whole object is between 80 and 100%",
+        ),
+    ]
+    .iter()
+    .enumerate()
+    {
+        tb.visibility.push(Visibility {
+            token: (i + 1).to_string(),
+            level: lvl.to_string(),
+            description: d.to_string(),
+        });
+    }
+    for mt in &mounts {
+        tb.sensor.push(Sensor {
+            token: name_token("sensor", mt.channel),
+            channel: mt.channel.into(),
+            modality: mt.modality.into(),
+        });
+    }
+    let map_token = token(seed, &[hash_str("map")]);
+
+    // Plan scenes.
+    let kf_t0 = 0.1 + LIDAR_PAD as f64 * calib::LIDAR_PERIOD_S;
+    let duration = kf_t0 + (m as f64 - 1.0) * calib::KEYFRAME_PERIOD_S + 0.6;
+    let plans: Vec<ScenePlan> = weathers
+        .iter()
+        .enumerate()
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|(i, &w)| {
+            let world = World::build(seed, i, w, duration);
+            let kf_t: Vec<f64> = (0..m)
+                .map(|k| kf_t0 + k as f64 * calib::KEYFRAME_PERIOD_S)
+                .collect();
+            let sample_tokens = (0..m)
+                .map(|k| token(seed, &[hash_str("sample"), i as u64, k as u64]))
+                .collect();
+            ScenePlan {
+                world,
+                logfile: format!(
+                    "synth{:03}-2026-01-{:02}-{:02}-00-00+0000",
+                    seed % 1000,
+                    1 + i % 28,
+                    i / 28 % 24
+                ),
+                kf_t,
+                sample_tokens,
+            }
+        })
+        .collect();
+
+    let mut jobs: Vec<Job> = Vec::new();
+    // Per (scene, channel) lists of (job index, is_keyframe sample index).
+    struct ChanRow {
+        job: usize,
+        kf: Option<usize>,
+    }
+    let mut chans: Vec<(usize, &'static str, Vec<ChanRow>)> = Vec::new();
+    for (si, plan) in plans.iter().enumerate() {
+        let mut jr = Rng::stream(seed, &[hash_str("timing"), si as u64]);
+        let log_token = token(seed, &[hash_str("log"), si as u64]);
+        let scene_token = token(seed, &[hash_str("scene"), si as u64]);
+        tb.log.push(Log {
+            token: log_token.clone(),
+            logfile: plan.logfile.clone(),
+            vehicle: "synth".into(),
+            date_captured: "2026-01-01".into(),
+            location: "synth-city".into(),
+        });
+        tb.scene.push(Scene {
+            token: scene_token.clone(),
+            log_token,
+            nbr_samples: m,
+            first_sample_token: plan.sample_tokens[0].clone(),
+            last_sample_token: plan.sample_tokens[m - 1].clone(),
+            name: format!("synth-{si:04}"),
+            description: plan.world.description.clone(),
+        });
+        for k in 0..m {
+            tb.sample.push(Sample {
+                token: plan.sample_tokens[k].clone(),
+                timestamp: ts_us(si, plan.kf_t[k]),
+                prev: if k > 0 {
+                    plan.sample_tokens[k - 1].clone()
+                } else {
+                    String::new()
+                },
+                next: if k + 1 < m {
+                    plan.sample_tokens[k + 1].clone()
+                } else {
+                    String::new()
+                },
+                scene_token: scene_token.clone(),
+            });
+        }
+        for mt in &mounts {
+            let intr = if mt.modality == "camera" {
+                vec![
+                    [calib::CAM_FX, 0.0, calib::CAM_CX],
+                    [0.0, calib::CAM_FY, calib::CAM_CY],
+                    [0.0, 0.0, 1.0],
+                ]
+            } else {
+                Vec::new()
+            };
+            tb.calibrated_sensor.push(CalibratedSensor {
+                token: token(
+                    seed,
+                    &[
+                        hash_str("calibrated_sensor"),
+                        si as u64,
+                        hash_str(mt.channel),
+                    ],
+                ),
+                sensor_token: name_token("sensor", mt.channel),
+                translation: mt.translation,
+                rotation: mt.rotation_wxyz,
+                camera_intrinsic: intr,
+            });
+        }
+        let sd_token = |ch: &str, j: usize| {
+            token(
+                seed,
+                &[hash_str("sample_data"), si as u64, hash_str(ch), j as u64],
+            )
+        };
+        let salt = |ch: &str, j: usize| {
+            crate::rng::hash_ids(
+                seed,
+                &[hash_str("frame"), si as u64, hash_str(ch), j as u64],
+            )
+        };
+        // CAM_FRONT at the keyframes.
+        let mut rows = Vec::new();
+        for k in 0..m {
+            let t = plan.kf_t[k] + calib::CAM_OFFSET_S + jr.range(-0.002, 0.002);
+            let tok = sd_token(calib::CAM_FRONT, k);
+            rows.push(ChanRow {
+                job: jobs.len(),
+                kf: Some(k),
+            });
+            jobs.push(Job {
+                scene: si,
+                kind: JobKind::Cam {
+                    truth: format!("{TRUTH_DIR}/{tok}.png"),
+                },
+                t,
+                filename: format!(
+                    "samples/CAM_FRONT/{}__CAM_FRONT__{}.jpg",
+                    plan.logfile,
+                    ts_us(si, t)
+                ),
+                token: tok,
+                salt: salt(calib::CAM_FRONT, k),
+            });
+        }
+        chans.push((si, calib::CAM_FRONT, rows));
+        // LIDAR_TOP at 20 Hz, keyframes every 10th sweep.
+        let per = (calib::KEYFRAME_PERIOD_S / calib::LIDAR_PERIOD_S).round() as usize;
+        let n_lidar = (m - 1) * per + 1 + 2 * LIDAR_PAD;
+        let mut rows = Vec::new();
+        for j in 0..n_lidar {
+            let kf = if j >= LIDAR_PAD && (j - LIDAR_PAD).is_multiple_of(per) {
+                Some((j - LIDAR_PAD) / per)
+            } else {
+                None
+            };
+            let t = match kf {
+                Some(k) => plan.kf_t[k],
+                None => {
+                    kf_t0
+                        + (j as f64 - LIDAR_PAD as f64) * calib::LIDAR_PERIOD_S
+                        + jr.range(-0.0008, 0.0008)
+                }
+            };
+            let folder = if kf.is_some() { "samples" } else { "sweeps" };
+            rows.push(ChanRow {
+                job: jobs.len(),
+                kf,
+            });
+            jobs.push(Job {
+                scene: si,
+                kind: JobKind::Lidar,
+                t,
+                filename: format!(
+                    "{folder}/LIDAR_TOP/{}__LIDAR_TOP__{}.pcd.bin",
+                    plan.logfile,
+                    ts_us(si, t)
+                ),
+                token: sd_token(calib::LIDAR_TOP, j),
+                salt: salt(calib::LIDAR_TOP, j),
+            });
+        }
+        chans.push((si, calib::LIDAR_TOP, rows));
+        // Radars at ≈13 Hz with their own phases; the sweep nearest each keyframe is the keyframe.
+        for rm in &radar_mounts {
+            let phase = jr.range(0.0, calib::RADAR_PERIOD_S);
+            let t_first =
+                plan.kf_t[0] - 5.0 * calib::RADAR_PERIOD_S + phase - calib::RADAR_PERIOD_S / 2.0;
+            let t_last = plan.kf_t[m - 1] + calib::RADAR_PERIOD_S / 2.0;
+            let mut times = Vec::new();
+            let mut t = t_first;
+            while t <= t_last {
+                times.push(t + jr.range(-0.001, 0.001));
+                t += calib::RADAR_PERIOD_S;
+            }
+            let mut kf_of = vec![None; times.len()];
+            for k in 0..m {
+                let (jbest, _) = times
+                    .iter()
+                    .enumerate()
+                    .map(|(j, &tt)| (j, (tt - plan.kf_t[k]).abs()))
+                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+                kf_of[jbest] = Some(k);
+            }
+            let mut rows = Vec::new();
+            for (j, &t) in times.iter().enumerate() {
+                let folder = if kf_of[j].is_some() {
+                    "samples"
+                } else {
+                    "sweeps"
+                };
+                rows.push(ChanRow {
+                    job: jobs.len(),
+                    kf: kf_of[j],
+                });
+                jobs.push(Job {
+                    scene: si,
+                    kind: JobKind::Radar { mount: *rm },
+                    t,
+                    filename: format!(
+                        "{folder}/{}/{}__{}__{}.pcd",
+                        rm.channel,
+                        plan.logfile,
+                        rm.channel,
+                        ts_us(si, t)
+                    ),
+                    token: sd_token(rm.channel, j),
+                    salt: salt(rm.channel, j),
+                });
+            }
+            chans.push((si, rm.channel, rows));
+        }
+    }
+
+    // Directories.
+    for d in ["samples", "sweeps"] {
+        for mt in &mounts {
+            let p = root.join(d).join(mt.channel);
+            std::fs::create_dir_all(&p).map_err(io_err(&p))?;
+        }
+    }
+    for d in [TRUTH_DIR, "maps", cfg.version_name.as_str()] {
+        let p = root.join(d);
+        std::fs::create_dir_all(&p).map_err(io_err(&p))?;
+    }
+
+    // Render and write every frame in parallel; each frame has its own RNG stream.
+    progress.set_length(jobs.len() as u64);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(cfg.jobs)
+        .build()
+        .map_err(|e| SynthError::Config(format!("thread pool: {e}")))?;
+    let outs: Vec<Result<JobOut, SynthError>> = pool.install(|| {
+        jobs.par_iter()
+            .map(|job| {
+                let r = run_job(root, &plans[job.scene].world, job);
+                progress.inc(1);
+                r
+            })
+            .collect()
+    });
+    let mut outs_ok = Vec::with_capacity(outs.len());
+    for o in outs {
+        outs_ok.push(o?);
+    }
+    let mut bytes: u64 = outs_ok.iter().map(|o| o.bytes).sum();
+
+    // sample_data and ego_pose rows, channel by channel, with prev/next chains.
+    let mut lidar_counts: BTreeMap<(usize, usize), BTreeMap<u32, u32>> = BTreeMap::new();
+    let mut radar_counts: BTreeMap<(usize, usize), BTreeMap<u32, u32>> = BTreeMap::new();
+    for (si, ch, rows) in &chans {
+        let plan = &plans[*si];
+        let cs_token = token(
+            seed,
+            &[hash_str("calibrated_sensor"), *si as u64, hash_str(ch)],
+        );
+        for (r, row) in rows.iter().enumerate() {
+            let job = &jobs[row.job];
+            let (ep, eq) = plan.world.ego_pose(job.t);
+            let ts = ts_us(*si, job.t);
+            tb.ego_pose.push(EgoPose {
+                token: job.token.clone(),
+                timestamp: ts,
+                rotation: q_wxyz(eq),
+                translation: [ep.x, ep.y, ep.z],
+            });
+            // Sweeps belong to the nearest keyframe's sample.
+            let sample_k = row.kf.unwrap_or_else(|| {
+                plan.kf_t
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &tk)| (k, (tk - job.t).abs()))
+                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
+                    .0
+            });
+            let (fileformat, w, h) = match job.kind {
+                JobKind::Cam { .. } => ("jpg", IMG_W, IMG_H),
+                _ => ("pcd", 0, 0),
+            };
+            tb.sample_data.push(SampleData {
+                token: job.token.clone(),
+                sample_token: plan.sample_tokens[sample_k].clone(),
+                ego_pose_token: job.token.clone(),
+                calibrated_sensor_token: cs_token.clone(),
+                timestamp: ts,
+                fileformat: fileformat.into(),
+                is_key_frame: row.kf.is_some(),
+                height: h,
+                width: w,
+                filename: job.filename.clone(),
+                prev: if r > 0 {
+                    jobs[rows[r - 1].job].token.clone()
+                } else {
+                    String::new()
+                },
+                next: if r + 1 < rows.len() {
+                    jobs[rows[r + 1].job].token.clone()
+                } else {
+                    String::new()
+                },
+            });
+            if let Some(k) = row.kf {
+                let counts = &outs_ok[row.job].counts;
+                match job.kind {
+                    JobKind::Lidar => {
+                        lidar_counts
+                            .entry((*si, k))
+                            .or_default()
+                            .extend(counts.iter().copied());
+                    }
+                    JobKind::Radar { .. } => {
+                        let e = radar_counts.entry((*si, k)).or_default();
+                        for &(o, c) in counts {
+                            *e.entry(o).or_default() += c;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    // Annotations: every actor within range of the ego at each keyframe.
+    for (si, plan) in plans.iter().enumerate() {
+        let w = &plan.world;
+        let mut per_actor: BTreeMap<usize, Vec<(usize, SampleAnnotation)>> = BTreeMap::new();
+        for k in 0..m {
+            let t = plan.kf_t[k];
+            let (ep, _) = w.ego_pose(t);
+            for (ai, a) in w.actors.iter().enumerate() {
+                let st = w.actor_state(ai, t);
+                if (st.pos - DVec2::new(ep.x, ep.y)).length() > ANNOTATE_RANGE_M
+                    || w.actor_hidden(ai, &st, t)
+                {
+                    continue;
+                }
+                let nl = lidar_counts
+                    .get(&(si, k))
+                    .and_then(|c| c.get(&(ai as u32)))
+                    .copied()
+                    .unwrap_or(0);
+                let nr = radar_counts
+                    .get(&(si, k))
+                    .and_then(|c| c.get(&(ai as u32)))
+                    .copied()
+                    .unwrap_or(0);
+                let speed = st.vel.length();
+                let attr = match (a.kind, a.motion) {
+                    (ActorKind::Pedestrian, _) if speed > 0.3 => "pedestrian.moving",
+                    (ActorKind::Pedestrian, _) => "pedestrian.standing",
+                    (_, Motion::Parked { .. }) => "vehicle.parked",
+                    _ if speed > 0.3 => "vehicle.moving",
+                    _ => "vehicle.stopped",
+                };
+                let vis = match nl {
+                    0 => "1",
+                    1..=9 => "2",
+                    10..=49 => "3",
+                    _ => "4",
+                };
+                per_actor.entry(ai).or_default().push((
+                    k,
+                    SampleAnnotation {
+                        token: token(
+                            seed,
+                            &[
+                                hash_str("sample_annotation"),
+                                si as u64,
+                                ai as u64,
+                                k as u64,
+                            ],
+                        ),
+                        sample_token: plan.sample_tokens[k].clone(),
+                        instance_token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
+                        visibility_token: vis.into(),
+                        attribute_tokens: vec![name_token("attribute", attr)],
+                        translation: [st.pos.x, st.pos.y, a.size.z / 2.0],
+                        size: [a.size.y, a.size.x, a.size.z],
+                        rotation: q_wxyz(DQuat::from_rotation_z(st.yaw)),
+                        prev: String::new(),
+                        next: String::new(),
+                        num_lidar_pts: nl,
+                        num_radar_pts: nr,
+                        velocity: [st.vel.x, st.vel.y, 0.0],
+                    },
+                ));
+            }
+        }
+        for (ai, mut anns) in per_actor {
+            let n = anns.len();
+            for i in 0..n {
+                if i > 0 {
+                    anns[i].1.prev = anns[i - 1].1.token.clone();
+                }
+                if i + 1 < n {
+                    anns[i].1.next = anns[i + 1].1.token.clone();
+                }
+            }
+            tb.instance.push(Instance {
+                token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
+                category_token: name_token("category", w.actors[ai].kind.category()),
+                nbr_annotations: n,
+                first_annotation_token: anns[0].1.token.clone(),
+                last_annotation_token: anns[n - 1].1.token.clone(),
+            });
+            tb.sample_annotation.extend(anns.into_iter().map(|a| a.1));
+        }
+    }
+
+    // Semantic-prior map (roads and sidewalks) of the synthetic city.
+    let map_file = format!("maps/{map_token}.png");
+    let map_bytes = render_map(&plans)?;
+    bytes += map_bytes.len() as u64;
+    let map_path = root.join(&map_file);
+    std::fs::write(&map_path, &map_bytes).map_err(io_err(&map_path))?;
+    tb.map.push(MapRow {
+        token: map_token,
+        log_tokens: tb.log.iter().map(|l| l.token.clone()).collect(),
+        category: "semantic_prior".into(),
+        filename: map_file,
+    });
+
+    let vdir = root.join(&cfg.version_name);
+    for (stem, json) in tb
+        .to_json()
+        .map_err(|e| SynthError::Encode(format!("tables: {e}")))?
+    {
+        let p = vdir.join(format!("{stem}.json"));
+        bytes += json.len() as u64;
+        std::fs::write(&p, json).map_err(io_err(&p))?;
+    }
+    let summary = SynthSummary {
+        keyframes: cfg.scenes * m,
+        scenes: cfg.scenes,
+        sample_data: tb.sample_data.len(),
+        files: jobs.len() + m * cfg.scenes + 14,
+        bytes,
+        version_dir: vdir,
+        seconds: 0.0,
+        conditions: weathers.iter().fold([0usize; 3], |mut acc, w| {
+            acc[*w as usize] += 1;
+            acc
+        }),
+    };
+    let marker = serde_json::json!({
+        "generator": "depthsense synth",
+        "version_name": cfg.version_name,
+        "seed": cfg.seed,
+        "scenes": cfg.scenes,
+        "keyframes_per_scene": cfg.keyframes_per_scene,
+        "conditions": cfg.conditions.iter().map(|(w, p)| (format!("{w:?}").to_lowercase(), *p)).collect::<Vec<_>>(),
+        "map_resolution_m": MAP_RES_M,
+    });
+    let p = root.join(MARKER_FILE);
+    std::fs::write(
+        &p,
+        serde_json::to_vec_pretty(&marker).map_err(|e| SynthError::Encode(e.to_string()))?,
+    )
+    .map_err(io_err(&p))?;
+    Ok(summary)
+}
+
+fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> {
+    let path = root.join(&job.filename);
+    match &job.kind {
+        JobKind::Cam { truth } => {
+            let f = camera::render(world, job.t, job.salt);
+            let mut jpg = Vec::with_capacity(400_000);
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+                .encode(&f.rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
+                .map_err(|e| SynthError::Encode(format!("{}: {e}", job.filename)))?;
+            std::fs::write(&path, &jpg).map_err(io_err(&path))?;
+            let png = encode_png(&DepthMap {
+                width: IMG_W,
+                height: IMG_H,
+                depth_m: f.depth_m,
+            })
+            .map_err(|e| SynthError::Encode(format!("{truth}: {e}")))?;
+            let tp = root.join(truth);
+            std::fs::write(&tp, &png).map_err(io_err(&tp))?;
+            Ok(JobOut {
+                bytes: (jpg.len() + png.len()) as u64,
+                counts: Vec::new(),
+            })
+        }
+        JobKind::Lidar => {
+            let s = lidar::scan(world, job.t, job.salt);
+            let bytes = encode_lidar_pcd_bin(&s.points);
+            std::fs::write(&path, &bytes).map_err(io_err(&path))?;
+            Ok(JobOut {
+                bytes: bytes.len() as u64,
+                counts: count_objs(s.objs.iter().copied()),
+            })
+        }
+        JobKind::Radar { mount } => {
+            let s = radar::scan(world, mount, job.t, job.salt);
+            let bytes = encode_radar_pcd_binary(&s.points);
+            std::fs::write(&path, &bytes).map_err(io_err(&path))?;
+            let objs = s.origins.iter().filter_map(|o| match o {
+                radar::Origin::Surface { obj } | radar::Origin::Ghost { obj } => Some(*obj),
+                radar::Origin::Clutter => None,
+            });
+            Ok(JobOut {
+                bytes: bytes.len() as u64,
+                counts: count_objs(objs),
+            })
+        }
+    }
+}
+
+fn count_objs(it: impl Iterator<Item = u32>) -> Vec<(u32, u32)> {
+    let mut m: BTreeMap<u32, u32> = BTreeMap::new();
+    for o in it {
+        if o < STATIC_OBJ_BASE {
+            *m.entry(o).or_default() += 1;
+        }
+    }
+    m.into_iter().collect()
+}
+
+/// 8-bit PNG of the city at [`MAP_RES_M`]: 255 on roads and sidewalks. Row 0 is the north
+/// edge (the devkit's MapMask flips y).
+fn render_map(plans: &[ScenePlan]) -> Result<Vec<u8>, SynthError> {
+    let n = plans.len().max(1);
+    let tiles_x = n.min(8);
+    let tiles_y = n.div_ceil(8);
+    let wpx = (1000.0 * tiles_x as f64 / MAP_RES_M) as u32 + (1000.0 / MAP_RES_M) as u32;
+    let hpx = (1000.0 * tiles_y as f64 / MAP_RES_M) as u32 + (1000.0 / MAP_RES_M) as u32;
+    let mut img = vec![0u8; wpx as usize * hpx as usize];
+    for p in plans {
+        // Pixel bounds of this scene's roads.
+        let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        for s in &p.world.segs {
+            for q in [s.a, s.a + s.dir * s.len] {
+                lo = lo.min(q - DVec2::splat(s.hw + s.sw + 1.0));
+                hi = hi.max(q + DVec2::splat(s.hw + s.sw + 1.0));
+            }
+        }
+        let x0 = (lo.x / MAP_RES_M).floor().max(0.0) as u32;
+        let y0 = (lo.y / MAP_RES_M).floor().max(0.0) as u32;
+        let x1 = ((hi.x / MAP_RES_M).ceil().max(0.0) as u32).min(wpx);
+        let y1 = ((hi.y / MAP_RES_M).ceil().max(0.0) as u32).min(hpx);
+        for yy in y0..y1 {
+            for xx in x0..x1 {
+                let gx = (xx as f64 + 0.5) * MAP_RES_M;
+                let gy = (yy as f64 + 0.5) * MAP_RES_M;
+                let row = hpx - 1 - yy;
+                let k = p.world.ground_kind(DVec2::new(gx, gy));
+                if k != Ground::Verge {
+                    img[row as usize * wpx as usize + xx as usize] = 255;
+                }
+            }
+        }
+    }
+    let buf = image::GrayImage::from_raw(wpx, hpx, img)
+        .ok_or_else(|| SynthError::Encode("map buffer size".into()))?;
+    let mut out = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut out, image::ImageFormat::Png)
+        .map_err(|e| SynthError::Encode(format!("map png: {e}")))?;
+    Ok(out.into_inner())
+}
+
+/// Single-thread time per frame of each stage (milliseconds), measured on a day scene.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct StageTimes {
+    pub camera_render_ms: f64,
+    pub camera_jpeg_ms: f64,
+    pub truth_png_ms: f64,
+    pub lidar_sweep_ms: f64,
+    pub lidar_points_per_sweep: usize,
+    pub radar_sweep_ms: f64,
+    pub radar_points_per_sweep: f64,
+    pub frames: usize,
+}
+
+/// Time each stage on `frames` frames of scene 0 (single thread).
+pub fn profile_stages(seed: u64, frames: usize) -> Result<StageTimes, SynthError> {
+    let frames = frames.max(1);
+    let world = World::build(seed, 0, Weather::Day, 2.0 + frames as f64);
+    let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3 / frames as f64;
+    let t = Instant::now();
+    let mut last = None;
+    for k in 0..frames {
+        last = Some(camera::render(&world, 1.0 + k as f64, k as u64));
+    }
+    let camera_render_ms = ms(t);
+    let f = last.ok_or_else(|| SynthError::Data("no frame".into()))?;
+    let t = Instant::now();
+    for _ in 0..frames {
+        let mut jpg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+            .encode(&f.rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
+            .map_err(|e| SynthError::Encode(e.to_string()))?;
+    }
+    let camera_jpeg_ms = ms(t);
+    let dm = DepthMap {
+        width: IMG_W,
+        height: IMG_H,
+        depth_m: f.depth_m,
+    };
+    let t = Instant::now();
+    for _ in 0..frames {
+        encode_png(&dm).map_err(|e| SynthError::Encode(e.to_string()))?;
+    }
+    let truth_png_ms = ms(t);
+    let t = Instant::now();
+    let mut npts = 0;
+    for k in 0..frames {
+        npts = lidar::scan(&world, 1.0 + k as f64, k as u64).points.len();
+    }
+    let lidar_sweep_ms = ms(t);
+    let m = calib::radar(calib::RADAR_FRONT);
+    let t = Instant::now();
+    let mut rp = 0usize;
+    for k in 0..frames {
+        rp += radar::scan(&world, &m, 1.0 + k as f64, k as u64)
+            .points
+            .len();
+    }
+    let radar_sweep_ms = ms(t);
+    Ok(StageTimes {
+        camera_render_ms,
+        camera_jpeg_ms,
+        truth_png_ms,
+        lidar_sweep_ms,
+        lidar_points_per_sweep: npts,
+        radar_sweep_ms,
+        radar_points_per_sweep: rp as f64 / frames as f64,
+        frames,
+    })
+}

@@ -1,0 +1,305 @@
+//! End-to-end checks of a generated dataroot: tables, byte-identical regeneration, lidar versus
+//! the rendered truth depth, and the official devkit (scripts/devkit_check.py).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use depthsense_nuscenes::depth_png::read_depth_png;
+use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
+use depthsense_synth::readback::{project, Dataroot};
+use depthsense_synth::{generate, SynthConfig, SynthError, SynthSummary};
+use glam::DVec3;
+use indicatif::ProgressBar;
+
+const VERSION: &str = "v1.0-synth";
+
+fn world() -> &'static (tempfile::TempDir, SynthSummary) {
+    static W: OnceLock<(tempfile::TempDir, SynthSummary)> = OnceLock::new();
+    W.get_or_init(|| {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("synth");
+        let s = generate(&root, &SynthConfig::tiny(), &ProgressBar::hidden()).unwrap();
+        (dir, s)
+    })
+}
+
+fn root() -> PathBuf {
+    world().0.path().join("synth")
+}
+
+fn rows(root: &Path, t: &str) -> Vec<serde_json::Value> {
+    let b = std::fs::read(root.join(VERSION).join(format!("{t}.json"))).unwrap();
+    serde_json::from_slice::<Vec<serde_json::Value>>(&b).unwrap()
+}
+
+fn files_under(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut out = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.insert(
+                    p.strip_prefix(dir).unwrap().to_path_buf(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn tables_are_complete_and_chained() {
+    let root = root();
+    let (_, summary) = world();
+    let cfg = SynthConfig::tiny();
+    assert_eq!(summary.keyframes, cfg.scenes * cfg.keyframes_per_scene);
+    assert_eq!(summary.conditions, [1, 1, 1]);
+    for t in [
+        "attribute",
+        "calibrated_sensor",
+        "category",
+        "ego_pose",
+        "instance",
+        "log",
+        "map",
+        "sample",
+        "sample_annotation",
+        "sample_data",
+        "scene",
+        "sensor",
+        "visibility",
+    ] {
+        assert!(
+            root.join(VERSION).join(format!("{t}.json")).exists(),
+            "{t}.json"
+        );
+    }
+    let scenes = rows(&root, "scene");
+    assert_eq!(scenes.len(), cfg.scenes);
+    let descs: Vec<String> = scenes
+        .iter()
+        .map(|s| s["description"].as_str().unwrap().to_string())
+        .collect();
+    assert!(descs.iter().any(|d| d.starts_with("Night, ")), "{descs:?}");
+    assert!(descs.iter().any(|d| d.starts_with("Rain, ")), "{descs:?}");
+    let sd = rows(&root, "sample_data");
+    let by_tok: BTreeMap<&str, &serde_json::Value> = sd
+        .iter()
+        .map(|r| (r["token"].as_str().unwrap(), r))
+        .collect();
+    let ego: BTreeMap<String, i64> = rows(&root, "ego_pose")
+        .iter()
+        .map(|r| {
+            (
+                r["token"].as_str().unwrap().to_string(),
+                r["timestamp"].as_i64().unwrap(),
+            )
+        })
+        .collect();
+    let mut keyframes = 0;
+    for r in &sd {
+        let tok = r["token"].as_str().unwrap();
+        assert_eq!(tok.len(), 32);
+        assert!(root.join(r["filename"].as_str().unwrap()).exists());
+        assert_eq!(
+            ego[r["ego_pose_token"].as_str().unwrap()],
+            r["timestamp"].as_i64().unwrap()
+        );
+        let next = r["next"].as_str().unwrap();
+        if !next.is_empty() {
+            assert_eq!(by_tok[next]["prev"].as_str().unwrap(), tok);
+            assert!(by_tok[next]["timestamp"].as_i64().unwrap() > r["timestamp"].as_i64().unwrap());
+        }
+        if r["is_key_frame"].as_bool().unwrap() {
+            keyframes += 1;
+            assert!(r["filename"].as_str().unwrap().starts_with("samples/"));
+        } else {
+            assert!(r["filename"].as_str().unwrap().starts_with("sweeps/"));
+        }
+    }
+    // One keyframe per channel (5) per sample.
+    assert_eq!(keyframes, 5 * summary.keyframes);
+    // Lidar at 20 Hz: 10 sweeps per keyframe interval.
+    let lidar: Vec<i64> = {
+        let mut v: Vec<i64> = sd
+            .iter()
+            .filter(|r| {
+                r["filename"].as_str().unwrap().contains("LIDAR_TOP")
+                    && r["filename"]
+                        .as_str()
+                        .unwrap()
+                        .contains("synth000-2026-01-01-")
+            })
+            .map(|r| r["timestamp"].as_i64().unwrap())
+            .collect();
+        v.sort();
+        v
+    };
+    let dts: Vec<i64> = lidar.windows(2).map(|w| w[1] - w[0]).collect();
+    assert!(dts.iter().all(|d| (48_000..=52_000).contains(d)), "{dts:?}");
+    // Annotations chain per instance.
+    let anns = rows(&root, "sample_annotation");
+    assert!(!anns.is_empty());
+    for inst in rows(&root, "instance") {
+        let mut n = 0;
+        let mut tok = inst["first_annotation_token"].as_str().unwrap().to_string();
+        while !tok.is_empty() {
+            n += 1;
+            let a = anns.iter().find(|a| a["token"] == tok.as_str()).unwrap();
+            tok = a["next"].as_str().unwrap().to_string();
+        }
+        assert_eq!(n, inst["nbr_annotations"].as_u64().unwrap());
+    }
+}
+
+#[test]
+fn same_seed_is_byte_identical_whatever_the_threads() {
+    let a = files_under(&root());
+    let dir = tempfile::tempdir().unwrap();
+    let other = dir.path().join("again");
+    let cfg = SynthConfig {
+        jobs: 1,
+        ..SynthConfig::tiny()
+    };
+    generate(&other, &cfg, &ProgressBar::hidden()).unwrap();
+    let b = files_under(&other);
+    assert_eq!(a.len(), b.len());
+    for (k, v) in &a {
+        assert!(b.get(k) == Some(v), "{} differs", k.display());
+    }
+    // Regenerating over a previous synthetic world replaces it.
+    generate(&other, &cfg, &ProgressBar::hidden()).unwrap();
+    assert_eq!(files_under(&other).len(), a.len());
+}
+
+#[test]
+fn refuses_to_overwrite_foreign_data() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("precious.txt"), b"x").unwrap();
+    let err = generate(dir.path(), &SynthConfig::tiny(), &ProgressBar::hidden()).unwrap_err();
+    assert!(matches!(err, SynthError::Exists(_)), "{err}");
+    assert!(dir.path().join("precious.txt").exists());
+}
+
+#[test]
+fn lidar_agrees_with_rendered_truth_depth() {
+    let root = root();
+    let d = Dataroot::load(&root, VERSION).unwrap();
+    let mut all_rel = Vec::new();
+    for s in d.samples.keys() {
+        let cam = &d.keyframe[&(s.clone(), "CAM_FRONT".to_string())];
+        let lid = &d.keyframe[&(s.clone(), "LIDAR_TOP".to_string())];
+        let truth = read_depth_png(&root.join("truth").join(format!("{cam}.png"))).unwrap();
+        assert_eq!((truth.width, truth.height), (1600, 900));
+        assert!(
+            truth.valid_count() > 700_000,
+            "truth covers {} px",
+            truth.valid_count()
+        );
+        let scan = read_lidar_pcd_bin(&d.path(lid).unwrap()).unwrap();
+        assert!(
+            scan.points.len() > 25_000 && scan.points.len() < 34_688 + 500,
+            "{}",
+            scan.points.len()
+        );
+        let tf = d.cam_from_sensor(lid, cam).unwrap();
+        let pts = project(
+            scan.points
+                .iter()
+                .map(|p| tf.apply(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))),
+        );
+        assert!(pts.len() > 1500, "{} lidar points in the image", pts.len());
+        let mut rel: Vec<f64> = pts
+            .iter()
+            .filter_map(|&(u, v, z)| {
+                let t = truth.at(u as u32, v as u32) as f64;
+                (t > 0.0).then(|| (z - t).abs() / t)
+            })
+            .collect();
+        rel.sort_by(f64::total_cmp);
+        let med = rel[rel.len() / 2];
+        assert!(med < 0.01, "sample {s}: median relative error {med}");
+        all_rel.extend(rel);
+    }
+    all_rel.sort_by(f64::total_cmp);
+    let med = all_rel[all_rel.len() / 2];
+    let within_5 = all_rel.iter().filter(|r| **r < 0.05).count() as f64 / all_rel.len() as f64;
+    eprintln!(
+        "lidar vs truth: median rel {med:.5}, {:.1} % within 5 %",
+        within_5 * 100.0
+    );
+    assert!(med < 0.005, "median {med}");
+    assert!(within_5 > 0.9, "{within_5}");
+}
+
+#[test]
+fn radar_files_respect_the_format() {
+    let root = root();
+    let d = Dataroot::load(&root, VERSION).unwrap();
+    let mut total = 0;
+    let mut filtered = 0;
+    for (tok, r) in &d.sample_data {
+        if !r["filename"].as_str().unwrap().contains("RADAR") {
+            continue;
+        }
+        let scan = read_radar_pcd(&d.path(tok).unwrap()).unwrap();
+        assert!(!scan.points.is_empty() && scan.points.len() <= 125);
+        assert!(scan.points.iter().all(|p| p.z == 0.0));
+        total += scan.points.len();
+        filtered += scan.filtered(true).0.len();
+    }
+    // The devkit's default filters act on some, not all, points.
+    assert!(
+        filtered < total && filtered > total / 2,
+        "{filtered} of {total}"
+    );
+}
+
+#[test]
+fn official_devkit_loads_and_projects() {
+    let require = std::env::var("DEPTHSENSE_REQUIRE_DEVKIT").is_ok_and(|v| v == "1");
+    let py = match std::env::var("VIRTUAL_ENV") {
+        Ok(v) => PathBuf::from(v).join("bin/python"),
+        Err(_) => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python"),
+    };
+    let has_devkit = std::process::Command::new(&py)
+        .args(["-c", "import nuscenes"])
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !has_devkit {
+        assert!(
+            !require,
+            "DEPTHSENSE_REQUIRE_DEVKIT=1 but {} cannot import nuscenes",
+            py.display()
+        );
+        eprintln!(
+            "skipping: {} cannot import nuscenes (pip install nuscenes-devkit)",
+            py.display()
+        );
+        return;
+    }
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/devkit_check.py");
+    let out = std::process::Command::new(&py)
+        .arg(&script)
+        .arg("--dataroot")
+        .arg(root())
+        .args(["--version", VERSION, "--samples", "6"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success(),
+        "devkit check failed:\n{stdout}\n{stderr}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(v["lidar_points_in_image"].as_u64().unwrap() > 6 * 1500);
+    assert!(v["radar_points_in_image"].as_u64().unwrap() > 0);
+    assert_eq!(v["failures"].as_array().unwrap().len(), 0);
+}

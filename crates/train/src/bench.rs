@@ -1,0 +1,167 @@
+//! `depthsense bench train`: training images/s (forward + backward + SGD step) and
+//! data-loader images/s (decode + augment + normalise + batch, with prefetch).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use depthsense_model::{DepthNet, ModelConfig};
+use serde::{Deserialize, Serialize};
+use tch::{nn::VarStore, Kind};
+
+use crate::data::{Dataset, EpochPlan, LoadOptions, Loader};
+use crate::error::TrainError;
+use crate::sgd::Sgd;
+use crate::trainer::{batch_tensors, radar_input_for};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct BenchTrainOptions {
+    /// Prepared data; None = a generated 800x350 toy dataset in a temporary directory.
+    pub data: Option<PathBuf>,
+    pub preset: String,
+    pub batch_size: usize,
+    /// Timed training iterations (after `warmup`).
+    pub iterations: usize,
+    pub warmup: usize,
+    /// Batches timed for the loader.
+    pub loader_batches: usize,
+    pub device: String,
+    pub jobs: usize,
+    pub amp: bool,
+}
+
+impl Default for BenchTrainOptions {
+    fn default() -> Self {
+        Self {
+            data: None,
+            preset: "paper".into(),
+            batch_size: 8,
+            iterations: 3,
+            warmup: 1,
+            loader_batches: 8,
+            device: "auto".into(),
+            jobs: 0,
+            amp: false,
+        }
+    }
+}
+
+/// Run the benchmark; returns the JSON report.
+pub fn bench_train(
+    opts: &BenchTrainOptions,
+    progress: &indicatif::ProgressBar,
+) -> Result<serde_json::Value, TrainError> {
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let tmp;
+    let root = match &opts.data {
+        Some(p) => p.clone(),
+        None => {
+            tmp = tempfile::tempdir().map_err(|e| TrainError::Other(e.to_string()))?;
+            progress.set_message("writing a toy 800x350 dataset");
+            let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
+            crate::data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
+            tmp.path().to_path_buf()
+        }
+    };
+    let ds = Dataset::open(&root)?;
+    let entries = ds.split("all");
+    let mut cfg = ModelConfig::preset(&opts.preset)?;
+    let radar = radar_input_for(&cfg, None)?;
+    let load = LoadOptions {
+        radar: radar.unwrap_or_default(),
+        no_radar: radar.is_none(),
+        augment: true,
+        seed: 1,
+        ..LoadOptions::default()
+    };
+    let jobs = if opts.jobs == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        opts.jobs
+    };
+
+    // Loader alone.
+    progress.set_message("loader");
+    let plan = |epoch| EpochPlan {
+        entries: entries.clone(),
+        batch_size: opts.batch_size,
+        epoch,
+        shuffle: true,
+        drop_last: false,
+        skip_batches: 0,
+        jobs,
+        prefetch: 4,
+    };
+    let t = Instant::now();
+    let mut images = 0usize;
+    let mut epoch = 0;
+    'outer: loop {
+        for b in Loader::start(&ds, &load, &plan(epoch))? {
+            images += b?.size;
+            if images >= opts.loader_batches * opts.batch_size {
+                break 'outer;
+            }
+        }
+        epoch += 1;
+    }
+    let loader_ips = images as f64 / t.elapsed().as_secs_f64();
+    let first = crate::data::load_sample(&ds, &entries[0], &load, &mut crate::data::Rng::new(0))?;
+    cfg.out_height = first.height as i64;
+    cfg.out_width = first.width as i64;
+
+    // Training steps, with the loader running in the background as in `train`.
+    progress.set_message("training steps");
+    tch::manual_seed(0);
+    let vs = VarStore::new(device);
+    let net = DepthNet::new(&vs.root(), &cfg)?;
+    let mut sgd = Sgd::new(&vs, 0.9, 1e-4);
+    let mut done = 0usize;
+    let mut timed_images = 0usize;
+    let mut timed_secs = 0.0;
+    let mut step_secs = vec![];
+    let total = opts.warmup + opts.iterations.max(1);
+    let mut epoch = 100;
+    'train: loop {
+        for b in Loader::start(&ds, &load, &plan(epoch))? {
+            let b = b?;
+            let t = Instant::now();
+            let (img, rad, tgt) = batch_tensors(&b, device);
+            let out = if opts.amp && device.is_cuda() {
+                tch::autocast(true, || net.forward_t(&img, &rad, true))
+            } else {
+                net.forward_t(&img, &rad, true)
+            };
+            let loss = net.loss(&out.to_kind(Kind::Float), &tgt);
+            sgd.zero_grad();
+            loss.backward();
+            sgd.step(1e-3);
+            let _ = loss.double_value(&[]); // synchronises CUDA
+            let dt = t.elapsed().as_secs_f64();
+            done += 1;
+            progress.set_message(format!("step {done}/{total}: {dt:.2} s"));
+            if done > opts.warmup {
+                timed_images += b.size;
+                timed_secs += dt;
+                step_secs.push(dt);
+            }
+            if done >= total {
+                break 'train;
+            }
+        }
+        epoch += 1;
+    }
+    Ok(serde_json::json!({
+        "benchmark": "train",
+        "device": depthsense_model::device::describe(device),
+        "preset": opts.preset,
+        "batch_size": opts.batch_size,
+        "frame": [first.width, first.height],
+        "amp": opts.amp && device.is_cuda(),
+        "train_images_per_s": timed_images as f64 / timed_secs.max(1e-9),
+        "train_step_seconds": step_secs,
+        "loader_images_per_s": loader_ips,
+        "loader_threads": jobs,
+        "loader_images": images,
+        "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
+        "torch_threads": tch::get_num_threads(),
+    }))
+}

@@ -1,0 +1,859 @@
+//! The data loader: reads `depthsense prepare` output (`depthsense_prep::layout`), applies the
+//! SPEC §8 augmentation, normalises images (SPEC §6 ImageNet statistics) and assembles batches
+//! on a background thread pool that fills a bounded channel (prefetch).
+//!
+//! Everything random is derived from `(seed, epoch, sample position)` by a counter-based hash,
+//! so a batch is identical whatever the number of threads or the timing (reproducible, and
+//! resumable from `(epoch, iteration)` alone).
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::thread::JoinHandle;
+
+use depthsense_nuscenes::depth_png::{decode_png, DepthMap};
+use depthsense_prep::layout::{
+    Condition, IndexEntry, PreparedIndex, IMAGE_FILE, INDEX_FILE, LIDAR_DENSE_FILE,
+    LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
+};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::TrainError;
+
+/// ImageNet mean (SPEC §6).
+pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+/// ImageNet standard deviation (SPEC §6).
+pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+/// Which prepared radar map(s) feed the network's radar channels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum RadarInput {
+    /// Height-extended strips (SPEC §5, the paper's default input): 1 channel.
+    #[default]
+    Height,
+    /// One pixel per radar point (SPEC §5 raw): 1 channel.
+    Raw,
+    /// Raw then height-extended: 2 channels.
+    RawHeight,
+}
+
+impl RadarInput {
+    pub fn channels(self) -> usize {
+        match self {
+            Self::Height | Self::Raw => 1,
+            Self::RawHeight => 2,
+        }
+    }
+
+    /// The input for a network with `c` radar channels (1 → height, 2 → raw + height).
+    pub fn for_channels(c: i64) -> Result<Self, TrainError> {
+        match c {
+            0 | 1 => Ok(Self::Height),
+            2 => Ok(Self::RawHeight),
+            other => Err(TrainError::Config(format!(
+                "no prepared radar input has {other} channels (1 = height-extended, \
+                 2 = raw + height-extended; MER's 7 channels are not prepared)"
+            ))),
+        }
+    }
+}
+
+impl std::str::FromStr for RadarInput {
+    type Err = TrainError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "height" => Ok(Self::Height),
+            "raw" => Ok(Self::Raw),
+            "raw-height" => Ok(Self::RawHeight),
+            o => Err(TrainError::Config(format!(
+                "unknown radar input {o:?} (height, raw, raw-height)"
+            ))),
+        }
+    }
+}
+
+/// Which lidar map is the training target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum TargetKind {
+    /// ±K accumulated sweeps (SPEC §4 dense target; falls back to sparse when absent).
+    #[default]
+    Dense,
+    /// The keyframe sweep only.
+    Sparse,
+}
+
+/// How samples are read and augmented.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LoadOptions {
+    pub radar: RadarInput,
+    pub target: TargetKind,
+    /// SPEC §8 augmentation (flip, brightness / colour / gamma jitter).
+    pub augment: bool,
+    /// Also read the sparse GT and low-height mask (evaluation).
+    pub eval_maps: bool,
+    /// Skip reading radar maps (RGB-only networks): radar tensors are zero-channel.
+    pub no_radar: bool,
+    /// Fraction of radar points removed at random (sensor-failure ablation, SPEC §10.8).
+    pub radar_drop: f64,
+    /// Seed of the augmentation and radar-drop draws.
+    pub seed: u64,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            radar: RadarInput::Height,
+            target: TargetKind::Dense,
+            augment: false,
+            eval_maps: false,
+            no_radar: false,
+            radar_drop: 0.0,
+            seed: 0,
+        }
+    }
+}
+
+/// A prepared data directory: `index.json` and its sample folders.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub index: PreparedIndex,
+}
+
+impl Dataset {
+    /// Open `root/index.json`.
+    pub fn open(root: &Path) -> Result<Self, TrainError> {
+        let path = root.join(INDEX_FILE);
+        let bytes = std::fs::read(&path).map_err(|e| TrainError::io(&path, e))?;
+        let index: PreparedIndex =
+            serde_json::from_slice(&bytes).map_err(|e| TrainError::Parse {
+                path: path.display().to_string(),
+                reason: e.to_string(),
+            })?;
+        if index.samples.is_empty() {
+            return Err(TrainError::Data(format!(
+                "{} lists no samples: run `depthsense prepare` first",
+                path.display()
+            )));
+        }
+        Ok(Self {
+            root: root.to_path_buf(),
+            index,
+        })
+    }
+
+    pub fn sample_dir(&self, e: &IndexEntry) -> PathBuf {
+        self.root.join(&e.dir)
+    }
+
+    /// Every distinct split name in the index.
+    pub fn split_names(&self) -> BTreeSet<String> {
+        self.index
+            .samples
+            .iter()
+            .flat_map(|s| s.splits.iter().cloned())
+            .collect()
+    }
+
+    /// Entries of a split ("all" = everything).
+    pub fn split(&self, name: &str) -> Vec<IndexEntry> {
+        self.index
+            .samples
+            .iter()
+            .filter(|s| name == "all" || s.splits.iter().any(|x| x == name))
+            .cloned()
+            .collect()
+    }
+
+    /// Scene names in index order, deduplicated.
+    pub fn scenes(&self) -> Vec<String> {
+        let mut seen = BTreeSet::new();
+        let mut out = Vec::new();
+        for s in &self.index.samples {
+            if seen.insert(s.scene_name.clone()) {
+                out.push(s.scene_name.clone());
+            }
+        }
+        out
+    }
+}
+
+/// The train / validation partition used by `train` (and the matching test set of `eval`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Partition {
+    /// How it was made: "splits" (the index's train/test split names) or
+    /// "scene-modulo" (every `every`-th scene, sorted by name, is held out).
+    pub method: String,
+    pub train: Vec<IndexEntry>,
+    pub val: Vec<IndexEntry>,
+    /// Scenes held out for validation / testing.
+    pub val_scenes: Vec<String>,
+}
+
+/// Split samples into training and held-out sets.
+///
+/// When the index carries both a `train` and a `test` split (the shipped nuScenes scene lists),
+/// they are used. Otherwise (e.g. a synthetic world prepared with `--split all`) the scenes are
+/// sorted by name and every `every`-th scene starting with the last of each group
+/// (positions every−1, 2·every−1, …) is held out; with fewer than `every` scenes the last
+/// scene is held out. Deterministic; the held-out scene names are recorded.
+pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
+    let names = ds.split_names();
+    if names.contains("train") && names.contains("test") {
+        let train = ds.split("train");
+        let val = ds.split("test");
+        let val_scenes: BTreeSet<String> = val.iter().map(|e| e.scene_name.clone()).collect();
+        return Ok(Partition {
+            method: "splits".into(),
+            train,
+            val,
+            val_scenes: val_scenes.into_iter().collect(),
+        });
+    }
+    let mut scenes = ds.scenes();
+    scenes.sort();
+    if scenes.len() < 2 {
+        return Err(TrainError::Data(format!(
+            "{}: need at least 2 scenes to hold one out for validation, found {}",
+            ds.root.display(),
+            scenes.len()
+        )));
+    }
+    let every = every.max(2);
+    let mut val_scenes: Vec<String> = scenes
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % every == every - 1)
+        .map(|(_, s)| s.clone())
+        .collect();
+    if val_scenes.is_empty() {
+        val_scenes.push(scenes[scenes.len() - 1].clone());
+    }
+    let (val, train): (Vec<_>, Vec<_>) = ds
+        .index
+        .samples
+        .iter()
+        .cloned()
+        .partition(|e| val_scenes.contains(&e.scene_name));
+    Ok(Partition {
+        method: format!("scene-modulo (every {every}th scene by name held out)"),
+        train,
+        val,
+        val_scenes,
+    })
+}
+
+/// One decoded, augmented, normalised sample (CPU, channel-major).
+#[derive(Debug, Clone)]
+pub struct Sample {
+    pub token: String,
+    pub conditions: Vec<Condition>,
+    pub width: usize,
+    pub height: usize,
+    /// [3, H, W] ImageNet-normalised.
+    pub image: Vec<f32>,
+    /// [C, H, W] radar depth in metres, 0 = no radar (C = 0 when radar is not read).
+    pub radar: Vec<f32>,
+    pub radar_channels: usize,
+    /// [H, W] training target in metres, 0 = invalid.
+    pub target_m: Vec<f32>,
+    /// [H, W] sparse GT (only with `eval_maps`).
+    pub sparse_m: Vec<f32>,
+    /// [H, W] low-height mask (only with `eval_maps`; empty when the file is absent).
+    pub lowheight: Vec<bool>,
+    /// Whether the sample was flipped horizontally.
+    pub flipped: bool,
+}
+
+/// splitmix64: the counter-based hash behind every random draw of the loader.
+pub fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A small deterministic generator (splitmix64 stream).
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self(mix64(seed))
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        mix64(self.0)
+    }
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.uniform()
+    }
+}
+
+fn hash_str(s: &str) -> u64 {
+    s.bytes()
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+}
+
+/// The order of samples in an epoch: a Fisher–Yates shuffle seeded by (seed, epoch).
+pub fn epoch_order(n: usize, seed: u64, epoch: u64, shuffle: bool) -> Vec<usize> {
+    let mut v: Vec<usize> = (0..n).collect();
+    if shuffle {
+        let mut rng = Rng::new(seed ^ mix64(epoch.wrapping_add(0x5eed)));
+        for i in (1..n).rev() {
+            let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+            v.swap(i, j);
+        }
+    }
+    v
+}
+
+/// SPEC §8 augmentation parameters of one sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Augment {
+    pub flip: bool,
+    /// Multiplier of all channels (1 = unchanged).
+    pub brightness: f32,
+    /// Per-channel multipliers (1 = unchanged).
+    pub colour: [f32; 3],
+    /// Exponent applied to [0,1] intensities (1 = unchanged).
+    pub gamma: f32,
+}
+
+impl Augment {
+    pub const NONE: Augment = Augment {
+        flip: false,
+        brightness: 1.0,
+        colour: [1.0; 3],
+        gamma: 1.0,
+    };
+
+    /// Draw: flip with p = 0.5; with p = 0.5 brightness, colour and gamma each uniform in
+    /// [0.9, 1.1] (SPEC §8).
+    pub fn draw(rng: &mut Rng) -> Self {
+        let flip = rng.uniform() < 0.5;
+        let mut a = Augment { flip, ..Self::NONE };
+        if rng.uniform() < 0.5 {
+            a.brightness = rng.range(0.9, 1.1) as f32;
+            a.colour = [
+                rng.range(0.9, 1.1) as f32,
+                rng.range(0.9, 1.1) as f32,
+                rng.range(0.9, 1.1) as f32,
+            ];
+            a.gamma = rng.range(0.9, 1.1) as f32;
+        }
+        a
+    }
+}
+
+fn read_file(path: &Path) -> Result<Vec<u8>, TrainError> {
+    std::fs::read(path).map_err(|e| TrainError::io(path, e))
+}
+
+pub fn read_depth(path: &Path) -> Result<DepthMap, TrainError> {
+    let bytes = read_file(path)?;
+    decode_png(&bytes, &path.display().to_string()).map_err(|e| TrainError::Data(e.to_string()))
+}
+
+pub fn decode_rgb(path: &Path) -> Result<image::RgbImage, TrainError> {
+    let bytes = read_file(path)?;
+    let img = image::load_from_memory(&bytes).map_err(|e| TrainError::Parse {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    Ok(img.to_rgb8())
+}
+
+fn check_size(map: &DepthMap, w: usize, h: usize, path: &Path) -> Result<(), TrainError> {
+    if map.width as usize != w || map.height as usize != h {
+        return Err(TrainError::Data(format!(
+            "{}: map is {}x{} but the image is {w}x{h}",
+            path.display(),
+            map.width,
+            map.height
+        )));
+    }
+    Ok(())
+}
+
+fn flip_rows<T: Copy>(v: &mut [T], w: usize) {
+    for row in v.chunks_mut(w) {
+        row.reverse();
+    }
+}
+
+/// Remove a fraction `p` of radar points (SPEC §10.8). A point is a pixel of the raw map;
+/// its height-extended strip is the set of pixels of the same column holding the same
+/// stored depth value, removed with it. `p >= 1` removes everything.
+pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, seed: u64) {
+    if p <= 0.0 {
+        return;
+    }
+    if p >= 1.0 {
+        raw.depth_m.iter_mut().for_each(|d| *d = 0.0);
+        if let Some(h) = height {
+            h.depth_m.iter_mut().for_each(|d| *d = 0.0);
+        }
+        return;
+    }
+    let w = raw.width as usize;
+    let mut dropped: BTreeSet<(usize, u32)> = BTreeSet::new();
+    for (i, d) in raw.depth_m.iter_mut().enumerate() {
+        if *d > 0.0 {
+            let r = mix64(seed ^ mix64(i as u64 + 1));
+            if ((r >> 11) as f64 / (1u64 << 53) as f64) < p {
+                dropped.insert((i % w, d.to_bits()));
+                *d = 0.0;
+            }
+        }
+    }
+    if let Some(h) = height {
+        let hw = h.width as usize;
+        for (i, d) in h.depth_m.iter_mut().enumerate() {
+            if *d > 0.0 && dropped.contains(&(i % hw, d.to_bits())) {
+                *d = 0.0;
+            }
+        }
+    }
+}
+
+/// Read one sample directory. `draw` is the sample's random stream (augmentation).
+pub fn load_sample(
+    ds: &Dataset,
+    entry: &IndexEntry,
+    opts: &LoadOptions,
+    rng: &mut Rng,
+) -> Result<Sample, TrainError> {
+    let dir = ds.sample_dir(entry);
+    if !dir.join(META_FILE).exists() {
+        return Err(TrainError::Data(format!(
+            "{}: incomplete sample directory (no {META_FILE})",
+            dir.display()
+        )));
+    }
+    let rgb = decode_rgb(&dir.join(IMAGE_FILE))?;
+    let (w, h) = (rgb.width() as usize, rgb.height() as usize);
+    let aug = if opts.augment {
+        Augment::draw(rng)
+    } else {
+        Augment::NONE
+    };
+
+    let mut image = normalise_image(&rgb, &aug);
+    let plane = w * h;
+
+    // Target.
+    let dense_path = dir.join(LIDAR_DENSE_FILE);
+    let sparse_path = dir.join(LIDAR_SPARSE_FILE);
+    let target_path = match opts.target {
+        TargetKind::Dense if dense_path.exists() => dense_path,
+        _ => sparse_path.clone(),
+    };
+    let target = read_depth(&target_path)?;
+    check_size(&target, w, h, &target_path)?;
+    let mut target_m = target.depth_m;
+
+    // Radar.
+    let mut radar = Vec::new();
+    let mut radar_channels = 0;
+    if !opts.no_radar {
+        let raw_path = dir.join(RADAR_RAW_FILE);
+        let height_path = dir.join(RADAR_HEIGHT_FILE);
+        let mut raw = read_depth(&raw_path)?;
+        check_size(&raw, w, h, &raw_path)?;
+        let mut height = read_depth(&height_path)?;
+        check_size(&height, w, h, &height_path)?;
+        if opts.radar_drop > 0.0 {
+            let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
+            drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
+        }
+        match opts.radar {
+            RadarInput::Height => radar.extend_from_slice(&height.depth_m),
+            RadarInput::Raw => radar.extend_from_slice(&raw.depth_m),
+            RadarInput::RawHeight => {
+                radar.extend_from_slice(&raw.depth_m);
+                radar.extend_from_slice(&height.depth_m);
+            }
+        }
+        radar_channels = opts.radar.channels();
+    }
+
+    let mut sparse_m = Vec::new();
+    let mut lowheight = Vec::new();
+    if opts.eval_maps {
+        let s = read_depth(&sparse_path)?;
+        check_size(&s, w, h, &sparse_path)?;
+        sparse_m = s.depth_m;
+        let mpath = dir.join(LOWHEIGHT_MASK_FILE);
+        if mpath.exists() {
+            let m = decode_rgb_luma(&mpath)?;
+            if m.len() != w * h {
+                return Err(TrainError::Data(format!(
+                    "{}: mask has {} pixels, expected {}",
+                    mpath.display(),
+                    m.len(),
+                    w * h
+                )));
+            }
+            lowheight = m;
+        }
+    }
+
+    if aug.flip {
+        for c in 0..3 {
+            flip_rows(&mut image[c * plane..(c + 1) * plane], w);
+        }
+        for c in 0..radar_channels {
+            flip_rows(&mut radar[c * plane..(c + 1) * plane], w);
+        }
+        flip_rows(&mut target_m, w);
+        if !sparse_m.is_empty() {
+            flip_rows(&mut sparse_m, w);
+        }
+        if !lowheight.is_empty() {
+            flip_rows(&mut lowheight, w);
+        }
+    }
+
+    Ok(Sample {
+        token: entry.sample_token.clone(),
+        conditions: entry.conditions.clone(),
+        width: w,
+        height: h,
+        image,
+        radar,
+        radar_channels,
+        target_m,
+        sparse_m,
+        lowheight,
+        flipped: aug.flip,
+    })
+}
+
+/// [3, H, W] ImageNet-normalised planes of an RGB image, after the colour jitter of `aug`
+/// applied to [0,1] intensities (SPEC §6, §8). The flip is not applied here.
+pub fn normalise_image(rgb: &image::RgbImage, aug: &Augment) -> Vec<f32> {
+    let plane = rgb.width() as usize * rgb.height() as usize;
+    let mut image = vec![0f32; 3 * plane];
+    let jitter = *aug != Augment { flip: aug.flip, ..Augment::NONE };
+    for (i, px) in rgb.pixels().enumerate() {
+        for c in 0..3 {
+            let mut x = px.0[c] as f32 / 255.0;
+            if jitter {
+                x = (x * aug.brightness * aug.colour[c]).clamp(0.0, 1.0);
+                x = x.powf(aug.gamma);
+            }
+            image[c * plane + i] = (x - IMAGENET_MEAN[c]) / IMAGENET_STD[c];
+        }
+    }
+    image
+}
+
+fn decode_rgb_luma(path: &Path) -> Result<Vec<bool>, TrainError> {
+    let bytes = read_file(path)?;
+    let img = image::load_from_memory(&bytes).map_err(|e| TrainError::Parse {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    })?;
+    Ok(img.to_luma8().pixels().map(|p| p.0[0] > 127).collect())
+}
+
+/// A batch of samples stacked channel-major: shapes in the field docs.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// Position of the batch in its epoch.
+    pub index: usize,
+    pub size: usize,
+    pub width: usize,
+    pub height: usize,
+    /// [B, 3, H, W]
+    pub image: Vec<f32>,
+    /// [B, C, H, W]
+    pub radar: Vec<f32>,
+    pub radar_channels: usize,
+    /// [B, 1, H, W]
+    pub target_m: Vec<f32>,
+    /// The samples' other fields (tokens, conditions, eval maps); image/radar/target moved out.
+    pub samples: Vec<Sample>,
+}
+
+impl Batch {
+    fn stack(index: usize, mut samples: Vec<Sample>) -> Result<Batch, TrainError> {
+        let (w, h, c) = (samples[0].width, samples[0].height, samples[0].radar_channels);
+        if let Some(s) = samples
+            .iter()
+            .find(|s| s.width != w || s.height != h || s.radar_channels != c)
+        {
+            return Err(TrainError::Data(format!(
+                "sample {} is {}x{} with {} radar channels, but the batch is {w}x{h} with {c}",
+                s.token, s.width, s.height, s.radar_channels
+            )));
+        }
+        let b = samples.len();
+        let mut image = Vec::with_capacity(b * 3 * w * h);
+        let mut radar = Vec::with_capacity(b * c * w * h);
+        let mut target_m = Vec::with_capacity(b * w * h);
+        for s in samples.iter_mut() {
+            image.append(&mut s.image);
+            radar.append(&mut s.radar);
+            target_m.append(&mut s.target_m);
+        }
+        Ok(Batch {
+            index,
+            size: b,
+            width: w,
+            height: h,
+            image,
+            radar,
+            radar_channels: c,
+            target_m,
+            samples,
+        })
+    }
+}
+
+/// Draw stream of the sample at position `pos` of epoch `epoch`.
+pub fn sample_rng(seed: u64, epoch: u64, pos: usize) -> Rng {
+    Rng::new(seed ^ mix64(epoch.wrapping_mul(0x1_0000_0001)) ^ mix64(pos as u64 ^ 0xa5a5_0000))
+}
+
+/// The batches of one epoch, decoded in parallel on `jobs` threads and prefetched
+/// `prefetch` batches ahead through a bounded channel. Iterating yields them in order.
+pub struct Loader {
+    rx: Option<Receiver<Result<Batch, TrainError>>>,
+    handle: Option<JoinHandle<()>>,
+    pub batches: usize,
+}
+
+/// Parameters of one epoch of loading.
+#[derive(Debug, Clone)]
+pub struct EpochPlan {
+    pub entries: Vec<IndexEntry>,
+    pub batch_size: usize,
+    pub epoch: u64,
+    pub shuffle: bool,
+    /// Drop the last incomplete batch (training) or keep it (evaluation).
+    pub drop_last: bool,
+    /// Skip the first `skip_batches` batches (exact resume mid-epoch).
+    pub skip_batches: usize,
+    /// Decoding threads (0 = all cores).
+    pub jobs: usize,
+    /// Batches decoded ahead.
+    pub prefetch: usize,
+}
+
+impl Loader {
+    pub fn start(ds: &Dataset, opts: &LoadOptions, plan: &EpochPlan) -> Result<Loader, TrainError> {
+        if plan.batch_size == 0 {
+            return Err(TrainError::Config("batch size must be at least 1".into()));
+        }
+        let order = epoch_order(plan.entries.len(), opts.seed, plan.epoch, plan.shuffle);
+        let mut groups: Vec<Vec<usize>> = order
+            .chunks(plan.batch_size)
+            .map(|c| c.to_vec())
+            .collect();
+        if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
+            groups.pop();
+        }
+        let batches = groups.len();
+        let groups: Vec<(usize, Vec<usize>)> =
+            groups.into_iter().enumerate().skip(plan.skip_batches).collect();
+        let jobs = if plan.jobs == 0 {
+            std::thread::available_parallelism().map_or(2, |n| n.get())
+        } else {
+            plan.jobs
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(jobs)
+            .thread_name(|i| format!("loader-{i}"))
+            .build()
+            .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))?;
+        let (tx, rx) = sync_channel(plan.prefetch.max(1));
+        let ds = ds.clone();
+        let opts = opts.clone();
+        let entries = plan.entries.clone();
+        let epoch = plan.epoch;
+        let handle = std::thread::Builder::new()
+            .name("loader".into())
+            .spawn(move || {
+                for (bi, group) in groups {
+                    let res: Result<Vec<Sample>, TrainError> = pool.install(|| {
+                        group
+                            .par_iter()
+                            .map(|&pos| {
+                                let mut rng = sample_rng(opts.seed, epoch, pos);
+                                load_sample(&ds, &entries[pos], &opts, &mut rng)
+                            })
+                            .collect()
+                    });
+                    let batch = res.and_then(|s| Batch::stack(bi, s));
+                    let failed = batch.is_err();
+                    if tx.send(batch).is_err() || failed {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| TrainError::Config(format!("cannot start loader thread: {e}")))?;
+        Ok(Loader {
+            rx: Some(rx),
+            handle: Some(handle),
+            batches,
+        })
+    }
+}
+
+impl Iterator for Loader {
+    type Item = Result<Batch, TrainError>;
+    fn next(&mut self) -> Option<Self::Item> {
+        self.rx.as_ref()?.recv().ok()
+    }
+}
+
+impl Drop for Loader {
+    fn drop(&mut self) {
+        // Closing the receiver makes the producer's next send fail, so it stops.
+        self.rx.take();
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// Build a tiny prepared dataset (for tests, benchmarks and examples): `scenes` scenes of
+/// `per_scene` samples of `w`x`h` pixels, a ground plane whose depth grows towards the
+/// horizon, radar strips at the true depth, conditions cycling day / night / rain.
+pub fn write_toy_dataset(
+    root: &Path,
+    scenes: usize,
+    per_scene: usize,
+    w: u32,
+    h: u32,
+    seed: u64,
+) -> Result<(), TrainError> {
+    use depthsense_nuscenes::depth_png::encode_png;
+    use depthsense_nuscenes::fsutil::write_atomic;
+    use depthsense_prep::layout::SampleMeta;
+    let mut index = PreparedIndex {
+        version: "v1.0-toy".into(),
+        samples: vec![],
+    };
+    let mut rng = Rng::new(seed);
+    for s in 0..scenes {
+        let cond = [Condition::Day, Condition::Night, Condition::Rain][s % 3];
+        for k in 0..per_scene {
+            let token = format!("toy{s:03}{k:03}{:016x}", rng.next_u64());
+            let dir = root.join(&token);
+            std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
+            let horizon = h as f32 * 0.3;
+            let offset = rng.range(0.8, 1.25) as f32;
+            let mut dense = DepthMap::zeros(w, h);
+            let mut sparse = DepthMap::zeros(w, h);
+            let mut raw = DepthMap::zeros(w, h);
+            let mut height = DepthMap::zeros(w, h);
+            let mut low = image::GrayImage::new(w, h);
+            let mut img = image::RgbImage::new(w, h);
+            for v in 0..h {
+                for u in 0..w {
+                    let i = (v * w + u) as usize;
+                    let d = if (v as f32) > horizon {
+                        (offset * 4.0 * h as f32 / (v as f32 - horizon + 1.0)).min(79.0)
+                    } else {
+                        79.0
+                    };
+                    dense.depth_m[i] = d;
+                    if (u + v) % 3 == 0 {
+                        sparse.depth_m[i] = d;
+                        if v as f32 > h as f32 * 0.6 {
+                            low.put_pixel(u, v, image::Luma([255]));
+                        }
+                    }
+                    let g = (255.0 * (1.0 - d / 80.0)) as u8;
+                    let night = cond == Condition::Night;
+                    img.put_pixel(
+                        u,
+                        v,
+                        image::Rgb([
+                            if night { g / 3 } else { g },
+                            ((u * 7) % 255) as u8 / 2 + g / 2,
+                            if night { 20 } else { 128 },
+                        ]),
+                    );
+                }
+            }
+            for _ in 0..4 {
+                let u = (rng.uniform() * w as f64) as u32 % w;
+                let v = (h as f64 * rng.range(0.5, 0.95)) as u32 % h;
+                let d = dense.depth_m[(v * w + u) as usize];
+                raw.depth_m[(v * w + u) as usize] = d;
+                for vv in v.saturating_sub(6)..(v + 2).min(h) {
+                    height.depth_m[(vv * w + u) as usize] = d;
+                }
+            }
+            let enc = |m: &DepthMap| encode_png(m).map_err(|e| TrainError::Data(e.to_string()));
+            let write = |name: &str, bytes: &[u8]| {
+                let p = dir.join(name);
+                write_atomic(&p, bytes).map_err(|e| TrainError::io(&p, e))
+            };
+            write(LIDAR_DENSE_FILE, &enc(&dense)?)?;
+            write(LIDAR_SPARSE_FILE, &enc(&sparse)?)?;
+            write(RADAR_RAW_FILE, &enc(&raw)?)?;
+            write(RADAR_HEIGHT_FILE, &enc(&height)?)?;
+            let mut buf = std::io::Cursor::new(Vec::new());
+            img.write_to(&mut buf, image::ImageFormat::Png)
+                .map_err(|e| TrainError::Data(e.to_string()))?;
+            write(IMAGE_FILE, buf.get_ref())?;
+            let mut buf = std::io::Cursor::new(Vec::new());
+            low.write_to(&mut buf, image::ImageFormat::Png)
+                .map_err(|e| TrainError::Data(e.to_string()))?;
+            write(LOWHEIGHT_MASK_FILE, buf.get_ref())?;
+            let f = w as f64;
+            let meta = SampleMeta {
+                sample_token: token.clone(),
+                scene_token: format!("scene{s:04}"),
+                scene_name: format!("toy-{s:04}"),
+                conditions: vec![cond],
+                timestamp_us: (s * 1000 + k) as i64,
+                sample_data_tokens: Default::default(),
+                intrinsics_frame: [[f, 0.0, f / 2.0], [0.0, f, h as f64 / 2.0], [0.0, 0.0, 1.0]],
+                intrinsics_full: [
+                    [2.0 * f, 0.0, f],
+                    [0.0, 2.0 * f, h as f64 + 200.0],
+                    [0.0, 0.0, 1.0],
+                ],
+                cam_from_lidar: identity4(),
+                cam_from_radar: Default::default(),
+                counts: Default::default(),
+                settings: serde_json::json!({"toy": true}),
+            };
+            let meta_bytes = serde_json::to_vec_pretty(&meta)
+                .map_err(|e| TrainError::Data(e.to_string()))?;
+            write(META_FILE, &meta_bytes)?;
+            index.samples.push(IndexEntry {
+                sample_token: token.clone(),
+                scene_token: format!("scene{s:04}"),
+                scene_name: format!("toy-{s:04}"),
+                splits: vec!["all".into()],
+                conditions: vec![cond],
+                dir: token,
+            });
+        }
+    }
+    let p = root.join(INDEX_FILE);
+    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| TrainError::Data(e.to_string()))?;
+    write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))
+}
+
+pub(crate) fn identity4() -> [[f64; 4]; 4] {
+    let mut m = [[0.0; 4]; 4];
+    for (i, row) in m.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    m
+}

@@ -1,0 +1,424 @@
+//! `depthsense demo`: synthesise a small world → prepare it (`--split all`) → train an RGB-only
+//! and a late-fusion network with the same seed → evaluate both on the held-out scenes →
+//! `OUT/report/` with the tables, the curves and pictures of a few test samples.
+//!
+//! ```text
+//! OUT/world/                 synthetic nuScenes-format dataroot
+//! OUT/prepared/              prepare output
+//! OUT/rgb/, OUT/fusion/      training runs (config.json, metrics.jsonl, curves.png, checkpoints)
+//! OUT/report/README.md       summary: stage times, headline numbers, held-out scenes
+//! OUT/report/tables.{md,csv,json}
+//! OUT/report/curves_rgb.png, curves_fusion.png, val_rmse.png
+//! OUT/report/samples/<token>/{image,radar,gt,pred_rgb,pred_fusion,err_rgb,err_fusion}.png
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_metrics::Report;
+use depthsense_model::{checkpoint, Fusion, ModelConfig};
+use depthsense_nuscenes::fsutil::write_atomic;
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Dataset, LoadOptions};
+use crate::error::TrainError;
+use crate::evaluate::{select_split, write_tables, HELD_OUT};
+use crate::trainer::{
+    evaluate_net, radar_input_for, read_metrics, subsample, train, TrainOptions, BEST_CKPT,
+    METRICS_FILE,
+};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoOptions {
+    pub out: PathBuf,
+    /// auto | cpu | cuda | cuda:N. On CUDA a larger preset and more steps are used.
+    pub device: String,
+    /// A much smaller run (integration tests, < 90 s on 2 cores).
+    pub quick: bool,
+    pub seed: u64,
+    /// Override the number of epochs of each training run.
+    pub epochs: Option<usize>,
+    /// Loader / prepare threads (0 = all cores).
+    pub jobs: usize,
+    /// Test samples drawn in the report.
+    pub pictures: usize,
+}
+
+impl Default for DemoOptions {
+    fn default() -> Self {
+        Self {
+            out: PathBuf::from("runs/demo"),
+            device: "auto".into(),
+            quick: false,
+            seed: 7,
+            epochs: None,
+            jobs: 0,
+            pictures: 4,
+        }
+    }
+}
+
+/// What the demo did.
+#[derive(Debug, Clone, Serialize)]
+pub struct DemoSummary {
+    pub report_dir: PathBuf,
+    pub stage_seconds: Vec<(String, f64)>,
+    pub rgb_rmse: f64,
+    pub fusion_rmse: f64,
+    pub rgb_initial_rmse: f64,
+    pub fusion_initial_rmse: f64,
+    pub total_seconds: f64,
+    pub device: String,
+    pub preset: String,
+}
+
+/// The plan of a demo: sizes chosen to fit the time budget on the device.
+#[derive(Debug, Clone, Serialize)]
+pub struct DemoPlan {
+    pub scenes: usize,
+    pub keyframes_per_scene: usize,
+    pub lidar_sweeps: usize,
+    pub preset: String,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub max_batches_per_epoch: Option<usize>,
+    pub max_val_samples: Option<usize>,
+    pub val_every_scene: usize,
+}
+
+pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
+    let synth = depthsense_synth::SynthConfig::demo();
+    let mut p = DemoPlan {
+        scenes: synth.scenes,
+        keyframes_per_scene: synth.keyframes_per_scene,
+        lidar_sweeps: 2,
+        preset: "tiny".into(),
+        epochs: 6,
+        batch_size: 4,
+        lr: 1e-2,
+        max_batches_per_epoch: None,
+        max_val_samples: Some(24),
+        val_every_scene: 5,
+    };
+    if cuda {
+        p.preset = "tiny".into();
+        p.epochs = 20;
+        p.batch_size = 8;
+        p.max_val_samples = None;
+    }
+    if opts.quick {
+        p.scenes = p.scenes.min(5);
+        p.keyframes_per_scene = p.keyframes_per_scene.min(4);
+        p.lidar_sweeps = 1;
+        p.epochs = 2;
+        p.batch_size = 2;
+        p.max_batches_per_epoch = Some(4);
+        p.max_val_samples = Some(4);
+    }
+    if let Some(e) = opts.epochs {
+        p.epochs = e.max(1);
+    }
+    p
+}
+
+fn stage_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
+    let pb = mp.add(ProgressBar::new(0));
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>10.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb.set_prefix(name.to_string());
+    pb
+}
+
+/// Run the demo. `mp` hosts one progress bar per stage (pass a hidden one in tests).
+pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, TrainError> {
+    let t0 = Instant::now();
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let cuda = device.is_cuda();
+    let plan = plan(opts, cuda);
+    let out = &opts.out;
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    let mut stages: Vec<(String, f64)> = vec![];
+
+    // 1. Synthesise.
+    let t = Instant::now();
+    let world = out.join("world");
+    let mut scfg = depthsense_synth::SynthConfig::demo();
+    scfg.scenes = plan.scenes;
+    scfg.keyframes_per_scene = plan.keyframes_per_scene;
+    scfg.seed = opts.seed;
+    scfg.jobs = opts.jobs;
+    let pb = stage_bar(mp, "synth");
+    let synth = depthsense_synth::generate(&world, &scfg, &pb)
+        .map_err(|e| TrainError::Other(format!("synth: {e}")))?;
+    pb.finish_with_message(format!("{} keyframes", synth.keyframes));
+    stages.push(("synth".into(), t.elapsed().as_secs_f64()));
+
+    // 2. Prepare (--split all: synthetic scenes match no shipped split list).
+    let t = Instant::now();
+    let prepared = out.join("prepared");
+    let popts = depthsense_prep::PrepareOptions {
+        dataroot: world.clone(),
+        version: scfg.version_name.clone(),
+        out: prepared.clone(),
+        split: "all".into(),
+        lidar_sweeps: plan.lidar_sweeps,
+        jobs: opts.jobs,
+        ..depthsense_prep::PrepareOptions::default()
+    };
+    let pb = stage_bar(mp, "prepare");
+    let ps = depthsense_prep::prepare(&popts, &pb)
+        .map_err(|e| TrainError::Other(format!("prepare: {e}")))?;
+    if !ps.failed.is_empty() {
+        return Err(TrainError::Data(format!(
+            "prepare failed for {} sample(s), first: {} ({})",
+            ps.failed.len(),
+            ps.failed[0].0,
+            ps.failed[0].1
+        )));
+    }
+    pb.finish_with_message(format!(
+        "{} prepared, {} cached",
+        ps.prepared, ps.skipped_existing
+    ));
+    stages.push(("prepare".into(), t.elapsed().as_secs_f64()));
+
+    // 3. Train RGB-only and late fusion with the same seed.
+    let base_cfg = ModelConfig::preset(&plan.preset)?;
+    let mut runs: Vec<(&str, PathBuf, f64, f64)> = vec![];
+    for (name, fusion) in [("rgb", Fusion::None), ("fusion", Fusion::Late)] {
+        let t = Instant::now();
+        let mut cfg = base_cfg.clone();
+        cfg.fusion = fusion;
+        if fusion == Fusion::None {
+            cfg.attention = false;
+        }
+        let topts = TrainOptions {
+            data: prepared.clone(),
+            out: out.join(name),
+            model: cfg,
+            epochs: plan.epochs,
+            batch_size: plan.batch_size,
+            lr: plan.lr,
+            seed: opts.seed,
+            device: opts.device.clone(),
+            jobs: opts.jobs,
+            max_batches_per_epoch: plan.max_batches_per_epoch,
+            max_val_samples: plan.max_val_samples,
+            val_every_scene: plan.val_every_scene,
+            ..TrainOptions::default()
+        };
+        let pb = stage_bar(mp, &format!("train {name}"));
+        let s = train(&topts, &pb)?;
+        pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
+        let initial = s.val.first().map_or(f64::NAN, |v| v.rmse);
+        runs.push((name, out.join(name), initial, s.best_val_rmse));
+        stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
+    }
+
+    // 4. Evaluate both on the held-out scenes; pictures.
+    let t = Instant::now();
+    let ds = Dataset::open(&prepared)?;
+    let test = select_split(&ds, HELD_OUT, plan.val_every_scene)?;
+    let report_dir = out.join("report");
+    std::fs::create_dir_all(&report_dir).map_err(|e| TrainError::io(&report_dir, e))?;
+    let pic_tokens: Vec<String> = subsample(&test, Some(opts.pictures.max(1)))
+        .iter()
+        .map(|e| e.sample_token.clone())
+        .collect();
+    let mut reports: Vec<(String, Report)> = vec![];
+    let pb = stage_bar(mp, "eval");
+    pb.set_length(2 * test.len() as u64);
+    for (name, dir, _, _) in &runs {
+        let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
+        let radar = radar_input_for(&loaded.config, None)?;
+        let load = LoadOptions {
+            radar: radar.unwrap_or_default(),
+            no_radar: radar.is_none(),
+            ..LoadOptions::default()
+        };
+        let rep = evaluate_net(
+            &loaded.net,
+            &ds,
+            &test,
+            &load,
+            &Default::default(),
+            plan.batch_size,
+            opts.jobs,
+            device,
+            &pb,
+            |batch, preds| {
+                let hw = batch.width * batch.height;
+                for (i, s) in batch.samples.iter().enumerate() {
+                    if pic_tokens.contains(&s.token) {
+                        write_pictures(
+                            &report_dir.join("samples").join(&s.token),
+                            name,
+                            &ds,
+                            &s.token,
+                            &preds[i * hw..(i + 1) * hw],
+                            &s.sparse_m,
+                            batch.width as u32,
+                            batch.height as u32,
+                        )?;
+                    }
+                }
+                Ok(())
+            },
+        )?;
+        reports.push((name.to_string(), rep));
+    }
+    pb.finish();
+    let models: Vec<(&str, &Report)> = reports.iter().map(|(n, r)| (n.as_str(), r)).collect();
+    write_tables(&report_dir, &models)?;
+    for (name, dir, _, _) in &runs {
+        let src = dir.join(crate::trainer::CURVES_FILE);
+        if src.exists() {
+            let dst = report_dir.join(format!("curves_{name}.png"));
+            std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
+        }
+    }
+    let mut val_series = vec![];
+    for (name, dir, _, _) in &runs {
+        let (_, val) = read_metrics(&dir.join(METRICS_FILE))?;
+        val_series.push((
+            name.to_string(),
+            val.iter().map(|v| (v.iteration, v.rmse)).collect::<Vec<_>>(),
+        ));
+    }
+    let left: Vec<(&str, &[(u64, f64)])> = vec![];
+    let right: Vec<(&str, &[(u64, f64)])> = val_series
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let mut losses = vec![];
+    for (name, dir, _, _) in &runs {
+        let (l, _) = read_metrics(&dir.join(METRICS_FILE))?;
+        losses.push((name.to_string(), l));
+    }
+    let left2: Vec<(&str, &[(u64, f64)])> = losses
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let _ = left;
+    let png = crate::plot::curves_png(&left2, &right)?;
+    let p = report_dir.join("val_rmse.png");
+    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
+    stages.push(("eval".into(), t.elapsed().as_secs_f64()));
+
+    let rmse = |name: &str| {
+        reports
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, r)| r.headline().map(|h| h.metrics.rmse))
+            .unwrap_or(f64::NAN)
+    };
+    let summary = DemoSummary {
+        report_dir: report_dir.clone(),
+        stage_seconds: stages,
+        rgb_rmse: rmse("rgb"),
+        fusion_rmse: rmse("fusion"),
+        rgb_initial_rmse: runs[0].2,
+        fusion_initial_rmse: runs[1].2,
+        total_seconds: t0.elapsed().as_secs_f64(),
+        device: depthsense_model::device::describe(device),
+        preset: plan.preset.clone(),
+    };
+    write_readme(&report_dir, &summary, &plan, &models, &test, &ds)?;
+    Ok(summary)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_pictures(
+    dir: &Path,
+    model: &str,
+    ds: &Dataset,
+    token: &str,
+    pred: &[f32],
+    gt: &[f32],
+    w: u32,
+    h: u32,
+) -> Result<(), TrainError> {
+    use crate::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
+    let save = |name: &str, img: &image::RgbImage| -> Result<(), TrainError> {
+        let p = dir.join(name);
+        write_atomic(&p, &encode_rgb(img)?).map_err(|e| TrainError::io(&p, e))
+    };
+    let max_m = 80.0;
+    let e = ds
+        .index
+        .samples
+        .iter()
+        .find(|e| e.sample_token == token)
+        .ok_or_else(|| TrainError::Data(format!("sample {token} not in the index")))?;
+    let input = crate::predict::input_from_prepared(&ds.sample_dir(e))?;
+    if !dir.join("image.png").exists() {
+        save("image.png", &input.image)?;
+        save(
+            "radar.png",
+            &overlay_points(&input.image, &input.radar_raw.depth_m, max_m, 3),
+        )?;
+        save("gt.png", &overlay_points(&input.image, gt, max_m, 1))?;
+    }
+    save(&format!("pred_{model}.png"), &colorize_depth(pred, w, h, max_m))?;
+    save(&format!("err_{model}.png"), &error_map(pred, gt, w, h, 10.0))?;
+    Ok(())
+}
+
+fn write_readme(
+    dir: &Path,
+    s: &DemoSummary,
+    plan: &DemoPlan,
+    models: &[(&str, &Report)],
+    test: &[depthsense_prep::layout::IndexEntry],
+    _ds: &Dataset,
+) -> Result<(), TrainError> {
+    let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
+    scenes.dedup();
+    let mut md = String::from("# depthsense demo report\n\n");
+    md.push_str(&format!(
+        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes).\n\n",
+        s.device, s.preset, plan.epochs, plan.batch_size, plan.lr, plan.scenes, plan.keyframes_per_scene
+    ));
+    md.push_str(&format!(
+        "Held-out scenes ({} samples; every {}th scene by name): {}\n\n",
+        test.len(),
+        plan.val_every_scene,
+        scenes.join(", ")
+    ));
+    md.push_str("| model | initial val RMSE (m) | test RMSE (m) |\n|---|---:|---:|\n");
+    md.push_str(&format!(
+        "| RGB only | {:.3} | {:.3} |\n| late fusion (radar) | {:.3} | {:.3} |\n\n",
+        s.rgb_initial_rmse, s.rgb_rmse, s.fusion_initial_rmse, s.fusion_rmse
+    ));
+    md.push_str(&format!(
+        "Radar fusion vs RGB only: RMSE {:+.1} %.\n\n",
+        100.0 * (s.fusion_rmse - s.rgb_rmse) / s.rgb_rmse
+    ));
+    md.push_str("| stage | seconds |\n|---|---:|\n");
+    for (n, t) in &s.stage_seconds {
+        md.push_str(&format!("| {n} | {t:.1} |\n"));
+    }
+    md.push_str(&format!("| total | {:.1} |\n\n", s.total_seconds));
+    md.push_str(&depthsense_metrics::tables::markdown_report(models));
+    md.push_str(
+        "\nPictures: `samples/<token>/` (image, radar overlay, GT, prediction and |error| per model); \
+         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.\n",
+    );
+    let p = dir.join("README.md");
+    write_atomic(&p, md.as_bytes()).map_err(|e| TrainError::io(&p, e))?;
+    let p = dir.join("summary.json");
+    write_atomic(
+        &p,
+        serde_json::to_string_pretty(&serde_json::json!({"summary": s, "plan": plan}))
+            .map_err(|e| TrainError::Other(e.to_string()))?
+            .as_bytes(),
+    )
+    .map_err(|e| TrainError::io(&p, e))
+}

@@ -1,0 +1,42 @@
+//! `depthsense demo --quick` end to end: synth → prepare → train RGB-only and fusion → eval →
+//! report files.
+
+use depthsense_train::demo::{run_demo, DemoOptions};
+use indicatif::{MultiProgress, ProgressDrawTarget};
+
+#[test]
+fn quick_demo_writes_the_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let opts = DemoOptions {
+        out: tmp.path().join("demo"),
+        device: "cpu".into(),
+        quick: true,
+        jobs: 2,
+        pictures: 1,
+        ..DemoOptions::default()
+    };
+    let mp = MultiProgress::with_draw_target(ProgressDrawTarget::hidden());
+    let s = run_demo(&opts, &mp).unwrap();
+    let r = &s.report_dir;
+    for f in [
+        "README.md",
+        "summary.json",
+        "tables.md",
+        "tables.csv",
+        "tables.json",
+        "curves_rgb.png",
+        "curves_fusion.png",
+        "val_rmse.png",
+    ] {
+        assert!(r.join(f).exists(), "{f} missing");
+    }
+    assert!(s.rgb_rmse.is_finite() && s.fusion_rmse.is_finite());
+    let md = std::fs::read_to_string(r.join("tables.md")).unwrap();
+    assert!(md.contains("| rgb | combined |") && md.contains("| fusion | combined |"), "{md}");
+    let samples: Vec<_> = std::fs::read_dir(r.join("samples")).unwrap().collect();
+    assert_eq!(samples.len(), 1);
+    let dir = samples[0].as_ref().unwrap().path();
+    for f in ["image.png", "radar.png", "gt.png", "pred_rgb.png", "pred_fusion.png", "err_rgb.png", "err_fusion.png"] {
+        assert!(dir.join(f).exists(), "{f} missing");
+    }
+}

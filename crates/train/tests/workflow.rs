@@ -1,0 +1,331 @@
+//! Loader, training (resume, non-finite loss, config mismatch), evaluation and prediction on
+//! a small generated prepared dataset (128x64 frames, the `tiny` preset).
+
+use std::path::Path;
+
+use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
+use depthsense_train::data::{
+    drop_radar, load_sample, partition, Augment, Dataset, EpochPlan, LoadOptions, Loader, Rng,
+};
+use depthsense_train::evaluate::{run_eval, write_tables, EvalOptions};
+use depthsense_train::trainer::{read_metrics, train, TrainOptions, BEST_CKPT, LAST_CKPT};
+use depthsense_train::TrainError;
+use indicatif::ProgressBar;
+
+const W: u32 = 128;
+const H: u32 = 64;
+
+fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
+    depthsense_train::data::write_toy_dataset(dir, scenes, per_scene, W, H, 11).unwrap();
+    Dataset::open(dir).unwrap()
+}
+
+fn opts(data: &Path, out: &Path, fusion: Fusion) -> TrainOptions {
+    let mut model = ModelConfig::tiny();
+    model.fusion = fusion;
+    if fusion != Fusion::Late {
+        model.attention = false;
+    }
+    TrainOptions {
+        data: data.to_path_buf(),
+        out: out.to_path_buf(),
+        model,
+        epochs: 6,
+        batch_size: 4,
+        lr: 5e-2,
+        seed: 5,
+        device: "cpu".into(),
+        jobs: 2,
+        prefetch: 2,
+        ..TrainOptions::default()
+    }
+}
+
+#[test]
+fn loader_is_reproducible_whatever_the_thread_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = toy(tmp.path(), 2, 3);
+    let load = LoadOptions {
+        augment: true,
+        seed: 3,
+        ..LoadOptions::default()
+    };
+    let run = |jobs: usize, seed: u64, epoch: u64| {
+        let plan = EpochPlan {
+            entries: ds.split("all"),
+            batch_size: 2,
+            epoch,
+            shuffle: true,
+            drop_last: false,
+            skip_batches: 0,
+            jobs,
+            prefetch: 1,
+        };
+        let l = LoadOptions {
+            seed,
+            ..load.clone()
+        };
+        Loader::start(&ds, &l, &plan)
+            .unwrap()
+            .map(|b| {
+                let b = b.unwrap();
+                (
+                    b.samples.iter().map(|s| s.token.clone()).collect::<Vec<_>>(),
+                    b.image,
+                    b.radar,
+                    b.target_m,
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let a = run(1, 3, 0);
+    assert_eq!(a.len(), 3);
+    assert_eq!(a, run(2, 3, 0), "same seed, other thread count");
+    assert_ne!(a, run(2, 4, 0), "another seed draws another order / augmentation");
+    assert_ne!(a, run(2, 3, 1), "another epoch draws another order");
+    // Skipping batches (resume mid-epoch) yields the tail of the same epoch.
+    let plan = EpochPlan {
+        entries: ds.split("all"),
+        batch_size: 2,
+        epoch: 0,
+        shuffle: true,
+        drop_last: false,
+        skip_batches: 1,
+        jobs: 2,
+        prefetch: 1,
+    };
+    let tail: Vec<Vec<f32>> = Loader::start(&ds, &load, &plan)
+        .unwrap()
+        .map(|b| b.unwrap().image)
+        .collect();
+    assert_eq!(tail, a[1..].iter().map(|x| x.1.clone()).collect::<Vec<_>>());
+}
+
+#[test]
+fn flip_is_applied_to_image_and_every_map_alike() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = toy(tmp.path(), 1, 1);
+    let e = &ds.split("all")[0];
+    // A draw with a flip and no colour jitter.
+    let seed = (0..1000u64)
+        .find(|s| {
+            let a = Augment::draw(&mut Rng::new(*s));
+            a.flip && a.gamma == 1.0
+        })
+        .unwrap();
+    let base = LoadOptions {
+        eval_maps: true,
+        ..LoadOptions::default()
+    };
+    let plain = load_sample(&ds, e, &base, &mut Rng::new(seed)).unwrap();
+    let aug = LoadOptions {
+        augment: true,
+        ..base
+    };
+    let flipped = load_sample(&ds, e, &aug, &mut Rng::new(seed)).unwrap();
+    assert!(flipped.flipped && !plain.flipped);
+    let w = W as usize;
+    let mirror = |v: &[f32]| -> Vec<f32> {
+        v.chunks(w)
+            .flat_map(|r| r.iter().rev().copied().collect::<Vec<_>>())
+            .collect()
+    };
+    assert_eq!(flipped.image, mirror(&plain.image));
+    assert_eq!(flipped.radar, mirror(&plain.radar));
+    assert_eq!(flipped.target_m, mirror(&plain.target_m));
+    assert_eq!(flipped.sparse_m, mirror(&plain.sparse_m));
+    assert_ne!(flipped.image, plain.image, "the toy image is not symmetric");
+    // ImageNet normalisation: pixel value 128 in channel 0 → (128/255 − 0.485)/0.229.
+    let jitter = Augment {
+        flip: false,
+        brightness: 1.1,
+        colour: [1.0; 3],
+        gamma: 1.0,
+    };
+    let img = image::RgbImage::from_pixel(2, 1, image::Rgb([128, 0, 255]));
+    let n = depthsense_train::data::normalise_image(&img, &Augment::NONE);
+    assert!((n[0] - (128.0 / 255.0 - 0.485) / 0.229).abs() < 1e-6);
+    assert!((n[4] - (1.0 - 0.406) / 0.225).abs() < 1e-6);
+    let j = depthsense_train::data::normalise_image(&img, &jitter);
+    assert!((j[0] - (128.0 * 1.1 / 255.0 - 0.485) / 0.229).abs() < 1e-5);
+    assert!((j[4] - n[4]).abs() < 1e-6, "brightness saturates at 1");
+}
+
+#[test]
+fn radar_drop_removes_points_with_their_strips() {
+    use depthsense_nuscenes::depth_png::DepthMap;
+    let mut raw = DepthMap::zeros(8, 6);
+    let mut height = DepthMap::zeros(8, 6);
+    for u in 0..8u32 {
+        let d = 5.0 + u as f32;
+        raw.depth_m[(4 * 8 + u) as usize] = d;
+        for v in 1..5u32 {
+            height.depth_m[(v * 8 + u) as usize] = d;
+        }
+    }
+    let (r0, h0) = (raw.clone(), height.clone());
+    drop_radar(&mut raw, Some(&mut height), 0.5, 42);
+    let kept = raw.valid_count();
+    assert!(kept > 0 && kept < 8, "kept {kept} of 8");
+    for u in 0..8usize {
+        let alive = raw.depth_m[4 * 8 + u] > 0.0;
+        for v in 1..5usize {
+            assert_eq!(height.depth_m[v * 8 + u] > 0.0, alive, "column {u}");
+        }
+    }
+    // Same seed, same draw; p = 1 removes everything; p = 0 nothing.
+    let (mut r2, mut h2) = (r0.clone(), h0.clone());
+    drop_radar(&mut r2, Some(&mut h2), 0.5, 42);
+    assert_eq!(r2, raw);
+    let (mut r3, mut h3) = (r0.clone(), h0.clone());
+    drop_radar(&mut r3, Some(&mut h3), 1.0, 1);
+    assert_eq!((r3.valid_count(), h3.valid_count()), (0, 0));
+    let (mut r4, mut h4) = (r0.clone(), h0.clone());
+    drop_radar(&mut r4, Some(&mut h4), 0.0, 1);
+    assert_eq!((r4, h4), (r0, h0));
+}
+
+#[test]
+fn scene_modulo_partition_is_deterministic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = toy(tmp.path(), 10, 1);
+    let p = partition(&ds, 5).unwrap();
+    assert_eq!(p.val_scenes, vec!["toy-0004", "toy-0009"]);
+    assert_eq!((p.train.len(), p.val.len()), (8, 2));
+    assert!(p.method.starts_with("scene-modulo"));
+}
+
+/// Resume continues exactly; a short run lowers the validation RMSE; RUN/ holds its files;
+/// a checkpoint of another config is refused naming the tensors; eval and predict work.
+#[test]
+fn train_resume_mismatch_eval_predict() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data, 5, 4); // 16 train (4 batches of 4), 4 held-out samples (scene toy-0004)
+    let pb = ProgressBar::hidden();
+
+    // Uninterrupted: 6 epochs × 4 iterations.
+    let full = train(&opts(&data, &tmp.path().join("a"), Fusion::Late), &pb).unwrap();
+    assert_eq!(full.total_iterations, 24);
+    assert_eq!(full.losses.len(), 24);
+    assert!(!full.interrupted);
+    let (first, last) = (full.val[0].rmse, full.val.last().unwrap().rmse);
+    assert_eq!(full.val.len(), 7, "initial + 6 epochs");
+    eprintln!("val: {:?} loss {:?}", full.val.iter().map(|v| v.rmse).collect::<Vec<_>>(), full.losses);
+    assert!(last < 0.7 * first, "validation RMSE {first} → {last}");
+    for f in ["config.json", "metrics.jsonl", "curves.png", LAST_CKPT, BEST_CKPT] {
+        assert!(tmp.path().join("a").join(f).exists(), "{f}");
+    }
+    let png = image::open(tmp.path().join("a/curves.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (1200, 450));
+    let (logged, _) = read_metrics(&tmp.path().join("a/metrics.jsonl")).unwrap();
+    assert_eq!(logged, full.losses);
+
+    // Interrupted mid-epoch at iteration 6, then resumed.
+    let b_dir = tmp.path().join("b");
+    let mut o = opts(&data, &b_dir, Fusion::Late);
+    o.stop_after = Some(6);
+    let part1 = train(&o, &pb).unwrap();
+    assert!(part1.interrupted);
+    assert_eq!(part1.iterations_done, 6);
+    o.stop_after = None;
+    o.resume = true;
+    let part2 = train(&o, &pb).unwrap();
+    assert_eq!(part2.iterations_done, 24);
+    let mut joined = part1.losses.clone();
+    joined.extend(part2.losses.iter().copied());
+    assert_eq!(joined.len(), full.losses.len());
+    for ((i, a), (j, b)) in full.losses.iter().zip(&joined) {
+        assert_eq!(i, j);
+        assert!((a - b).abs() <= 1e-6 * a.abs().max(1.0), "iteration {i}: {a} vs {b}");
+    }
+    let (logged_b, _) = read_metrics(&b_dir.join("metrics.jsonl")).unwrap();
+    assert_eq!(logged_b.len(), 24, "metrics.jsonl holds each iteration once");
+
+    // Resuming into another configuration: error naming the tensors with both shapes.
+    let mut other = opts(&data, &b_dir, Fusion::Late);
+    other.resume = true;
+    other.model.head = HeadKind::L1;
+    let err = train(&other, &pb).err().expect("mismatch must fail");
+    let msg = err.to_string();
+    assert!(matches!(err, TrainError::Model(_)), "{msg}");
+    assert!(msg.contains("mismatching shapes"), "{msg}");
+    assert!(msg.contains("[1, 64, 1, 1]") || msg.contains("network ["), "{msg}");
+
+    // Eval on the held-out scene; radar removed entirely changes the fusion model's output.
+    let eo = EvalOptions {
+        checkpoint: tmp.path().join("a").join(BEST_CKPT),
+        data: data.clone(),
+        device: "cpu".into(),
+        jobs: 2,
+        ..EvalOptions::default()
+    };
+    let rep = run_eval(&eo, &pb).unwrap();
+    let head = rep.headline().unwrap();
+    assert_eq!(head.n_images, 4);
+    assert!(head.n_pixels > 1000);
+    let best_rmse = full.val.iter().map(|v| v.rmse).fold(f64::INFINITY, f64::min);
+    assert!((head.metrics.rmse - best_rmse).abs() < 1e-4, "{} vs {best_rmse}", head.metrics.rmse);
+    let dropped = run_eval(
+        &EvalOptions {
+            radar_drop: 1.0,
+            ..eo.clone()
+        },
+        &pb,
+    )
+    .unwrap();
+    assert_ne!(dropped.headline().unwrap().metrics.rmse, head.metrics.rmse);
+    let out = tmp.path().join("eval");
+    write_tables(&out, &[("fusion", &rep), ("fusion, radar dropped", &dropped)]).unwrap();
+    let md = std::fs::read_to_string(out.join("tables.md")).unwrap();
+    assert!(md.contains("| fusion | combined | 4 |"), "{md}");
+    assert!(out.join("tables.csv").exists() && out.join("tables.json").exists());
+
+    // Predict on a prepared sample.
+    let ds = Dataset::open(&data).unwrap();
+    let e = &ds.split("all")[0];
+    let input = depthsense_train::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
+    let loaded = checkpoint::load(&tmp.path().join("a").join(BEST_CKPT), tch::Device::Cpu).unwrap();
+    let radar = depthsense_train::trainer::radar_input_for(&loaded.config, None).unwrap();
+    let depth =
+        depthsense_train::predict::predict(&loaded.net, &input, radar, tch::Device::Cpu).unwrap();
+    assert_eq!((depth.width, depth.height), (W, H));
+    assert!(depth.depth_m.iter().all(|d| (1.0..=80.0).contains(d)));
+    let files = depthsense_train::predict::write_outputs(&tmp.path().join("pred"), &input, &depth, 80.0)
+        .unwrap();
+    assert_eq!(files.len(), 4);
+    let back = depthsense_nuscenes::depth_png::read_depth_png(&files[0]).unwrap();
+    assert_eq!((back.width, back.height), (W, H));
+    assert!((back.depth_m[100] - depth.depth_m[100]).abs() <= 0.5 / 256.0 + 1e-6);
+}
+
+#[test]
+fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data, 5, 4);
+    let run = tmp.path().join("run");
+    let mut o = opts(&data, &run, Fusion::None);
+    o.epochs = 50;
+    o.lr = 1e30; // diverges within a few steps: a real non-finite loss
+    o.checkpoint_every = 1;
+    o.max_val_samples = Some(1);
+    let err = train(&o, &ProgressBar::hidden()).err().expect("must stop");
+    let msg = err.to_string();
+    let TrainError::NonFiniteLoss { iteration, .. } = err else {
+        panic!("expected a non-finite-loss error, got {msg}");
+    };
+    assert!(msg.contains("training stopped"), "{msg}");
+    assert!(iteration >= 1);
+    // Every checkpoint on disk is finite and loads.
+    if run.join(LAST_CKPT).exists() {
+        let l = checkpoint::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
+        for (n, t) in l.vs.variables() {
+            if t.is_floating_point() {
+                assert_eq!(t.isfinite().all().int64_value(&[]), 1, "{n}");
+            }
+        }
+        let it = l.extra["train_state"]["iteration"].as_u64().unwrap();
+        assert!(it < iteration, "checkpoint at {it}, failure at {iteration}");
+    }
+}
