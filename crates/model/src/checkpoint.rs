@@ -9,6 +9,9 @@ use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use crate::{DepthNet, ModelConfig, ModelError, ShapeMismatch};
 
+/// Named tensors and the string metadata of a safetensors file.
+pub type Parsed = (Vec<(String, Tensor)>, BTreeMap<String, String>);
+
 /// Format tag stored in the metadata.
 pub const FORMAT: &str = "depthsense-checkpoint-v1";
 const KEY_FORMAT: &str = "format";
@@ -66,7 +69,10 @@ pub fn safetensors_bytes(
     metadata: &BTreeMap<String, String>,
 ) -> Result<Vec<u8>, ModelError> {
     let mut header = serde_json::Map::new();
-    header.insert("__metadata__".into(), serde_json::to_value(metadata).unwrap_or_default());
+    header.insert(
+        "__metadata__".into(),
+        serde_json::to_value(metadata).unwrap_or_default(),
+    );
     let mut blobs = Vec::with_capacity(tensors.len());
     let mut offset = 0usize;
     let mut sorted: Vec<&(String, Tensor)> = tensors.iter().collect();
@@ -74,7 +80,10 @@ pub fn safetensors_bytes(
     for (name, t) in sorted {
         let t = t.detach().to_device(Device::Cpu).contiguous();
         let (dt, es) = dtype_name(t.kind()).ok_or_else(|| {
-            ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} cannot be saved", t.kind()))
+            ModelError::InvalidConfig(format!(
+                "tensor {name}: dtype {:?} cannot be saved",
+                t.kind()
+            ))
         })?;
         let numel = t.numel();
         let mut buf = vec![0u8; numel * es];
@@ -87,7 +96,7 @@ pub fn safetensors_bytes(
         blobs.push(buf);
     }
     let mut h = serde_json::to_vec(&serde_json::Value::Object(header)).unwrap_or_default();
-    while h.len() % 8 != 0 {
+    while !h.len().is_multiple_of(8) {
         h.push(b' ');
     }
     let mut out = Vec::with_capacity(8 + h.len() + offset);
@@ -101,13 +110,13 @@ pub fn safetensors_bytes(
 
 /// Parses safetensors bytes: (tensors in file order of offsets, metadata). Every length and
 /// offset is checked, so truncated or foreign files give a clear error.
-pub fn parse_safetensors(
-    path: &Path,
-    bytes: &[u8],
-) -> Result<(Vec<(String, Tensor)>, BTreeMap<String, String>), ModelError> {
+pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError> {
     let bad = |m: String| ModelError::format(path, m);
     if bytes.len() < 8 {
-        return Err(bad(format!("not a safetensors file ({} bytes)", bytes.len())));
+        return Err(bad(format!(
+            "not a safetensors file ({} bytes)",
+            bytes.len()
+        )));
     }
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap_or([0; 8])) as usize;
     if n > bytes.len() - 8 || n > 100 << 20 {
@@ -116,8 +125,9 @@ pub fn parse_safetensors(
             bytes.len()
         )));
     }
-    let header: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(&bytes[8..8 + n])
-        .map_err(|e| bad(format!("not a safetensors file: header is not JSON ({e})")))?;
+    let header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(&bytes[8..8 + n])
+            .map_err(|e| bad(format!("not a safetensors file: header is not JSON ({e})")))?;
     let data = &bytes[8 + n..];
     let mut meta = BTreeMap::new();
     let mut out = Vec::new();
@@ -131,7 +141,8 @@ pub fn parse_safetensors(
             continue;
         }
         let dtype = v.get("dtype").and_then(|d| d.as_str()).unwrap_or("");
-        let (kind, es) = kind_of(dtype).ok_or_else(|| bad(format!("tensor {name}: unsupported dtype `{dtype}`")))?;
+        let (kind, es) = kind_of(dtype)
+            .ok_or_else(|| bad(format!("tensor {name}: unsupported dtype `{dtype}`")))?;
         let shape: Vec<i64> = v
             .get("shape")
             .and_then(|s| s.as_array())
@@ -140,14 +151,21 @@ pub fn parse_safetensors(
         let offs: Vec<usize> = v
             .get("data_offsets")
             .and_then(|s| s.as_array())
-            .map(|a| a.iter().filter_map(|x| x.as_u64().map(|u| u as usize)).collect())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_u64().map(|u| u as usize))
+                    .collect()
+            })
             .unwrap_or_default();
         if offs.len() != 2 || offs[0] > offs[1] {
             return Err(bad(format!("tensor {name}: bad data_offsets")));
         }
         let numel: i64 = shape.iter().product();
         if offs[1] - offs[0] != numel as usize * es {
-            return Err(bad(format!("tensor {name}: {} bytes for shape {shape:?} {dtype}", offs[1] - offs[0])));
+            return Err(bad(format!(
+                "tensor {name}: {} bytes for shape {shape:?} {dtype}",
+                offs[1] - offs[0]
+            )));
         }
         if offs[1] > data.len() {
             return Err(bad(format!(
@@ -164,9 +182,15 @@ pub fn parse_safetensors(
 
 /// Writes `bytes` to `path` atomically (temporary file in the same directory, fsync, rename).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| ModelError::io(dir, e))?;
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
     let res = (|| {
         let mut f = std::fs::File::create(&tmp)?;
@@ -183,19 +207,33 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
 
 /// Saves every variable of `vs` (trainable and BN running statistics) with `cfg` and `extra`
 /// as one safetensors file, atomically.
-pub fn save(path: &Path, vs: &VarStore, cfg: &ModelConfig, extra: &serde_json::Value) -> Result<(), ModelError> {
+pub fn save(
+    path: &Path,
+    vs: &VarStore,
+    cfg: &ModelConfig,
+    extra: &serde_json::Value,
+) -> Result<(), ModelError> {
     let tensors: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
     let mut meta = BTreeMap::new();
     meta.insert(KEY_FORMAT.to_string(), FORMAT.to_string());
-    meta.insert(KEY_CONFIG.to_string(), serde_json::to_string(cfg).unwrap_or_default());
-    meta.insert(KEY_EXTRA.to_string(), serde_json::to_string(extra).unwrap_or_else(|_| "null".into()));
+    meta.insert(
+        KEY_CONFIG.to_string(),
+        serde_json::to_string(cfg).unwrap_or_default(),
+    );
+    meta.insert(
+        KEY_EXTRA.to_string(),
+        serde_json::to_string(extra).unwrap_or_else(|_| "null".into()),
+    );
     let bytes = safetensors_bytes(&tensors, &meta)?;
     write_atomic(path, &bytes)
 }
 
 impl std::fmt::Debug for Loaded {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Loaded").field("config", &self.config).field("extra", &self.extra).finish_non_exhaustive()
+        f.debug_struct("Loaded")
+            .field("config", &self.config)
+            .field("extra", &self.extra)
+            .finish_non_exhaustive()
     }
 }
 
@@ -206,20 +244,35 @@ pub fn read_config(path: &Path) -> Result<(ModelConfig, serde_json::Value), Mode
     config_of(path, &meta)
 }
 
-fn config_of(path: &Path, meta: &BTreeMap<String, String>) -> Result<(ModelConfig, serde_json::Value), ModelError> {
+fn config_of(
+    path: &Path,
+    meta: &BTreeMap<String, String>,
+) -> Result<(ModelConfig, serde_json::Value), ModelError> {
     if meta.get(KEY_FORMAT).map(String::as_str) != Some(FORMAT) {
-        return Err(ModelError::format(path, format!("safetensors file without the `{FORMAT}` tag: not a depthsense checkpoint")));
+        return Err(ModelError::format(
+            path,
+            format!("safetensors file without the `{FORMAT}` tag: not a depthsense checkpoint"),
+        ));
     }
-    let cfg_s = meta.get(KEY_CONFIG).ok_or_else(|| ModelError::format(path, "checkpoint has no model config"))?;
+    let cfg_s = meta
+        .get(KEY_CONFIG)
+        .ok_or_else(|| ModelError::format(path, "checkpoint has no model config"))?;
     let cfg: ModelConfig = serde_json::from_str(cfg_s)
         .map_err(|e| ModelError::format(path, format!("stored model config is invalid: {e}")))?;
-    let extra = meta.get(KEY_EXTRA).and_then(|s| serde_json::from_str(s).ok()).unwrap_or(serde_json::Value::Null);
+    let extra = meta
+        .get(KEY_EXTRA)
+        .and_then(|s| serde_json::from_str(s).ok())
+        .unwrap_or(serde_json::Value::Null);
     Ok((cfg, extra))
 }
 
 /// Copies named tensors into the variables of `vs`; every variable must be present with its
 /// exact shape, otherwise the error lists every missing or mismatching tensor.
-pub fn copy_into(path: &Path, vs: &VarStore, tensors: &[(String, Tensor)]) -> Result<(), ModelError> {
+pub fn copy_into(
+    path: &Path,
+    vs: &VarStore,
+    tensors: &[(String, Tensor)],
+) -> Result<(), ModelError> {
     let src: BTreeMap<&str, &Tensor> = tensors.iter().map(|(n, t)| (n.as_str(), t)).collect();
     let mut vars: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
     vars.sort_by(|a, b| a.0.cmp(&b.0));
@@ -228,22 +281,34 @@ pub fn copy_into(path: &Path, vs: &VarStore, tensors: &[(String, Tensor)]) -> Re
     for (name, var) in &vars {
         match src.get(name.as_str()) {
             None => missing.push(name.clone()),
-            Some(t) if t.size() != var.size() => {
-                mismatches.push(ShapeMismatch { name: name.clone(), expected: var.size(), found: t.size() })
-            }
+            Some(t) if t.size() != var.size() => mismatches.push(ShapeMismatch {
+                name: name.clone(),
+                expected: var.size(),
+                found: t.size(),
+            }),
             Some(_) => {}
         }
     }
     if !mismatches.is_empty() {
-        return Err(ModelError::ShapeMismatch { path: path.to_path_buf(), mismatches });
+        return Err(ModelError::ShapeMismatch {
+            path: path.to_path_buf(),
+            mismatches,
+        });
     }
     if !missing.is_empty() {
-        return Err(ModelError::MissingTensors { path: path.to_path_buf(), names: missing });
+        return Err(ModelError::MissingTensors {
+            path: path.to_path_buf(),
+            names: missing,
+        });
     }
     tch::no_grad(|| -> Result<(), ModelError> {
         for (name, var) in &vars {
             let mut v = var.shallow_clone();
-            v.f_copy_(&src[name.as_str()].to_kind(var.kind()).to_device(var.device()))?;
+            v.f_copy_(
+                &src[name.as_str()]
+                    .to_kind(var.kind())
+                    .to_device(var.device()),
+            )?;
         }
         Ok(())
     })
@@ -258,5 +323,10 @@ pub fn load(path: &Path, device: Device) -> Result<Loaded, ModelError> {
     let vs = VarStore::new(device);
     let net = DepthNet::new(&vs.root(), &config)?;
     copy_into(path, &vs, &tensors)?;
-    Ok(Loaded { vs, net, config, extra })
+    Ok(Loaded {
+        vs,
+        net,
+        config,
+        extra,
+    })
 }

@@ -76,7 +76,12 @@ pub struct SidConfig {
 
 impl Default for SidConfig {
     fn default() -> Self {
-        SidConfig { bins: 80, alpha_m: 1.0, beta_m: 80.0, decode_offset_m: 0.0 }
+        SidConfig {
+            bins: 80,
+            alpha_m: 1.0,
+            beta_m: 80.0,
+            decode_offset_m: 0.0,
+        }
     }
 }
 
@@ -222,7 +227,10 @@ impl ModelConfig {
     pub fn validate(&self) -> Result<(), ModelError> {
         let bad = |m: String| Err(ModelError::InvalidConfig(m));
         if ![18, 34, 50, 101].contains(&self.backbone_depth) {
-            return bad(format!("backbone_depth {} (expected 18, 34, 50 or 101)", self.backbone_depth));
+            return bad(format!(
+                "backbone_depth {} (expected 18, 34, 50 or 101)",
+                self.backbone_depth
+            ));
         }
         if self.backbone_width < 1 || self.decoder_channels < 1 || self.head_channels < 1 {
             return bad("backbone_width, decoder_channels and head_channels must be ≥ 1".into());
@@ -231,7 +239,10 @@ impl ModelConfig {
             return bad("stem `radar` is only used inside the released radar branch".into());
         }
         if self.fusion != Fusion::None && self.radar_channels < 1 {
-            return bad(format!("radar_channels {} with fusion {:?}", self.radar_channels, self.fusion));
+            return bad(format!(
+                "radar_channels {} with fusion {:?}",
+                self.radar_channels, self.fusion
+            ));
         }
         if self.fusion == Fusion::Late && (self.radar_width < 1 || self.radar_out_channels < 1) {
             return bad("radar_width and radar_out_channels must be ≥ 1".into());
@@ -240,7 +251,8 @@ impl ModelConfig {
             return bad(format!("dropout {} (expected 0 ≤ p < 1)", self.dropout));
         }
         let s = &self.sid;
-        if s.bins < 1 || !(s.alpha_m > 0.0) || !(s.beta_m > s.alpha_m) {
+        let ordered = s.alpha_m > 0.0 && s.beta_m > s.alpha_m; // false for NaN too
+        if s.bins < 1 || !ordered {
             return bad(format!("sid {s:?}: need bins ≥ 1 and 0 < alpha_m < beta_m"));
         }
         if self.out_height < 1 || self.out_width < 1 {
@@ -254,12 +266,15 @@ fn parse_bool(key: &str, v: &str) -> Result<bool, ModelError> {
     match v.to_ascii_lowercase().as_str() {
         "1" | "true" | "on" | "yes" => Ok(true),
         "0" | "false" | "off" | "no" => Ok(false),
-        _ => Err(ModelError::InvalidConfig(format!("{key}={v}: expected on/off"))),
+        _ => Err(ModelError::InvalidConfig(format!(
+            "{key}={v}: expected on/off"
+        ))),
     }
 }
 
 fn parse_num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, ModelError> {
-    v.parse().map_err(|_| ModelError::InvalidConfig(format!("{key}={v}: not a number")))
+    v.parse()
+        .map_err(|_| ModelError::InvalidConfig(format!("{key}={v}: not a number")))
 }
 
 impl ModelConfig {

@@ -16,11 +16,16 @@ pub fn parse_device(s: &str) -> Result<Device, ModelError> {
             let idx = if s == "cuda" || s == "gpu" {
                 0
             } else if let Some(n) = s.strip_prefix("cuda:") {
-                n.parse::<usize>().map_err(|_| ModelError::InvalidDevice(s.clone()))?
+                n.parse::<usize>()
+                    .map_err(|_| ModelError::InvalidDevice(s.clone()))?
             } else {
                 return Err(ModelError::InvalidDevice(s));
             };
-            let count = if Cuda::is_available() { Cuda::device_count() } else { 0 };
+            let count = if Cuda::is_available() {
+                Cuda::device_count()
+            } else {
+                0
+            };
             if (idx as i64) >= count {
                 return Err(ModelError::CudaUnavailable(s, count));
             }

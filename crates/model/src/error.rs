@@ -15,7 +15,12 @@ pub struct ShapeMismatch {
 
 fn list_mismatches(m: &[ShapeMismatch]) -> String {
     m.iter()
-        .map(|s| format!("\n  {}: network {:?}, file {:?}", s.name, s.expected, s.found))
+        .map(|s| {
+            format!(
+                "\n  {}: network {:?}, file {:?}",
+                s.name, s.expected, s.found
+            )
+        })
         .collect()
 }
 
@@ -78,9 +83,15 @@ pub enum ModelError {
 
 impl ModelError {
     pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Self {
-        ModelError::Io { path: path.to_path_buf(), source }
+        ModelError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     }
     pub(crate) fn format(path: &std::path::Path, msg: impl Into<String>) -> Self {
-        ModelError::Format { path: path.to_path_buf(), msg: msg.into() }
+        ModelError::Format {
+            path: path.to_path_buf(),
+            msg: msg.into(),
+        }
     }
 }

@@ -13,11 +13,21 @@ pub(crate) struct P<'a> {
 
 impl<'a> P<'a> {
     pub fn root(p: &nn::Path<'a>) -> Self {
-        P { p: p.clone(), name: String::new() }
+        P {
+            p: p.clone(),
+            name: String::new(),
+        }
     }
     pub fn sub(&self, s: &str) -> P<'a> {
-        let name = if self.name.is_empty() { s.to_string() } else { format!("{}.{s}", self.name) };
-        P { p: &self.p / s, name }
+        let name = if self.name.is_empty() {
+            s.to_string()
+        } else {
+            format!("{}.{s}", self.name)
+        };
+        P {
+            p: &self.p / s,
+            name,
+        }
     }
 }
 
@@ -43,16 +53,43 @@ pub(crate) struct Conv {
 
 impl Conv {
     #[allow(clippy::too_many_arguments)]
-    pub fn new(p: &P, cin: i64, cout: i64, k: i64, stride: i64, pad: i64, dil: i64, bias: bool) -> Conv {
-        let cfg = nn::ConvConfig { stride, padding: pad, dilation: dil, bias, ..Default::default() };
-        Conv { conv: nn::conv2d(&p.p, cin, cout, k, cfg), name: p.name.clone(), cin, cout, k, stride, pad, dil }
+    pub fn new(
+        p: &P,
+        cin: i64,
+        cout: i64,
+        k: i64,
+        stride: i64,
+        pad: i64,
+        dil: i64,
+        bias: bool,
+    ) -> Conv {
+        let cfg = nn::ConvConfig {
+            stride,
+            padding: pad,
+            dilation: dil,
+            bias,
+            ..Default::default()
+        };
+        Conv {
+            conv: nn::conv2d(&p.p, cin, cout, k, cfg),
+            name: p.name.clone(),
+            cin,
+            cout,
+            k,
+            stride,
+            pad,
+            dil,
+        }
     }
     /// `[B,cin,H,W]` → `[B,cout,H',W']`.
     pub fn forward(&self, x: &Tensor) -> Tensor {
         x.apply(&self.conv)
     }
     pub fn out_hw(&self, hw: (i64, i64)) -> (i64, i64) {
-        (out_len(hw.0, self.k, self.stride, self.pad, self.dil), out_len(hw.1, self.k, self.stride, self.pad, self.dil))
+        (
+            out_len(hw.0, self.k, self.stride, self.pad, self.dil),
+            out_len(hw.1, self.k, self.stride, self.pad, self.dil),
+        )
     }
     /// Records this conv's multiply-adds for one image and returns its output size.
     pub fn count(&self, hw: (i64, i64), rows: &mut MacRows) -> (i64, i64) {
@@ -74,8 +111,20 @@ pub(crate) struct ConvBn {
 
 impl ConvBn {
     #[allow(clippy::too_many_arguments)]
-    pub fn new(pc: &P, pb: &P, cin: i64, cout: i64, k: i64, stride: i64, pad: i64, dil: i64) -> ConvBn {
-        ConvBn { conv: Conv::new(pc, cin, cout, k, stride, pad, dil, false), bn: nn::batch_norm2d(&pb.p, cout, Default::default()) }
+    pub fn new(
+        pc: &P,
+        pb: &P,
+        cin: i64,
+        cout: i64,
+        k: i64,
+        stride: i64,
+        pad: i64,
+        dil: i64,
+    ) -> ConvBn {
+        ConvBn {
+            conv: Conv::new(pc, cin, cout, k, stride, pad, dil, false),
+            bn: nn::batch_norm2d(&pb.p, cout, Default::default()),
+        }
     }
     /// Conv then BN (no activation), shapes as [`Conv::forward`].
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
@@ -111,21 +160,67 @@ pub(crate) struct Block {
 impl Block {
     fn new(p: &P, kind: BlockKind, cin: i64, planes: i64, stride: i64, dil: i64) -> Block {
         let out = planes * kind.expansion();
-        let down = (stride != 1 || cin != out)
-            .then(|| ConvBn::new(&p.sub("downsample").sub("0"), &p.sub("downsample").sub("1"), cin, out, 1, stride, 0, 1));
+        let down = (stride != 1 || cin != out).then(|| {
+            ConvBn::new(
+                &p.sub("downsample").sub("0"),
+                &p.sub("downsample").sub("1"),
+                cin,
+                out,
+                1,
+                stride,
+                0,
+                1,
+            )
+        });
         match kind {
             BlockKind::Basic => Block {
                 kind,
-                c1: ConvBn::new(&p.sub("conv1"), &p.sub("bn1"), cin, planes, 3, stride, dil, dil),
-                c2: ConvBn::new(&p.sub("conv2"), &p.sub("bn2"), planes, planes, 3, 1, dil, dil),
+                c1: ConvBn::new(
+                    &p.sub("conv1"),
+                    &p.sub("bn1"),
+                    cin,
+                    planes,
+                    3,
+                    stride,
+                    dil,
+                    dil,
+                ),
+                c2: ConvBn::new(
+                    &p.sub("conv2"),
+                    &p.sub("bn2"),
+                    planes,
+                    planes,
+                    3,
+                    1,
+                    dil,
+                    dil,
+                ),
                 c3: None,
                 down,
             },
             BlockKind::Bottleneck => Block {
                 kind,
                 c1: ConvBn::new(&p.sub("conv1"), &p.sub("bn1"), cin, planes, 1, 1, 0, 1),
-                c2: ConvBn::new(&p.sub("conv2"), &p.sub("bn2"), planes, planes, 3, stride, dil, dil),
-                c3: Some(ConvBn::new(&p.sub("conv3"), &p.sub("bn3"), planes, out, 1, 1, 0, 1)),
+                c2: ConvBn::new(
+                    &p.sub("conv2"),
+                    &p.sub("bn2"),
+                    planes,
+                    planes,
+                    3,
+                    stride,
+                    dil,
+                    dil,
+                ),
+                c3: Some(ConvBn::new(
+                    &p.sub("conv3"),
+                    &p.sub("bn3"),
+                    planes,
+                    out,
+                    1,
+                    1,
+                    0,
+                    1,
+                )),
                 down,
             },
         }
@@ -180,10 +275,19 @@ impl ResNetSpec {
             50 => (BlockKind::Bottleneck, [3, 4, 6, 3]),
             _ => (BlockKind::Bottleneck, [3, 4, 23, 3]),
         };
-        ResNetSpec { in_channels, width, stem, block, blocks, strides: [1, 2, 2, 2], dilations: [1, 1, 1, 1] }
+        ResNetSpec {
+            in_channels,
+            width,
+            stem,
+            block,
+            blocks,
+            strides: [1, 2, 2, 2],
+            dilations: [1, 1, 1, 1],
+        }
     }
 }
 
+#[allow(clippy::large_enum_variant)] // built once per network
 enum Stem {
     Torchvision(ConvBn),
     Deep([ConvBn; 3]),
@@ -202,13 +306,26 @@ impl ResNet {
     pub fn new(p: &P, s: &ResNetSpec) -> ResNet {
         let w = s.width;
         let cb = |i: usize, cin: i64, cout: i64, k: i64, st: i64, pad: i64| {
-            ConvBn::new(&p.sub(&format!("conv{i}")), &p.sub(&format!("bn{i}")), cin, cout, k, st, pad, 1)
+            ConvBn::new(
+                &p.sub(&format!("conv{i}")),
+                &p.sub(&format!("bn{i}")),
+                cin,
+                cout,
+                k,
+                st,
+                pad,
+                1,
+            )
         };
         let (stem, mut cin) = match s.stem {
             StemKind::Torchvision => (Stem::Torchvision(cb(1, s.in_channels, w, 7, 2, 3)), w),
             // SPEC §6.1 image stem: 3x3/2 3→64, 3x3 64→64, 3x3 64→128.
             StemKind::Deep => (
-                Stem::Deep([cb(1, s.in_channels, w, 3, 2, 1), cb(2, w, w, 3, 1, 1), cb(3, w, 2 * w, 3, 1, 1)]),
+                Stem::Deep([
+                    cb(1, s.in_channels, w, 3, 2, 1),
+                    cb(2, w, w, 3, 1, 1),
+                    cb(3, w, 2 * w, 3, 1, 1),
+                ]),
                 2 * w,
             ),
             // SPEC §6.1 radar stem: 3x3/2 1→64, 3x3 64→64, 3x3 64→64, 7x7/2 p3 64→128.
@@ -224,19 +341,31 @@ impl ResNet {
         };
         let mut layers = Vec::new();
         let mut channels = [0; 4];
+        #[allow(clippy::needless_range_loop)] // li indexes four parallel arrays
         for li in 0..4 {
             let planes = w << li;
             let lp = p.sub(&format!("layer{}", li + 1));
             let mut blocks = Vec::new();
             for bi in 0..s.blocks[li] {
                 let stride = if bi == 0 { s.strides[li] } else { 1 };
-                blocks.push(Block::new(&lp.sub(&bi.to_string()), s.block, cin, planes, stride, s.dilations[li]));
+                blocks.push(Block::new(
+                    &lp.sub(&bi.to_string()),
+                    s.block,
+                    cin,
+                    planes,
+                    stride,
+                    s.dilations[li],
+                ));
                 cin = planes * s.block.expansion();
             }
             channels[li] = cin;
             layers.push(blocks);
         }
-        ResNet { stem, layers, channels }
+        ResNet {
+            stem,
+            layers,
+            channels,
+        }
     }
 
     fn pool_geometry(&self) -> (i64, i64, i64) {
@@ -251,8 +380,12 @@ impl ResNet {
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Vec<Tensor> {
         let mut y = match &self.stem {
             Stem::Torchvision(c) => c.forward_t(x, train).relu(),
-            Stem::Deep(cs) => cs.iter().fold(x.shallow_clone(), |y, c| c.forward_t(&y, train).relu()),
-            Stem::Radar(cs) => cs.iter().fold(x.shallow_clone(), |y, c| c.forward_t(&y, train).relu()),
+            Stem::Deep(cs) => cs
+                .iter()
+                .fold(x.shallow_clone(), |y, c| c.forward_t(&y, train).relu()),
+            Stem::Radar(cs) => cs
+                .iter()
+                .fold(x.shallow_clone(), |y, c| c.forward_t(&y, train).relu()),
         };
         let (k, s, p) = self.pool_geometry();
         y = y.max_pool2d([k, k], [s, s], [p, p], [1, 1], false);

@@ -20,7 +20,9 @@ pub mod report;
 pub mod sid;
 pub mod weights;
 
-pub use config::{DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, SidConfig, StemKind};
+pub use config::{
+    DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, SidConfig, StemKind,
+};
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;
 pub use net::DepthNet;

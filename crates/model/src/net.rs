@@ -23,13 +23,21 @@ fn hw_of(x: &Tensor) -> (i64, i64) {
 }
 
 /// Image decoder over C2..C4 (SPEC §6).
+#[allow(clippy::large_enum_variant)] // built once per network
 enum Decoder {
     /// Paper: laterals 1x1(b) → ch, nearest ×2 top-down addition, 3x3(b) smoothing, the three
     /// levels upsampled (bilinear) to the finest (stride 8) and concatenated → 3·ch.
-    Topdown { lateral: [Conv; 3], smooth: [Conv; 3] },
+    Topdown {
+        lateral: [Conv; 3],
+        smooth: [Conv; 3],
+    },
     /// Released (SPEC §6.1): FPN P3..P5 then `convfeat1` 7x7/4, `convfeat2` 3x3/2,
     /// `convfeat3` 3x3/1 + ReLU to stride 32, concatenated → 3·ch.
-    Released { lateral: [Conv; 3], smooth: [Conv; 3], feat: [Conv; 3] },
+    Released {
+        lateral: [Conv; 3],
+        smooth: [Conv; 3],
+        feat: [Conv; 3],
+    },
 }
 
 impl Decoder {
@@ -37,22 +45,64 @@ impl Decoder {
         match kind {
             DecoderKind::Topdown => {
                 let d = p.sub("decoder");
-                let lat = |i: usize| Conv::new(&d.sub(&format!("lateral{}", i + 2)), cin[i], ch, 1, 1, 0, 1, true);
-                let sm = |i: usize| Conv::new(&d.sub(&format!("smooth{}", i + 2)), ch, ch, 3, 1, 1, 1, true);
-                Decoder::Topdown { lateral: [lat(0), lat(1), lat(2)], smooth: [sm(0), sm(1), sm(2)] }
+                let lat = |i: usize| {
+                    Conv::new(
+                        &d.sub(&format!("lateral{}", i + 2)),
+                        cin[i],
+                        ch,
+                        1,
+                        1,
+                        0,
+                        1,
+                        true,
+                    )
+                };
+                let sm = |i: usize| {
+                    Conv::new(
+                        &d.sub(&format!("smooth{}", i + 2)),
+                        ch,
+                        ch,
+                        3,
+                        1,
+                        1,
+                        1,
+                        true,
+                    )
+                };
+                Decoder::Topdown {
+                    lateral: [lat(0), lat(1), lat(2)],
+                    smooth: [sm(0), sm(1), sm(2)],
+                }
             }
             DecoderKind::Released => {
                 let d = p.sub("decoder");
                 let f = d.sub("fpn");
                 // P3 ← C2, P4 ← C3, P5 ← C4.
-                let lat = |i: usize| Conv::new(&f.sub(&format!("P{}_1", i + 3)), cin[i], ch, 1, 1, 0, 1, true);
-                let sm = |i: usize| Conv::new(&f.sub(&format!("P{}_2", i + 3)), ch, ch, 3, 1, 1, 1, true);
+                let lat = |i: usize| {
+                    Conv::new(
+                        &f.sub(&format!("P{}_1", i + 3)),
+                        cin[i],
+                        ch,
+                        1,
+                        1,
+                        0,
+                        1,
+                        true,
+                    )
+                };
+                let sm = |i: usize| {
+                    Conv::new(&f.sub(&format!("P{}_2", i + 3)), ch, ch, 3, 1, 1, 1, true)
+                };
                 let feat = [
                     Conv::new(&d.sub("convfeat1"), ch, ch, 7, 4, 2, 1, false),
                     Conv::new(&d.sub("convfeat2"), ch, ch, 3, 2, 1, 1, false),
                     Conv::new(&d.sub("convfeat3"), ch, ch, 3, 1, 1, 1, false),
                 ];
-                Decoder::Released { lateral: [lat(0), lat(1), lat(2)], smooth: [sm(0), sm(1), sm(2)], feat }
+                Decoder::Released {
+                    lateral: [lat(0), lat(1), lat(2)],
+                    smooth: [sm(0), sm(1), sm(2)],
+                    feat,
+                }
             }
         }
     }
@@ -62,7 +112,11 @@ impl Decoder {
         let t4 = lateral[2].forward(&c[3]);
         let t3 = lateral[1].forward(&c[2]) + resize_to(&t4, hw_of(&c[2]), true);
         let t2 = lateral[0].forward(&c[1]) + resize_to(&t3, hw_of(&c[1]), true);
-        [smooth[0].forward(&t2), smooth[1].forward(&t3), smooth[2].forward(&t4)]
+        [
+            smooth[0].forward(&t2),
+            smooth[1].forward(&t3),
+            smooth[2].forward(&t4),
+        ]
     }
 
     /// C1..C4 → `[B,3·ch,h,w]` (h,w = C2's size for top-down, C4's for released).
@@ -71,9 +125,16 @@ impl Decoder {
             Decoder::Topdown { lateral, smooth } => {
                 let [p2, p3, p4] = Self::pyramid(lateral, smooth, c);
                 let hw = hw_of(&p2);
-                Tensor::cat(&[p2, resize_to(&p3, hw, false), resize_to(&p4, hw, false)], 1)
+                Tensor::cat(
+                    &[p2, resize_to(&p3, hw, false), resize_to(&p4, hw, false)],
+                    1,
+                )
             }
-            Decoder::Released { lateral, smooth, feat } => {
+            Decoder::Released {
+                lateral,
+                smooth,
+                feat,
+            } => {
                 let [p3, p4, p5] = Self::pyramid(lateral, smooth, c);
                 let f3 = feat[2].forward(&p5).relu();
                 let hw = hw_of(&f3);
@@ -86,7 +147,10 @@ impl Decoder {
 
     fn count(&self, sizes: &[(i64, i64)], rows: &mut MacRows) -> (i64, i64) {
         let (lateral, smooth) = match self {
-            Decoder::Topdown { lateral, smooth } | Decoder::Released { lateral, smooth, .. } => (lateral, smooth),
+            Decoder::Topdown { lateral, smooth }
+            | Decoder::Released {
+                lateral, smooth, ..
+            } => (lateral, smooth),
         };
         for i in 0..3 {
             let o = lateral[i].count(sizes[i + 1], rows);
@@ -104,7 +168,9 @@ impl Decoder {
 
     fn out_channels(&self) -> i64 {
         match self {
-            Decoder::Topdown { smooth, .. } | Decoder::Released { smooth, .. } => 3 * smooth[0].out_channels(),
+            Decoder::Topdown { smooth, .. } | Decoder::Released { smooth, .. } => {
+                3 * smooth[0].out_channels()
+            }
         }
     }
 }
@@ -122,10 +188,19 @@ impl RadarBranch {
         let r = p.sub("radar");
         match cfg.radar_branch {
             RadarBranchKind::Basic => {
-                let spec = ResNetSpec::standard(18, cfg.radar_channels, cfg.radar_width, StemKind::Torchvision);
+                let spec = ResNetSpec::standard(
+                    18,
+                    cfg.radar_channels,
+                    cfg.radar_width,
+                    StemKind::Torchvision,
+                );
                 let resnet = ResNet::new(&r, &spec);
                 let out_channels = resnet.channels[3];
-                RadarBranch { resnet, post: None, out_channels }
+                RadarBranch {
+                    resnet,
+                    post: None,
+                    out_channels,
+                }
             }
             RadarBranchKind::Bottleneck => {
                 let spec = ResNetSpec {
@@ -141,8 +216,15 @@ impl RadarBranch {
                 let c = resnet.channels[3];
                 let o = cfg.radar_out_channels;
                 let cr = r.sub("conv_radar");
-                let post = [Conv::new(&cr.sub("0"), c, o, 1, 1, 0, 1, true), Conv::new(&cr.sub("2"), o, o, 1, 1, 0, 1, true)];
-                RadarBranch { resnet, post: Some(post), out_channels: o }
+                let post = [
+                    Conv::new(&cr.sub("0"), c, o, 1, 1, 0, 1, true),
+                    Conv::new(&cr.sub("2"), o, o, 1, 1, 0, 1, true),
+                ];
+                RadarBranch {
+                    resnet,
+                    post: Some(post),
+                    out_channels: o,
+                }
             }
         }
     }
@@ -179,7 +261,9 @@ pub struct DepthNet {
 
 impl std::fmt::Debug for DepthNet {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("DepthNet").field("config", &self.cfg).finish_non_exhaustive()
+        f.debug_struct("DepthNet")
+            .field("config", &self.cfg)
+            .finish_non_exhaustive()
     }
 }
 
@@ -188,19 +272,47 @@ impl DepthNet {
     pub fn new(p: &nn::Path, cfg: &ModelConfig) -> Result<DepthNet, ModelError> {
         cfg.validate()?;
         let root = P::root(p);
-        let in_ch = 3 + if cfg.fusion == Fusion::Early { cfg.radar_channels } else { 0 };
+        let in_ch = 3 + if cfg.fusion == Fusion::Early {
+            cfg.radar_channels
+        } else {
+            0
+        };
         let spec = ResNetSpec::standard(cfg.backbone_depth, in_ch, cfg.backbone_width, cfg.stem);
         let rgb = ResNet::new(&root.sub("rgb"), &spec);
         let ch = rgb.channels;
-        let decoder = Decoder::new(&root, cfg.decoder, [ch[1], ch[2], ch[3]], cfg.decoder_channels);
+        let decoder = Decoder::new(
+            &root,
+            cfg.decoder,
+            [ch[1], ch[2], ch[3]],
+            cfg.decoder_channels,
+        );
         let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(&root, cfg));
         let fused = decoder.out_channels() + radar.as_ref().map_or(0, |r| r.out_channels);
         // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → sigmoid.
-        let attention = cfg.attention.then(|| Conv::new(&root.sub("attention").sub("conv"), 2, 1, 7, 1, 3, 1, true));
+        let attention = cfg
+            .attention
+            .then(|| Conv::new(&root.sub("attention").sub("conv"), 2, 1, 7, 1, 3, 1, true));
         let h = root.sub("head");
         let head1 = Conv::new(&h.sub("conv1"), fused, cfg.head_channels, 1, 1, 0, 1, true);
-        let head2 = Conv::new(&h.sub("conv2"), cfg.head_channels, cfg.head_out_channels(), 1, 1, 0, 1, true);
-        Ok(DepthNet { cfg: cfg.clone(), rgb, decoder, radar, attention, head1, head2 })
+        let head2 = Conv::new(
+            &h.sub("conv2"),
+            cfg.head_channels,
+            cfg.head_out_channels(),
+            1,
+            1,
+            0,
+            1,
+            true,
+        );
+        Ok(DepthNet {
+            cfg: cfg.clone(),
+            rgb,
+            decoder,
+            radar,
+            attention,
+            head1,
+            head2,
+        })
     }
 
     /// The configuration the network was built from.
@@ -234,7 +346,11 @@ impl DepthNet {
         if cfg.head_pre_dropout {
             f = f.feature_dropout(cfg.dropout, train);
         }
-        let y = self.head1.forward(&f).relu().feature_dropout(cfg.dropout, train);
+        let y = self
+            .head1
+            .forward(&f)
+            .relu()
+            .feature_dropout(cfg.dropout, train);
         let y = self.head2.forward(&y);
         match cfg.head {
             HeadKind::Ordinal => y,
@@ -275,10 +391,10 @@ impl DepthNet {
         let ac = self.cfg.align_corners;
         match self.cfg.head {
             HeadKind::Ordinal => ordinal::ordinal_decode(out, &self.cfg.sid, height, width, ac),
-            HeadKind::L1 | HeadKind::L2 => {
-                (ordinal::upsample(out, height, width, ac).to_kind(Kind::Float) - self.cfg.sid.decode_offset_m)
-                    .clamp_min(0.0)
-            }
+            HeadKind::L1 | HeadKind::L2 => (ordinal::upsample(out, height, width, ac)
+                .to_kind(Kind::Float)
+                - self.cfg.sid.decode_offset_m)
+                .clamp_min(0.0),
         }
     }
 

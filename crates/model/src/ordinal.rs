@@ -11,7 +11,9 @@ use crate::{sid, SidConfig};
 
 /// Pairwise logit differences: `[B,2K,h,w]` → `[B,K,h,w]`, z_k = b_k − a_k.
 pub fn pair_differences(logits: &Tensor) -> Tensor {
-    let (b, c, h, w) = logits.size4().expect("pair_differences: expected a [B,2K,h,w] tensor");
+    let (b, c, h, w) = logits
+        .size4()
+        .expect("pair_differences: expected a [B,2K,h,w] tensor");
     assert!(c % 2 == 0, "pair_differences: odd channel count {c}");
     let pairs = logits.view([b, c / 2, 2, h, w]);
     pairs.select(2, 1) - pairs.select(2, 0)
@@ -33,11 +35,22 @@ pub fn upsample(x: &Tensor, height: i64, width: i64, align_corners: bool) -> Ten
 /// Σ_k BCE-with-logits(z_k, y_k) = Σ_k softplus(z_k) − y_k·z_k, mean over valid pixels.
 /// Lidar targets are sparse (a few % of pixels), so this needs a fraction of the memory and
 /// time of the dense form ([`ordinal_loss_dense`]). Returns a scalar (0 when no pixel is valid).
-pub fn ordinal_loss(z: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, align_corners: bool) -> Tensor {
+pub fn ordinal_loss(
+    z: &Tensor,
+    target_m: &Tensor,
+    sid_cfg: &SidConfig,
+    align_corners: bool,
+) -> Tensor {
     let (b, k, h, w) = z.size4().expect("ordinal_loss: z must be [B,K,h,w]");
-    let (tb, _, th, tw) = target_m.size4().expect("ordinal_loss: target must be [B,1,H,W]");
+    let (tb, _, th, tw) = target_m
+        .size4()
+        .expect("ordinal_loss: target must be [B,1,H,W]");
     assert_eq!(b, tb, "ordinal_loss: batch of z and target differ");
-    let z = if z.kind() == Kind::Double { z.shallow_clone() } else { z.to_kind(Kind::Float) };
+    let z = if z.kind() == Kind::Double {
+        z.shallow_clone()
+    } else {
+        z.to_kind(Kind::Float)
+    };
     let flat_t = target_m.reshape([-1]);
     let idx = flat_t.gt(0.0).nonzero().squeeze_dim(1); // [N] flat indices into B·H·W
     let n = idx.size()[0];
@@ -54,7 +67,10 @@ pub fn ordinal_loss(z: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, align_co
     let rows = z.permute([0, 2, 3, 1]).reshape([b * h * w, k]); // [B·h·w, K]
     let base = &bi * (h * w);
     let tap = |yy: &Tensor, xx: &Tensor| rows.index_select(0, &(&base + yy * w + xx));
-    let (wy, wx) = (wy.to_kind(z.kind()).unsqueeze(1), wx.to_kind(z.kind()).unsqueeze(1));
+    let (wy, wx) = (
+        wy.to_kind(z.kind()).unsqueeze(1),
+        wx.to_kind(z.kind()).unsqueeze(1),
+    );
     let (vy, vx): (Tensor, Tensor) = (1.0 - &wy, 1.0 - &wx);
     let top: Tensor = tap(&y0, &x0) * &vx + tap(&y0, &x1) * &wx;
     let bottom: Tensor = tap(&y1, &x0) * &vx + tap(&y1, &x1) * &wx;
@@ -87,10 +103,21 @@ fn taps(i: &Tensor, out: i64, inp: i64, align_corners: bool) -> (Tensor, Tensor,
 
 /// The dense efficient form: upsample z (K channels) to H×W, BCE with logits everywhere,
 /// mean over valid pixels. Equal to [`ordinal_loss`]; kept for tests and comparison.
-pub fn ordinal_loss_dense(z: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, align_corners: bool) -> Tensor {
-    let (_, _, th, tw) = target_m.size4().expect("ordinal_loss: target must be [B,1,H,W]");
+pub fn ordinal_loss_dense(
+    z: &Tensor,
+    target_m: &Tensor,
+    sid_cfg: &SidConfig,
+    align_corners: bool,
+) -> Tensor {
+    let (_, _, th, tw) = target_m
+        .size4()
+        .expect("ordinal_loss: target must be [B,1,H,W]");
     let z = upsample(z, th, tw, align_corners);
-    let z = if z.kind() == Kind::Double { z } else { z.to_kind(Kind::Float) };
+    let z = if z.kind() == Kind::Double {
+        z
+    } else {
+        z.to_kind(Kind::Float)
+    };
     let k = z.size()[1];
     let valid = target_m.gt(0.0).to_kind(z.kind()); // [B,1,H,W]
     let label = sid::labels(sid_cfg, target_m); // [B,1,H,W] int64
@@ -103,21 +130,33 @@ pub fn ordinal_loss_dense(z: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, al
 
 /// Decoded levels l̂ = Σ_k [z_k ≥ 0] at H×W, `[B,1,H,W]` int64.
 pub fn ordinal_levels(z: &Tensor, height: i64, width: i64, align_corners: bool) -> Tensor {
-    // Channels-last: ATen's bilinear kernel vectorises over channels and the count over K
-    // then reads contiguous memory (several times faster on the CPU for K = 80).
-    let zc = crate::precision::channels_last(z);
-    upsample(&zc, height, width, align_corners).ge(0.0).sum_dim_intlist(1, true, Kind::Int64)
+    upsample(z, height, width, align_corners)
+        .ge(0.0)
+        .sum_dim_intlist(1, true, Kind::Int64)
 }
 
 /// Decoded depth `[B,1,H,W]` in metres from low-resolution differences `z` (SPEC §7).
-pub fn ordinal_decode(z: &Tensor, sid_cfg: &SidConfig, height: i64, width: i64, align_corners: bool) -> Tensor {
+pub fn ordinal_decode(
+    z: &Tensor,
+    sid_cfg: &SidConfig,
+    height: i64,
+    width: i64,
+    align_corners: bool,
+) -> Tensor {
     sid::levels_to_depth(sid_cfg, &ordinal_levels(z, height, width, align_corners))
 }
 
 /// L1 (`squared = false`) or L2 regression loss over valid pixels; `pred_m` `[B,1,h,w]` is
 /// upsampled to the target's size.
-pub fn regression_loss(pred_m: &Tensor, target_m: &Tensor, squared: bool, align_corners: bool) -> Tensor {
-    let (_, _, th, tw) = target_m.size4().expect("regression_loss: target must be [B,1,H,W]");
+pub fn regression_loss(
+    pred_m: &Tensor,
+    target_m: &Tensor,
+    squared: bool,
+    align_corners: bool,
+) -> Tensor {
+    let (_, _, th, tw) = target_m
+        .size4()
+        .expect("regression_loss: target must be [B,1,H,W]");
     let pred = upsample(pred_m, th, tw, align_corners).to_kind(Kind::Float);
     let valid = target_m.gt(0.0).to_kind(Kind::Float);
     let diff = (pred - target_m.to_kind(Kind::Float)) * &valid;

@@ -115,7 +115,10 @@ struct Reader<'a> {
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
         if self.pos + n > self.b.len() {
-            return Err(format!("pickle truncated at byte {} (wanted {n} more)", self.pos));
+            return Err(format!(
+                "pickle truncated at byte {} (wanted {n} more)",
+                self.pos
+            ));
         }
         let s = &self.b[self.pos..self.pos + n];
         self.pos += n;
@@ -125,10 +128,14 @@ impl<'a> Reader<'a> {
         Ok(self.take(1)?[0])
     }
     fn u32(&mut self) -> Result<u32, String> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into().map_err(|_| "short read")?))
+        Ok(u32::from_le_bytes(
+            self.take(4)?.try_into().map_err(|_| "short read")?,
+        ))
     }
     fn u64(&mut self) -> Result<u64, String> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().map_err(|_| "short read")?))
+        Ok(u64::from_le_bytes(
+            self.take(8)?.try_into().map_err(|_| "short read")?,
+        ))
     }
     fn line(&mut self) -> Result<String, String> {
         let start = self.pos;
@@ -146,7 +153,16 @@ impl<'a> Reader<'a> {
 
 fn as_ints(v: &Value) -> Option<Vec<i64>> {
     match v {
-        Value::Tuple(xs) | Value::List(xs) => xs.iter().map(|x| if let Value::Int(i) = x { Some(*i) } else { None }).collect(),
+        Value::Tuple(xs) | Value::List(xs) => xs
+            .iter()
+            .map(|x| {
+                if let Value::Int(i) = x {
+                    Some(*i)
+                } else {
+                    None
+                }
+            })
+            .collect(),
         _ => None,
     }
 }
@@ -158,7 +174,9 @@ fn reduce(callable: Value, args: Value) -> Result<Value, String> {
     };
     if let Value::Global(m, n) = &callable {
         match (m.as_str(), n.as_str()) {
-            ("collections", "OrderedDict") | ("builtins", "dict") => return Ok(Value::Dict(Vec::new())),
+            ("collections", "OrderedDict") | ("builtins", "dict") => {
+                return Ok(Value::Dict(Vec::new()))
+            }
             ("torch._utils", "_rebuild_tensor_v2") | ("torch._utils", "_rebuild_tensor") => {
                 let (storage_type, storage_key) = match args.first() {
                     Some(Value::Storage { dtype, key }) => (dtype.clone(), key.clone()),
@@ -168,27 +186,62 @@ fn reduce(callable: Value, args: Value) -> Result<Value, String> {
                     Some(Value::Int(o)) => *o,
                     _ => return Err("_rebuild_tensor: bad storage offset".into()),
                 };
-                let size = args.get(2).and_then(as_ints).ok_or("_rebuild_tensor: bad size")?;
-                let stride = args.get(3).and_then(as_ints).ok_or("_rebuild_tensor: bad stride")?;
-                return Ok(Value::Tensor(TensorRef { storage_key, storage_type, offset, size, stride }));
+                let size = args
+                    .get(2)
+                    .and_then(as_ints)
+                    .ok_or("_rebuild_tensor: bad size")?;
+                let stride = args
+                    .get(3)
+                    .and_then(as_ints)
+                    .ok_or("_rebuild_tensor: bad stride")?;
+                return Ok(Value::Tensor(TensorRef {
+                    storage_key,
+                    storage_type,
+                    offset,
+                    size,
+                    stride,
+                }));
             }
-            ("torch._utils", "_rebuild_parameter") | ("torch._utils", "_rebuild_parameter_with_state") => {
-                return args.into_iter().next().ok_or_else(|| "_rebuild_parameter without data".into());
+            ("torch._utils", "_rebuild_parameter")
+            | ("torch._utils", "_rebuild_parameter_with_state") => {
+                return args
+                    .into_iter()
+                    .next()
+                    .ok_or_else(|| "_rebuild_parameter without data".into());
             }
             _ => {}
         }
     }
-    Ok(Value::Object { class: Box::new(callable), args, state: Box::new(Value::None) })
+    Ok(Value::Object {
+        class: Box::new(callable),
+        args,
+        state: Box::new(Value::None),
+    })
 }
 
 /// Parses a pickle stream (the persistent ids of `torch.save` become [`Value::Storage`]).
 pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
-    let mut r = Reader { b: bytes, pos: 0 };
+    parse_pickle_at(bytes, 0).map(|(v, _)| v)
+}
+
+/// Parses one pickle starting at byte `start`; returns the value and the position after STOP.
+pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
+    let mut r = Reader {
+        b: bytes,
+        pos: start,
+    };
     let mut stack: Vec<Value> = Vec::new();
     let mut memo: HashMap<u32, Value> = HashMap::new();
-    let pop = |stack: &mut Vec<Value>| stack.pop().ok_or_else(|| "pickle stack underflow".to_string());
+    let pop = |stack: &mut Vec<Value>| {
+        stack
+            .pop()
+            .ok_or_else(|| "pickle stack underflow".to_string())
+    };
     let pop_mark = |stack: &mut Vec<Value>| -> Result<Vec<Value>, String> {
-        let i = stack.iter().rposition(|v| matches!(v, Value::Mark)).ok_or("pickle: MARK not found")?;
+        let i = stack
+            .iter()
+            .rposition(|v| matches!(v, Value::Mark))
+            .ok_or("pickle: MARK not found")?;
         let items = stack.split_off(i + 1);
         stack.pop();
         Ok(items)
@@ -202,7 +255,7 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
             0x95 => {
                 r.u64()?;
             } // FRAME
-            b'.' => return pop(&mut stack),
+            b'.' => return pop(&mut stack).map(|v| (v, r.pos)),
             b'}' => stack.push(Value::Dict(Vec::new())),
             b']' | 0x8f => stack.push(Value::List(Vec::new())),
             b')' => stack.push(Value::Tuple(Vec::new())),
@@ -216,7 +269,10 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
             }
             b'r' => {
                 let i = r.u32()?;
-                memo.insert(i, stack.last().cloned().ok_or("LONG_BINPUT on empty stack")?);
+                memo.insert(
+                    i,
+                    stack.last().cloned().ok_or("LONG_BINPUT on empty stack")?,
+                );
             }
             0x94 => {
                 let i = memo.len() as u32;
@@ -224,11 +280,19 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
             }
             b'h' => {
                 let i = r.u8()? as u32;
-                stack.push(memo.get(&i).cloned().ok_or(format!("BINGET {i}: not in memo"))?);
+                stack.push(
+                    memo.get(&i)
+                        .cloned()
+                        .ok_or(format!("BINGET {i}: not in memo"))?,
+                );
             }
             b'j' => {
                 let i = r.u32()?;
-                stack.push(memo.get(&i).cloned().ok_or(format!("LONG_BINGET {i}: not in memo"))?);
+                stack.push(
+                    memo.get(&i)
+                        .cloned()
+                        .ok_or(format!("LONG_BINGET {i}: not in memo"))?,
+                );
             }
             b'X' | 0x8c | 0x8d => {
                 let n = match op {
@@ -239,7 +303,11 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
                 stack.push(Value::Str(String::from_utf8_lossy(r.take(n)?).into_owned()));
             }
             b'U' | b'T' | b'B' | b'C' => {
-                let n = if op == b'U' || op == b'C' { r.u8()? as usize } else { r.u32()? as usize };
+                let n = if op == b'U' || op == b'C' {
+                    r.u8()? as usize
+                } else {
+                    r.u32()? as usize
+                };
                 let data = r.take(n)?.to_vec();
                 stack.push(if op == b'U' || op == b'T' {
                     Value::Str(String::from_utf8_lossy(&data).into_owned())
@@ -267,15 +335,22 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
                     _ => return Err("persistent id is not a tuple".into()),
                 };
                 match (items.first(), items.get(1), items.get(2)) {
-                    (Some(Value::Str(tag)), Some(st), Some(Value::Str(key))) if tag == "storage" => {
+                    (Some(Value::Str(tag)), Some(st), Some(Value::Str(key)))
+                        if tag == "storage" =>
+                    {
                         let dtype = match st {
                             Value::Global(_, n) => n.clone(),
                             Value::Str(s) => s.clone(),
                             _ => "UntypedStorage".into(),
                         };
-                        stack.push(Value::Storage { dtype, key: key.clone() });
+                        stack.push(Value::Storage {
+                            dtype,
+                            key: key.clone(),
+                        });
                     }
-                    _ => return Err("persistent id is not a ('storage', type, key, …) tuple".into()),
+                    _ => {
+                        return Err("persistent id is not a ('storage', type, key, …) tuple".into())
+                    }
                 }
             }
             b'J' => stack.push(Value::Int(r.u32()? as i32 as i64)),
@@ -288,7 +363,9 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
                 let n = r.u8()? as usize;
                 let b = r.take(n)?;
                 if n > 8 {
-                    return Err("LONG1 wider than 64 bits".into());
+                    // only the legacy format's magic number is this wide
+                    stack.push(Value::Bytes(b.to_vec()));
+                    continue;
                 }
                 let mut v: i64 = 0;
                 for (i, x) in b.iter().enumerate() {
@@ -301,7 +378,9 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
             }
             b'G' => {
                 let b = r.take(8)?;
-                stack.push(Value::Float(f64::from_be_bytes(b.try_into().map_err(|_| "short read")?)));
+                stack.push(Value::Float(f64::from_be_bytes(
+                    b.try_into().map_err(|_| "short read")?,
+                )));
             }
             0x85..=0x87 => {
                 let n = (op - 0x84) as usize;
@@ -340,7 +419,7 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
             b'b' => {
                 let st = pop(&mut stack)?;
                 match stack.last_mut() {
-                    Some(Value::Object { state, .. }) => *state = Box::new(st),
+                    Some(Value::Object { state, .. }) => **state = st,
                     Some(_) => {} // OrderedDict attributes (`_metadata`) etc.: ignored
                     None => return Err("BUILD on empty stack".into()),
                 }
@@ -386,7 +465,12 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
                 let v = stack.last().cloned().ok_or("DUP on empty stack")?;
                 stack.push(v);
             }
-            other => return Err(format!("unsupported pickle opcode 0x{other:02x} at byte {}", r.pos - 1)),
+            other => {
+                return Err(format!(
+                    "unsupported pickle opcode 0x{other:02x} at byte {}",
+                    r.pos - 1
+                ))
+            }
         }
     }
 }
@@ -397,7 +481,13 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
 /// `_modules`.
 pub fn collect_tensors(v: &Value) -> Vec<(String, TensorRef)> {
     fn walk(v: &Value, prefix: &str, out: &mut Vec<(String, TensorRef)>) {
-        let join = |k: &str| if prefix.is_empty() { k.to_string() } else { format!("{prefix}.{k}") };
+        let join = |k: &str| {
+            if prefix.is_empty() {
+                k.to_string()
+            } else {
+                format!("{prefix}.{k}")
+            }
+        };
         match v {
             Value::Tensor(t) => out.push((prefix.to_string(), t.clone())),
             Value::Dict(d) => {
@@ -410,7 +500,10 @@ pub fn collect_tensors(v: &Value) -> Vec<(String, TensorRef)> {
                     // nn.Module state: flatten `_parameters`, `_buffers`, `_modules` away.
                     if matches!(key.as_str(), "_parameters" | "_buffers" | "_modules") {
                         walk(v, prefix, out);
-                    } else if key.starts_with('_') && prefix.is_empty() && !matches!(v, Value::Tensor(_)) {
+                    } else if key.starts_with('_')
+                        && prefix.is_empty()
+                        && !matches!(v, Value::Tensor(_))
+                    {
                         continue;
                     } else {
                         walk(v, &join(&key), out);
@@ -426,70 +519,164 @@ pub fn collect_tensors(v: &Value) -> Vec<(String, TensorRef)> {
     out
 }
 
-/// Reads every tensor of a `torch.save` zip file onto the CPU (dotted names, file order).
+/// The magic number opening legacy (pre-1.6) `torch.save` files, little-endian.
+const LEGACY_MAGIC: [u8; 10] = [0x6c, 0xfc, 0x9c, 0x46, 0xf9, 0x20, 0x6a, 0xa8, 0x50, 0x19];
+
+/// Reads every tensor of a `torch.save` file onto the CPU (dotted names, file order): the zip
+/// format of torch ≥ 1.6 and the legacy format (magic number, protocol, sys-info and object
+/// pickles, the storage-key list, then each storage as an 8-byte element count + raw data).
 pub fn read_torch_file(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
-    let file = std::fs::File::open(path).map_err(|e| ModelError::io(path, e))?;
-    let mut magic = [0u8; 4];
-    {
-        let mut f = &file;
-        if f.read_exact(&mut magic).is_err() || &magic[..2] != b"PK" {
-            return Err(ModelError::format(
-                path,
-                "not a zip-format torch.save file (written by torch ≥ 1.6); a legacy-format or foreign \
-                 file: re-save it with torch.save(torch.load(f), g)",
-            ));
-        }
+    let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
+    if bytes.starts_with(b"PK") {
+        read_zip(path, &bytes)
+    } else if bytes.first() == Some(&0x80) {
+        read_legacy(path, &bytes)
+    } else {
+        Err(ModelError::format(
+            path,
+            "not a torch.save file (neither a zip archive nor a legacy pickle)",
+        ))
     }
-    let mut zip = zip::ZipArchive::new(std::io::BufReader::new(file))
-        .map_err(|e| ModelError::format(path, format!("not a readable zip archive: {e}")))?;
+}
+
+fn read_zip(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(|e| {
+        ModelError::format(
+            path,
+            format!("not a readable zip archive (truncated?): {e}"),
+        )
+    })?;
     let pkl_name = zip
         .file_names()
         .find(|n| *n == "data.pkl" || n.ends_with("/data.pkl"))
         .map(str::to_string)
-        .ok_or_else(|| ModelError::format(path, "zip archive without data.pkl: not a torch.save file"))?;
+        .ok_or_else(|| {
+            ModelError::format(path, "zip archive without data.pkl: not a torch.save file")
+        })?;
     let prefix = pkl_name.trim_end_matches("data.pkl").to_string();
     let mut read_entry = |name: &str| -> Result<Vec<u8>, ModelError> {
-        let mut e = zip.by_name(name).map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
+        let mut e = zip
+            .by_name(name)
+            .map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
         let mut buf = Vec::with_capacity(e.size() as usize);
-        e.read_to_end(&mut buf).map_err(|e| ModelError::format(path, format!("record {name} unreadable (truncated?): {e}")))?;
+        e.read_to_end(&mut buf).map_err(|e| {
+            ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
+        })?;
         Ok(buf)
     };
     if let Ok(order) = read_entry(&format!("{prefix}byteorder")) {
         if order.trim_ascii() != b"little" {
-            return Err(ModelError::format(path, "big-endian torch.save files are not supported"));
+            return Err(ModelError::format(
+                path,
+                "big-endian torch.save files are not supported",
+            ));
         }
     }
     let pkl = read_entry(&pkl_name)?;
-    let value = parse_pickle(&pkl).map_err(|e| ModelError::format(path, format!("{pkl_name}: {e}")))?;
+    let value =
+        parse_pickle(&pkl).map_err(|e| ModelError::format(path, format!("{pkl_name}: {e}")))?;
     let refs = collect_tensors(&value);
-    if refs.is_empty() {
-        return Err(ModelError::format(path, "the pickle holds no tensors"));
-    }
     let mut storages: HashMap<String, Vec<u8>> = HashMap::new();
-    let mut out = Vec::with_capacity(refs.len());
-    for (name, t) in refs {
-        let (kind, es) = storage_kind(&t.storage_type)
-            .ok_or_else(|| ModelError::format(path, format!("tensor {name}: unsupported storage {}", t.storage_type)))?;
+    for (_, t) in &refs {
         if !storages.contains_key(&t.storage_key) {
             let data = read_entry(&format!("{prefix}data/{}", t.storage_key))?;
             storages.insert(t.storage_key.clone(), data);
         }
-        let data = &storages[&t.storage_key];
+    }
+    materialize(path, refs, &storages)
+}
+
+fn read_legacy(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
+    let bad = |m: String| ModelError::format(path, format!("legacy torch.save file: {m}"));
+    let (magic, pos) = parse_pickle_at(bytes, 0).map_err(&bad)?;
+    if !matches!(&magic, Value::Bytes(b) if b[..] == LEGACY_MAGIC) {
+        return Err(bad("wrong magic number (not a torch.save file)".into()));
+    }
+    let (_protocol, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
+    let (_sys_info, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
+    let (value, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
+    let (keys, mut pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
+    let keys = match keys {
+        Value::List(k) => k,
+        _ => return Err(bad("storage key list missing".into())),
+    };
+    let refs = collect_tensors(&value);
+    let types: HashMap<&str, &str> = refs
+        .iter()
+        .map(|(_, t)| (t.storage_key.as_str(), t.storage_type.as_str()))
+        .collect();
+    let mut storages = HashMap::new();
+    for k in keys {
+        let Value::Str(key) = k else {
+            return Err(bad("non-string storage key".into()));
+        };
+        let es = types
+            .get(key.as_str())
+            .and_then(|t| storage_kind(t))
+            .map_or(1, |x| x.1);
+        if pos + 8 > bytes.len() {
+            return Err(bad(format!("truncated before storage {key}")));
+        }
+        let numel = u64::from_le_bytes(bytes[pos..pos + 8].try_into().unwrap_or([0; 8])) as usize;
+        pos += 8;
+        let len = numel.checked_mul(es).filter(|l| pos + l <= bytes.len());
+        let Some(len) = len else {
+            return Err(bad(format!(
+                "truncated: storage {key} needs {numel}×{es} bytes"
+            )));
+        };
+        storages.insert(key, bytes[pos..pos + len].to_vec());
+        pos += len;
+    }
+    materialize(path, refs, &storages)
+}
+
+fn materialize(
+    path: &Path,
+    refs: Vec<(String, TensorRef)>,
+    storages: &HashMap<String, Vec<u8>>,
+) -> Result<Vec<(String, Tensor)>, ModelError> {
+    if refs.is_empty() {
+        return Err(ModelError::format(path, "the pickle holds no tensors"));
+    }
+    let mut out = Vec::with_capacity(refs.len());
+    for (name, t) in refs {
+        let (kind, es) = storage_kind(&t.storage_type).ok_or_else(|| {
+            ModelError::format(
+                path,
+                format!("tensor {name}: unsupported storage {}", t.storage_type),
+            )
+        })?;
+        let data = storages.get(&t.storage_key).ok_or_else(|| {
+            ModelError::format(
+                path,
+                format!("tensor {name}: storage {} missing", t.storage_key),
+            )
+        })?;
         let numel = data.len() / es;
         // Bounds check of the strided view against the storage.
-        let last: i64 = t.offset + t.size.iter().zip(&t.stride).map(|(s, st)| (s - 1).max(0) * st).sum::<i64>();
-        let empty = t.size.iter().any(|&s| s == 0);
+        let last: i64 = t.offset
+            + t.size
+                .iter()
+                .zip(&t.stride)
+                .map(|(s, st)| (s - 1).max(0) * st)
+                .sum::<i64>();
+        let empty = t.size.contains(&0);
         if !empty && (t.offset < 0 || last as usize >= numel) {
             return Err(ModelError::format(
                 path,
-                format!("tensor {name}: view {:?}/{:?}+{} exceeds its storage of {numel} elements (truncated?)", t.size, t.stride, t.offset),
+                format!(
+                    "tensor {name}: view {:?}/{:?}+{} exceeds its storage of {numel} elements (truncated?)",
+                    t.size, t.stride, t.offset
+                ),
             ));
         }
-        let flat = Tensor::f_from_data_size(&data[..numel * es], &[numel as i64], kind)?;
         let tensor = if empty {
             Tensor::f_zeros(&t.size, (kind, Device::Cpu))?
         } else {
-            flat.f_as_strided(&t.size, &t.stride, t.offset)?.f_contiguous()?
+            let flat = Tensor::f_from_data_size(&data[..numel * es], &[numel as i64], kind)?;
+            flat.f_as_strided(&t.size, &t.stride, t.offset)?
+                .f_contiguous()?
         };
         out.push((name, tensor));
     }
@@ -544,8 +731,9 @@ pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Resu
     let mut blobs = Vec::new();
     for (i, (name, t)) in tensors.iter().enumerate() {
         let t = t.detach().to_device(Device::Cpu).contiguous();
-        let st = storage_name(t.kind())
-            .ok_or_else(|| ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind())))?;
+        let st = storage_name(t.kind()).ok_or_else(|| {
+            ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind()))
+        })?;
         let numel = t.numel();
         let es = t.kind().elt_size_in_bytes();
         let mut buf = vec![0u8; numel * es];
@@ -582,7 +770,8 @@ pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Resu
     let mut cursor = std::io::Cursor::new(Vec::new());
     {
         let mut z = zip::ZipWriter::new(&mut cursor);
-        let opts = zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
+        let opts =
+            zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
         let mut put = |name: &str, data: &[u8]| -> Result<(), ModelError> {
             z.start_file(format!("archive/{name}"), opts)
                 .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
@@ -594,7 +783,8 @@ pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Resu
             put(&format!("data/{i}"), b)?;
         }
         put("version", b"3\n")?;
-        z.finish().map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
+        z.finish()
+            .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
     }
     crate::checkpoint::write_atomic(path, cursor.get_ref())
 }

@@ -58,6 +58,7 @@ pub fn channels_last(t: &tch::Tensor) -> tch::Tensor {
 }
 
 /// Converts every 4-d variable (conv weights) of `vs` to channels-last storage in place.
+/// Use on CUDA: libtorch 2.11's CPU backward crashed with channels-last weights at 175x400.
 pub fn vs_to_channels_last(vs: &tch::nn::VarStore) {
     tch::no_grad(|| {
         for (_, mut v) in vs.variables() {

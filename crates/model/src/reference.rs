@@ -9,7 +9,12 @@ use crate::{sid, SidConfig};
 
 /// Naive loss from the raw 2K logits `[B,2K,h,w]` and the target `[B,1,H,W]` (0 = invalid):
 /// −mean over valid pixels of Σ_k [y_k ln P_k + (1 − y_k) ln(1 − P_k)], P_k = softmax(a_k, b_k)[1].
-pub fn naive_loss(logits: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, align_corners: bool) -> Tensor {
+pub fn naive_loss(
+    logits: &Tensor,
+    target_m: &Tensor,
+    sid_cfg: &SidConfig,
+    align_corners: bool,
+) -> Tensor {
     let (b, _, th, tw) = target_m.size4().expect("target must be [B,1,H,W]");
     let up = upsample(logits, th, tw, align_corners);
     let k = up.size()[1] / 2;
@@ -26,11 +31,20 @@ pub fn naive_loss(logits: &Tensor, target_m: &Tensor, sid_cfg: &SidConfig, align
 
 /// Naive decoding: l̂ = Σ_k [P_k ≥ 0.5] with P_k the pairwise softmax at full resolution;
 /// returns (levels int64 `[B,1,H,W]`, depth in metres `[B,1,H,W]`).
-pub fn naive_decode(logits: &Tensor, sid_cfg: &SidConfig, height: i64, width: i64, align_corners: bool) -> (Tensor, Tensor) {
+pub fn naive_decode(
+    logits: &Tensor,
+    sid_cfg: &SidConfig,
+    height: i64,
+    width: i64,
+    align_corners: bool,
+) -> (Tensor, Tensor) {
     let up = upsample(logits, height, width, align_corners);
     let b = up.size()[0];
     let k = up.size()[1] / 2;
-    let p1 = up.view([b, k, 2, height, width]).softmax(2, up.kind()).select(2, 1);
+    let p1 = up
+        .view([b, k, 2, height, width])
+        .softmax(2, up.kind())
+        .select(2, 1);
     let levels = p1.ge(0.5).sum_dim_intlist(1, true, Kind::Int64);
     let depth = sid::levels_to_depth(sid_cfg, &levels);
     (levels, depth)

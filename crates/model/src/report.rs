@@ -59,7 +59,10 @@ pub fn param_counts(vs: &VarStore, depth: usize) -> BTreeMap<String, i64> {
 
 /// Total trainable parameters of a var store.
 pub fn total_params(vs: &VarStore) -> i64 {
-    vs.trainable_variables().iter().map(|t| t.numel() as i64).sum()
+    vs.trainable_variables()
+        .iter()
+        .map(|t| t.numel() as i64)
+        .sum()
 }
 
 /// Builds the report for `net` (variables in `vs`) at `height`×`width`.
@@ -87,7 +90,11 @@ pub fn model_report(vs: &VarStore, net: &DepthNet, height: i64, width: i64) -> M
         rows_out.push(
             order
                 .into_iter()
-                .map(|p| ModuleRow { params: params.get(&p).copied().unwrap_or(0), macs: macs[&p], module: p })
+                .map(|p| ModuleRow {
+                    params: params.get(&p).copied().unwrap_or(0),
+                    macs: macs[&p],
+                    module: p,
+                })
                 .collect::<Vec<_>>(),
         );
     }
@@ -119,11 +126,33 @@ fn human(n: f64) -> String {
 
 impl std::fmt::Display for ModelReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "{:<28} {:>14} {:>10} {:>14}", "module", "parameters", "", "MACs/image")?;
+        writeln!(
+            f,
+            "{:<28} {:>14} {:>10} {:>14}",
+            "module", "parameters", "", "MACs/image"
+        )?;
         for r in &self.modules {
-            writeln!(f, "{:<28} {:>14} {:>10} {:>14}", r.module, r.params, human(r.params as f64), human(r.macs as f64))?;
-            for s in self.submodules.iter().filter(|s| s.module.starts_with(&format!("{}.", r.module))) {
-                writeln!(f, "  {:<26} {:>14} {:>10} {:>14}", s.module, s.params, human(s.params as f64), human(s.macs as f64))?;
+            writeln!(
+                f,
+                "{:<28} {:>14} {:>10} {:>14}",
+                r.module,
+                r.params,
+                human(r.params as f64),
+                human(r.macs as f64)
+            )?;
+            for s in self
+                .submodules
+                .iter()
+                .filter(|s| s.module.starts_with(&format!("{}.", r.module)))
+            {
+                writeln!(
+                    f,
+                    "  {:<26} {:>14} {:>10} {:>14}",
+                    s.module,
+                    s.params,
+                    human(s.params as f64),
+                    human(s.macs as f64)
+                )?;
             }
         }
         writeln!(

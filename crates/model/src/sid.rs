@@ -17,10 +17,11 @@ pub fn thresholds_m(sid: &SidConfig) -> Vec<f64> {
 
 /// Label l = ⌊K·ln(d/α)/ln(β/α)⌋ clamped to 0..K (SPEC §7).
 pub fn label_of_depth(sid: &SidConfig, depth_m: f64) -> i64 {
-    if !(depth_m > sid.alpha_m) {
+    if depth_m.is_nan() || depth_m <= sid.alpha_m {
         return 0;
     }
-    let l = (sid.bins as f64 * (depth_m / sid.alpha_m).ln() / (sid.beta_m / sid.alpha_m).ln()).floor();
+    let l =
+        (sid.bins as f64 * (depth_m / sid.alpha_m).ln() / (sid.beta_m / sid.alpha_m).ln()).floor();
     (l as i64).clamp(0, sid.bins)
 }
 
@@ -36,7 +37,10 @@ pub fn labels(sid: &SidConfig, depth_m: &Tensor) -> Tensor {
     let k = sid.bins as f64;
     let scale = k / (sid.beta_m / sid.alpha_m).ln();
     let d = depth_m.to_kind(Kind::Float).clamp_min(sid.alpha_m);
-    ((d / sid.alpha_m).log() * scale).floor().clamp(0.0, k).to_kind(Kind::Int64)
+    ((d / sid.alpha_m).log() * scale)
+        .floor()
+        .clamp(0.0, k)
+        .to_kind(Kind::Int64)
 }
 
 /// Depth in metres of a tensor of (integer-valued) levels, any shape, float result.
@@ -70,7 +74,11 @@ mod tests {
         while d <= 80.0 {
             let l = label_of_depth(&s, d);
             let back = depth_of_level(&s, l);
-            assert_eq!(label_of_depth(&s, back), l, "depth {d} label {l} decoded {back}");
+            assert_eq!(
+                label_of_depth(&s, back),
+                l,
+                "depth {d} label {l} decoded {back}"
+            );
             assert!(back >= threshold_m(&s, l as f64) && back < threshold_m(&s, l as f64 + 1.0));
             d += 0.013;
         }

@@ -116,18 +116,29 @@ fn import(
             // Early fusion: ImageNet filters for the RGB channels, zeros for radar channels.
             assignments.push((target.clone(), t, true));
         } else {
-            mismatches.push(ShapeMismatch { name: format!("{target} (file: {key})"), expected: vsz, found: fsz });
+            mismatches.push(ShapeMismatch {
+                name: format!("{target} (file: {key})"),
+                expected: vsz,
+                found: fsz,
+            });
             continue;
         }
         done.insert(target);
     }
     if !mismatches.is_empty() {
-        return Err(ModelError::ShapeMismatch { path: path.to_path_buf(), mismatches });
+        return Err(ModelError::ShapeMismatch {
+            path: path.to_path_buf(),
+            mismatches,
+        });
     }
     if assignments.is_empty() {
         return Err(ModelError::format(
             path,
-            format!("no tensor of the file matches the network ({} unused, {} skipped)", report.unused.len(), report.skipped.len()),
+            format!(
+                "no tensor of the file matches the network ({} unused, {} skipped)",
+                report.unused.len(),
+                report.skipped.len()
+            ),
         ));
     }
     tch::no_grad(|| -> Result<(), ModelError> {
@@ -147,7 +158,11 @@ fn import(
         Ok(())
     })?;
     report.loaded.sort();
-    let mut left: Vec<String> = vars.keys().filter(|k| !done.contains(*k)).cloned().collect();
+    let mut left: Vec<String> = vars
+        .keys()
+        .filter(|k| !done.contains(*k))
+        .cloned()
+        .collect();
     left.sort();
     report.left_random = left;
     Ok(report)
@@ -183,7 +198,10 @@ pub fn released_key(key: &str) -> Option<String> {
         }
         return Some(format!("rgb.{r}"));
     }
-    if let Some(r) = k.strip_prefix("resnet_radar.backbone.").or_else(|| k.strip_prefix("resnet_radar.")) {
+    if let Some(r) = k
+        .strip_prefix("resnet_radar.backbone.")
+        .or_else(|| k.strip_prefix("resnet_radar."))
+    {
         return Some(format!("radar.{r}"));
     }
     match k {
@@ -201,10 +219,15 @@ pub fn released_key(key: &str) -> Option<String> {
 /// named in the error.
 pub fn load_released_checkpoint(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
     let file = pickle::read_torch_file(path)?;
-    let report = import(path, vs, file, |key| released_key(key).ok_or_else(|| "not part of the released network".into()))?;
+    let report = import(path, vs, file, |key| {
+        released_key(key).ok_or_else(|| "not part of the released network".into())
+    })?;
     let missing: Vec<String> = report.left_random.clone();
     if !missing.is_empty() {
-        return Err(ModelError::MissingTensors { path: path.to_path_buf(), names: missing });
+        return Err(ModelError::MissingTensors {
+            path: path.to_path_buf(),
+            names: missing,
+        });
     }
     Ok(report)
 }

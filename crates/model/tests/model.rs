@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use depthsense_model::{
-    checkpoint, device::parse_device, ordinal, pickle, reference, report, sid, weights, DepthNet, Fusion, HeadKind,
-    ModelConfig, ModelError,
+    checkpoint, device::parse_device, ordinal, pickle, reference, report, sid, weights, DepthNet,
+    Fusion, HeadKind, ModelConfig, ModelError,
 };
 use tch::{nn, nn::OptimizerConfig, Device, Kind, Tensor};
 
@@ -18,7 +18,9 @@ fn inputs(cfg: &ModelConfig, b: i64, h: i64, w: i64) -> (Tensor, Tensor) {
     let img = Tensor::randn([b, 3, h, w], (Kind::Float, Device::Cpu));
     // sparse radar: ~2 % of pixels with 5..60 m
     let mask = Tensor::rand([b, cfg.radar_channels, h, w], (Kind::Float, Device::Cpu)).lt(0.02);
-    let radar = (Tensor::rand([b, cfg.radar_channels, h, w], (Kind::Float, Device::Cpu)) * 55.0 + 5.0) * mask;
+    let radar = (Tensor::rand([b, cfg.radar_channels, h, w], (Kind::Float, Device::Cpu)) * 55.0
+        + 5.0)
+        * mask;
     (img, radar)
 }
 
@@ -37,9 +39,15 @@ fn released_preset_has_exactly_68_399_904_parameters() {
     let (vs, net) = build(&ModelConfig::released());
     assert_eq!(report::total_params(&vs), 68_399_904);
     let per = report::param_counts(&vs, 1);
-    assert_eq!(per["rgb"], 42_623_936, "ResNet-101 image path with the deep stem (SPEC §6.1)");
+    assert_eq!(
+        per["rgb"], 42_623_936,
+        "ResNet-101 image path with the deep stem (SPEC §6.1)"
+    );
     assert_eq!(per["decoder"], 2_688_512 + 4_390_912, "FPN + convfeat1..3");
-    assert_eq!(per["radar"], 15_745_216, "radar branch incl. conv_radar (SPEC §6: 15.75 M)");
+    assert_eq!(
+        per["radar"], 15_745_216,
+        "radar branch incl. conv_radar (SPEC §6: 15.75 M)"
+    );
     assert_eq!(per["head"], 2_951_328, "concat_process.1 and .4");
     // analytic multiply-adds at 350x800 (SPEC §6.1 shapes)
     let rows = net.mac_rows(350, 800);
@@ -51,9 +59,18 @@ fn released_preset_has_exactly_68_399_904_parameters() {
     assert_eq!(get("head.conv2"), 2048 * 160 * 11 * 25);
     assert_eq!(net.head_resolution(350, 800), (11, 25));
     let rep = report::model_report(&vs, &net, 350, 800);
-    assert_eq!(rep.modules.iter().map(|r| r.params).sum::<i64>(), 68_399_904);
-    assert_eq!(rep.modules.iter().map(|r| r.macs).sum::<u64>(), rep.total_macs);
-    assert_eq!(rep.submodules.iter().map(|r| r.macs).sum::<u64>(), rep.total_macs);
+    assert_eq!(
+        rep.modules.iter().map(|r| r.params).sum::<i64>(),
+        68_399_904
+    );
+    assert_eq!(
+        rep.modules.iter().map(|r| r.macs).sum::<u64>(),
+        rep.total_macs
+    );
+    assert_eq!(
+        rep.submodules.iter().map(|r| r.macs).sum::<u64>(),
+        rep.total_macs
+    );
 }
 
 #[test]
@@ -65,14 +82,17 @@ fn paper_preset_parameter_counts_match_torchvision_resnets() {
     // torchvision resnet18 (11,689,512) without fc (513,000), conv1 with 1 input channel
     assert_eq!(per["radar"], 11_689_512 - 513_000 - 64 * 49 * 2);
     // laterals 512/1024/2048→256 (b), three 3x3 256→256 (b)
-    assert_eq!(per["decoder"], (512 + 1024 + 2048) * 256 + 3 * 256 + 3 * (9 * 256 * 256 + 256));
+    assert_eq!(
+        per["decoder"],
+        (512 + 1024 + 2048) * 256 + 3 * 256 + 3 * (9 * 256 * 256 + 256)
+    );
     assert_eq!(per["attention"], 2 * 49 + 1);
     assert_eq!(per["head"], (768 + 512) * 512 + 512 + 512 * 160 + 160);
     assert_eq!(net.head_resolution(350, 800), (44, 100));
 }
 
 #[test]
-fn tiny_preset_is_a_few_million_parameters_and_full_resolution_shapes() {
+fn tiny_preset_size_and_full_resolution_shapes() {
     let cfg = ModelConfig::tiny();
     let (vs, net) = build(&cfg);
     let n = report::total_params(&vs);
@@ -88,7 +108,11 @@ fn output_shapes_of_every_option() {
     let (b, h, w) = (2, 64, 128);
     let target = Tensor::rand([b, 1, h, w], (Kind::Float, Device::Cpu)) * 79.0 + 1.0;
     let mut cases = Vec::new();
-    for base in [ModelConfig::tiny(), narrow(ModelConfig::released()), narrow(ModelConfig::paper())] {
+    for base in [
+        ModelConfig::tiny(),
+        narrow(ModelConfig::released()),
+        narrow(ModelConfig::paper()),
+    ] {
         for fusion in [Fusion::Late, Fusion::Early, Fusion::None] {
             for head in [HeadKind::Ordinal, HeadKind::L1, HeadKind::L2] {
                 let mut c = base.clone();
@@ -111,8 +135,16 @@ fn output_shapes_of_every_option() {
         let (_vs, net) = build(&cfg);
         let (img, radar) = inputs(&cfg, b, h, w);
         let out = tch::no_grad(|| net.forward_t(&img, &radar, false));
-        let stride = if cfg.decoder == depthsense_model::DecoderKind::Released { 32 } else { 8 };
-        let ch = if cfg.head == HeadKind::Ordinal { cfg.sid.bins } else { 1 };
+        let stride = if cfg.decoder == depthsense_model::DecoderKind::Released {
+            32
+        } else {
+            8
+        };
+        let ch = if cfg.head == HeadKind::Ordinal {
+            cfg.sid.bins
+        } else {
+            1
+        };
         assert_eq!(out.size(), [b, ch, h / stride, w / stride], "{cfg:?}");
         let d = net.decode_to(&out, h, w);
         assert_eq!(d.size(), [b, 1, h, w]);
@@ -120,11 +152,15 @@ fn output_shapes_of_every_option() {
         assert_eq!(loss.dim(), 0);
         assert!(loss.double_value(&[]).is_finite());
         if cfg.head != HeadKind::Ordinal {
-            assert!(out.min().double_value(&[]) >= 0.0 && out.max().double_value(&[]) <= cfg.sid.beta_m);
+            assert!(
+                out.min().double_value(&[]) >= 0.0 && out.max().double_value(&[]) <= cfg.sid.beta_m
+            );
         }
         // fusion = none ignores radar entirely (an empty tensor is fine)
         if cfg.fusion == Fusion::None {
-            let out2 = tch::no_grad(|| net.forward_t(&img, &Tensor::zeros([0], (Kind::Float, Device::Cpu)), false));
+            let out2 = tch::no_grad(|| {
+                net.forward_t(&img, &Tensor::zeros([0], (Kind::Float, Device::Cpu)), false)
+            });
             assert!(out2.allclose(&out, 1e-6, 1e-6, false));
         }
     }
@@ -143,9 +179,15 @@ fn efficient_ordinal_equals_naive_reference() {
         assert_eq!(z.size(), [2, 80, 6, 9]);
         let fast = ordinal::ordinal_loss(&z, &target, &s, align).double_value(&[]);
         let naive = reference::naive_loss(&logits, &target, &s, align).double_value(&[]);
-        assert!((fast - naive).abs() < 1e-9 * naive.abs(), "{fast} vs {naive}");
+        assert!(
+            (fast - naive).abs() < 1e-9 * naive.abs(),
+            "{fast} vs {naive}"
+        );
         let dense = ordinal::ordinal_loss_dense(&z, &target, &s, align).double_value(&[]);
-        assert!((dense - naive).abs() < 1e-9 * naive.abs(), "{dense} vs {naive}");
+        assert!(
+            (dense - naive).abs() < 1e-9 * naive.abs(),
+            "{dense} vs {naive}"
+        );
         let lf = ordinal::ordinal_levels(&z, 23, 41, align);
         let (ln, dn) = reference::naive_decode(&logits, &s, 23, 41, align);
         assert_eq!(lf.ne_tensor(&ln).sum(Kind::Int64).int64_value(&[]), 0);
@@ -187,8 +229,8 @@ fn gradients_reach_every_parameter() {
             cfg.dropout = 0.0; // so that no channel is dropped by chance
             tch::manual_seed(3);
             let (vs, net) = build(&cfg);
-            let (img, mut radar) = inputs(&cfg, 2, 64, 128);
-            radar = radar + 1.0; // dense, so every radar filter sees input
+            let (img, radar) = inputs(&cfg, 2, 64, 128);
+            let radar = radar + 1.0; // dense, so every radar filter sees input
             let target = Tensor::rand([2, 1, 64, 128], (Kind::Float, Device::Cpu)) * 79.0 + 1.0;
             let out = net.forward_t(&img, &radar, true);
             net.loss(&out, &target).backward();
@@ -198,7 +240,10 @@ fn gradients_reach_every_parameter() {
                 }
                 let g = v.grad();
                 assert!(g.defined(), "{name}: no gradient ({cfg:?})");
-                assert!(g.abs().sum(Kind::Double).double_value(&[]) > 0.0, "{name}: zero gradient");
+                assert!(
+                    g.abs().sum(Kind::Double).double_value(&[]) > 0.0,
+                    "{name}: zero gradient"
+                );
             }
         }
     }
@@ -212,7 +257,8 @@ fn one_batch_overfit_with_tiny_halves_the_loss() {
     let (img, radar) = inputs(&cfg, 2, 64, 128);
     // smooth target with 20 % of pixels invalid
     let rows = Tensor::linspace(5.0, 60.0, 64, (Kind::Float, Device::Cpu)).view([1, 1, 64, 1]);
-    let target = rows.expand([2, 1, 64, 128], false) * Tensor::rand([2, 1, 64, 128], (Kind::Float, Device::Cpu)).gt(0.2);
+    let target = rows.expand([2, 1, 64, 128], false)
+        * Tensor::rand([2, 1, 64, 128], (Kind::Float, Device::Cpu)).gt(0.2);
     let mut opt = nn::Adam::default().build(&vs, 3e-3).unwrap();
     let mut losses = Vec::new();
     for _ in 0..50 {
@@ -248,12 +294,20 @@ fn checkpoint_round_trip_and_errors() {
     let cut = dir.path().join("cut.safetensors");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     let e = checkpoint::load(&cut, Device::Cpu).unwrap_err().to_string();
-    assert!(e.contains("cut.safetensors") && e.contains("truncated"), "{e}");
+    assert!(
+        e.contains("cut.safetensors") && e.contains("truncated"),
+        "{e}"
+    );
     // foreign file
     let junk = dir.path().join("junk.bin");
     std::fs::write(&junk, b"hello world, not a checkpoint at all").unwrap();
-    let e = checkpoint::load(&junk, Device::Cpu).unwrap_err().to_string();
-    assert!(e.contains("junk.bin") && e.contains("not a safetensors"), "{e}");
+    let e = checkpoint::load(&junk, Device::Cpu)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("junk.bin") && e.contains("not a safetensors"),
+        "{e}"
+    );
 
     // a checkpoint of another shape names every offending tensor with both shapes
     let mut other = cfg.clone();
@@ -267,23 +321,48 @@ fn checkpoint_round_trip_and_errors() {
     match &err {
         ModelError::ShapeMismatch { mismatches, .. } => {
             let names: Vec<&str> = mismatches.iter().map(|m| m.name.as_str()).collect();
-            assert_eq!(names, ["head.conv1.bias", "head.conv1.weight", "head.conv2.weight", "radar.conv1.weight"]);
+            assert_eq!(
+                names,
+                [
+                    "head.conv1.bias",
+                    "head.conv1.weight",
+                    "head.conv2.weight",
+                    "radar.conv1.weight"
+                ]
+            );
         }
         e => panic!("unexpected {e}"),
     }
     let msg = err.to_string();
-    assert!(msg.contains("radar.conv1.weight: network [8, 1, 7, 7], file [8, 7, 7, 7]"), "{msg}");
+    assert!(
+        msg.contains("radar.conv1.weight: network [8, 1, 7, 7], file [8, 7, 7, 7]"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn reads_real_torch_save_files() {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data");
     let t = pickle::read_torch_file(&dir.join("torch_saved_state_dict.pth")).unwrap();
-    let get = |n: &str| t.iter().find(|x| x.0 == n).map(|x| x.1.shallow_clone()).unwrap();
+    let get = |n: &str| {
+        t.iter()
+            .find(|x| x.0 == n)
+            .map(|x| x.1.shallow_clone())
+            .unwrap()
+    };
     let names: Vec<&str> = t.iter().map(|x| x.0.as_str()).collect();
     assert_eq!(
         names,
-        ["conv1.weight", "bn1.weight", "bn1.num_batches_tracked", "transposed", "view_b", "half", "long", "nested.param"]
+        [
+            "conv1.weight",
+            "bn1.weight",
+            "bn1.num_batches_tracked",
+            "transposed",
+            "view_b",
+            "half",
+            "long",
+            "nested.param"
+        ]
     );
     let conv = get("conv1.weight");
     assert_eq!(conv.size(), [2, 3, 3, 3]);
@@ -292,11 +371,41 @@ fn reads_real_torch_save_files() {
     let tr = get("transposed");
     assert_eq!(tr.size(), [4, 3]);
     assert_eq!(tr.double_value(&[3, 1]), 7.0); // base[1][3]
-    assert_eq!(Vec::<f32>::try_from(get("view_b")).unwrap(), [4.0, 5.0, 6.0, 7.0]);
+    assert_eq!(
+        Vec::<f32>::try_from(get("view_b")).unwrap(),
+        [4.0, 5.0, 6.0, 7.0]
+    );
     assert_eq!(get("half").kind(), Kind::Half);
     assert_eq!(get("half").double_value(&[1]), 1.25);
     assert_eq!(get("long").int64_value(&[0, 0]), -3);
     assert_eq!(get("nested.param").double_value(&[1, 1]), 3.0);
+    // legacy (pre-1.6) format: torch.save(..., _use_new_zipfile_serialization=False)
+    let l = pickle::read_torch_file(&dir.join("torch_saved_legacy.pth")).unwrap();
+    let names: Vec<&str> = l.iter().map(|x| x.0.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "conv1.weight",
+            "bn1.num_batches_tracked",
+            "transposed",
+            "view_b",
+            "half"
+        ]
+    );
+    assert!(l[0].1.equal(&conv));
+    assert_eq!(l[1].1.int64_value(&[]), 7);
+    assert!(l[2].1.equal(&tr));
+    assert_eq!(Vec::<f32>::try_from(&l[3].1).unwrap(), [4.0, 5.0, 6.0, 7.0]);
+    assert_eq!(l[4].1.double_value(&[1]), 1.25);
+    let bytes = std::fs::read(dir.join("torch_saved_legacy.pth")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let cut = tmp.path().join("legacy_cut.pth");
+    std::fs::write(&cut, &bytes[..bytes.len() - 20]).unwrap();
+    let e = pickle::read_torch_file(&cut).unwrap_err().to_string();
+    assert!(
+        e.contains("legacy_cut.pth") && e.contains("truncated"),
+        "{e}"
+    );
     let ck = pickle::read_torch_file(&dir.join("torch_saved_checkpoint.pth")).unwrap();
     assert_eq!(ck.len(), 1);
     assert_eq!(ck[0].0, "state_dict.module.fc.bias");
@@ -313,13 +422,22 @@ fn torchvision_state_dict_written_by_the_test_loads_into_the_encoder() {
     let mut sd: Vec<(String, Tensor)> = src_vs
         .variables()
         .into_iter()
-        .filter_map(|(k, v)| k.strip_prefix("rgb.").map(|s| (s.to_string(), v.detach() + 0.5)))
+        .filter_map(|(k, v)| {
+            k.strip_prefix("rgb.")
+                .map(|s| (s.to_string(), v.detach() + 0.5))
+        })
         .collect();
     sd.sort_by(|a, b| a.0.cmp(&b.0));
     let n_enc = sd.len();
     sd.push(("bn1.num_batches_tracked".into(), Tensor::from(100i64)));
-    sd.push(("fc.weight".into(), Tensor::zeros([1000, 128], (Kind::Float, Device::Cpu))));
-    sd.push(("fc.bias".into(), Tensor::zeros([1000], (Kind::Float, Device::Cpu))));
+    sd.push((
+        "fc.weight".into(),
+        Tensor::zeros([1000, 128], (Kind::Float, Device::Cpu)),
+    ));
+    sd.push((
+        "fc.bias".into(),
+        Tensor::zeros([1000], (Kind::Float, Device::Cpu)),
+    ));
     pickle::write_torch_state_dict(&path, &sd).unwrap();
 
     let (mut vs, _) = build(&cfg);
@@ -342,14 +460,21 @@ fn torchvision_state_dict_written_by_the_test_loads_into_the_encoder() {
     let rep = weights::load_torchvision_resnet(&mut vs_e, &path).unwrap();
     assert_eq!(rep.partial, ["rgb.conv1.weight"]);
     let w = &vs_e.variables()["rgb.conv1.weight"];
-    assert!(w.narrow(1, 0, 3).equal(&sd.iter().find(|x| x.0 == "conv1.weight").unwrap().1));
-    assert_eq!(w.narrow(1, 3, 1).abs().sum(Kind::Double).double_value(&[]), 0.0);
+    assert!(w
+        .narrow(1, 0, 3)
+        .equal(&sd.iter().find(|x| x.0 == "conv1.weight").unwrap().1));
+    assert_eq!(
+        w.narrow(1, 3, 1).abs().sum(Kind::Double).double_value(&[]),
+        0.0
+    );
 
     // a deeper/wider file: every mismatch is named with both shapes
     let mut wide = cfg.clone();
     wide.backbone_width = 8;
     let (mut vs_w, _) = build(&wide);
-    let e = weights::load_torchvision_resnet(&mut vs_w, &path).unwrap_err().to_string();
+    let e = weights::load_torchvision_resnet(&mut vs_w, &path)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("rgb.layer4.1.conv2.weight (file: layer4.1.conv2.weight): network [64, 64, 3, 3], file [128, 128, 3, 3]"), "{e}");
     assert!(e.contains("tensor(s) with mismatching shapes"));
 
@@ -357,12 +482,27 @@ fn torchvision_state_dict_written_by_the_test_loads_into_the_encoder() {
     let bytes = std::fs::read(&path).unwrap();
     let cut = dir.path().join("cut.pth");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
-    let e = weights::load_torchvision_resnet(&mut vs, &cut).unwrap_err().to_string();
+    let e = weights::load_torchvision_resnet(&mut vs, &cut)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("cut.pth"), "{e}");
     let junk = dir.path().join("junk.pth");
+    std::fs::write(&junk, b"GIF89a not weights").unwrap();
+    let e = weights::load_torchvision_resnet(&mut vs, &junk)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("junk.pth") && e.contains("not a torch.save file"),
+        "{e}"
+    );
     std::fs::write(&junk, [0x80u8, 2, 0x8a, 0x0a, 1, 2, 3]).unwrap();
-    let e = weights::load_torchvision_resnet(&mut vs, &junk).unwrap_err().to_string();
-    assert!(e.contains("junk.pth") && e.contains("not a zip-format torch.save file"), "{e}");
+    let e = weights::load_torchvision_resnet(&mut vs, &junk)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("junk.pth") && e.contains("legacy torch.save file"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -379,11 +519,16 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
         } else if let Some(r) = k.strip_prefix("radar.") {
             format!("resnet_radar.backbone.{r}")
         } else {
-            k.replace("head.conv1", "concat_process.1").replace("head.conv2", "concat_process.4")
+            k.replace("head.conv1", "concat_process.1")
+                .replace("head.conv2", "concat_process.4")
         };
         format!("module.{theirs}")
     };
-    let sd: Vec<(String, Tensor)> = src.variables().into_iter().map(|(k, v)| (to_theirs(&k), v.detach() * 2.0)).collect();
+    let sd: Vec<(String, Tensor)> = src
+        .variables()
+        .into_iter()
+        .map(|(k, v)| (to_theirs(&k), v.detach() * 2.0))
+        .collect();
     for (k, _) in &sd {
         let ours = weights::released_key(k).unwrap();
         assert_eq!(to_theirs(&ours), *k);
@@ -396,28 +541,108 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
     assert_eq!(rep.loaded.len(), sd.len());
     assert!(rep.left_random.is_empty());
     // dropping a tensor makes it an error naming it
-    let partial: Vec<(String, Tensor)> = sd.into_iter().filter(|(k, _)| !k.ends_with("concat_process.4.bias")).collect();
+    let partial: Vec<(String, Tensor)> = sd
+        .into_iter()
+        .filter(|(k, _)| !k.ends_with("concat_process.4.bias"))
+        .collect();
     pickle::write_torch_state_dict(&path, &partial).unwrap();
-    let e = weights::load_released_checkpoint(&mut vs, &path).unwrap_err().to_string();
-    assert!(e.contains("head.conv2.bias") && e.contains("missing"), "{e}");
+    let e = weights::load_released_checkpoint(&mut vs, &path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("head.conv2.bias") && e.contains("missing"),
+        "{e}"
+    );
 }
 
 #[test]
 fn devices_and_config_serde() {
     assert_eq!(parse_device("cpu").unwrap(), Device::Cpu);
     assert_eq!(parse_device("auto").unwrap(), Device::cuda_if_available());
-    assert!(matches!(parse_device("tpu"), Err(ModelError::InvalidDevice(_))));
+    assert!(matches!(
+        parse_device("tpu"),
+        Err(ModelError::InvalidDevice(_))
+    ));
     assert!(parse_device("cuda:x").is_err());
     if !tch::Cuda::is_available() {
-        assert!(matches!(parse_device("cuda:0"), Err(ModelError::CudaUnavailable(..))));
+        assert!(matches!(
+            parse_device("cuda:0"),
+            Err(ModelError::CudaUnavailable(..))
+        ));
     }
     let c = ModelConfig::released();
     let j = serde_json::to_string(&c).unwrap();
-    assert!(j.contains("\"fusion\":\"late\"") && j.contains("\"head\":\"ordinal\"") && j.contains("\"stem\":\"deep\""), "{j}");
+    assert!(
+        j.contains("\"fusion\":\"late\"")
+            && j.contains("\"head\":\"ordinal\"")
+            && j.contains("\"stem\":\"deep\""),
+        "{j}"
+    );
     assert_eq!(serde_json::from_str::<ModelConfig>(&j).unwrap(), c);
     assert_eq!(ModelConfig::preset("Paper").unwrap(), ModelConfig::paper());
-    assert!(matches!(ModelConfig::preset("huge"), Err(ModelError::UnknownPreset(_))));
+    assert!(matches!(
+        ModelConfig::preset("huge"),
+        Err(ModelError::UnknownPreset(_))
+    ));
+    // --set options and --config resolution (preset, JSON file, checkpoint)
+    let c = ModelConfig::paper()
+        .with_options(&[
+            "backbone=50",
+            "fusion=early",
+            "attention=off",
+            "head=l1",
+            "radar-channels=7",
+            "decode-offset=0.3",
+        ])
+        .unwrap();
+    assert_eq!(
+        (
+            c.backbone_depth,
+            c.fusion,
+            c.attention,
+            c.head,
+            c.radar_channels,
+            c.sid.decode_offset_m
+        ),
+        (50, Fusion::Early, false, HeadKind::L1, 7, 0.3)
+    );
+    assert!(ModelConfig::paper().with_options(&["backbone=42"]).is_err());
+    assert!(ModelConfig::paper()
+        .with_options(&["colour=red"])
+        .unwrap_err()
+        .to_string()
+        .contains("unknown option"));
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("m.json");
+    std::fs::write(&json, serde_json::to_string(&c).unwrap()).unwrap();
+    assert_eq!(ModelConfig::resolve(json.to_str().unwrap()).unwrap(), c);
+    assert_eq!(ModelConfig::resolve("tiny").unwrap(), ModelConfig::tiny());
     let mut bad = ModelConfig::tiny();
     bad.backbone_depth = 42;
     assert!(DepthNet::new(&nn::VarStore::new(Device::Cpu).root(), &bad).is_err());
+}
+
+#[test]
+fn reads_a_pickled_torch_module() {
+    // torch.save({"model": nn.Sequential(Conv2d(1,2,3,bias=False), BatchNorm2d(2)), "epoch": 1})
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/torch_saved_module.pth");
+    let t = pickle::read_torch_file(&path).unwrap();
+    let mut names: Vec<&str> = t.iter().map(|x| x.0.as_str()).collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "model.0.weight",
+            "model.1.bias",
+            "model.1.num_batches_tracked",
+            "model.1.running_mean",
+            "model.1.running_var",
+            "model.1.weight"
+        ]
+    );
+    let w = &t.iter().find(|x| x.0 == "model.0.weight").unwrap().1;
+    assert_eq!(w.size(), [2, 1, 3, 3]);
+    assert_eq!(w.double_value(&[1, 0, 2, 2]), 17.0);
+    let rm = &t.iter().find(|x| x.0 == "model.1.running_mean").unwrap().1;
+    assert_eq!(Vec::<f32>::try_from(rm).unwrap(), [0.25, 0.25]);
 }

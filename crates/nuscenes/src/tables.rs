@@ -46,10 +46,15 @@ static EXOTIC: Mutex<Option<HashMap<u128, String>>> = Mutex::new(None);
 impl Token {
     /// Parse a token; `""` and `null` are handled by the callers as "no token".
     pub fn parse(s: &str) -> Token {
+        Token::parse_bytes(s.as_bytes())
+    }
+
+    /// [`Token::parse`] on raw bytes (the big tables skip UTF-8 validation of tokens).
+    pub fn parse_bytes(s: &[u8]) -> Token {
         if s.len() == 32 {
             let mut v: u128 = 0;
             let mut bad = 0u8;
-            for b in s.bytes() {
+            for &b in s {
                 let d = HEX[b as usize];
                 bad |= d;
                 v = (v << 4) | (d & 0x0f) as u128;
@@ -60,14 +65,14 @@ impl Token {
         }
         // Non-hex token: FNV-1a 128-bit hash, text kept for display.
         let mut h: u128 = 0x6c62272e07bb014262b821756295c58d;
-        for b in s.bytes() {
+        for &b in s {
             h ^= b as u128;
             h = h.wrapping_mul(0x0000000001000000000000000000013B);
         }
         if let Ok(mut g) = EXOTIC.lock() {
             g.get_or_insert_with(HashMap::new)
                 .entry(h)
-                .or_insert_with(|| s.to_string());
+                .or_insert_with(|| String::from_utf8_lossy(s).into_owned());
             HAS_EXOTIC.store(true, std::sync::atomic::Ordering::Relaxed);
         }
         Token(h)
@@ -114,6 +119,13 @@ impl std::hash::Hasher for TokenHasher {
 
 /// `HashMap` keyed by [`Token`] with [`TokenHasher`].
 pub type TokenMap<V> = HashMap<Token, V, std::hash::BuildHasherDefault<TokenHasher>>;
+
+fn opt_token_b(s: Option<&[u8]>) -> Option<Token> {
+    match s {
+        None | Some(b"") => None,
+        Some(s) => Some(Token::parse_bytes(s)),
+    }
+}
 
 fn opt_token(s: Option<&str>) -> Option<Token> {
     match s {
@@ -256,10 +268,10 @@ struct RawSample<'a> {
 
 #[derive(Deserialize)]
 struct RawSampleData<'a> {
-    token: &'a str,
-    sample_token: Option<&'a str>,
-    ego_pose_token: &'a str,
-    calibrated_sensor_token: &'a str,
+    token: &'a [u8],
+    sample_token: Option<&'a [u8]>,
+    ego_pose_token: &'a [u8],
+    calibrated_sensor_token: &'a [u8],
     timestamp: i64,
     #[serde(default)]
     is_key_frame: bool,
@@ -269,8 +281,8 @@ struct RawSampleData<'a> {
     width: u32,
     #[serde(borrow)]
     filename: std::borrow::Cow<'a, str>,
-    prev: Option<&'a str>,
-    next: Option<&'a str>,
+    prev: Option<&'a [u8]>,
+    next: Option<&'a [u8]>,
 }
 
 #[derive(Deserialize)]
@@ -285,7 +297,7 @@ struct RawCalib<'a> {
 
 #[derive(Deserialize)]
 struct RawEgo<'a> {
-    token: &'a str,
+    token: &'a [u8],
     timestamp: i64,
     rotation: [f64; 4],
     translation: [f64; 3],
@@ -315,16 +327,16 @@ struct RawLog<'a> {
 
 #[derive(Deserialize)]
 struct RawAnn<'a> {
-    token: &'a str,
-    sample_token: &'a str,
-    instance_token: &'a str,
+    token: &'a [u8],
+    sample_token: &'a [u8],
+    instance_token: &'a [u8],
     #[serde(borrow, default)]
-    attribute_tokens: Vec<&'a str>,
+    attribute_tokens: Vec<&'a [u8]>,
     translation: [f64; 3],
     size: [f64; 3],
     rotation: [f64; 4],
-    prev: Option<&'a str>,
-    next: Option<&'a str>,
+    prev: Option<&'a [u8]>,
+    next: Option<&'a [u8]>,
 }
 
 #[derive(Deserialize)]
@@ -407,7 +419,6 @@ where
     F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
 {
     use rayon::prelude::*;
-    use std::io::Read;
     let path = dir.join(format!("{name}.json"));
     let mut file = match std::fs::File::open(&path) {
         Ok(f) => f,
@@ -418,163 +429,229 @@ where
         path: path.display().to_string(),
         reason,
     };
+    let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut st = ScanState::default();
     let mut out: Vec<T> = Vec::new();
-    let mut buf: Vec<u8> = Vec::with_capacity(chunk_bytes + 4096);
-    // Scanner state, valid at `scan` (always outside rows once a chunk is handed over).
-    let mut started = false; // seen '['
-    let mut finished = false; // seen the closing ']'
-    let mut eof = false;
-    let mut row_no = 0usize;
-    while !eof {
-        // Top up the buffer.
-        let old = buf.len();
-        buf.resize(old + chunk_bytes, 0);
-        let mut filled = old;
-        while filled < buf.len() {
-            let n = file
-                .read(&mut buf[filled..])
-                .map_err(|e| NuError::io(&path, e))?;
-            if n == 0 {
-                eof = true;
-                break;
-            }
-            filled += n;
+    let mut cur = fill_and_scan(&mut file, &path, &[], &mut st, chunk_bytes, Vec::new())?;
+    // Reserve the whole table from the first chunk's row density (avoids regrowth copies).
+    if !cur.spans.is_empty() && cur.keep_from > 0 {
+        let est = (file_len as f64 * cur.spans.len() as f64
+            / cur.keep_from.min(cur.buf.len()) as f64
+            * 1.02) as usize;
+        out.reserve(est.min(100_000_000));
+    }
+    let mut spare: Vec<u8> = Vec::new();
+    loop {
+        let next_buf = std::mem::take(&mut spare);
+        let tail: Vec<u8> = cur.buf[cur.keep_from.min(cur.buf.len())..].to_vec();
+        if cur.eof && !tail.is_empty() {
+            return Err(json_err(format!(
+                "truncated: row {} is not complete",
+                st.row_no
+            )));
         }
-        buf.truncate(filled);
-        // Scan complete rows.
-        let mut spans: Vec<(usize, usize)> = Vec::new();
-        let mut i = 0;
-        let mut keep_from = buf.len();
-        while i < buf.len() {
-            let b = buf[i];
-            if finished {
-                if !b.is_ascii_whitespace() {
-                    return Err(json_err(format!(
-                        "trailing characters after the list at row {row_no}"
-                    )));
-                }
-                i += 1;
-                continue;
-            }
-            if !started {
-                match b {
-                    b'[' => started = true,
-                    b if b.is_ascii_whitespace() => {}
-                    _ => return Err(json_err("expected a JSON list of table rows".into())),
-                }
-                i += 1;
-                continue;
-            }
-            match b {
-                b'{' => {
-                    // Find the end of this object.
-                    let start = i;
-                    // Only braces and strings matter for finding the end of an object.
-                    let mut depth = 0usize;
-                    let mut end = None;
-                    while let Some(k) = memchr::memchr3(b'"', b'{', b'}', &buf[i..]) {
-                        i += k;
-                        match buf[i] {
-                            b'"' => {
-                                // Skip the string, honouring backslash escapes.
-                                i += 1;
-                                loop {
-                                    match memchr::memchr2(b'"', b'\\', &buf[i..]) {
-                                        Some(k) if buf[i + k] == b'\\' => i += k + 2,
-                                        Some(k) => {
-                                            i += k + 1;
-                                            break;
-                                        }
-                                        None => {
-                                            i = buf.len() + 1;
-                                            break;
-                                        }
-                                    }
-                                    if i >= buf.len() {
-                                        break;
-                                    }
-                                }
-                                if i > buf.len() {
-                                    break;
-                                }
-                            }
-                            b'{' => {
-                                depth += 1;
-                                i += 1;
-                            }
-                            _ => {
-                                depth -= 1;
-                                i += 1;
-                                if depth == 0 {
-                                    end = Some(i);
-                                    break;
-                                }
-                            }
-                        }
-                        if i >= buf.len() {
-                            break;
-                        }
-                    }
-                    match end {
-                        Some(e) => {
-                            spans.push((start, e));
-                            row_no += 1;
-                        }
-                        None => {
-                            keep_from = start;
-                            break;
-                        }
-                    }
-                }
-                b']' => {
-                    finished = true;
-                    i += 1;
-                }
-                b',' => i += 1,
-                b if b.is_ascii_whitespace() => i += 1,
-                _ => {
-                    return Err(json_err(format!(
-                        "row {row_no}: expected an object, found {:?}",
-                        b as char
-                    )))
-                }
-            }
-        }
-        let first_row = row_no - spans.len();
-        let parsed: Vec<std::result::Result<Vec<T>, String>> = spans
-            .par_chunks(2048)
-            .enumerate()
-            .map(|(ci, chunk)| {
-                chunk
-                    .iter()
+        // Parse this chunk's rows while the next chunk is read and scanned.
+        let (parsed, next) = rayon::join(
+            || -> std::result::Result<Vec<Vec<T>>, String> {
+                cur.spans
+                    .par_chunks(2048)
                     .enumerate()
-                    .map(|(k, &(a, b))| {
-                        parse(&buf[a..b])
-                            .map_err(|e| format!("row {}: {e}", first_row + ci * 2048 + k))
+                    .map(|(ci, chunk)| {
+                        chunk
+                            .iter()
+                            .enumerate()
+                            .map(|(k, &(a, b))| {
+                                parse(&cur.buf[a..b]).map_err(|e| {
+                                    format!("row {}: {e}", cur.first_row + ci * 2048 + k)
+                                })
+                            })
+                            .collect()
                     })
                     .collect()
-            })
-            .collect();
-        for r in parsed {
-            out.extend(r.map_err(json_err)?);
+            },
+            || {
+                if cur.eof {
+                    None
+                } else {
+                    Some(fill_and_scan(
+                        &mut file,
+                        &path,
+                        &tail,
+                        &mut st,
+                        chunk_bytes,
+                        next_buf,
+                    ))
+                }
+            },
+        );
+        for r in parsed.map_err(json_err)? {
+            out.extend(r);
         }
-        if keep_from < buf.len() {
-            buf.drain(..keep_from);
-        } else {
-            buf.clear();
-        }
-        if eof && !buf.is_empty() {
-            return Err(json_err(format!("truncated: row {row_no} is not complete")));
+        match next {
+            None => break,
+            Some(n) => spare = std::mem::replace(&mut cur, n?).buf,
         }
     }
-    if !finished {
-        return Err(json_err(if started {
-            format!("truncated: the list is not closed after {row_no} rows")
+    if !st.finished {
+        return Err(json_err(if st.started {
+            format!("truncated: the list is not closed after {} rows", st.row_no)
         } else {
             "empty file: expected a JSON list".into()
         }));
     }
     Ok(Some(out))
+}
+
+/// Row scanner state carried across chunks (always outside rows between chunks).
+#[derive(Default)]
+struct ScanState {
+    started: bool,
+    finished: bool,
+    row_no: usize,
+}
+
+/// One chunk: its bytes, the complete rows in it, and where the incomplete tail starts.
+struct Chunk {
+    buf: Vec<u8>,
+    spans: Vec<(usize, usize)>,
+    keep_from: usize,
+    first_row: usize,
+    eof: bool,
+}
+
+/// Read up to `chunk_bytes` after `carry` (the previous chunk's incomplete row) and find the
+/// complete top-level rows.
+fn fill_and_scan(
+    file: &mut std::fs::File,
+    path: &Path,
+    carry: &[u8],
+    st: &mut ScanState,
+    chunk_bytes: usize,
+    mut buf: Vec<u8>,
+) -> Result<Chunk> {
+    use std::io::Read;
+    let json_err = |reason: String| NuError::Json {
+        path: path.display().to_string(),
+        reason,
+    };
+    // Reuses the buffer of the chunk before last (no fresh pages to fault in).
+    buf.clear();
+    buf.reserve(carry.len() + chunk_bytes);
+    buf.extend_from_slice(carry);
+    let mut eof = false;
+    // Read without zero-filling: `take` + `read_to_end` appends into spare capacity.
+    let want = chunk_bytes as u64;
+    let n = file
+        .by_ref()
+        .take(want)
+        .read_to_end(&mut buf)
+        .map_err(|e| NuError::io(path, e))?;
+    if (n as u64) < want {
+        eof = true;
+    }
+    let first_row = st.row_no;
+    let mut spans: Vec<(usize, usize)> = Vec::new();
+    let mut i = 0;
+    let mut keep_from = buf.len();
+    while i < buf.len() {
+        let b = buf[i];
+        if st.finished {
+            if !b.is_ascii_whitespace() {
+                return Err(json_err(format!(
+                    "trailing characters after the list at row {}",
+                    st.row_no
+                )));
+            }
+            i += 1;
+            continue;
+        }
+        if !st.started {
+            match b {
+                b'[' => st.started = true,
+                b if b.is_ascii_whitespace() => {}
+                _ => return Err(json_err("expected a JSON list of table rows".into())),
+            }
+            i += 1;
+            continue;
+        }
+        match b {
+            b'{' => {
+                // Only braces and strings matter for finding the end of an object.
+                let start = i;
+                let mut depth = 0usize;
+                let mut end = None;
+                while let Some(k) = memchr::memchr3(b'"', b'{', b'}', &buf[i..]) {
+                    i += k;
+                    match buf[i] {
+                        b'"' => {
+                            // Skip the string, honouring backslash escapes.
+                            i += 1;
+                            loop {
+                                match memchr::memchr2(b'"', b'\\', &buf[i.min(buf.len())..]) {
+                                    Some(k) if buf[i + k] == b'\\' => i += k + 2,
+                                    Some(k) => {
+                                        i += k + 1;
+                                        break;
+                                    }
+                                    None => {
+                                        i = buf.len() + 1;
+                                        break;
+                                    }
+                                }
+                                if i >= buf.len() {
+                                    break;
+                                }
+                            }
+                        }
+                        b'{' => {
+                            depth += 1;
+                            i += 1;
+                        }
+                        _ => {
+                            depth -= 1;
+                            i += 1;
+                            if depth == 0 {
+                                end = Some(i);
+                                break;
+                            }
+                        }
+                    }
+                    if i >= buf.len() {
+                        break;
+                    }
+                }
+                match end {
+                    Some(e) => {
+                        spans.push((start, e));
+                        st.row_no += 1;
+                    }
+                    None => {
+                        keep_from = start;
+                        break;
+                    }
+                }
+            }
+            b']' => {
+                st.finished = true;
+                i += 1;
+            }
+            b',' => i += 1,
+            b if b.is_ascii_whitespace() => i += 1,
+            _ => {
+                return Err(json_err(format!(
+                    "row {}: expected an object, found {:?}",
+                    st.row_no, b as char
+                )))
+            }
+        }
+    }
+    Ok(Chunk {
+        buf,
+        spans,
+        keep_from,
+        first_row,
+        eof,
+    })
 }
 
 fn read_table(dir: &Path, name: &str, required: bool) -> Result<Option<(PathBuf, Vec<u8>)>> {
@@ -674,24 +751,24 @@ impl NuScenes {
         let sample_data = parse_table_chunked(&dir, "sample_data", true, |b| {
             let r: RawSampleData = serde_json::from_slice(b)?;
             Ok(SampleData {
-                token: Token::parse(r.token),
-                sample_token: opt_token(r.sample_token),
-                ego_pose_token: Token::parse(r.ego_pose_token),
-                calibrated_sensor_token: Token::parse(r.calibrated_sensor_token),
+                token: Token::parse_bytes(r.token),
+                sample_token: opt_token_b(r.sample_token),
+                ego_pose_token: Token::parse_bytes(r.ego_pose_token),
+                calibrated_sensor_token: Token::parse_bytes(r.calibrated_sensor_token),
                 timestamp_us: r.timestamp,
                 is_key_frame: r.is_key_frame,
                 width: r.width,
                 height: r.height,
                 filename: r.filename.into(),
-                prev: opt_token(r.prev),
-                next: opt_token(r.next),
+                prev: opt_token_b(r.prev),
+                next: opt_token_b(r.next),
             })
         })?
         .unwrap_or_default();
         let ego_pose = parse_table_chunked(&dir, "ego_pose", true, |b| {
             let r: RawEgo = serde_json::from_slice(b)?;
             Ok(EgoPose {
-                token: Token::parse(r.token),
+                token: Token::parse_bytes(r.token),
                 timestamp_us: r.timestamp,
                 rotation: r.rotation,
                 translation: r.translation,
@@ -701,15 +778,19 @@ impl NuScenes {
         let sample_annotation = parse_table_chunked(&dir, "sample_annotation", false, |b| {
             let r: RawAnn = serde_json::from_slice(b)?;
             Ok(SampleAnnotation {
-                token: Token::parse(r.token),
-                sample_token: Token::parse(r.sample_token),
-                instance_token: Token::parse(r.instance_token),
-                attribute_tokens: r.attribute_tokens.iter().map(|t| Token::parse(t)).collect(),
+                token: Token::parse_bytes(r.token),
+                sample_token: Token::parse_bytes(r.sample_token),
+                instance_token: Token::parse_bytes(r.instance_token),
+                attribute_tokens: r
+                    .attribute_tokens
+                    .iter()
+                    .map(|t| Token::parse_bytes(t))
+                    .collect(),
                 translation: r.translation,
                 size: r.size,
                 rotation: r.rotation,
-                prev: opt_token(r.prev),
-                next: opt_token(r.next),
+                prev: opt_token_b(r.prev),
+                next: opt_token_b(r.next),
             })
         })?;
         let mut small = Self::load_small(&dir)?;

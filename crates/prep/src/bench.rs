@@ -253,6 +253,26 @@ pub fn peak_rss_bytes() -> Option<u64> {
         .map(|k| k * 1024)
 }
 
+/// CPU time (user + system) of this process so far, seconds; None off Linux.
+pub fn process_cpu_s() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// The 1-minute load average (to judge timings on a shared machine).
+pub fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 /// Reset the peak-RSS counter (Linux `clear_refs` 5); false when unsupported.
 pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
@@ -270,6 +290,11 @@ pub fn build_fixture_world(
     lidar_sweeps_between: usize,
     radar_sweeps_between: usize,
 ) -> Result<PathBuf, PrepError> {
+    if samples == 0 {
+        return Err(PrepError::Other(
+            "the bench world needs at least one keyframe".into(),
+        ));
+    }
     let nu = NuScenes::load(fixture, "v1.0-mini")?;
     let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
     let need = |ch: &str| {
@@ -521,6 +546,7 @@ pub fn run_bench_data(cfg: &BenchDataConfig) -> Result<serde_json::Value, PrepEr
 
 fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepError> {
     let mut report = json!({
+        "load_average_1min_at_start": load_average(),
         "machine": format!("{} logical cores", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)),
     });
     if !a.skip_tables {
@@ -533,9 +559,11 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
         let gen_s = t.elapsed().as_secs_f64();
         let reset = reset_peak_rss();
         let rss0 = peak_rss_bytes().unwrap_or(0);
+        let cpu0 = process_cpu_s().unwrap_or(0.0);
         let t = Instant::now();
         let nu = NuScenes::load(work, "v1.0-gen")?;
         let load_s = t.elapsed().as_secs_f64();
+        let load_cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
         let peak = peak_rss_bytes().unwrap_or(0);
         let counts: serde_json::Map<String, serde_json::Value> = nu
             .row_counts()
@@ -545,7 +573,7 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
         drop(nu);
         std::fs::remove_dir_all(work.join("v1.0-gen")).map_err(|e| io(work, e))?;
         report["tables"] = json!({
-            "json_bytes": bytes, "generate_s": gen_s, "load_s": load_s,
+            "json_bytes": bytes, "generate_s": gen_s, "load_s": load_s, "load_cpu_s": load_cpu_s,
             "peak_rss_bytes": peak, "rss_before_load_bytes": rss0, "peak_reset_ok": reset,
             "rows": counts,
         });
@@ -569,9 +597,11 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
             jobs: a.jobs,
             ..Default::default()
         };
+        let cpu0 = process_cpu_s().unwrap_or(0.0);
         let t = Instant::now();
         let (s, times) = prepare_timed(&opts, &ProgressBar::hidden())?;
         let secs = t.elapsed().as_secs_f64();
+        let cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
         if let Some((t, r)) = s.failed.first() {
             return Err(PrepError::Other(format!(
                 "bench prepare failed on {t}: {r}"
@@ -581,7 +611,7 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
         let n = s.prepared.max(1) as f64;
         runs.push(json!({
             "lidar_sweeps_k": k, "radar_sweeps": 5, "radar_channels": 3,
-            "keyframes": s.prepared, "seconds": secs, "keyframes_per_s": s.prepared as f64 / secs,
+            "keyframes": s.prepared, "seconds": secs, "cpu_s": cpu_s, "keyframes_per_s": s.prepared as f64 / secs,
             "per_keyframe_ms_summed_over_threads": {
                 "decode": times.decode_s / n * 1e3, "project": times.project_s / n * 1e3,
                 "encode": times.encode_s / n * 1e3, "write": times.write_s / n * 1e3,

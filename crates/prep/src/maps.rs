@@ -309,6 +309,19 @@ mod tests {
     }
 
     #[test]
+    fn radar_velocity_compensation_moves_along_v_comp() {
+        let p = RadarPoint {
+            x: 10.0,
+            y: 2.0,
+            vx_comp: 4.0,
+            vy_comp: -2.0,
+            ..Default::default()
+        };
+        assert_eq!(radar_positions(&[p], None), vec![[10.0, 2.0, 0.0]]);
+        assert_eq!(radar_positions(&[p], Some(0.25)), vec![[11.0, 1.5, 0.0]]);
+    }
+
+    #[test]
     fn lowheight_band() {
         let mut r = Raster::default();
         r.splat(0, 0, 5.0, 0.1);

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Instant;
 
-use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::depth_png::{encode_png_fast, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::{
     cam_from_sensor, ego_from_sensor, global_from_ego, rotation_from_wxyz, Camera,
@@ -90,6 +90,13 @@ pub enum PrepError {
     },
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
+    #[error("{path} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it")]
+    SettingsMismatch {
+        path: String,
+        what: String,
+        old: String,
+        new: String,
+    },
     #[error("{0}")]
     Other(String),
 }
@@ -514,7 +521,7 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
     let t = Instant::now();
     let fw = layout::FRAME_W;
     let fh = layout::FRAME_H;
-    let depth = |m: &DepthMap| encode_png(m).map_err(|e| PrepError::Other(e.to_string()));
+    let depth = |m: &DepthMap| encode_png_fast(m).map_err(|e| PrepError::Other(e.to_string()));
     let files: Vec<(&str, Vec<u8>)> = vec![
         (
             layout::IMAGE_FILE,
@@ -600,8 +607,10 @@ pub fn prepare_timed(
     opts: &PrepareOptions,
     progress: &indicatif::ProgressBar,
 ) -> Result<(PrepareSummary, StageTimes), PrepError> {
+    progress.set_message(format!("loading {} tables", opts.version));
     let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
     let samples = select_samples(&nu, &opts.split)?;
+    progress.set_message(format!("{} split {}", opts.version, opts.split));
     std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
     // Stale temporary directories from an interrupted run.
     if let Ok(rd) = std::fs::read_dir(&opts.out) {
@@ -618,6 +627,12 @@ pub fn prepare_timed(
             .is_file()
     };
     let (existing, todo): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| done(s));
+    if let Some(s) = existing.first() {
+        check_settings(
+            &opts.out.join(s.token.to_string()).join(layout::META_FILE),
+            opts,
+        )?;
+    }
     progress.set_length(todo.len() as u64);
     let times = Mutex::new(StageTimes::default());
     let job = Job {
@@ -657,6 +672,44 @@ pub fn prepare_timed(
     Ok((summary, t))
 }
 
+/// Settings that change the maps; a finished sample made with other values is not reused.
+fn map_settings(opts: &PrepareOptions) -> Vec<(&'static str, serde_json::Value)> {
+    vec![
+        ("radar_sweeps", serde_json::json!(opts.radar_sweeps)),
+        ("radar_channels", serde_json::json!(opts.radar_channels)),
+        ("radar_filters", serde_json::json!(opts.radar_filters)),
+        (
+            "radar_velocity_compensation",
+            serde_json::json!(opts.radar_velocity_compensation),
+        ),
+        ("lidar_sweeps_k", serde_json::json!(opts.lidar_sweeps)),
+    ]
+}
+
+fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepError> {
+    let bytes = std::fs::read(meta_path).map_err(|e| io_err(meta_path, e))?;
+    let meta: SampleMeta = serde_json::from_slice(&bytes).map_err(|e| PrepError::Output {
+        path: meta_path.display().to_string(),
+        reason: format!("unreadable meta.json: {e}"),
+    })?;
+    for (k, v) in map_settings(opts) {
+        let old = &meta.settings[k];
+        if *old != v {
+            return Err(PrepError::SettingsMismatch {
+                path: meta_path
+                    .parent()
+                    .unwrap_or(meta_path)
+                    .display()
+                    .to_string(),
+                what: k.to_string(),
+                old: old.to_string(),
+                new: v.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Merge this run's complete samples into `O/index.json` (entries of other runs are kept).
 fn write_index(
     nu: &NuScenes,
@@ -676,13 +729,20 @@ fn write_index(
         .enumerate()
         .map(|(i, e)| (e.sample_token.clone(), i))
         .collect();
+    let mut scene_splits: std::collections::HashMap<Token, Vec<String>> = Default::default();
     for s in samples.iter().filter(|s| ok.contains(&s.token)) {
         let scene = nu.get_scene(s.scene_token, "sample", s.token, "scene_token")?;
         let scene_tok = scene.token.to_string();
-        let mut splits = crate::splits::splits_of_scene(&scene_tok);
-        if splits.is_empty() {
-            splits.push("all".into());
-        }
+        let splits = scene_splits
+            .entry(scene.token)
+            .or_insert_with(|| {
+                let mut v = crate::splits::splits_of_scene(&scene_tok);
+                if v.is_empty() {
+                    v.push("all".into());
+                }
+                v
+            })
+            .clone();
         let entry = IndexEntry {
             sample_token: s.token.to_string(),
             scene_token: scene_tok,

@@ -162,6 +162,16 @@ fn prepare_writes_skips_and_indexes() {
     // Second run skips.
     let s2 = prepare(&o, &ProgressBar::hidden()).unwrap();
     assert_eq!((s2.prepared, s2.skipped_existing), (0, 1));
+    // Different map settings into the same directory are refused, not silently mixed.
+    let mut o3 = opts(&root, out.path());
+    o3.radar_sweeps = 3;
+    let err = prepare(&o3, &ProgressBar::hidden())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("radar_sweeps") && err.contains("different settings"),
+        "{err}"
+    );
     // No temporary leftovers.
     let names: Vec<String> = std::fs::read_dir(out.path())
         .unwrap()
@@ -247,4 +257,43 @@ fn non_unit_quaternion_and_empty_split() {
     let err = prepare(&o, &ProgressBar::hidden()).unwrap_err();
     assert!(matches!(err, PrepError::EmptySplit { .. }), "{err}");
     assert!(err.to_string().contains("--split all"));
+}
+
+#[test]
+fn multi_sweep_world_accumulates_chains() {
+    let Some(root) = kf0() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let world = tmp.path().join("w");
+    depthsense_prep::bench::build_fixture_world(&root, &world, 3, 9, 6).unwrap();
+    let nu = NuScenes::load(&world, "v1.0-bench").unwrap();
+    assert_eq!(nu.sample.len(), 3);
+    let scene = &nu.scene[0];
+    let samples = nu.scene_samples(scene.token);
+    let mid = samples[1];
+    // Sweep chains: 9 lidar sweeps between keyframes, 6 radar sweeps.
+    let lidar = nu.keyframe(mid.token, "LIDAR_TOP").unwrap();
+    // 9 sweeps before keyframe 0, keyframe 0, 9 between, then keyframe 1 itself.
+    assert_eq!(nu.sweeps_back(lidar, 100).len(), 9 + 1 + 9 + 1);
+    assert_eq!(nu.sweeps_forward(lidar, 100).len(), 1 + 9 + 1 + 9);
+    let mut o = opts(&world, Path::new("/x"));
+    o.version = "v1.0-bench".into();
+    o.lidar_sweeps = 3;
+    let m = compute_sample(&nu, mid, &o).unwrap();
+    let c = &m.meta.counts;
+    assert_eq!(c["lidar_dense_sweeps"], 7);
+    // 5 sweeps × 3 channels of the same 125-point file, filters on.
+    let one = depthsense_nuscenes::pcd::read_radar_pcd(
+        &root.join(&*nu.keyframe(mid.token, "RADAR_FRONT").unwrap().filename),
+    )
+    .unwrap();
+    let kept = one.filtered(true).0.len() as u64;
+    assert_eq!(c["radar_points"], 15 * kept);
+    assert_eq!(c["radar_filtered_out"], 15 * (125 - kept));
+    assert_eq!(m.meta.cam_from_radar.len(), 3);
+    // Accumulating more (static-world) sweeps fills more pixels than the keyframe alone.
+    assert!(c["lidar_dense_pixels"] > c["lidar_sparse_pixels"]);
+    // Without filters every point is used.
+    o.radar_filters = false;
+    let m2 = compute_sample(&nu, mid, &o).unwrap();
+    assert_eq!(m2.meta.counts["radar_points"], 15 * 125);
 }

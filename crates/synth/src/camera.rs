@@ -87,7 +87,7 @@ fn light_of(weather: Weather, rng: &mut Rng) -> Light {
             direct: 0.0,
             haze_m: 400.0,
             sky_top: [0.004, 0.006, 0.015],
-            sky_hor: [0.05, 0.035, 0.03],
+            sky_hor: [0.022, 0.018, 0.02],
         },
     }
 }
@@ -473,9 +473,11 @@ fn prim_albedo(prim: &Prim, p: DVec3, nrm: DVec3, night: bool) -> ([f64; 3], [f6
             };
             let front = loc.x > 2.0 * hx.x - 0.01;
             let rear = loc.x < 0.01;
-            let side_lamp = (loc.y < 0.28 * 2.0 * hx.y || loc.y > 0.72 * 2.0 * hx.y)
-                && loc.z > 0.45 * 2.0 * hx.z
-                && loc.z < 0.8 * 2.0 * hx.z;
+            // Head / tail lamps: 0.45 m wide at the corners, 0.25–0.5 m above the body bottom.
+            let side_lamp = (loc.y > 0.08 && loc.y < 0.53
+                || loc.y > 2.0 * hx.y - 0.53 && loc.y < 2.0 * hx.y - 0.08)
+                && loc.z > 0.25
+                && loc.z < 0.5;
             if (front || rear) && side_lamp {
                 if night {
                     emit = if front {
@@ -563,7 +565,7 @@ fn shade(
             }
             let dir = dl / d2.sqrt();
             let down = (-dir.z).max(0.0);
-            let k = 55.0 * (0.2 + 0.8 * down * down) * dir.dot(n).max(0.0) / (d2 + 2.0);
+            let k = 40.0 * (0.04 + 0.96 * down * down) * dir.dot(n).max(0.0) / (d2 + 2.0);
             warm += k;
         }
     }

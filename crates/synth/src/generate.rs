@@ -861,3 +861,71 @@ pub fn profile_stages(seed: u64, frames: usize) -> Result<StageTimes, SynthError
         frames,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn conditions_are_allocated_in_proportion() {
+        let mix = [
+            (Weather::Day, 0.5),
+            (Weather::Night, 0.25),
+            (Weather::Rain, 0.25),
+        ];
+        let a = allocate_conditions(8, &mix);
+        let count = |w| a.iter().filter(|x| **x == w).count();
+        assert_eq!(
+            (
+                count(Weather::Day),
+                count(Weather::Night),
+                count(Weather::Rain)
+            ),
+            (4, 2, 2)
+        );
+        // Every condition with weight appears as soon as there are enough scenes.
+        let b = allocate_conditions(
+            3,
+            &[
+                (Weather::Day, 1.0),
+                (Weather::Night, 1.0),
+                (Weather::Rain, 1.0),
+            ],
+        );
+        assert_eq!(b, vec![Weather::Day, Weather::Night, Weather::Rain]);
+        let c = allocate_conditions(5, &[(Weather::Day, 0.0), (Weather::Rain, 2.0)]);
+        assert!(c.iter().all(|w| *w == Weather::Rain));
+    }
+
+    #[test]
+    fn parse_condition_mix() {
+        let m = SynthConfig::parse_conditions("day=0.5, night:0.3,rain").unwrap();
+        assert_eq!(
+            m,
+            vec![
+                (Weather::Day, 0.5),
+                (Weather::Night, 0.3),
+                (Weather::Rain, 1.0)
+            ]
+        );
+        assert!(SynthConfig::parse_conditions("fog").is_err());
+        assert!(SynthConfig::parse_conditions("day=-1").is_err());
+        assert!(SynthConfig::parse_conditions("day=0").is_err());
+        assert!(SynthConfig::parse_conditions("").is_err());
+        assert!(SynthConfig::default().validate().is_ok());
+        assert!(SynthConfig {
+            scenes: 0,
+            ..SynthConfig::default()
+        }
+        .validate()
+        .is_err());
+        assert!(SynthConfig {
+            version_name: "../x".into(),
+            ..SynthConfig::default()
+        }
+        .validate()
+        .is_err());
+        let d = SynthConfig::demo();
+        assert!(d.scenes * d.keyframes_per_scene >= 60);
+    }
+}

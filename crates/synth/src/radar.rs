@@ -29,7 +29,7 @@ pub const AZ_SIGMA_DEG: f64 = 0.3;
 /// Where a radar point comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Origin {
-    /// A reflection off a surface of object `obj`, at the true range `range_m`.
+    /// A reflection off a surface of object `obj` (range and azimuth noise added).
     Surface {
         obj: u32,
     },

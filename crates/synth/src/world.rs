@@ -378,9 +378,11 @@ impl World {
                 ts - r_turn * std::f64::consts::FRAC_PI_4 + r_turn - ROAD_HW - SIDEWALK_W - 3.0
             });
             let s_stop = before_turn
-                .filter(|&s| s > s_start + 10.0 && s < reach)
-                .next()
-                .unwrap_or_else(|| s_start + rng.range(15.0, (v_cruise * duration * 0.6).max(20.0)));
+                .into_iter()
+                .find(|&s| s > s_start + 10.0 && s < reach)
+                .unwrap_or_else(|| {
+                    s_start + rng.range(15.0, (v_cruise * duration * 0.6).max(20.0))
+                });
             stops.push((s_stop, rng.range(1.5, 4.0)));
         }
         let start_stopped = rng.chance(0.1);

@@ -86,6 +86,7 @@ pub struct DemoPlan {
     pub max_batches_per_epoch: Option<usize>,
     pub max_val_samples: Option<usize>,
     pub val_every_scene: usize,
+    pub dropout: f64,
 }
 
 pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
@@ -101,6 +102,7 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
         max_batches_per_epoch: None,
         max_val_samples: Some(24),
         val_every_scene: 5,
+        dropout: 0.0,
     };
     if cuda {
         p.preset = "tiny".into();
@@ -195,6 +197,9 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     for (name, fusion) in [("rgb", Fusion::None), ("fusion", Fusion::Late)] {
         let t = Instant::now();
         let mut cfg = base_cfg.clone();
+        // Short from-scratch runs: Dropout2d(0.5) in the head stalls learning for the first
+        // hundreds of steps, so the demo switches it off (paper value kept in the presets).
+        cfg.dropout = plan.dropout;
         cfg.fusion = fusion;
         if fusion == Fusion::None {
             cfg.attention = false;

@@ -115,28 +115,73 @@ fn time_it(d: Device, warmup: usize, repeats: usize, batch: i64, mut f: impl FnM
     let mean = ms.iter().sum::<f64>() / ms.len() as f64;
     let mut s = ms.clone();
     s.sort_by(|a, b| a.total_cmp(b));
-    let median = if s.len() % 2 == 1 { s[s.len() / 2] } else { (s[s.len() / 2 - 1] + s[s.len() / 2]) / 2.0 };
-    Timing { batch, median_ms: median, min_ms: s[0], mean_ms: mean, images_per_s: batch as f64 / (median / 1e3), gpu_memory_mib: None }
+    let median = if s.len() % 2 == 1 {
+        s[s.len() / 2]
+    } else {
+        (s[s.len() / 2 - 1] + s[s.len() / 2]) / 2.0
+    };
+    Timing {
+        batch,
+        median_ms: median,
+        min_ms: s[0],
+        mean_ms: mean,
+        images_per_s: batch as f64 / (median / 1e3),
+        gpu_memory_mib: None,
+    }
 }
 
 fn nvidia_smi(args: &[&str]) -> Option<String> {
-    let out = std::process::Command::new("nvidia-smi").args(args).output().ok()?;
-    out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+    let out = std::process::Command::new("nvidia-smi")
+        .args(args)
+        .output()
+        .ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
 }
 
-fn gpu_memory_mib(d: Device) -> Option<u64> {
+/// Device-wide used memory (MiB) of the GPU `d` (nvidia-smi `memory.used`).
+fn gpu_used_total_mib(d: Device) -> Option<u64> {
+    let Device::Cuda(i) = d else { return None };
+    let s = nvidia_smi(&[
+        "--query-gpu=memory.used",
+        "--format=csv,noheader,nounits",
+        &format!("--id={i}"),
+    ])?;
+    s.lines().next()?.trim().parse().ok()
+}
+
+/// GPU memory of this process in MiB: its `used_memory` in nvidia-smi's compute-apps list, or,
+/// where PIDs are not visible (containers), the device-wide used memory minus `baseline`
+/// (taken before this process touched CUDA).
+fn gpu_memory_mib(d: Device, baseline: Option<u64>) -> Option<u64> {
     if !d.is_cuda() {
         return None;
     }
     let me = std::process::id().to_string();
-    let s = nvidia_smi(&["--query-compute-apps=pid,used_memory", "--format=csv,noheader,nounits"])?;
-    s.lines().find_map(|l| {
-        let mut it = l.split(',').map(str::trim);
-        (it.next()? == me).then(|| it.next()?.parse().ok()).flatten()
-    })
+    let per_pid = nvidia_smi(&[
+        "--query-compute-apps=pid,used_memory",
+        "--format=csv,noheader,nounits",
+    ])
+    .and_then(|s| {
+        s.lines().find_map(|l| {
+            let mut it = l.split(',').map(str::trim);
+            (it.next()? == me)
+                .then(|| it.next()?.parse().ok())
+                .flatten()
+        })
+    });
+    per_pid.or_else(|| Some(gpu_used_total_mib(d)?.saturating_sub(baseline.unwrap_or(0))))
 }
 
-fn inputs(cfg: &ModelConfig, b: i64, h: i64, w: i64, d: Device, cl: bool) -> (Tensor, Tensor, Tensor) {
+fn inputs(
+    cfg: &ModelConfig,
+    b: i64,
+    h: i64,
+    w: i64,
+    d: Device,
+    cl: bool,
+) -> (Tensor, Tensor, Tensor) {
     let img = Tensor::randn([b, 3, h, w], (Kind::Float, d));
     let mask = Tensor::rand([b, cfg.radar_channels, h, w], (Kind::Float, d)).lt(0.03);
     let radar = (Tensor::rand([b, cfg.radar_channels, h, w], (Kind::Float, d)) * 60.0 + 2.0) * mask;
@@ -160,23 +205,45 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         tch::Cuda::cudnn_set_benchmark(args.cudnn_benchmark);
     }
     tch::manual_seed(0);
+    let mem_baseline = gpu_used_total_mib(dev);
     let mut vs = nn::VarStore::new(dev);
     let net = DepthNet::new(&vs.root(), &cfg)?;
-    if args.channels_last {
+    // libtorch 2.11's CPU backward crashed (heap corruption) with channels-last weights at
+    // 175x400 in our tests, so the layout is only used on CUDA, where NHWC is cuDNN's fast path.
+    let channels_last_on = args.channels_last && dev.is_cuda();
+    if args.channels_last && !channels_last_on {
+        eprintln!(
+            "note: --channels-last is only used on CUDA; running NCHW on {}",
+            device::describe(dev)
+        );
+    }
+    if channels_last_on {
         vs_to_channels_last(&vs);
     }
     let rep = report::model_report(&vs, &net, args.height, args.width);
-    let prec = if dev.is_cuda() { args.precision } else { Precision::Fp32 };
+    let prec = if dev.is_cuda() {
+        args.precision
+    } else {
+        Precision::Fp32
+    };
     if prec != args.precision {
-        eprintln!("note: --precision {:?} needs CUDA; running fp32 on {}", args.precision, device::describe(dev));
+        eprintln!(
+            "note: --precision {:?} needs CUDA; running fp32 on {}",
+            args.precision,
+            device::describe(dev)
+        );
     }
     let (h, w) = (args.height, args.width);
     let mut res = Results {
         config: cfg.name.clone(),
         device: device::describe(dev),
-        gpu: if dev.is_cuda() { nvidia_smi(&["--query-gpu=name", "--format=csv,noheader"]) } else { None },
+        gpu: if dev.is_cuda() {
+            nvidia_smi(&["--query-gpu=name", "--format=csv,noheader"])
+        } else {
+            None
+        },
         precision: format!("{prec:?}").to_lowercase(),
-        channels_last: args.channels_last,
+        channels_last: channels_last_on,
         cudnn_benchmark: args.cudnn_benchmark && dev.is_cuda(),
         height: h,
         width: w,
@@ -192,21 +259,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
 
     if args.batch_forward > 0 {
-        let (img, radar, _) = inputs(&cfg, args.batch_forward, h, w, dev, args.channels_last);
+        let (img, radar, _) = inputs(&cfg, args.batch_forward, h, w, dev, channels_last_on);
         let _guard = tch::no_grad_guard();
         let mut t = time_it(dev, args.warmup, args.repeats, args.batch_forward, || {
             let _ = with_autocast(prec, || net.forward_t(&img, &radar, false));
         });
-        t.gpu_memory_mib = gpu_memory_mib(dev);
+        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
         res.forward = Some(t);
         let mut t = time_it(dev, args.warmup, args.repeats, args.batch_forward, || {
-            let _ = with_autocast(prec, || net.decode_to(&net.forward_t(&img, &radar, false), h, w));
+            let _ = with_autocast(prec, || {
+                net.decode_to(&net.forward_t(&img, &radar, false), h, w)
+            });
         });
-        t.gpu_memory_mib = gpu_memory_mib(dev);
+        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
         res.forward_decode = Some(t);
         if prec != Precision::Fp32 && cfg.head == HeadKind::Ordinal {
             let z32 = net.forward_t(&img, &radar, false);
-            let zmp = with_autocast(prec, || net.forward_t(&img, &radar, false)).to_kind(Kind::Float);
+            let zmp =
+                with_autocast(prec, || net.forward_t(&img, &radar, false)).to_kind(Kind::Float);
             let l32 = depthsense_model::ordinal::ordinal_levels(&z32, h, w, cfg.align_corners);
             let lmp = depthsense_model::ordinal::ordinal_levels(&zmp, h, w, cfg.align_corners);
             let diff = (l32 - lmp).abs();
@@ -224,16 +294,24 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 
     if args.batch_train > 0 {
-        let (img, radar, target) = inputs(&cfg, args.batch_train, h, w, dev, args.channels_last);
+        let (img, radar, target) = inputs(&cfg, args.batch_train, h, w, dev, channels_last_on);
         // SPEC §8 optimiser: SGD, momentum 0.9, weight decay 1e-4.
-        let mut opt = nn::Sgd { momentum: 0.9, dampening: 0.0, wd: 1e-4, nesterov: false }.build(&vs, 1e-3)?;
+        let mut opt = nn::Sgd {
+            momentum: 0.9,
+            dampening: 0.0,
+            wd: 1e-4,
+            nesterov: false,
+        }
+        .build(&vs, 1e-3)?;
         let mut t = time_it(dev, args.warmup, args.repeats, args.batch_train, || {
             opt.zero_grad();
-            let loss = with_autocast(prec, || net.loss(&net.forward_t(&img, &radar, true), &target));
+            let loss = with_autocast(prec, || {
+                net.loss(&net.forward_t(&img, &radar, true), &target)
+            });
             loss.backward();
             opt.step();
         });
-        t.gpu_memory_mib = gpu_memory_mib(dev);
+        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
         res.train_step = Some(t);
     }
     vs.freeze();
@@ -246,20 +324,26 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         res.precision,
         res.channels_last,
         res.cudnn_benchmark,
-        w,
         h,
+        w,
         res.params as f64 / 1e6,
         res.macs_per_image as f64 / 1e9,
         res.threads
     );
-    println!("{:<26} {:>6} {:>11} {:>11} {:>10} {:>10}", "phase", "batch", "median ms", "min ms", "img/s", "GPU MiB");
+    println!(
+        "{:<26} {:>6} {:>11} {:>11} {:>10} {:>10}",
+        "phase", "batch", "median ms", "min ms", "img/s", "GPU MiB"
+    );
     for (name, t) in [
         ("forward (head output)", &res.forward),
         ("forward + decode", &res.forward_decode),
         ("train step", &res.train_step),
     ] {
         if let Some(t) = t {
-            let mem = t.gpu_memory_mib.map(|m| m.to_string()).unwrap_or_else(|| "-".into());
+            let mem = t
+                .gpu_memory_mib
+                .map(|m| m.to_string())
+                .unwrap_or_else(|| "-".into());
             println!(
                 "{:<26} {:>6} {:>11.2} {:>11.2} {:>10.2} {:>10}",
                 name, t.batch, t.median_ms, t.min_ms, t.images_per_s, mem

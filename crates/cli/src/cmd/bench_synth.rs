@@ -60,8 +60,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let root = base.join(format!("depthsense-bench-synth-{}", std::process::id()));
     let pb = indicatif::ProgressBar::new(0);
     pb.set_style(
-        indicatif::ProgressStyle::with_template("bench synth {bar:40} {pos}/{len} frames {elapsed_precise}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "bench synth {bar:40} {pos}/{len} frames {elapsed_precise}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     let cpu0 = cpu_seconds();
     let t = Instant::now();
@@ -81,7 +83,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         None
     };
     let threads = if a.jobs == 0 {
-        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
     } else {
         a.jobs
     };

@@ -44,7 +44,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let mp = MultiProgress::new();
     let s = run_demo(&opts, &mp)?;
-    println!("{}", std::fs::read_to_string(s.report_dir.join("README.md"))?);
+    println!(
+        "{}",
+        std::fs::read_to_string(s.report_dir.join("README.md"))?
+    );
     eprintln!(
         "demo finished in {:.1} s: RGB-only RMSE {:.3} m, radar fusion RMSE {:.3} m; report in {}",
         s.total_seconds,

@@ -13,7 +13,12 @@ pub struct Args {
     #[arg(long, default_value = "paper")]
     config: String,
     /// Override one config option, `key=value`, repeatable (e.g. `--set backbone=50
-    /// --set fusion=early --set attention=off --set head=l1 --set radar-channels=7`).
+    /// --set fusion=early --set attention=off --set head=l1 --set radar-channels=7`). Keys:
+    /// backbone (18|34|50|101), width, fusion (late|early|none), attention (on|off),
+    /// head (ordinal|l1|l2), radar-channels (1|7), radar-branch (basic|bottleneck),
+    /// radar-width, radar-out-channels, decoder (topdown|released), decoder-channels,
+    /// stem (torchvision|deep), head-channels, head-pre-dropout, dropout, bins, alpha, beta,
+    /// decode-offset (m), align-corners (on|off), out-height, out-width.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// Input height the multiply-adds are counted at.

@@ -99,7 +99,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             }
         }
         if n > 0 {
-            eprintln!("RMSE against lidar ({n} px, ≤ 80 m): {:.3} m", (se / n as f64).sqrt());
+            eprintln!(
+                "RMSE against lidar ({n} px, ≤ 80 m): {:.3} m",
+                (se / n as f64).sqrt()
+            );
         }
     }
     for f in files {

@@ -64,9 +64,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         keep_going: a.keep_going,
     };
     let pb = ProgressBar::new(0);
+    pb.enable_steady_tick(std::time::Duration::from_millis(200));
     pb.set_style(
         ProgressStyle::with_template(
-            "{spinner} prepare [{bar:40}] {pos}/{len} keyframes  {per_sec}  ETA {eta}",
+            "{spinner} {msg} [{bar:40}] {pos}/{len} keyframes  {per_sec}  ETA {eta}",
         )?
         .progress_chars("=> "),
     );

@@ -45,7 +45,10 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(root) = &args.from_dataroot {
-        let sheet = args.contact_sheet.as_ref().context("--contact-sheet is required")?;
+        let sheet = args
+            .contact_sheet
+            .as_ref()
+            .context("--contact-sheet is required")?;
         depthsense_synth::contact_sheet(root, &args.version_name, sheet)?;
         println!("contact sheet: {}", sheet.display());
         return Ok(ExitCode::SUCCESS);

@@ -164,7 +164,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         resume: a.resume,
         jobs: a.jobs,
         prefetch: a.prefetch,
-        radar_input: a.radar_input.as_deref().map(str::parse::<RadarInput>).transpose()?,
+        radar_input: a
+            .radar_input
+            .as_deref()
+            .map(str::parse::<RadarInput>)
+            .transpose()?,
         target: match a.target.as_str() {
             "dense" => TargetKind::Dense,
             "sparse" => TargetKind::Sparse,
