@@ -5,11 +5,11 @@
 use std::path::Path;
 
 use depthsense_nuscenes::depth_png::read_depth_png;
+use depthsense_nuscenes::geometry::{apply_f32, cam_from_sensor, Camera, Rigid};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
-use glam::DVec3;
+use depthsense_nuscenes::{NuError, NuScenes};
 
 use crate::calib::{IMG_H, IMG_W, RADAR_CHANNELS};
-use crate::readback::{project, Dataroot};
 use crate::{SynthError, TRUTH_DIR};
 
 /// Tile size (1/4 of 1600x900).
@@ -85,17 +85,28 @@ impl Tile {
     }
 }
 
+/// Project sensor-frame points into the camera: (u, v, depth) of those kept by
+/// [`Camera::project`] (SPEC §2), through the f32 copy of `cam_from_sensor` as `prep` does.
+fn project(cam: &Camera, cam_from_sensor: &Rigid, pts: &[[f32; 3]]) -> Vec<(f64, f64, f64)> {
+    let m = cam_from_sensor.to_f32();
+    pts.iter()
+        .filter_map(|p| cam.project(apply_f32(&m, *p)))
+        .map(|(u, v, z)| (u as f64, v as f64, z as f64))
+        .collect()
+}
+
+fn nu_err(e: NuError) -> SynthError {
+    SynthError::Data(e.to_string())
+}
+
 /// Write a contact sheet PNG of `dataroot` (version folder `version`) to `out_png`.
+/// The dataroot is read with depthsense's own reader (`depthsense_nuscenes`).
 pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(), SynthError> {
-    let d = Dataroot::load(dataroot, version)?;
+    let nu = NuScenes::load(dataroot, version).map_err(nu_err)?;
     let mut columns = Vec::new();
     for want in ["day", "night", "rain"] {
-        let scene = d.scenes.iter().find(|s| {
-            let desc = s
-                .get("description")
-                .and_then(|v| v.as_str())
-                .unwrap_or_default()
-                .to_lowercase();
+        let scene = nu.scene.iter().find(|s| {
+            let desc = s.description.to_lowercase();
             match want {
                 "night" => desc.contains("night"),
                 "rain" => desc.contains("rain"),
@@ -103,7 +114,7 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
             }
         });
         if let Some(s) = scene {
-            columns.push(s.clone());
+            columns.push(s);
         }
     }
     if columns.is_empty() {
@@ -117,35 +128,32 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
     let mut sheet = image::RgbImage::new(w, h);
     for (ci, scene) in columns.iter().enumerate() {
         // Middle keyframe of the scene.
-        let mut tok = scene
-            .get("first_sample_token")
-            .and_then(|v| v.as_str())
-            .unwrap_or_default()
-            .to_string();
-        let n = scene
-            .get("nbr_samples")
-            .and_then(|v| v.as_u64())
-            .unwrap_or(1) as usize;
-        for _ in 0..n / 2 {
-            let next = d
-                .samples
-                .get(&tok)
-                .and_then(|s| s.get("next"))
-                .and_then(|v| v.as_str())
-                .unwrap_or_default();
-            if next.is_empty() {
-                break;
-            }
-            tok = next.to_string();
-        }
+        let samples = nu.scene_samples(scene.token);
+        let sample = samples
+            .get((scene.nbr_samples as usize / 2).min(samples.len().saturating_sub(1)))
+            .ok_or_else(|| SynthError::Data(format!("scene {} has no samples", scene.token)))?;
         let kf = |ch: &str| {
-            d.keyframe
-                .get(&(tok.clone(), ch.to_string()))
-                .cloned()
-                .ok_or_else(|| SynthError::Data(format!("sample {tok} has no {ch} keyframe")))
+            nu.keyframe(sample.token, ch).ok_or_else(|| {
+                SynthError::Data(format!("sample {} has no {ch} keyframe", sample.token))
+            })
         };
-        let cam = kf("CAM_FRONT")?;
-        let img_path = d.path(&cam)?;
+        let cam_sd = kf("CAM_FRONT")?;
+        let cam_cs = nu
+            .get_calibrated_sensor(
+                cam_sd.calibrated_sensor_token,
+                "sample_data",
+                cam_sd.token,
+                "calibrated_sensor_token",
+            )
+            .map_err(nu_err)?;
+        let k = cam_cs.camera_intrinsic.ok_or_else(|| {
+            SynthError::Data(format!(
+                "calibrated_sensor {}: CAM_FRONT has no 3x3 camera_intrinsic",
+                cam_cs.token
+            ))
+        })?;
+        let cam = Camera::from_intrinsic(&k, IMG_W, IMG_H);
+        let img_path = nu.path_of(cam_sd);
         let img = image::open(&img_path)
             .map_err(|e| SynthError::Data(format!("{}: {e}", img_path.display())))?
             .to_rgb8();
@@ -153,14 +161,10 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
         let mut t1 = Tile::from_image(&img);
         t1.dim(0.6);
         let lid = kf("LIDAR_TOP")?;
-        let scan =
-            read_lidar_pcd_bin(&d.path(&lid)?).map_err(|e| SynthError::Data(e.to_string()))?;
-        let tf = d.cam_from_sensor(&lid, &cam)?;
-        let mut pts = project(
-            scan.points
-                .iter()
-                .map(|p| tf.apply(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))),
-        );
+        let scan = read_lidar_pcd_bin(&nu.path_of(lid)).map_err(nu_err)?;
+        let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+        let tf = cam_from_sensor(&nu, lid, cam_sd).map_err(nu_err)?;
+        let mut pts = project(&cam, &tf, &xyz);
         pts.sort_by(|a, b| b.2.total_cmp(&a.2));
         for (u, v, z) in pts {
             t1.dot(u, v, 0, depth_colour(z));
@@ -169,37 +173,25 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
         let mut t2 = Tile::from_image(&img);
         t2.dim(0.6);
         for ch in RADAR_CHANNELS {
-            let mut sd = kf(ch)?;
-            for _ in 0..5 {
-                let scan =
-                    read_radar_pcd(&d.path(&sd)?).map_err(|e| SynthError::Data(e.to_string()))?;
-                let tf = d.cam_from_sensor(&sd, &cam)?;
-                for (u, v, z) in project(
-                    scan.points
-                        .iter()
-                        .map(|p| tf.apply(DVec3::new(p.x as f64, p.y as f64, 0.0))),
-                ) {
+            for sd in nu.sweeps_back(kf(ch)?, 5) {
+                let scan = read_radar_pcd(&nu.path_of(sd)).map_err(nu_err)?;
+                let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p.x, p.y, 0.0]).collect();
+                let tf = cam_from_sensor(&nu, sd, cam_sd).map_err(nu_err)?;
+                for (u, v, z) in project(&cam, &tf, &xyz) {
                     let c = depth_colour(z);
                     t2.dot(u, v, 1, c);
                     t2.dot(u, v - 4.0 * (IMG_H / TH) as f64, 0, c);
                     t2.dot(u, v - 8.0 * (IMG_H / TH) as f64, 0, c);
                 }
-                let prev = d
-                    .sample_data
-                    .get(&sd)
-                    .and_then(|r| r.get("prev"))
-                    .and_then(|v| v.as_str())
-                    .unwrap_or_default()
-                    .to_string();
-                if prev.is_empty() {
-                    break;
-                }
-                sd = prev;
             }
         }
         // Row 3: truth depth.
-        let truth = read_depth_png(&dataroot.join(TRUTH_DIR).join(format!("{cam}.png")))
-            .map_err(|e| SynthError::Data(e.to_string()))?;
+        let truth = read_depth_png(
+            &dataroot
+                .join(TRUTH_DIR)
+                .join(format!("{}.png", cam_sd.token)),
+        )
+        .map_err(|e| SynthError::Data(e.to_string()))?;
         let mut t3 = Tile {
             px: vec![[0u8; 3]; (TW * TH) as usize],
         };

@@ -16,7 +16,6 @@ pub mod generate;
 pub mod geom;
 pub mod lidar;
 pub mod radar;
-pub mod readback;
 pub mod rng;
 pub mod tables;
 pub mod world;

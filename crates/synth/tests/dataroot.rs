@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use depthsense_nuscenes::depth_png::read_depth_png;
+use depthsense_nuscenes::geometry::{apply_f32, cam_from_sensor, Camera};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
-use depthsense_synth::readback::{project, Dataroot};
+use depthsense_nuscenes::NuScenes;
 use depthsense_synth::{generate, SynthConfig, SynthError, SynthSummary};
-use glam::DVec3;
 use indicatif::ProgressBar;
 
 const VERSION: &str = "v1.0-synth";
@@ -189,36 +189,52 @@ fn refuses_to_overwrite_foreign_data() {
 #[test]
 fn lidar_agrees_with_rendered_truth_depth() {
     let root = root();
-    let d = Dataroot::load(&root, VERSION).unwrap();
+    // depthsense's own reader: tables, indexes, SPEC §2 chain and projection.
+    let nu = NuScenes::load(&root, VERSION).unwrap();
+    assert_eq!(nu.sample.len(), world().1.keyframes);
     let mut all_rel = Vec::new();
-    for s in d.samples.keys() {
-        let cam = &d.keyframe[&(s.clone(), "CAM_FRONT".to_string())];
-        let lid = &d.keyframe[&(s.clone(), "LIDAR_TOP".to_string())];
-        let truth = read_depth_png(&root.join("truth").join(format!("{cam}.png"))).unwrap();
+    for s in nu.sample.iter().map(|s| s.token) {
+        let cam_sd = nu.keyframe(s, "CAM_FRONT").unwrap();
+        let lid = nu.keyframe(s, "LIDAR_TOP").unwrap();
+        assert_eq!(nu.channel_of(cam_sd).unwrap(), "CAM_FRONT");
+        assert_eq!(nu.channel_of(lid).unwrap(), "LIDAR_TOP");
+        let cs = nu
+            .get_calibrated_sensor(
+                cam_sd.calibrated_sensor_token,
+                "sample_data",
+                cam_sd.token,
+                "calibrated_sensor_token",
+            )
+            .unwrap();
+        assert_eq!((cam_sd.width, cam_sd.height), (1600, 900));
+        let cam =
+            Camera::from_intrinsic(&cs.camera_intrinsic.unwrap(), cam_sd.width, cam_sd.height);
+        let truth =
+            read_depth_png(&root.join("truth").join(format!("{}.png", cam_sd.token))).unwrap();
         assert_eq!((truth.width, truth.height), (1600, 900));
         assert!(
             truth.valid_count() > 700_000,
             "truth covers {} px",
             truth.valid_count()
         );
-        let scan = read_lidar_pcd_bin(&d.path(lid).unwrap()).unwrap();
+        let scan = read_lidar_pcd_bin(&nu.path_of(lid)).unwrap();
         assert!(
             scan.points.len() > 25_000 && scan.points.len() < 34_688 + 500,
             "{}",
             scan.points.len()
         );
-        let tf = d.cam_from_sensor(lid, cam).unwrap();
-        let pts = project(
-            scan.points
-                .iter()
-                .map(|p| tf.apply(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))),
-        );
+        let tf = cam_from_sensor(&nu, lid, cam_sd).unwrap().to_f32();
+        let pts: Vec<(f32, f32, f32)> = scan
+            .points
+            .iter()
+            .filter_map(|p| cam.project(apply_f32(&tf, [p[0], p[1], p[2]])))
+            .collect();
         assert!(pts.len() > 1500, "{} lidar points in the image", pts.len());
         let mut rel: Vec<f64> = pts
             .iter()
             .filter_map(|&(u, v, z)| {
                 let t = truth.at(u as u32, v as u32) as f64;
-                (t > 0.0).then(|| (z - t).abs() / t)
+                (t > 0.0).then(|| (z as f64 - t).abs() / t)
             })
             .collect();
         rel.sort_by(f64::total_cmp);
@@ -240,14 +256,15 @@ fn lidar_agrees_with_rendered_truth_depth() {
 #[test]
 fn radar_files_respect_the_format() {
     let root = root();
-    let d = Dataroot::load(&root, VERSION).unwrap();
+    let nu = NuScenes::load(&root, VERSION).unwrap();
     let mut total = 0;
     let mut filtered = 0;
-    for (tok, r) in &d.sample_data {
-        if !r["filename"].as_str().unwrap().contains("RADAR") {
+    for sd in &nu.sample_data {
+        if !nu.channel_of(sd).unwrap().starts_with("RADAR") {
             continue;
         }
-        let scan = read_radar_pcd(&d.path(tok).unwrap()).unwrap();
+        assert!(sd.filename.contains("RADAR"), "{}", sd.filename);
+        let scan = read_radar_pcd(&nu.path_of(sd)).unwrap();
         assert!(!scan.points.is_empty() && scan.points.len() <= 125);
         assert!(scan.points.iter().all(|p| p.z == 0.0));
         total += scan.points.len();

@@ -298,8 +298,9 @@ impl Rng {
 }
 
 fn hash_str(s: &str) -> u64 {
-    s.bytes()
-        .fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x100_0000_01b3))
+    s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
+    })
 }
 
 /// The order of samples in an epoch: a Fisher–Yates shuffle seeded by (seed, epoch).
@@ -542,7 +543,11 @@ pub fn load_sample(
 pub fn normalise_image(rgb: &image::RgbImage, aug: &Augment) -> Vec<f32> {
     let plane = rgb.width() as usize * rgb.height() as usize;
     let mut image = vec![0f32; 3 * plane];
-    let jitter = *aug != Augment { flip: aug.flip, ..Augment::NONE };
+    let jitter = *aug
+        != Augment {
+            flip: aug.flip,
+            ..Augment::NONE
+        };
     for (i, px) in rgb.pixels().enumerate() {
         for c in 0..3 {
             let mut x = px.0[c] as f32 / 255.0;
@@ -586,7 +591,11 @@ pub struct Batch {
 
 impl Batch {
     fn stack(index: usize, mut samples: Vec<Sample>) -> Result<Batch, TrainError> {
-        let (w, h, c) = (samples[0].width, samples[0].height, samples[0].radar_channels);
+        let (w, h, c) = (
+            samples[0].width,
+            samples[0].height,
+            samples[0].radar_channels,
+        );
         if let Some(s) = samples
             .iter()
             .find(|s| s.width != w || s.height != h || s.radar_channels != c)
@@ -655,16 +664,17 @@ impl Loader {
             return Err(TrainError::Config("batch size must be at least 1".into()));
         }
         let order = epoch_order(plan.entries.len(), opts.seed, plan.epoch, plan.shuffle);
-        let mut groups: Vec<Vec<usize>> = order
-            .chunks(plan.batch_size)
-            .map(|c| c.to_vec())
-            .collect();
+        let mut groups: Vec<Vec<usize>> =
+            order.chunks(plan.batch_size).map(|c| c.to_vec()).collect();
         if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
             groups.pop();
         }
         let batches = groups.len();
-        let groups: Vec<(usize, Vec<usize>)> =
-            groups.into_iter().enumerate().skip(plan.skip_batches).collect();
+        let groups: Vec<(usize, Vec<usize>)> = groups
+            .into_iter()
+            .enumerate()
+            .skip(plan.skip_batches)
+            .collect();
         let jobs = if plan.jobs == 0 {
             std::thread::available_parallelism().map_or(2, |n| n.get())
         } else {
@@ -832,8 +842,8 @@ pub fn write_toy_dataset(
                 counts: Default::default(),
                 settings: serde_json::json!({"toy": true}),
             };
-            let meta_bytes = serde_json::to_vec_pretty(&meta)
-                .map_err(|e| TrainError::Data(e.to_string()))?;
+            let meta_bytes =
+                serde_json::to_vec_pretty(&meta).map_err(|e| TrainError::Data(e.to_string()))?;
             write(META_FILE, &meta_bytes)?;
             index.samples.push(IndexEntry {
                 sample_token: token.clone(),

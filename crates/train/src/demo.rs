@@ -98,7 +98,7 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
         preset: "tiny".into(),
         epochs: 6,
         batch_size: 4,
-        lr: 1e-2,
+        lr: 2e-3,
         max_batches_per_epoch: None,
         max_val_samples: Some(24),
         val_every_scene: 5,
@@ -294,7 +294,9 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
         let (_, val) = read_metrics(&dir.join(METRICS_FILE))?;
         val_series.push((
             name.to_string(),
-            val.iter().map(|v| (v.iteration, v.rmse)).collect::<Vec<_>>(),
+            val.iter()
+                .map(|v| (v.iteration, v.rmse))
+                .collect::<Vec<_>>(),
         ));
     }
     let left: Vec<(&str, &[(u64, f64)])> = vec![];
@@ -371,8 +373,14 @@ fn write_pictures(
         )?;
         save("gt.png", &overlay_points(&input.image, gt, max_m, 1))?;
     }
-    save(&format!("pred_{model}.png"), &colorize_depth(pred, w, h, max_m))?;
-    save(&format!("err_{model}.png"), &error_map(pred, gt, w, h, 10.0))?;
+    save(
+        &format!("pred_{model}.png"),
+        &colorize_depth(pred, w, h, max_m),
+    )?;
+    save(
+        &format!("err_{model}.png"),
+        &error_map(pred, gt, w, h, 10.0),
+    )?;
     Ok(())
 }
 

@@ -62,7 +62,11 @@ impl Default for EvalOptions {
 }
 
 /// Samples of a split name (see [`EvalOptions::split`]).
-pub fn select_split(ds: &Dataset, split: &str, every: usize) -> Result<Vec<IndexEntry>, TrainError> {
+pub fn select_split(
+    ds: &Dataset,
+    split: &str,
+    every: usize,
+) -> Result<Vec<IndexEntry>, TrainError> {
     let v = if split == HELD_OUT {
         partition(ds, every)?.val
     } else {

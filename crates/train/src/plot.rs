@@ -93,7 +93,10 @@ fn panel(
     if text {
         mesh.x_desc("iteration");
     } else {
-        mesh.disable_x_mesh().disable_y_mesh().x_labels(0).y_labels(0);
+        mesh.disable_x_mesh()
+            .disable_y_mesh()
+            .x_labels(0)
+            .y_labels(0);
     }
     mesh.draw().map_err(plot_err)?;
     for (i, (name, s)) in series.iter().enumerate() {
@@ -224,7 +227,8 @@ pub fn denormalise(chw: &[f32], w: u32, h: u32) -> image::RgbImage {
     let mut img = image::RgbImage::new(w, h);
     for (i, p) in img.pixels_mut().enumerate() {
         for c in 0..3 {
-            let x = chw[c * plane + i] * crate::data::IMAGENET_STD[c] + crate::data::IMAGENET_MEAN[c];
+            let x =
+                chw[c * plane + i] * crate::data::IMAGENET_STD[c] + crate::data::IMAGENET_MEAN[c];
             p.0[c] = (x.clamp(0.0, 1.0) * 255.0).round() as u8;
         }
     }

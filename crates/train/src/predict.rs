@@ -21,8 +21,7 @@ use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::Camera;
 use depthsense_prep::layout::{
-    FRAME_H, FRAME_W, IMAGE_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE,
-    RADAR_RAW_FILE,
+    FRAME_H, FRAME_W, IMAGE_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
 };
 use depthsense_prep::maps::{image_to_frame, radar_maps, radar_positions, Raster};
 use serde::Deserialize;
@@ -197,7 +196,10 @@ pub fn predict(
             .to_device(device)
     };
     let pred = tch::no_grad(|| net.decode(&net.forward_t(&img, &radar_t, false)));
-    let pred = pred.to_device(Device::Cpu).to_kind(Kind::Float).contiguous();
+    let pred = pred
+        .to_device(Device::Cpu)
+        .to_kind(Kind::Float)
+        .contiguous();
     if pred.numel() != (w * h) as usize {
         return Err(TrainError::Other(format!(
             "prediction has shape {:?}, expected [1, 1, {h}, {w}]",

@@ -177,7 +177,10 @@ struct State {
 }
 
 /// Radar input for a model config (fusion None → no radar).
-pub fn radar_input_for(cfg: &ModelConfig, requested: Option<RadarInput>) -> Result<Option<RadarInput>, TrainError> {
+pub fn radar_input_for(
+    cfg: &ModelConfig,
+    requested: Option<RadarInput>,
+) -> Result<Option<RadarInput>, TrainError> {
     if cfg.fusion == Fusion::None {
         return Ok(None);
     }
@@ -199,7 +202,9 @@ pub fn radar_input_for(cfg: &ModelConfig, requested: Option<RadarInput>) -> Resu
 /// batch has no radar), target [B,1,H,W]).
 pub fn batch_tensors(b: &Batch, device: Device) -> (Tensor, Tensor, Tensor) {
     let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
-    let image = Tensor::from_slice(&b.image).view([n, 3, h, w]).to_device(device);
+    let image = Tensor::from_slice(&b.image)
+        .view([n, 3, h, w])
+        .to_device(device);
     let radar = if b.radar_channels == 0 {
         Tensor::zeros([n, 1, h, w], (Kind::Float, device))
     } else {
@@ -207,7 +212,9 @@ pub fn batch_tensors(b: &Batch, device: Device) -> (Tensor, Tensor, Tensor) {
             .view([n, b.radar_channels as i64, h, w])
             .to_device(device)
     };
-    let target = Tensor::from_slice(&b.target_m).view([n, 1, h, w]).to_device(device);
+    let target = Tensor::from_slice(&b.target_m)
+        .view([n, 1, h, w])
+        .to_device(device);
     (image, radar, target)
 }
 
@@ -258,7 +265,10 @@ pub fn evaluate_net(
             let out = net.forward_t(&image, &radar, false);
             net.decode(&out)
         });
-        let pred = pred.to_device(Device::Cpu).to_kind(Kind::Float).contiguous();
+        let pred = pred
+            .to_device(Device::Cpu)
+            .to_kind(Kind::Float)
+            .contiguous();
         let hw = batch.width * batch.height;
         let pred_shape = pred.size();
         if pred.numel() != batch.size * hw {
@@ -378,7 +388,9 @@ fn save_ckpt(
 pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
     let started = Instant::now();
     if opts.batch_size == 0 || opts.epochs == 0 {
-        return Err(TrainError::Config("batch size and epochs must be at least 1".into()));
+        return Err(TrainError::Config(
+            "batch size and epochs must be at least 1".into(),
+        ));
     }
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
@@ -432,11 +444,12 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
                 cfg.name
             )));
         }
-        let state: State = serde_json::from_value(extra["train_state"].clone())
-            .map_err(|e| TrainError::Parse {
+        let state: State = serde_json::from_value(extra["train_state"].clone()).map_err(|e| {
+            TrainError::Parse {
                 path: last.display().to_string(),
                 reason: format!("train_state: {e}"),
-            })?;
+            }
+        })?;
         if state.batch_size != opts.batch_size
             || state.epochs != opts.epochs
             || state.lr != opts.lr
@@ -530,11 +543,7 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
 
     let full_batches = part.train.len() / opts.batch_size;
     let drop_last = full_batches > 0;
-    let natural = if drop_last {
-        full_batches
-    } else {
-        1
-    };
+    let natural = if drop_last { full_batches } else { 1 };
     let bpe = opts
         .max_batches_per_epoch
         .map_or(natural, |m| m.min(natural).max(1)) as u64;
@@ -652,14 +661,21 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
             let stop_here = opts.stop_after == Some(state.iteration);
             if !epoch_end
                 && (stop_here
-                    || (opts.checkpoint_every > 0
-                        && state.iteration % opts.checkpoint_every == 0))
+                    || (opts.checkpoint_every > 0 && state.iteration % opts.checkpoint_every == 0))
             {
                 state.epoch = epoch;
                 checkpoint_pair(&vs, &cfg, &state, opts, &sgd, &last, &last_optim)?;
                 if stop_here {
                     summary.interrupted = true;
-                    return finish(summary, state, images, train_secs, started, &metrics_path, &run);
+                    return finish(
+                        summary,
+                        state,
+                        images,
+                        train_secs,
+                        started,
+                        &metrics_path,
+                        &run,
+                    );
                 }
             }
         }
@@ -692,7 +708,15 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
             break;
         }
     }
-    finish(summary, state, images, train_secs, started, &metrics_path, &run)
+    finish(
+        summary,
+        state,
+        images,
+        train_secs,
+        started,
+        &metrics_path,
+        &run,
+    )
 }
 
 fn checkpoint_pair(

@@ -32,11 +32,22 @@ fn quick_demo_writes_the_report() {
     }
     assert!(s.rgb_rmse.is_finite() && s.fusion_rmse.is_finite());
     let md = std::fs::read_to_string(r.join("tables.md")).unwrap();
-    assert!(md.contains("| rgb | combined |") && md.contains("| fusion | combined |"), "{md}");
+    assert!(
+        md.contains("| rgb | combined |") && md.contains("| fusion | combined |"),
+        "{md}"
+    );
     let samples: Vec<_> = std::fs::read_dir(r.join("samples")).unwrap().collect();
     assert_eq!(samples.len(), 1);
     let dir = samples[0].as_ref().unwrap().path();
-    for f in ["image.png", "radar.png", "gt.png", "pred_rgb.png", "pred_fusion.png", "err_rgb.png", "err_fusion.png"] {
+    for f in [
+        "image.png",
+        "radar.png",
+        "gt.png",
+        "pred_rgb.png",
+        "pred_fusion.png",
+        "err_rgb.png",
+        "err_fusion.png",
+    ] {
         assert!(dir.join(f).exists(), "{f} missing");
     }
 }

@@ -73,7 +73,10 @@ fn loader_is_reproducible_whatever_the_thread_count() {
             .map(|b| {
                 let b = b.unwrap();
                 (
-                    b.samples.iter().map(|s| s.token.clone()).collect::<Vec<_>>(),
+                    b.samples
+                        .iter()
+                        .map(|s| s.token.clone())
+                        .collect::<Vec<_>>(),
                     b.image,
                     b.radar,
                     b.target_m,
@@ -84,7 +87,11 @@ fn loader_is_reproducible_whatever_the_thread_count() {
     let a = run(1, 3, 0);
     assert_eq!(a.len(), 3);
     assert_eq!(a, run(2, 3, 0), "same seed, other thread count");
-    assert_ne!(a, run(2, 4, 0), "another seed draws another order / augmentation");
+    assert_ne!(
+        a,
+        run(2, 4, 0),
+        "another seed draws another order / augmentation"
+    );
     assert_ne!(a, run(2, 3, 1), "another epoch draws another order");
     // Skipping batches (resume mid-epoch) yields the tail of the same epoch.
     let plan = EpochPlan {
@@ -218,7 +225,13 @@ fn train_resume_mismatch_eval_predict() {
     assert!(last < first, "validation RMSE {first} → {last}");
     let (l0, l1) = (full.losses[0].1, full.losses.last().unwrap().1);
     assert!(l1 < 0.85 * l0, "training loss {l0} → {l1}");
-    for f in ["config.json", "metrics.jsonl", "curves.png", LAST_CKPT, BEST_CKPT] {
+    for f in [
+        "config.json",
+        "metrics.jsonl",
+        "curves.png",
+        LAST_CKPT,
+        BEST_CKPT,
+    ] {
         assert!(tmp.path().join("a").join(f).exists(), "{f}");
     }
     let png = image::open(tmp.path().join("a/curves.png")).unwrap();
@@ -226,7 +239,10 @@ fn train_resume_mismatch_eval_predict() {
     let (logged, _) = read_metrics(&tmp.path().join("a/metrics.jsonl")).unwrap();
     assert_eq!(logged.len(), full.losses.len());
     for ((i, a), (j, b)) in logged.iter().zip(&full.losses) {
-        assert!(i == j && (a - b).abs() <= 1e-12 * b.abs(), "{i}: {a} vs {b}");
+        assert!(
+            i == j && (a - b).abs() <= 1e-12 * b.abs(),
+            "{i}: {a} vs {b}"
+        );
     }
 
     // Interrupted mid-epoch at iteration 18, then resumed.
@@ -245,10 +261,17 @@ fn train_resume_mismatch_eval_predict() {
     assert_eq!(joined.len(), full.losses.len());
     for ((i, a), (j, b)) in full.losses.iter().zip(&joined) {
         assert_eq!(i, j);
-        assert!((a - b).abs() <= 1e-6 * a.abs().max(1.0), "iteration {i}: {a} vs {b}");
+        assert!(
+            (a - b).abs() <= 1e-6 * a.abs().max(1.0),
+            "iteration {i}: {a} vs {b}"
+        );
     }
     let (logged_b, _) = read_metrics(&b_dir.join("metrics.jsonl")).unwrap();
-    assert_eq!(logged_b.len(), 40, "metrics.jsonl holds each iteration once");
+    assert_eq!(
+        logged_b.len(),
+        40,
+        "metrics.jsonl holds each iteration once"
+    );
 
     // Resuming into another configuration: error naming the tensors with both shapes.
     let mut other = opts(&data, &b_dir, Fusion::Late);
@@ -258,7 +281,10 @@ fn train_resume_mismatch_eval_predict() {
     let msg = err.to_string();
     assert!(matches!(err, TrainError::Model(_)), "{msg}");
     assert!(msg.contains("mismatching shapes"), "{msg}");
-    assert!(msg.contains("[1, 64, 1, 1]") || msg.contains("network ["), "{msg}");
+    assert!(
+        msg.contains("[1, 64, 1, 1]") || msg.contains("network ["),
+        "{msg}"
+    );
 
     // Eval on the held-out scene, with and without radar.
     let eo = EvalOptions {
@@ -272,8 +298,16 @@ fn train_resume_mismatch_eval_predict() {
     let head = rep.headline().unwrap();
     assert_eq!(head.n_images, 4);
     assert!(head.n_pixels > 1000);
-    let best_rmse = full.val.iter().map(|v| v.rmse).fold(f64::INFINITY, f64::min);
-    assert!((head.metrics.rmse - best_rmse).abs() < 1e-4, "{} vs {best_rmse}", head.metrics.rmse);
+    let best_rmse = full
+        .val
+        .iter()
+        .map(|v| v.rmse)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        (head.metrics.rmse - best_rmse).abs() < 1e-4,
+        "{} vs {best_rmse}",
+        head.metrics.rmse
+    );
     let dropped = run_eval(
         &EvalOptions {
             radar_drop: 1.0,
@@ -299,7 +333,11 @@ fn train_resume_mismatch_eval_predict() {
     .unwrap();
     assert!(gone.radar.iter().all(|d| *d == 0.0));
     let out = tmp.path().join("eval");
-    write_tables(&out, &[("fusion", &rep), ("fusion, radar dropped", &dropped)]).unwrap();
+    write_tables(
+        &out,
+        &[("fusion", &rep), ("fusion, radar dropped", &dropped)],
+    )
+    .unwrap();
     let md = std::fs::read_to_string(out.join("tables.md")).unwrap();
     assert!(md.contains("| fusion | combined | 4 |"), "{md}");
     assert!(out.join("tables.csv").exists() && out.join("tables.json").exists());
@@ -314,8 +352,9 @@ fn train_resume_mismatch_eval_predict() {
         depthsense_train::predict::predict(&loaded.net, &input, radar, tch::Device::Cpu).unwrap();
     assert_eq!((depth.width, depth.height), (W, H));
     assert!(depth.depth_m.iter().all(|d| (1.0..=80.0).contains(d)));
-    let files = depthsense_train::predict::write_outputs(&tmp.path().join("pred"), &input, &depth, 80.0)
-        .unwrap();
+    let files =
+        depthsense_train::predict::write_outputs(&tmp.path().join("pred"), &input, &depth, 80.0)
+            .unwrap();
     assert_eq!(files.len(), 4);
     let back = depthsense_nuscenes::depth_png::read_depth_png(&files[0]).unwrap();
     assert_eq!((back.width, back.height), (W, H));

@@ -26,6 +26,9 @@ pub struct Args {
     /// Override the preset's head: ordinal, l1 or l2.
     #[arg(long)]
     head: Option<String>,
+    /// Override the preset's Dropout2d probability in the head (paper: 0.5).
+    #[arg(long)]
+    dropout: Option<f64>,
     /// Disable the spatial attention module of late fusion.
     #[arg(long)]
     no_attention: bool,
@@ -143,6 +146,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     if let Some(h) = &a.head {
         model.head = parse_head(h)?;
+    }
+    if let Some(d) = a.dropout {
+        model.dropout = d;
     }
     if a.no_attention {
         model.attention = false;
