@@ -17,7 +17,10 @@ fn main() {
     depthsense_train::data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
     let mut model = ModelConfig::tiny();
     model.fusion = fusion;
-    model.dropout = std::env::var("DROPOUT").ok().and_then(|s| s.parse().ok()).unwrap_or(0.0);
+    model.dropout = std::env::var("DROPOUT")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0.0);
     let o = TrainOptions {
         data,
         out: tmp.path().join("run"),
@@ -60,4 +63,3 @@ fn main() {
         );
     }
 }
-

@@ -169,7 +169,8 @@ struct State {
     iteration: u64,
     epoch: u64,
     seed: u64,
-    best_val_rmse: f64,
+    /// Lowest validation RMSE so far; `None` before the first epoch ends (JSON has no ∞).
+    best_val_rmse: Option<f64>,
     batch_size: usize,
     epochs: usize,
     lr: f64,
@@ -343,8 +344,11 @@ fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
     write_atomic(path, kept.as_bytes()).map_err(|e| TrainError::io(path, e))
 }
 
-/// Read (iteration, loss) and validation records back from metrics.jsonl.
-pub fn read_metrics(path: &Path) -> Result<(Vec<(u64, f64)>, Vec<ValRecord>), TrainError> {
+/// (global iteration, loss) pairs of a run.
+pub type LossCurve = Vec<(u64, f64)>;
+
+/// Read the loss curve and the validation records back from metrics.jsonl.
+pub fn read_metrics(path: &Path) -> Result<(LossCurve, Vec<ValRecord>), TrainError> {
     let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
     let mut losses = vec![];
     let mut val = vec![];
@@ -502,7 +506,7 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
             iteration: 0,
             epoch: 0,
             seed: opts.seed,
-            best_val_rmse: f64::INFINITY,
+            best_val_rmse: None,
             batch_size: opts.batch_size,
             epochs: opts.epochs,
             lr: opts.lr,
@@ -558,7 +562,7 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
         iterations_done: state.iteration,
         total_iterations: total,
         interrupted: false,
-        best_val_rmse: state.best_val_rmse,
+        best_val_rmse: state.best_val_rmse.unwrap_or(f64::INFINITY),
         train_images_per_s: 0.0,
         seconds: 0.0,
         partition: part.clone(),
@@ -685,9 +689,9 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
         let v = validate(&net, epoch + 1, state.iteration)?;
         state.epoch = epoch + 1;
         state.val_rmse = Some(v.rmse);
-        let improved = v.rmse < state.best_val_rmse;
+        let improved = v.rmse < state.best_val_rmse.unwrap_or(f64::INFINITY);
         if improved {
-            state.best_val_rmse = v.rmse;
+            state.best_val_rmse = Some(v.rmse);
         }
         checkpoint_pair(&vs, &cfg, &state, opts, &sgd, &last, &last_optim)?;
         if improved {
@@ -755,7 +759,7 @@ fn finish(
     run: &Path,
 ) -> Result<TrainSummary, TrainError> {
     summary.iterations_done = state.iteration;
-    summary.best_val_rmse = state.best_val_rmse;
+    summary.best_val_rmse = state.best_val_rmse.unwrap_or(f64::INFINITY);
     summary.train_images_per_s = images as f64 / train_secs.max(1e-9);
     summary.seconds = started.elapsed().as_secs_f64();
     if metrics_path.exists() {

@@ -51,3 +51,28 @@ fn quick_demo_writes_the_report() {
         assert!(dir.join(f).exists(), "{f} missing");
     }
 }
+
+#[test]
+fn demo_plans_fit_the_device() {
+    use depthsense_train::demo::{demo_model, plan};
+    let cpu = plan(&DemoOptions::default(), false);
+    assert_eq!(
+        (cpu.preset.as_str(), cpu.scenes, cpu.epochs),
+        ("tiny", 10, 12)
+    );
+    let gpu = plan(&DemoOptions::default(), true);
+    assert!(gpu.scenes > cpu.scenes && gpu.epochs > cpu.epochs);
+    // The wide variant builds (names and shapes valid).
+    let cfg = demo_model(&gpu.preset).unwrap();
+    assert_eq!(cfg.backbone_depth, 34);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    depthsense_model::DepthNet::new(&vs.root(), &cfg).unwrap();
+    let quick = plan(
+        &DemoOptions {
+            quick: true,
+            ..DemoOptions::default()
+        },
+        false,
+    );
+    assert!(quick.scenes * quick.keyframes_per_scene <= 20);
+}

@@ -273,11 +273,24 @@ fn train_resume_mismatch_eval_predict() {
         "metrics.jsonl holds each iteration once"
     );
 
+    // Interrupted inside the first epoch (no validation yet), then resumed.
+    let c_dir = tmp.path().join("c");
+    let mut o = opts(&data, &c_dir, Fusion::Late);
+    o.epochs = 1;
+    o.stop_after = Some(2);
+    assert!(train(&o, &pb).unwrap().interrupted);
+    o.stop_after = None;
+    o.resume = true;
+    let c = train(&o, &pb).unwrap();
+    assert_eq!(c.losses.len(), 2);
+    assert_eq!(c.iterations_done, 4);
+    assert!(c.best_val_rmse.is_finite());
+
     // Resuming into another configuration: error naming the tensors with both shapes.
     let mut other = opts(&data, &b_dir, Fusion::Late);
     other.resume = true;
     other.model.head = HeadKind::L1;
-    let err = train(&other, &pb).err().expect("mismatch must fail");
+    let err = train(&other, &pb).expect_err("mismatch must fail");
     let msg = err.to_string();
     assert!(matches!(err, TrainError::Model(_)), "{msg}");
     assert!(msg.contains("mismatching shapes"), "{msg}");
@@ -372,15 +385,16 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
     o.lr = 1e30; // diverges within a few steps: a real non-finite loss
     o.checkpoint_every = 1;
     o.max_val_samples = Some(1);
-    let err = train(&o, &ProgressBar::hidden()).err().expect("must stop");
+    let err = train(&o, &ProgressBar::hidden()).expect_err("must stop");
     let msg = err.to_string();
     let TrainError::NonFiniteLoss { iteration, .. } = err else {
         panic!("expected a non-finite-loss error, got {msg}");
     };
     assert!(msg.contains("training stopped"), "{msg}");
     assert!(iteration >= 1);
-    // Every checkpoint on disk is finite and loads.
-    if run.join(LAST_CKPT).exists() {
+    // The checkpoint of the last good iteration is kept, finite, and loads.
+    assert!(run.join(LAST_CKPT).exists(), "{msg}");
+    {
         let l = checkpoint::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
         for (n, t) in l.vs.variables() {
             if t.is_floating_point() {

@@ -195,16 +195,26 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let pb = progress_bar("train");
     let s = train(&opts, &pb)?;
     pb.finish();
-    let first = s.val.first().map_or(f64::NAN, |v| v.rmse);
-    let last = s.val.last().map_or(f64::NAN, |v| v.rmse);
+    // The whole history (a resumed run's summary only holds its own epochs).
+    let history = depthsense_train::trainer::read_metrics(
+        &a.out.join(depthsense_train::trainer::METRICS_FILE),
+    )
+    .map(|(_, v)| v)
+    .unwrap_or_else(|_| s.val.clone());
+    let first = history.first().map_or(f64::NAN, |v| v.rmse);
+    let last = history.last().map_or(f64::NAN, |v| v.rmse);
     eprintln!(
         "{} iterations of {} in {:.1} s ({:.2} img/s); validation RMSE {first:.3} m → {last:.3} m \
-         (best {:.3} m) on {} held-out samples ({})",
+         (best {}) on {} held-out samples ({})",
         s.iterations_done,
         s.total_iterations,
         s.seconds,
         s.train_images_per_s,
-        s.best_val_rmse,
+        if s.best_val_rmse.is_finite() {
+            format!("{:.3} m", s.best_val_rmse)
+        } else {
+            "none yet: no epoch completed".to_string()
+        },
         s.partition.val.len(),
         s.partition.method
     );
