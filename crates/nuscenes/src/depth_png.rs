@@ -76,38 +76,21 @@ pub fn decode_value(value: u16) -> f32 {
     value as f32 / DEPTH_SCALE
 }
 
-/// Encode a depth map as 16-bit grayscale PNG bytes.
+/// Encode a depth map as 16-bit grayscale PNG bytes (default compression: smallest files).
 pub fn encode_png(map: &DepthMap) -> Result<Vec<u8>, DepthPngError> {
-    let want = map.width as usize * map.height as usize;
-    if map.depth_m.len() != want {
-        return Err(DepthPngError::Size {
-            width: map.width,
-            height: map.height,
-            got: map.depth_m.len(),
-            want,
-        });
-    }
-    let values: Vec<u16> = map.depth_m.iter().map(|d| encode_value(*d)).collect();
-    let img =
-        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(map.width, map.height, values)
-            .ok_or(DepthPngError::Size {
-            width: map.width,
-            height: map.height,
-            got: map.depth_m.len(),
-            want,
-        })?;
-    let mut out = std::io::Cursor::new(Vec::with_capacity(want));
-    img.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| DepthPngError::Decode {
-            path: "<memory>".into(),
-            reason: e.to_string(),
-        })?;
-    Ok(out.into_inner())
+    encode_with(map, image::codecs::png::CompressionType::Default)
 }
 
 /// Like [`encode_png`] but with the PNG encoder's fast compression (larger files, several
 /// times faster to write; decodes to the same values). Used by `prepare`.
 pub fn encode_png_fast(map: &DepthMap) -> Result<Vec<u8>, DepthPngError> {
+    encode_with(map, image::codecs::png::CompressionType::Fast)
+}
+
+fn encode_with(
+    map: &DepthMap,
+    compression: image::codecs::png::CompressionType,
+) -> Result<Vec<u8>, DepthPngError> {
     use image::ImageEncoder;
     let want = map.width as usize * map.height as usize;
     if map.depth_m.len() != want {
@@ -126,7 +109,7 @@ pub fn encode_png_fast(map: &DepthMap) -> Result<Vec<u8>, DepthPngError> {
     let mut out = Vec::with_capacity(want);
     image::codecs::png::PngEncoder::new_with_quality(
         &mut out,
-        image::codecs::png::CompressionType::Fast,
+        compression,
         image::codecs::png::FilterType::Adaptive,
     )
     .write_image(&raw, map.width, map.height, image::ExtendedColorType::L16)
