@@ -94,7 +94,9 @@ pub struct IndexEntry {
     pub sample_token: String,
     pub scene_token: String,
     pub scene_name: String,
-    /// Split names this sample belongs to (e.g. ["train"], ["test", "test-night"], ["all"]).
+    /// Split names this sample belongs to (e.g. ["train", "official-train"], ["val"],
+    /// ["test", "test-night"], or ["all"] when its scene is in no list). "train" and "val"
+    /// never both appear.
     pub splits: Vec<String>,
     pub conditions: Vec<Condition>,
     /// Directory relative to the index file (normally the sample token).
@@ -102,11 +104,28 @@ pub struct IndexEntry {
 }
 
 /// `O/index.json`: every prepared sample.
+///
+/// Split protocol: train on samples tagged "train", select checkpoints on "val", report on
+/// "test" only. `IndexEntry::splits` carries the tags; the scene lists below say which
+/// scenes of the version each of the three holds (whether prepared or not).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct PreparedIndex {
     /// Dataset version folder the samples came from (e.g. "v1.0-mini", "v1.0-synth").
     pub version: String,
     pub samples: Vec<IndexEntry>,
+    /// Where the split tags came from: `"dataroot: <dir>"` (the version's own
+    /// `splits/{train,val,test}_scenes.txt`), `"shipped"` (the repository's lists, val = every
+    /// 10th released-train scene per condition; see `splits`), or `""` (an index written
+    /// before this field existed).
+    #[serde(default)]
+    pub split_source: String,
+    /// Scene tokens of the version in train / val / test (table order).
+    #[serde(default)]
+    pub train_scenes: Vec<String>,
+    #[serde(default)]
+    pub val_scenes: Vec<String>,
+    #[serde(default)]
+    pub test_scenes: Vec<String>,
 }
 
 #[cfg(test)]
@@ -122,6 +141,16 @@ mod tests {
             vec![Condition::Night, Condition::Rain]
         );
         assert_eq!(conditions_of("Parked cars, peds"), vec![Condition::Day]);
+    }
+
+    #[test]
+    fn old_index_without_split_fields_still_loads() {
+        let old = r#"{"version": "v1.0-mini", "samples": [{"sample_token": "a",
+            "scene_token": "b", "scene_name": "scene-0001", "splits": ["train"],
+            "conditions": ["day"], "dir": "a"}]}"#;
+        let idx: PreparedIndex = serde_json::from_str(old).unwrap();
+        assert_eq!(idx.samples.len(), 1);
+        assert!(idx.split_source.is_empty() && idx.val_scenes.is_empty());
     }
 
     #[test]

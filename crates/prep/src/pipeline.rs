@@ -80,7 +80,7 @@ pub struct PrepareSummary {
 pub enum PrepError {
     #[error(transparent)]
     Nu(#[from] depthsense_nuscenes::NuError),
-    #[error("unknown split {0:?}; expected one of train, test, test-day, test-night, test-rain, official-train, official-val, all")]
+    #[error("unknown split {0:?}; expected one of train, val, test, test-day, test-night, test-rain, official-train, official-val, all")]
     UnknownSplit(String),
     #[error("split {split:?} matches no scene of {version} ({scenes} scenes); synthetic or partial datasets have their own scene tokens: use --split all")]
     EmptySplit {
@@ -573,19 +573,29 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
     res
 }
 
-/// Samples of the chosen split in scene order, with their scenes' split names.
+/// Samples of the chosen split in scene order (splits from [`crate::splits::assign_splits`]).
 pub fn select_samples<'a>(nu: &'a NuScenes, split: &str) -> Result<Vec<&'a Sample>, PrepError> {
-    let wanted = split_scene_tokens(split)?;
+    let a = crate::splits::assign_splits(nu)?;
+    select_samples_in(nu, split, &a)
+}
+
+/// Samples of split `split` under the assignment `a`, in scene order.
+pub fn select_samples_in<'a>(
+    nu: &'a NuScenes,
+    split: &str,
+    a: &crate::splits::SplitAssignment,
+) -> Result<Vec<&'a Sample>, PrepError> {
+    if !crate::splits::SPLIT_NAMES.contains(&split) {
+        return Err(PrepError::UnknownSplit(split.to_string()));
+    }
     let mut scenes: Vec<_> = nu.scene.iter().collect();
-    if let Some(w) = &wanted {
-        scenes.retain(|s| w.contains(&s.token.to_string()));
-        if scenes.is_empty() {
-            return Err(PrepError::EmptySplit {
-                split: split.to_string(),
-                version: nu.version.clone(),
-                scenes: nu.scene.len(),
-            });
-        }
+    scenes.retain(|s| a.contains(split, &s.token.to_string()));
+    if scenes.is_empty() {
+        return Err(PrepError::EmptySplit {
+            split: split.to_string(),
+            version: nu.version.clone(),
+            scenes: nu.scene.len(),
+        });
     }
     Ok(scenes
         .iter()
@@ -609,7 +619,8 @@ pub fn prepare_timed(
 ) -> Result<(PrepareSummary, StageTimes), PrepError> {
     progress.set_message(format!("loading {} tables", opts.version));
     let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
-    let samples = select_samples(&nu, &opts.split)?;
+    let assignment = crate::splits::assign_splits(&nu)?;
+    let samples = select_samples_in(&nu, &opts.split, &assignment)?;
     progress.set_message(format!("{} split {}", opts.version, opts.split));
     std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
     // Stale temporary directories from an interrupted run.
@@ -667,7 +678,7 @@ pub fn prepare_timed(
             Err(e) => summary.failed.push((t.to_string(), e.to_string())),
         }
     }
-    write_index(&nu, opts, &samples, &ok)?;
+    write_index(&nu, opts, &samples, &ok, &assignment)?;
     let t = times.into_inner().unwrap_or_default();
     Ok((summary, t))
 }
@@ -716,6 +727,7 @@ fn write_index(
     opts: &PrepareOptions,
     samples: &[&Sample],
     ok: &HashSet<Token>,
+    assignment: &crate::splits::SplitAssignment,
 ) -> Result<(), PrepError> {
     let path = opts.out.join(layout::INDEX_FILE);
     let mut index: PreparedIndex = match std::fs::read(&path) {
@@ -723,6 +735,13 @@ fn write_index(
         Err(_) => PreparedIndex::default(),
     };
     index.version = nu.version.clone();
+    index.split_source = match &assignment.lists_dir {
+        Some(d) => format!("{}: {}", assignment.source, d.display()),
+        None => assignment.source.clone(),
+    };
+    index.train_scenes = assignment.train_scenes.clone();
+    index.val_scenes = assignment.val_scenes.clone();
+    index.test_scenes = assignment.test_scenes.clone();
     let mut pos: std::collections::HashMap<String, usize> = index
         .samples
         .iter()
@@ -735,13 +754,7 @@ fn write_index(
         let scene_tok = scene.token.to_string();
         let splits = scene_splits
             .entry(scene.token)
-            .or_insert_with(|| {
-                let mut v = crate::splits::splits_of_scene(&scene_tok);
-                if v.is_empty() {
-                    v.push("all".into());
-                }
-                v
-            })
+            .or_insert_with(|| assignment.splits_of(&scene_tok))
             .clone();
         let entry = IndexEntry {
             sample_token: s.token.to_string(),

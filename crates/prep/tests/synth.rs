@@ -113,18 +113,111 @@ fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
         p50 < 0.02 && p90 < 0.1,
         "dense target off the truth: p50 {p50} p90 {p90}"
     );
+    // The world's own split lists tag the samples (one night scene: train), even with
+    // `--split all`.
+    assert!(
+        idx.split_source.starts_with("dataroot"),
+        "{}",
+        idx.split_source
+    );
     assert!(idx
         .samples
         .iter()
-        .all(|e| e.conditions == vec![Condition::Night] && e.splits == vec!["all".to_string()]));
-    // A named split of the real dataset matches none of the synthetic scenes.
+        .all(|e| e.conditions == vec![Condition::Night] && e.splits == vec!["train".to_string()]));
+    assert_eq!(idx.train_scenes.len(), 1);
+    assert!(idx.val_scenes.is_empty() && idx.test_scenes.is_empty());
+    // A split with no scene of this world is refused.
     let err = prepare(
         &PrepareOptions {
-            split: "train".into(),
+            split: "test".into(),
             ..opts
         },
         &ProgressBar::hidden(),
     )
     .unwrap_err();
     assert!(err.to_string().contains("--split all"), "{err}");
+}
+
+#[test]
+fn prepared_synthetic_world_carries_train_val_test_tags() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("world");
+    // 9 scenes, 3 per condition: one train, one val and one test scene of each.
+    let cfg = SynthConfig {
+        scenes: 9,
+        keyframes_per_scene: 1,
+        ..SynthConfig::tiny()
+    };
+    generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+    let out = tmp.path().join("prepared");
+    let opts = PrepareOptions {
+        dataroot: root.clone(),
+        version: cfg.version_name.clone(),
+        out: out.clone(),
+        split: "all".into(),
+        radar_sweeps: 1,
+        jobs: 0,
+        ..Default::default()
+    };
+    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+    assert_eq!((s.prepared, s.failed.len()), (9, 0), "{:?}", s.failed);
+    let idx: PreparedIndex =
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
+    assert!(
+        idx.split_source.starts_with("dataroot"),
+        "{}",
+        idx.split_source
+    );
+    assert_eq!(
+        (
+            idx.train_scenes.len(),
+            idx.val_scenes.len(),
+            idx.test_scenes.len()
+        ),
+        (3, 3, 3)
+    );
+    let list = |name: &str| -> Vec<String> {
+        std::fs::read_to_string(
+            root.join(&cfg.version_name)
+                .join("splits")
+                .join(format!("{name}_scenes.txt")),
+        )
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect()
+    };
+    assert_eq!(idx.train_scenes, list("train"));
+    assert_eq!(idx.val_scenes, list("val"));
+    assert_eq!(idx.test_scenes, list("test"));
+    for name in ["train", "val", "test"] {
+        let entries: Vec<_> = idx
+            .samples
+            .iter()
+            .filter(|e| e.splits == vec![name.to_string()])
+            .collect();
+        assert_eq!(entries.len(), 3, "{name}");
+        let conds: std::collections::BTreeSet<Condition> =
+            entries.iter().flat_map(|e| e.conditions.clone()).collect();
+        assert_eq!(conds.len(), 3, "{name} lacks a condition: {conds:?}");
+        assert!(entries.iter().all(|e| list(name).contains(&e.scene_token)));
+    }
+    // `--split val` prepares exactly the val scenes' samples.
+    let out2 = tmp.path().join("prepared-val");
+    let s = prepare(
+        &PrepareOptions {
+            split: "val".into(),
+            out: out2.clone(),
+            ..opts
+        },
+        &ProgressBar::hidden(),
+    )
+    .unwrap();
+    assert_eq!(s.prepared, 3);
+    let idx2: PreparedIndex =
+        serde_json::from_slice(&std::fs::read(out2.join("index.json")).unwrap()).unwrap();
+    assert!(idx2
+        .samples
+        .iter()
+        .all(|e| e.splits == vec!["val".to_string()]));
 }

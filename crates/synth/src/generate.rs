@@ -661,11 +661,27 @@ fn generate_into(
         bytes += json.len() as u64;
         std::fs::write(&p, json).map_err(io_err(&p))?;
     }
+    // Train / val / test scene lists (by condition, never by content; see `splits`).
+    let scene_splits = crate::splits::assign_splits(&weathers);
+    let sdir = vdir.join(crate::splits::SPLITS_DIR);
+    std::fs::create_dir_all(&sdir).map_err(io_err(&sdir))?;
+    for name in crate::splits::SPLIT_NAMES {
+        let mut text = String::new();
+        for (scene, sp) in tb.scene.iter().zip(&scene_splits) {
+            if sp.name() == name {
+                text.push_str(&scene.token);
+                text.push('\n');
+            }
+        }
+        let p = sdir.join(crate::splits::split_file_name(name));
+        bytes += text.len() as u64;
+        std::fs::write(&p, text).map_err(io_err(&p))?;
+    }
     let summary = SynthSummary {
         keyframes: cfg.scenes * m,
         scenes: cfg.scenes,
         sample_data: tb.sample_data.len(),
-        files: jobs.len() + m * cfg.scenes + 14,
+        files: jobs.len() + m * cfg.scenes + 14 + crate::splits::SPLIT_NAMES.len(),
         bytes,
         version_dir: vdir,
         seconds: 0.0,

@@ -4,6 +4,8 @@
 //! `<version>/`, CAM_FRONT JPEGs, LIDAR_TOP `.pcd.bin` sweeps at 20 Hz, RADAR_FRONT /
 //! _FRONT_LEFT / _FRONT_RIGHT binary PCDs at ≈13 Hz — plus the exact per-pixel depth of every
 //! CAM_FRONT keyframe in `truth/<sample_data_token>.png` (16-bit, depth × 256, SPEC §3).
+//! Train / val / test scene lists go to `<version>/splits/{train,val,test}_scenes.txt`
+//! (see [`splits`]).
 //! The same seed gives byte-identical output, whatever the number of threads.
 
 // Colour math indexes RGB channels with a shared index across several arrays.
@@ -16,7 +18,9 @@ pub mod generate;
 pub mod geom;
 pub mod lidar;
 pub mod radar;
+pub mod radar_stats;
 pub mod rng;
+pub mod splits;
 pub mod tables;
 pub mod world;
 

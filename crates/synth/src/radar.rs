@@ -13,18 +13,65 @@ use crate::geom::Surface;
 use crate::rng::Rng;
 use crate::world::{ActorKind, Motion, World, STATIC_OBJ_BASE};
 
-/// Maximum clusters per sweep.
+/// Maximum clusters per sweep. Real RADAR_FRONT files (404 keyframes of v1.0-mini) hold 52–125
+/// points, median 125: 75 % of the files saturate this budget.
 pub const MAX_POINTS: usize = 125;
-/// Near scan: ±60° to 70 m; far scan: ±9° to 200 m.
+/// Near scan: ±60° to 125 m; far scan: ±9° to 250 m. The ranges follow the real RADAR_FRONT
+/// envelope (v1.0-mini): outside ±10° azimuth real points reach 117–130 m (max per 10° bin),
+/// inside ±10° they reach 252–258 m. (The earlier 70 m near range, from the ARS 408 brochure,
+/// cut off the 25 % of real kept points that lie beyond 70 m, most of them off the far beam.)
 pub const NEAR_FOV_DEG: f64 = 60.0;
-pub const NEAR_RANGE_M: f64 = 70.0;
+pub const NEAR_RANGE_M: f64 = 125.0;
 pub const FAR_FOV_DEG: f64 = 9.0;
-pub const FAR_RANGE_M: f64 = 200.0;
+pub const FAR_RANGE_M: f64 = 250.0;
 /// Range noise 1σ: `RANGE_SIGMA_M + RANGE_SIGMA_REL · r`.
 pub const RANGE_SIGMA_M: f64 = 0.12;
 pub const RANGE_SIGMA_REL: f64 = 0.002;
 /// Azimuth noise 1σ (degrees).
 pub const AZ_SIGMA_DEG: f64 = 0.3;
+/// Range resolution (m) of the near scan (to 70 m) and of the far scan (ARS 408-21 data
+/// sheet), used to count the clusters of an extended object.
+pub const NEAR_RANGE_CELL_M: f64 = 0.39;
+pub const FAR_RANGE_CELL_M: f64 = 1.79;
+const NEAR_CELL_LIMIT_M: f64 = 70.0;
+
+/// Range resolution cells spanned by [r_lo, r_hi] (m).
+fn range_cells(r_lo: f64, r_hi: f64) -> f64 {
+    let near = (r_hi.min(NEAR_CELL_LIMIT_M) - r_lo.min(NEAR_CELL_LIMIT_M)).max(0.0);
+    let far = (r_hi.max(NEAR_CELL_LIMIT_M) - r_lo.max(NEAR_CELL_LIMIT_M)).max(0.0);
+    near / NEAR_RANGE_CELL_M + far / FAR_RANGE_CELL_M
+}
+/// Spread (1σ, dB) of a cluster's RCS about its object's typical value: aspect-angle and
+/// multipath fluctuation. Real kept RCS spans 0.0 / 6.5 / 18.5 dBsm (p10/p50/p90, 18.5 dB
+/// p10–p90); with ±2.5 dB per class the synthetic span was 22.5 dB but clustered on the class
+/// values (−7.5 / 9.0 / 15.0).
+pub const RCS_SIGMA_DB: f64 = 4.0;
+
+/// Real `invalid_state` codes of flagged RADAR_FRONT points (v1.0-mini, share of all flagged
+/// points, which are 48.4 % of all points): 11 no local maximum 25.6 %, 4 low RCS 22.1 %,
+/// 9 high child probability 17.6 %, 16 14.0 %, 7 outside the FOV 11.6 %, 15 suspicious angle
+/// 4.8 %, 3 far cluster not confirmed in near range 2.1 %, 10 1.4 %, 12 0.4 %, 6 mirror 0.2 %.
+/// Weights in per mille of flagged points (code 4 is drawn separately for weak clusters).
+const INVALID_CODES: [(i8, u32); 9] = [
+    (11, 256),
+    (9, 176),
+    (16, 140),
+    (7, 116),
+    (15, 48),
+    (3, 21),
+    (10, 14),
+    (12, 4),
+    (6, 2),
+];
+/// Probability that a surface cluster is flagged (`invalid_state != 0`). Real: 48.4 % of all
+/// points are flagged; clutter and ghosts (a minority of points) are flagged more often, so
+/// surfaces get slightly less (the sum is measured by `tests/radar_stats.rs`).
+const P_INVALID_SURFACE: f64 = 0.45;
+/// Clutter (spurious clusters with no object behind them) is drawn within this range.
+const CLUTTER_RANGE_M: f64 = 70.0;
+/// Same for multipath ghosts and for clutter.
+const P_INVALID_GHOST: f64 = 0.6;
+const P_INVALID_CLUTTER: f64 = 0.75;
 
 /// Where a radar point comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -43,6 +90,35 @@ pub enum Origin {
 pub struct RadarSweep {
     pub points: Vec<RadarPoint>,
     pub origins: Vec<Origin>,
+}
+
+/// Weakest cluster (dBsm) reported at range `r_m`: the radar equation's r⁻⁴ loss, partly
+/// offset by the sensor's range-dependent gain. Fitted to the real RADAR_FRONT files: kept RCS
+/// p10 rises from −3.0 dBsm below 30 m to +1.0 (30–60 m) and +1.5 dBsm beyond 60 m.
+pub fn rcs_min_dbsm(r_m: f64) -> f64 {
+    -10.0 + 12.0 * (r_m.max(1.0) / 10.0).log10()
+}
+
+/// Azimuth resolution (degrees) of the near scan at azimuth `az_rad`: 3.2° at boresight,
+/// 4.5° at ±45°, 12.3° at ±60° (ARS 408-21 data sheet), linear in between. Wider cells merge
+/// the returns of an extended object into fewer clusters; this is what thins out the real
+/// points off boresight (see [`antenna_loss_db`] for the measured azimuth distribution).
+pub fn az_resolution_deg(az_rad: f64) -> f64 {
+    let a = az_rad.to_degrees().abs();
+    if a <= 45.0 {
+        3.2 + (4.5 - 3.2) * a / 45.0
+    } else {
+        4.5 + (12.3 - 4.5) * ((a - 45.0) / 15.0).min(1.0)
+    }
+}
+
+/// Two-way antenna gain loss (dB) off boresight, `az_rad` in the sensor frame. Real kept
+/// RADAR_FRONT points thin out with azimuth: 14.8 / 16.1 / 25.8 / 18.3 / 13.6 / 8.0 / 3.1 / 0.3 %
+/// in the |az| bins 0–5–10–20–30–40–50–60–90°, although a street scene offers the most surface
+/// at high azimuth (the synthetic radar without this loss put 26 % of its kept points at
+/// 40–60°, real 11 %).
+pub fn antenna_loss_db(az_rad: f64) -> f64 {
+    12.0 * (az_rad.to_degrees() / NEAR_FOV_DEG).powi(2)
 }
 
 /// Sensor pose global_from_radar at time t.
@@ -108,7 +184,51 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
     };
     fan(NEAR_FOV_DEG, 0.75, NEAR_RANGE_M, &mut hits);
     fan(FAR_FOV_DEG, 0.25, FAR_RANGE_M, &mut hits);
-
+    // Thin vertical targets (poles, sign posts): the radar beam (degrees wide) always covers
+    // them, but a 0.75° / 0.25° ray fan misses most of them beyond 20 m. Aim one ray at each
+    // one's axis at 1.0 m, 2.2 m and near its top (the elevation beam is several degrees
+    // wide: it sees over parked cars and under tree crowns); it counts when one of these rays
+    // hits nothing else first.
+    for p in &prims {
+        let crate::geom::Shape::Cyl { c, r: rad, z0, z1 } = p.shape else {
+            continue;
+        };
+        if p.surface != Surface::Pole || z0 > 0.5 || z1 < 2.3 || hits.contains_key(&p.obj) {
+            continue;
+        }
+        let flat = DVec3::new(c.x - o.x, c.y - o.y, 0.0);
+        let ls = rt * flat;
+        let az = ls.y.atan2(ls.x);
+        let az_deg = az.to_degrees().abs();
+        let dist_h = flat.length();
+        let in_fov = (az_deg <= NEAR_FOV_DEG && dist_h < NEAR_RANGE_M)
+            || (az_deg <= FAR_FOV_DEG && dist_h < FAR_RANGE_M);
+        if !in_fov || dist_h < 1.0 {
+            continue;
+        }
+        for z in [1.0, 2.2, z1 - 0.2] {
+            let to = DVec3::new(flat.x, flat.y, z - o.z);
+            let dist = to.length();
+            let d = to / dist;
+            let mut best = dist;
+            let mut who = None;
+            for q in &prims {
+                if let Some(tq) = q.intersect(o, d, 0.5, best + rad) {
+                    if tq < best {
+                        best = tq;
+                        who = Some(q.obj);
+                    }
+                }
+            }
+            if who == Some(p.obj) {
+                // Range in the horizontal plane (the radar reports no elevation).
+                hits.entry(p.obj)
+                    .or_default()
+                    .push((best * d.truncate().length(), az));
+                break;
+            }
+        }
+    }
     let mut dets: Vec<Det> = Vec::new();
     for (&obj, hs) in &hits {
         let (kind, surface) = if obj < STATIC_OBJ_BASE {
@@ -127,40 +247,73 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
         let nearest = hs.iter().map(|h| h.0).fold(f64::INFINITY, f64::min);
         let (base_rcs, p_det, max_k) = match (kind, surface) {
             (Some(ActorKind::Pedestrian), _) => (ActorKind::Pedestrian.rcs_dbsm(), 0.55, 1),
-            (Some(k @ (ActorKind::Truck | ActorKind::Bus)), _) => (k.rcs_dbsm(), 0.95, 6),
+            (Some(k @ (ActorKind::Truck | ActorKind::Bus)), _) => (k.rcs_dbsm(), 0.95, 8),
             (Some(k), _) => (k.rcs_dbsm(), 0.92, 4),
-            (None, Some(Surface::Facade)) => (12.0, 0.85, 8),
-            (None, Some(Surface::Wall)) => (8.0, 0.75, 4),
-            (None, Some(Surface::Pole | Surface::LampHead)) => (3.0, 0.8, 1),
-            (None, Some(_)) => (-4.0, 0.35, 1),
+            // Extended facades return many resolution cells along their length.
+            (None, Some(Surface::Facade)) => (12.0, 0.85, 24),
+            (None, Some(Surface::Wall)) => (8.0, 0.75, 8),
+            (None, Some(Surface::Pole | Surface::LampHead)) => (5.0, 0.85, 1),
+            // Trees: trunk and crown, a volume scatterer a few resolution cells wide.
+            (None, Some(_)) => (-2.0, 0.6, 3),
             (None, None) => (0.0, 0.3, 1),
         };
-        // Weak targets fade with range.
-        let p = p_det
-            * (1.0 - (nearest / FAR_RANGE_M).powf(1.5)).max(0.0)
-            * if base_rcs < 0.0 && nearest > 40.0 {
-                0.3
-            } else {
-                1.0
-            };
+        // Targets fade towards the end of the far beam.
+        let p = p_det * (1.0 - (nearest / FAR_RANGE_M).powf(1.5)).max(0.0);
         if !rng.chance(p) {
             continue;
         }
-        // More clusters on objects that fill more of the beam.
-        let k = ((hs.len() as f64 * rng.range(0.15, 0.35)).round() as usize).clamp(1, max_k);
+        // Clusters on an object: one per resolution cell it fills, in azimuth (cells widen off
+        // boresight, see `az_resolution_deg`) and in range (1.79 m, the far scan's range
+        // resolution: a facade seen at a grazing angle spans many range cells).
+        let (mut az_lo, mut az_hi, mut r_lo, mut r_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        for h in hs {
+            az_lo = az_lo.min(h.1);
+            az_hi = az_hi.max(h.1);
+            r_lo = r_lo.min(h.0);
+            r_hi = r_hi.max(h.0);
+        }
+        let cells = (az_hi - az_lo).to_degrees() / az_resolution_deg(0.5 * (az_lo + az_hi))
+            + range_cells(r_lo, r_hi)
+            + 1.0;
+        let k = ((cells * rng.range(0.75, 1.25)).round() as usize).clamp(1, max_k);
         let mut used = Vec::new();
-        for _ in 0..k {
-            let j = rng.below(hs.len());
-            if used.contains(&j) {
+        for i in 0..k {
+            let (range, az) = if i < hs.len() {
+                let j = rng.below(hs.len());
+                if used.contains(&j) {
+                    continue;
+                }
+                used.push(j);
+                hs[j]
+            } else {
+                // More cells than fan rays (a far facade at a grazing angle): aim a
+                // horizontal ray into the object's azimuth span; it counts only when it hits
+                // this object first, so the cluster lies on its surface.
+                let az = rng.range(az_lo, az_hi);
+                let d = r * DVec3::new(az.cos(), az.sin(), 0.0);
+                let mut best = FAR_RANGE_M;
+                let mut who = None;
+                for p in &prims {
+                    if let Some(tp) = p.intersect(o, d, 0.5, best) {
+                        best = tp;
+                        who = Some(p.obj);
+                    }
+                }
+                if who != Some(obj) {
+                    continue;
+                }
+                (best, az)
+            };
+            let rcs = base_rcs + RCS_SIGMA_DB * rng.normal();
+            // Clusters below the sensitivity at their range and azimuth are not reported.
+            if rcs - antenna_loss_db(az) < rcs_min_dbsm(range) {
                 continue;
             }
-            used.push(j);
-            let (range, az) = hs[j];
             dets.push(Det {
                 range,
                 az,
                 obj,
-                rcs: base_rcs + 2.5 * rng.normal(),
+                rcs,
                 v_obj,
                 origin: Origin::Surface { obj },
                 moving_actor,
@@ -191,7 +344,7 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
     let n_clutter = 6 + rng.below(25);
     for _ in 0..n_clutter {
         dets.push(Det {
-            range: rng.range(3.0, NEAR_RANGE_M),
+            range: rng.range(3.0, CLUTTER_RANGE_M),
             az: rng.range(-NEAR_FOV_DEG, NEAR_FOV_DEG).to_radians(),
             obj: u32::MAX,
             rcs: -10.0 + 4.0 * rng.normal(),
@@ -220,9 +373,48 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
         let vr = v_rel.dot(los_g) + 0.1 * rng.normal();
         let vc = d.v_obj.dot(los_g) + 0.1 * rng.normal();
         let speed = d.v_obj.length();
-        let (dyn_prop, ambig, invalid, pdh0) = match d.origin {
-            Origin::Surface { .. } => {
-                let dyn_prop = if speed > 0.5 {
+        // Cluster states (SPEC §2 filters act on them). Rates from the real RADAR_FRONT files
+        // (v1.0-mini, 404 keyframes): invalid_state ≠ 0 48.4 %, ambig_state ≠ 3 9.6 %
+        // (0: 6.7 %, almost all with invalid_state 7 or 3; 1: 2.3 %; 2: 0.6 %; never 4),
+        // dyn_prop 7 0.5 %; together 50.0 % pass the devkit filters.
+        let p_invalid = match d.origin {
+            Origin::Surface { .. } => P_INVALID_SURFACE,
+            Origin::Ghost { .. } => P_INVALID_GHOST,
+            Origin::Clutter => P_INVALID_CLUTTER,
+        };
+        let invalid = if !rng.chance(p_invalid) {
+            0
+        } else if matches!(d.origin, Origin::Ghost { .. }) && rng.chance(0.3) {
+            6 // high mirror probability
+        } else if d.rcs < rcs_min_dbsm(d.range) + 4.0 && rng.chance(0.6) {
+            // "valid cluster with low RCS": real flagged points have lower RCS
+            // (p50 2.0 dBsm against 6.5 for kept points).
+            4
+        } else {
+            let total: u32 = INVALID_CODES.iter().map(|c| c.1).sum();
+            let mut x = rng.below(total as usize) as u32;
+            let mut code = INVALID_CODES[0].0;
+            for &(c, w) in &INVALID_CODES {
+                if x < w {
+                    code = c;
+                    break;
+                }
+                x -= w;
+            }
+            code
+        };
+        let ambig = if matches!(invalid, 7 | 3) && rng.chance(0.95) {
+            0
+        } else if rng.chance(0.025) {
+            1
+        } else if rng.chance(0.006) {
+            2
+        } else {
+            3
+        };
+        let dyn_prop = match d.origin {
+            Origin::Surface { .. } | Origin::Ghost { .. } => {
+                if speed > 0.5 {
                     let along = d.v_obj.dot(los_g) / speed;
                     if along > 0.5 {
                         0
@@ -231,44 +423,20 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
                     } else {
                         6
                     }
-                } else if d.moving_actor && rng.chance(0.6) {
-                    7 // stopped
+                } else if d.moving_actor && rng.chance(0.2) {
+                    7 // stopped (real: 0.5 % of all points)
                 } else {
-                    *rng.pick(&[1, 1, 1, 1, 1, 1, 3, 3, 5])
-                };
-                let ambig = if rng.chance(0.04) {
-                    1
-                } else if speed < 0.5 && rng.chance(0.05) {
-                    4
-                } else {
-                    3
-                };
-                let invalid = if rng.chance(0.05) {
-                    *rng.pick(&[8, 9, 11, 16])
-                } else {
-                    0
-                };
-                (dyn_prop, ambig, invalid, 1)
+                    // Real kept static points: dyn_prop 1 68 %, 3 22 %, 5 0.6 %.
+                    *rng.pick(&[1, 1, 1, 1, 1, 1, 1, 3, 3, 3, 5])
+                }
             }
-            Origin::Ghost { .. } => {
-                let dyn_prop = if speed > 0.5 { 0 } else { 1 };
-                let invalid = if rng.chance(0.5) { 6 } else { 0 };
-                (dyn_prop, 3, invalid, 3 + rng.below(4) as i8)
-            }
-            Origin::Clutter => {
-                let dyn_prop = *rng.pick(&[1, 3, 4, 5]);
-                let invalid = if rng.chance(0.5) {
-                    0
-                } else {
-                    *rng.pick(&[1, 2, 3, 7, 14])
-                };
-                let ambig = if rng.chance(0.7) {
-                    3
-                } else {
-                    *rng.pick(&[0, 1, 4])
-                };
-                (dyn_prop, ambig, invalid, 2 + rng.below(6) as i8)
-            }
+            // Clutter: stationary, stationary candidate or unknown (real dyn_prop 4 = 5.7 %).
+            Origin::Clutter => *rng.pick(&[1, 3, 4, 4]),
+        };
+        let pdh0 = match d.origin {
+            Origin::Surface { .. } => 1,
+            Origin::Ghost { .. } => 3 + rng.below(4) as i8,
+            Origin::Clutter => 2 + rng.below(6) as i8,
         };
         let p = RadarPoint {
             x: (rr * los_s.x) as f32,

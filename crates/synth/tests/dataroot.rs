@@ -270,11 +270,10 @@ fn radar_files_respect_the_format() {
         total += scan.points.len();
         filtered += scan.filtered(true).0.len();
     }
-    // The devkit's default filters act on some, not all, points.
-    assert!(
-        filtered < total && filtered > total / 2,
-        "{filtered} of {total}"
-    );
+    // The devkit's default filters keep about half of the points, as on real RADAR_FRONT
+    // files (50 %, docs/design-synth.md "Radar statistics").
+    let kept = filtered as f64 / total as f64;
+    assert!((0.35..=0.65).contains(&kept), "{filtered} of {total}");
 }
 
 #[test]
