@@ -330,3 +330,72 @@ pub fn load(path: &Path, device: Device) -> Result<Loaded, ModelError> {
         extra,
     })
 }
+
+/// Is `path` a `torch.save` file (zip or legacy pickle) rather than a safetensors file?
+/// Decided by content: zip files start with `PK\x03\x04`, legacy `torch.save` pickles with
+/// the protocol opcode 0x80; a safetensors file starts with its header length.
+pub fn is_torch_file(path: &Path) -> Result<bool, ModelError> {
+    use std::io::Read;
+    let mut head = [0u8; 4];
+    let mut f = std::fs::File::open(path).map_err(|e| ModelError::io(path, e))?;
+    let n = f.read(&mut head).map_err(|e| ModelError::io(path, e))?;
+    Ok((n >= 4 && head == *b"PK\x03\x04") || (n >= 1 && head[0] == 0x80))
+}
+
+/// Loads a network for inference from either
+/// - a depthsense checkpoint (safetensors, written by [`save`]): the network is built from the
+///   stored config, or from `config` when given (every tensor must then match its shapes), or
+/// - a PyTorch file (`torch.save` of a state dict, e.g. the authors' `paper_weights_rvmde.pth`;
+///   zip or legacy format, `module.`/`state_dict.` wrappers removed): such a file carries no
+///   architecture, so `config` is required (normally the `released` preset, SPEC §6.1). The
+///   keys are mapped with [`crate::weights::released_key`] and must cover every variable.
+///
+/// The format is recognised by content ([`is_torch_file`]), not by extension. Returns the
+/// network and, for a PyTorch file, the import report (the `extra` JSON records the source).
+pub fn load_any(
+    path: &Path,
+    config: Option<&ModelConfig>,
+    device: Device,
+) -> Result<(Loaded, Option<crate::weights::LoadReport>), ModelError> {
+    if !is_torch_file(path)? {
+        let Some(cfg) = config else {
+            return Ok((load(path, device)?, None));
+        };
+        let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
+        let (tensors, meta) = parse_safetensors(path, &bytes)?;
+        let (_, extra) = config_of(path, &meta)?;
+        let vs = VarStore::new(device);
+        let net = DepthNet::new(&vs.root(), cfg)?;
+        copy_into(path, &vs, &tensors)?;
+        let loaded = Loaded {
+            vs,
+            net,
+            config: cfg.clone(),
+            extra,
+        };
+        return Ok((loaded, None));
+    }
+    let cfg = config.ok_or_else(|| {
+        ModelError::format(
+            path,
+            "a PyTorch state dict carries no architecture: name it with --config \
+             (`released` for the authors' paper_weights_rvmde.pth, another preset, or a \
+             model-config JSON)",
+        )
+    })?;
+    let mut vs = VarStore::new(device);
+    let net = DepthNet::new(&vs.root(), cfg)?;
+    let report = crate::weights::load_released_checkpoint(&mut vs, path)?;
+    let extra = serde_json::json!({
+        "source": "pytorch state dict",
+        "file": path.display().to_string(),
+        "tensors_loaded": report.loaded.len(),
+    });
+    let loaded = Loaded {
+        vs,
+        net,
+        config: cfg.clone(),
+        extra,
+    };
+    Ok((loaded, Some(report)))
+}

@@ -19,6 +19,30 @@ pub fn pair_differences(logits: &Tensor) -> Tensor {
     pairs.select(2, 1) - pairs.select(2, 0)
 }
 
+/// Lower and upper bound of the authors' logit clamp (SPEC §7, `clamp_logits`).
+pub const CLAMP_MIN: f64 = 1e-8;
+/// Upper bound of the authors' logit clamp.
+pub const CLAMP_MAX: f64 = 1e8;
+
+/// The authors' released head (SPEC §6.1, §7; `clamp_logits`): the 2K logits `[B,2K,h,w]` are
+/// bilinearly upsampled to `height`×`width` **first**, clamped to [1e-8, 1e8], and only then
+/// paired: → `[B,K,height,width]`, z_k = clamp(b_k) − clamp(a_k).
+///
+/// The clamp is not linear, so unlike [`pair_differences`] this cannot be formed at low
+/// resolution; it costs the full-resolution 2K-channel tensor the released code builds.
+/// Their P_k = softmax(clamp(a_k), clamp(b_k))[1] = σ(z_k), so P_k ≥ 0.5 ⇔ z_k ≥ 0 (a pixel
+/// whose a_k and b_k are both clamped to 1e-8 gives z_k = 0, P_k = 0.5, and counts), and the
+/// usual loss, levels and decode apply to z unchanged (their upsampling is the identity).
+pub fn clamped_pair_differences(
+    logits: &Tensor,
+    height: i64,
+    width: i64,
+    align_corners: bool,
+) -> Tensor {
+    let up = upsample(logits, height, width, align_corners).clamp(CLAMP_MIN, CLAMP_MAX);
+    pair_differences(&up)
+}
+
 /// Bilinear upsampling of `[B,C,h,w]` to `[B,C,H,W]` (identity when the size already matches).
 pub fn upsample(x: &Tensor, height: i64, width: i64, align_corners: bool) -> Tensor {
     let (_, _, h, w) = x.size4().expect("upsample: expected a 4-d tensor");

@@ -9,16 +9,18 @@ use tch::{nn::VarStore, Tensor};
 
 use crate::{pickle, ModelError, ShapeMismatch};
 
-/// What an import did.
+/// What an import did. `Display` prints a short summary (counts per module, the partly loaded
+/// tensors and the modules left random); `Debug` lists every name.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct LoadReport {
     /// Network variables overwritten from the file.
     pub loaded: Vec<String>,
-    /// Network variables filled partly (e.g. the first 3 input channels of an early-fusion
-    /// `conv1`; the radar input channels are zeroed).
-    pub partial: Vec<String>,
-    /// File tensors deliberately not used (torchvision `fc.*`, the stem of a deep-stem
-    /// network, `num_batches_tracked`), with the reason.
+    /// Network variables filled partly, with how: the input channels both have are copied
+    /// (an early-fusion `conv1`'s radar channels, or the 128-input `layer1.0` convs of a
+    /// deep-stem network filled from a 64-channel torchvision stem), the rest zeroed.
+    pub partial: Vec<(String, String)>,
+    /// File tensors deliberately not used (torchvision `fc.*`, a stem the network does not
+    /// have, `num_batches_tracked`), with the reason.
     pub skipped: Vec<(String, String)>,
     /// File tensors with no counterpart in the network.
     pub unused: Vec<String>,
@@ -26,34 +28,103 @@ pub struct LoadReport {
     pub left_random: Vec<String>,
 }
 
+/// Report group of a variable: `rgb.layer1`, `rgb.stem` (conv1..4 / bn1..4), `decoder.fpn`…
+fn group_of(name: &str) -> String {
+    let parts: Vec<&str> = name.split('.').collect();
+    if parts.len() == 3
+        && (parts[0] == "rgb" || parts[0] == "radar")
+        && (parts[1].starts_with("conv") || parts[1].starts_with("bn"))
+        && parts[1].ends_with(|c: char| c.is_ascii_digit())
+    {
+        return format!("{}.stem", parts[0]);
+    }
+    parts[..parts.len().min(2)].join(".")
+}
+
+/// Module of a variable (`rgb.bn2.running_mean` → `rgb.bn2`).
+fn module_of(name: &str) -> &str {
+    name.rsplit_once('.').map_or(name, |(m, _)| m)
+}
+
+/// `a, b, c` when at most `max` names, else `a, b, … (n in all)`.
+fn short_list(names: &[&str], max: usize) -> String {
+    if names.len() <= max {
+        names.join(", ")
+    } else {
+        format!("{}, … ({} in all)", names[..max].join(", "), names.len())
+    }
+}
+
 impl fmt::Display for LoadReport {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "loaded {} tensors, partly loaded {}, skipped {}, unused {}, left random {}",
+            "weights: {} tensors loaded, {} partly loaded, {} left random; file tensors: {} \
+             skipped, {} unused",
             self.loaded.len(),
             self.partial.len(),
+            self.left_random.len(),
             self.skipped.len(),
-            self.unused.len(),
-            self.left_random.len()
+            self.unused.len()
         )?;
-        for p in &self.partial {
-            writeln!(f, "  partly loaded: {p}")?;
+        let mut loaded: BTreeMap<String, usize> = BTreeMap::new();
+        for k in &self.loaded {
+            *loaded.entry(group_of(k)).or_default() += 1;
         }
-        for (k, why) in &self.skipped {
-            writeln!(f, "  skipped: {k} ({why})")?;
+        if !loaded.is_empty() {
+            let parts: Vec<String> = loaded.iter().map(|(g, n)| format!("{g} {n}")).collect();
+            writeln!(f, "  loaded: {}", parts.join(", "))?;
         }
-        for k in &self.unused {
-            writeln!(f, "  unused file tensor: {k}")?;
+        for (k, how) in &self.partial {
+            writeln!(f, "  partly loaded: {k} ({how})")?;
         }
-        // Group left-random variables by module for a readable report.
-        let mut groups: BTreeMap<String, usize> = BTreeMap::new();
+        // Left random, one line per top-level part (rgb, decoder, radar, head): the modules
+        // when few, else per group the modules or their count.
+        let mut parts: BTreeMap<&str, BTreeMap<String, BTreeSet<&str>>> = BTreeMap::new();
+        let mut tensors: BTreeMap<&str, usize> = BTreeMap::new();
         for k in &self.left_random {
-            let g = k.split('.').take(2).collect::<Vec<_>>().join(".");
-            *groups.entry(g).or_default() += 1;
+            let top = k.split('.').next().unwrap_or_default();
+            parts
+                .entry(top)
+                .or_default()
+                .entry(group_of(k))
+                .or_default()
+                .insert(module_of(k));
+            *tensors.entry(top).or_default() += 1;
         }
-        for (g, n) in groups {
-            writeln!(f, "  left random: {g}.* ({n} tensors)")?;
+        for (top, groups) in &parts {
+            let n_modules: usize = groups.values().map(BTreeSet::len).sum();
+            let items: Vec<String> = if n_modules <= 8 {
+                groups.values().flatten().map(|m| m.to_string()).collect()
+            } else {
+                groups
+                    .iter()
+                    .flat_map(|(g, ms)| {
+                        if ms.len() <= 3 {
+                            ms.iter().map(|m| m.to_string()).collect::<Vec<_>>()
+                        } else {
+                            vec![format!("{g}.* ({} modules)", ms.len())]
+                        }
+                    })
+                    .collect()
+            };
+            writeln!(
+                f,
+                "  left random: {} ({} tensors)",
+                items.join(", "),
+                tensors[top]
+            )?;
+        }
+        let mut reasons: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+        for (k, why) in &self.skipped {
+            reasons.entry(why).or_default().push(k);
+        }
+        for (why, keys) in reasons {
+            writeln!(f, "  skipped ({why}): {}", short_list(&keys, 6))?;
+        }
+        if !self.unused.is_empty() {
+            let u: Vec<&str> = self.unused.iter().map(String::as_str).collect();
+            writeln!(f, "  unused file tensors: {}", short_list(&u, 10))?;
         }
         Ok(())
     }
@@ -74,13 +145,24 @@ fn strip_wrappers(name: &str) -> &str {
     }
 }
 
+/// May a file tensor of shape `fsz` fill a variable of shape `vsz` partly? Only 4-d conv
+/// weights that differ in their input channels alone qualify, and only where the caller says
+/// so (stem-dependent tensors).
+fn input_channels_differ(vsz: &[i64], fsz: &[i64]) -> bool {
+    vsz.len() == 4 && fsz.len() == 4 && vsz[0] == fsz[0] && vsz[2..] == fsz[2..] && vsz[1] != fsz[1]
+}
+
 /// Copies mapped file tensors into `vs`. `map` turns a file key into a network variable name
-/// (or a skip reason). Shape mismatches are collected and reported all at once.
+/// (or a skip reason); `partial_ok(target, network shape, file shape)` allows a conv weight
+/// whose input channels differ to be filled partly (common input channels copied, the
+/// network's other input channels zeroed). Other shape mismatches are collected and reported
+/// all at once.
 fn import(
     path: &Path,
     vs: &VarStore,
     file: Vec<(String, Tensor)>,
     map: impl Fn(&str) -> Result<String, String>,
+    partial_ok: impl Fn(&str, &[i64], &[i64]) -> bool,
 ) -> Result<LoadReport, ModelError> {
     let vars = vs.variables();
     let mut report = LoadReport::default();
@@ -106,14 +188,7 @@ fn import(
         let (vsz, fsz) = (var.size(), t.size());
         if vsz == fsz {
             assignments.push((target.clone(), t, false));
-        } else if target.ends_with("rgb.conv1.weight")
-            && vsz.len() == 4
-            && fsz.len() == 4
-            && vsz[0] == fsz[0]
-            && vsz[2..] == fsz[2..]
-            && vsz[1] > fsz[1]
-        {
-            // Early fusion: ImageNet filters for the RGB channels, zeros for radar channels.
+        } else if input_channels_differ(&vsz, &fsz) && partial_ok(&target, &vsz, &fsz) {
             assignments.push((target.clone(), t, true));
         } else {
             mismatches.push(ShapeMismatch {
@@ -146,10 +221,26 @@ fn import(
             let mut var = vars[name].shallow_clone();
             let src = src.to_kind(var.kind()).to_device(var.device());
             if *partial {
-                let c = src.size()[1];
-                let _ = var.f_zero_()?;
-                var.f_narrow(1, 0, c)?.f_copy_(&src)?;
-                report.partial.push(name.clone());
+                let (cv, cf) = (var.size()[1], src.size()[1]);
+                let c = cv.min(cf);
+                let how = if cv > cf {
+                    let _ = var.f_zero_()?;
+                    format!(
+                        "file {:?} into network {:?}: input channels 0..{c} copied, \
+                         {c}..{cv} zeroed",
+                        src.size(),
+                        var.size()
+                    )
+                } else {
+                    format!(
+                        "file {:?} into network {:?}: the file's first {c} of {cf} input \
+                         channels copied",
+                        src.size(),
+                        var.size()
+                    )
+                };
+                var.f_narrow(1, 0, c)?.f_copy_(&src.f_narrow(1, 0, c)?)?;
+                report.partial.push((name.clone(), how));
             } else {
                 var.f_copy_(&src)?;
                 report.loaded.push(name.clone());
@@ -168,25 +259,84 @@ fn import(
     Ok(report)
 }
 
-/// Loads a torchvision ResNet state dict (`resnet18/34/50/101-*.pth`, zip format) into the RGB
-/// encoder (`rgb.*`). `fc.*` is skipped; with the deep stem (`released`), torchvision's
-/// `conv1`/`bn1` are skipped as the authors' code does (SPEC §6.1); with early fusion the
-/// RGB filters of `conv1` are copied and the radar filters zeroed. `module.` prefixes are
-/// removed. Any other shape mismatch is an error naming every offending tensor.
+/// Stem of an ImageNet ResNet file or of the network's RGB encoder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stem {
+    /// torchvision: `conv1` 7x7 3→64, `bn1`; layer1 starts from 64 channels.
+    Torchvision,
+    /// DORN deep stem: `conv1` 3→64 s2, `conv2` 64→64, `conv3` 64→128 (+ `bn1..bn3`);
+    /// layer1 starts from 128 channels (SPEC §6.1).
+    Deep,
+}
+
+/// Is `k` (wrappers stripped) a stem tensor (`conv1..3.*`, `bn1..3.*` at the top level)?
+fn is_stem_key(k: &str) -> bool {
+    ["conv1.", "conv2.", "conv3.", "bn1.", "bn2.", "bn3."]
+        .iter()
+        .any(|p| k.starts_with(p))
+}
+
+/// Loads an ImageNet ResNet state dict into the RGB encoder (`rgb.*`): a torchvision file
+/// (`resnet18/34/50/101-*.pth`, stem `conv1` 7x7 + `bn1`) or a deep-stem file as DORN-style
+/// code uses (`conv1`/`conv2`/`conv3` 3→64 s2, 64→64, 64→128 + `bn1..bn3`), zip or legacy
+/// format; `module.` prefixes are removed, `fc.*` is skipped.
+///
+/// - Same stem in file and network: everything is loaded. With early fusion the RGB filters
+///   of `conv1` are copied and the radar input channels zeroed (partly loaded).
+/// - Torchvision file, deep-stem network (`released`, SPEC §6.1): the file's `conv1`/`bn1` are
+///   skipped, as the authors' initialisation does, and the deep stem stays random.
+///   `layer1.0.conv1` and `layer1.0.downsample.0` take 2w = 128 input channels in the network
+///   but w = 64 in the file: they are loaded partly — the file's 64 input channels into the
+///   first 64, the other 64 zeroed (as for early fusion's radar channels) — and named in the
+///   report, never an error.
+/// - Deep-stem file, torchvision-stem network: the file's stem is skipped, and those two
+///   `layer1.0` convs get the file's first 64 of 128 input channels.
+///
+/// Any other shape mismatch is an error naming every offending tensor.
 pub fn load_torchvision_resnet(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
     let file = pickle::read_torch_file(path)?;
     // The deep stem has conv1..conv3 directly under `rgb.`; torchvision's has conv1 only.
-    let deep_stem = vs.variables().contains_key("rgb.conv3.weight");
-    import(path, vs, file, |key| {
-        let k = strip_wrappers(key);
-        if k.starts_with("fc.") {
-            return Err("classifier".into());
-        }
-        if deep_stem && (k.starts_with("conv1.") || k.starts_with("bn1.")) {
-            return Err("torchvision stem; this network has the deep stem".into());
-        }
-        Ok(format!("rgb.{k}"))
-    })
+    let net_stem = if vs.variables().contains_key("rgb.conv3.weight") {
+        Stem::Deep
+    } else {
+        Stem::Torchvision
+    };
+    let file_stem = if file
+        .iter()
+        .any(|(k, _)| strip_wrappers(k) == "conv3.weight")
+    {
+        Stem::Deep
+    } else {
+        Stem::Torchvision
+    };
+    let same_stem = net_stem == file_stem;
+    import(
+        path,
+        vs,
+        file,
+        |key| {
+            let k = strip_wrappers(key);
+            if k.starts_with("fc.") {
+                return Err("classifier".into());
+            }
+            if !same_stem && is_stem_key(k) {
+                return Err(match file_stem {
+                    Stem::Torchvision => {
+                        "torchvision stem; this network has the deep stem (SPEC §6.1)".into()
+                    }
+                    Stem::Deep => "deep stem; this network has the torchvision stem".into(),
+                });
+            }
+            Ok(format!("rgb.{k}"))
+        },
+        |target, vsz, fsz| match target {
+            // Early fusion: ImageNet filters for the RGB channels, zeros for the radar ones.
+            "rgb.conv1.weight" => same_stem && vsz[1] > fsz[1],
+            // The first bottleneck's input width follows the stem (w vs 2w).
+            "rgb.layer1.0.conv1.weight" | "rgb.layer1.0.downsample.0.weight" => !same_stem,
+            _ => false,
+        },
+    )
 }
 
 /// Maps a key of the authors' released checkpoint (SPEC §6.1) to our variable name.
@@ -219,9 +369,13 @@ pub fn released_key(key: &str) -> Option<String> {
 /// named in the error.
 pub fn load_released_checkpoint(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
     let file = pickle::read_torch_file(path)?;
-    let report = import(path, vs, file, |key| {
-        released_key(key).ok_or_else(|| "not part of the released network".into())
-    })?;
+    let report = import(
+        path,
+        vs,
+        file,
+        |key| released_key(key).ok_or_else(|| "not part of the released network".into()),
+        |_, _, _| false,
+    )?;
     let missing: Vec<String> = report.left_random.clone();
     if !missing.is_empty() {
         return Err(ModelError::MissingTensors {
