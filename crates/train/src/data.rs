@@ -753,6 +753,7 @@ pub fn write_toy_dataset(
     let mut index = PreparedIndex {
         version: "v1.0-toy".into(),
         samples: vec![],
+        ..PreparedIndex::default()
     };
     let mut rng = Rng::new(seed);
     for s in 0..scenes {

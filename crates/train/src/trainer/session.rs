@@ -1,0 +1,489 @@
+//! One training run as a [`Trainer`]: `new` (data, partition, network — fresh or resumed —
+//! and RUN/config.json), `validate`, `step`, `end_epoch`, `checkpoint`; [`train`] drives it.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_model::{checkpoint, DepthNet, ModelConfig};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_prep::layout::IndexEntry;
+use indicatif::ProgressBar;
+use tch::{nn::VarStore, Device, Kind};
+
+use super::{
+    all_finite, append_jsonl, batch_tensors, evaluate_net, radar_input_for, save_ckpt, subsample,
+    truncate_metrics, write_curves, State, TrainOptions, TrainSummary, ValRecord, BEST_CKPT,
+    CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+};
+use crate::data::{mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition};
+use crate::error::TrainError;
+use crate::sgd::{poly_lr, Sgd};
+
+/// A training run in progress.
+pub struct Trainer<'o> {
+    opts: &'o TrainOptions,
+    device: Device,
+    ds: Dataset,
+    part: Partition,
+    val_entries: Vec<IndexEntry>,
+    cfg: ModelConfig,
+    vs: VarStore,
+    net: DepthNet,
+    state: State,
+    sgd: Sgd,
+    load: LoadOptions,
+    run: PathBuf,
+    /// Batches per epoch and total iterations.
+    bpe: u64,
+    total: u64,
+    started: Instant,
+    images: usize,
+    train_secs: f64,
+}
+
+/// Loss and learning rate of one optimiser step.
+struct StepResult {
+    loss: f64,
+    lr: f64,
+}
+
+impl<'o> Trainer<'o> {
+    /// Opens the data, partitions it, builds (or resumes) the network and writes RUN/config.json.
+    pub fn new(opts: &'o TrainOptions) -> Result<Self, TrainError> {
+        let started = Instant::now();
+        if opts.batch_size == 0 || opts.epochs == 0 {
+            return Err(TrainError::Config(
+                "batch size and epochs must be at least 1".into(),
+            ));
+        }
+        let device = depthsense_model::device::parse_device(&opts.device)?;
+        let ds = Dataset::open(&opts.data)?;
+        let part = partition(&ds, opts.val_every_scene)?;
+        if part.train.is_empty() || part.val.is_empty() {
+            return Err(TrainError::Data(format!(
+                "{}: {} training and {} validation samples ({}): need both",
+                opts.data.display(),
+                part.train.len(),
+                part.val.len(),
+                part.method
+            )));
+        }
+        let val_entries = subsample(&part.val, opts.max_val_samples);
+        let run = opts.out.clone();
+        std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
+        let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
+        let (vs, net, state, sgd) = if opts.resume && run.join(LAST_CKPT).exists() {
+            resume(opts, &run, &cfg, device)?
+        } else {
+            fresh(opts, &run, &cfg, device)?
+        };
+        let radar = radar_input_for(&cfg, opts.radar_input)?;
+        let load = LoadOptions {
+            radar: radar.unwrap_or_default(),
+            target: opts.target,
+            augment: opts.augment,
+            eval_maps: false,
+            no_radar: radar.is_none(),
+            radar_drop: 0.0,
+            seed: opts.seed,
+        };
+        let full_batches = part.train.len() / opts.batch_size;
+        let natural = if full_batches > 0 { full_batches } else { 1 };
+        let bpe = opts
+            .max_batches_per_epoch
+            .map_or(natural, |m| m.min(natural).max(1)) as u64;
+        let trainer = Trainer {
+            opts,
+            device,
+            ds,
+            part,
+            val_entries,
+            cfg,
+            vs,
+            net,
+            state,
+            sgd,
+            load,
+            run,
+            bpe,
+            total: bpe * opts.epochs as u64,
+            started,
+            images: 0,
+            train_secs: 0.0,
+        };
+        trainer.write_config()?;
+        Ok(trainer)
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.run.join(name)
+    }
+
+    fn write_config(&self) -> Result<(), TrainError> {
+        let part = &self.part;
+        let config_json = serde_json::json!({
+            "train": self.opts,
+            "model": self.cfg,
+            "device": depthsense_model::device::describe(self.device),
+            "partition": {
+                "method": part.method,
+                "train_samples": part.train.len(),
+                "val_samples": part.val.len(),
+                "val_samples_used": self.val_entries.len(),
+                "val_scenes": part.val_scenes,
+            },
+        });
+        let path = self.path(CONFIG_FILE);
+        let text = serde_json::to_string_pretty(&config_json)
+            .map_err(|e| TrainError::Other(e.to_string()))?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| TrainError::io(&path, e))
+    }
+
+    /// Metrics of the current network on the validation samples.
+    pub fn validate(&self, epoch: u64) -> Result<ValRecord, TrainError> {
+        let r = evaluate_net(
+            &self.net,
+            &self.ds,
+            &self.val_entries,
+            &self.load,
+            &self.opts.eval,
+            self.opts.batch_size,
+            self.opts.jobs,
+            self.device,
+            &ProgressBar::hidden(),
+            |_, _| Ok(()),
+        )?;
+        Ok(ValRecord::from_report(epoch, self.state.iteration, &r))
+    }
+
+    /// One SGD step on `batch`; errors on a non-finite loss (nothing is overwritten).
+    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<StepResult, TrainError> {
+        let opts = self.opts;
+        let (image, radar_t, target) = batch_tensors(batch, self.device);
+        let it = self.state.iteration;
+        let lr = poly_lr(opts.lr, it, self.total, opts.lr_power);
+        // Dropout draws depend only on (seed, iteration): exact resume.
+        tch::manual_seed((mix64(opts.seed ^ mix64(it + 1)) >> 1) as i64);
+        let out = if opts.amp && self.device.is_cuda() {
+            tch::autocast(true, || self.net.forward_t(&image, &radar_t, true))
+        } else {
+            self.net.forward_t(&image, &radar_t, true)
+        };
+        let loss = self.net.loss(&out.to_kind(Kind::Float), &target);
+        let lv = loss.double_value(&[]);
+        if !lv.is_finite() {
+            let last = self.path(LAST_CKPT);
+            return Err(TrainError::NonFiniteLoss {
+                loss: lv,
+                epoch,
+                iteration: it + 1,
+                kept: if last.exists() {
+                    last.display().to_string()
+                } else {
+                    "(none: no checkpoint had been written yet)".into()
+                },
+            });
+        }
+        self.sgd.zero_grad();
+        loss.backward();
+        self.sgd.step(lr);
+        self.state.iteration += 1;
+        Ok(StepResult { loss: lv, lr })
+    }
+
+    /// Writes RUN/last.safetensors and its optimiser state (refusing non-finite weights).
+    fn checkpoint(&self) -> Result<(), TrainError> {
+        let last = self.path(LAST_CKPT);
+        let state = &self.state;
+        if !all_finite(&self.vs) {
+            return Err(TrainError::NonFiniteLoss {
+                loss: f64::NAN,
+                epoch: state.epoch,
+                iteration: state.iteration,
+                kept: format!(
+                    "{} (weights became non-finite; not overwritten)",
+                    last.display()
+                ),
+            });
+        }
+        // Optimiser state first: a crash between the two leaves an optimiser file newer than the
+        // checkpoint, which resume detects by the iteration numbers.
+        self.sgd.save(&self.path(LAST_OPTIM), state.iteration)?;
+        save_ckpt(&last, &self.vs, &self.cfg, state, self.opts)
+    }
+
+    /// Epoch end: validate, checkpoint (best when improved), log, plot.
+    fn end_epoch(
+        &mut self,
+        epoch: u64,
+        epoch_loss: f64,
+        epoch_n: usize,
+    ) -> Result<ValRecord, TrainError> {
+        let v = self.validate(epoch + 1)?;
+        self.state.epoch = epoch + 1;
+        self.state.val_rmse = Some(v.rmse);
+        let improved = v.rmse < self.state.best_val_rmse.unwrap_or(f64::INFINITY);
+        if improved {
+            self.state.best_val_rmse = Some(v.rmse);
+        }
+        self.checkpoint()?;
+        if improved {
+            save_ckpt(
+                &self.path(BEST_CKPT),
+                &self.vs,
+                &self.cfg,
+                &self.state,
+                self.opts,
+            )?;
+        }
+        let it = self.state.iteration;
+        append_jsonl(
+            &self.path(METRICS_FILE),
+            &serde_json::json!({"kind": "epoch", "epoch": epoch + 1, "iteration": it,
+                                "train_loss": epoch_loss / epoch_n.max(1) as f64,
+                                "lr": poly_lr(self.opts.lr, it, self.total, self.opts.lr_power),
+                                "images_per_s": self.images as f64 / self.train_secs.max(1e-9),
+                                "seconds": self.started.elapsed().as_secs_f64(), "val": v}),
+        )?;
+        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
+        Ok(v)
+    }
+
+    /// Runs one epoch's batches. Returns true when `stop_after` interrupted it.
+    fn run_epoch(
+        &mut self,
+        epoch: u64,
+        summary: &mut TrainSummary,
+        progress: &ProgressBar,
+    ) -> Result<bool, TrainError> {
+        let opts = self.opts;
+        let skip = (self.state.iteration - epoch * self.bpe) as usize;
+        let plan = EpochPlan {
+            entries: self.part.train.clone(),
+            batch_size: opts.batch_size,
+            epoch,
+            shuffle: true,
+            drop_last: self.part.train.len() / opts.batch_size > 0,
+            skip_batches: skip,
+            jobs: opts.jobs,
+            prefetch: opts.prefetch,
+        };
+        let loader = Loader::start(&self.ds, &self.load, &plan)?;
+        let (mut epoch_loss, mut epoch_n) = (0.0, 0usize);
+        let mut t_iter = Instant::now();
+        for batch in loader.take((self.bpe as usize).saturating_sub(skip)) {
+            let batch = batch?;
+            let StepResult { loss: lv, lr } = self.step(&batch, epoch)?;
+            let it = self.state.iteration;
+            let dt = t_iter.elapsed().as_secs_f64();
+            t_iter = Instant::now();
+            self.train_secs += dt;
+            self.images += batch.size;
+            epoch_loss += lv;
+            epoch_n += 1;
+            summary.losses.push((it, lv));
+            append_jsonl(
+                &self.path(METRICS_FILE),
+                &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
+                                    "loss": lv, "lr": lr}),
+            )?;
+            progress.set_position(it);
+            progress.set_message(format!(
+                "epoch {}/{} loss {lv:.4} lr {lr:.2e} {:.1} img/s",
+                epoch + 1,
+                opts.epochs,
+                batch.size as f64 / dt.max(1e-9)
+            ));
+            let epoch_end = it % self.bpe == 0;
+            let stop_here = opts.stop_after == Some(it);
+            let periodic = opts.checkpoint_every > 0 && it % opts.checkpoint_every == 0;
+            if !epoch_end && (stop_here || periodic) {
+                self.state.epoch = epoch;
+                self.checkpoint()?;
+                if stop_here {
+                    return Ok(true);
+                }
+            }
+        }
+        progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
+        let v = self.end_epoch(epoch, epoch_loss, epoch_n)?;
+        summary.val.push(v);
+        Ok(opts.stop_after == Some(self.state.iteration))
+    }
+
+    /// Trains to the end (or to `stop_after`).
+    pub fn run(mut self, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
+        progress.set_length(self.total);
+        progress.set_position(self.state.iteration);
+        let mut summary = TrainSummary {
+            run_dir: self.run.clone(),
+            losses: vec![],
+            val: vec![],
+            iterations_done: self.state.iteration,
+            total_iterations: self.total,
+            interrupted: false,
+            best_val_rmse: self.state.best_val_rmse.unwrap_or(f64::INFINITY),
+            train_images_per_s: 0.0,
+            seconds: 0.0,
+            partition: self.part.clone(),
+        };
+        if self.state.iteration == 0 {
+            progress.set_message("validating the initial network");
+            let v = self.validate(0)?;
+            append_jsonl(
+                &self.path(METRICS_FILE),
+                &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
+            )?;
+            summary.val.push(v);
+        }
+        let start_epoch = self.state.iteration / self.bpe;
+        for epoch in start_epoch..self.opts.epochs as u64 {
+            if self.run_epoch(epoch, &mut summary, progress)? {
+                summary.interrupted = true;
+                break;
+            }
+        }
+        self.finish(summary)
+    }
+
+    fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, TrainError> {
+        summary.iterations_done = self.state.iteration;
+        summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
+        summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
+        summary.seconds = self.started.elapsed().as_secs_f64();
+        let metrics = self.path(METRICS_FILE);
+        if metrics.exists() {
+            write_curves(&metrics, &self.path(CURVES_FILE))?;
+        }
+        Ok(summary)
+    }
+}
+
+/// The requested model config with the output resolution of the data's frames.
+fn model_config_for_data(
+    opts: &TrainOptions,
+    ds: &Dataset,
+    first: &IndexEntry,
+) -> Result<ModelConfig, TrainError> {
+    let probe = crate::data::load_sample(
+        ds,
+        first,
+        &LoadOptions {
+            no_radar: true,
+            ..LoadOptions::default()
+        },
+        &mut crate::data::Rng::new(0),
+    )?;
+    let mut cfg = opts.model.clone();
+    cfg.out_height = probe.height as i64;
+    cfg.out_width = probe.width as i64;
+    Ok(cfg)
+}
+
+type Built = (VarStore, DepthNet, State, Sgd);
+
+/// A new network (seeded), optional ImageNet backbone, empty optimiser state.
+fn fresh(
+    opts: &TrainOptions,
+    run: &Path,
+    cfg: &ModelConfig,
+    device: Device,
+) -> Result<Built, TrainError> {
+    let last = run.join(LAST_CKPT);
+    if opts.resume {
+        eprintln!(
+            "note: --resume given but {} does not exist: starting from scratch",
+            last.display()
+        );
+    }
+    tch::manual_seed(opts.seed as i64);
+    let mut vs = VarStore::new(device);
+    let net = DepthNet::new(&vs.root(), cfg)?;
+    if let Some(w) = &opts.backbone_weights {
+        let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
+        eprintln!("backbone weights from {}: {report:?}", w.display());
+    }
+    let _ = std::fs::remove_file(run.join(METRICS_FILE));
+    let sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
+    let state = State {
+        kind: "depthsense-train".into(),
+        iteration: 0,
+        epoch: 0,
+        seed: opts.seed,
+        best_val_rmse: None,
+        batch_size: opts.batch_size,
+        epochs: opts.epochs,
+        lr: opts.lr,
+        val_rmse: None,
+    };
+    Ok((vs, net, state, sgd))
+}
+
+/// The network, state and optimiser of RUN/last.safetensors, checked against `opts`.
+fn resume(
+    opts: &TrainOptions,
+    run: &Path,
+    cfg: &ModelConfig,
+    device: Device,
+) -> Result<Built, TrainError> {
+    let last = run.join(LAST_CKPT);
+    let last_optim = run.join(LAST_OPTIM);
+    // Build the requested network and copy the checkpoint into it: a checkpoint of another
+    // configuration fails here with every offending tensor named (model::checkpoint).
+    let vs = VarStore::new(device);
+    let net = DepthNet::new(&vs.root(), cfg)?;
+    let bytes = std::fs::read(&last).map_err(|e| TrainError::io(&last, e))?;
+    let (tensors, _) = checkpoint::parse_safetensors(&last, &bytes)?;
+    checkpoint::copy_into(&last, &vs, &tensors)?;
+    let (ck_cfg, extra) = checkpoint::read_config(&last)?;
+    if &ck_cfg != cfg {
+        return Err(TrainError::Config(format!(
+            "--resume: {} holds a different model config than requested \
+             (checkpoint preset {:?}, requested {:?}); resume with the same --config",
+            last.display(),
+            ck_cfg.name,
+            cfg.name
+        )));
+    }
+    let state: State =
+        serde_json::from_value(extra["train_state"].clone()).map_err(|e| TrainError::Parse {
+            path: last.display().to_string(),
+            reason: format!("train_state: {e}"),
+        })?;
+    if state.batch_size != opts.batch_size
+        || state.epochs != opts.epochs
+        || state.lr != opts.lr
+        || state.seed != opts.seed
+    {
+        return Err(TrainError::Config(format!(
+            "--resume: {} was trained with batch {} epochs {} lr {} seed {}; \
+             an exact resume needs the same values (got batch {} epochs {} lr {} seed {})",
+            last.display(),
+            state.batch_size,
+            state.epochs,
+            state.lr,
+            state.seed,
+            opts.batch_size,
+            opts.epochs,
+            opts.lr,
+            opts.seed
+        )));
+    }
+    let mut sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
+    let opt_it = sgd.load(&last_optim)?;
+    if opt_it != state.iteration {
+        return Err(TrainError::Data(format!(
+            "{} is at iteration {opt_it} but {} at {}: the pair is inconsistent",
+            last_optim.display(),
+            last.display(),
+            state.iteration
+        )));
+    }
+    truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
+    Ok((vs, net, state, sgd))
+}
+
+/// Train a network. See the module docs for what lands in `opts.out`.
+pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
+    Trainer::new(opts)?.run(progress)
+}
