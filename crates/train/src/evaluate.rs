@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use depthsense_metrics::{tables, EvalConfig, Report};
-use depthsense_model::checkpoint;
+use depthsense_model::checkpoint::{self, Loaded};
+use depthsense_model::weights::LoadReport;
+use depthsense_model::ModelConfig;
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
 use indicatif::ProgressBar;
@@ -20,7 +22,16 @@ pub const HELD_OUT: &str = "held-out";
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalOptions {
+    /// A depthsense checkpoint (`.safetensors`) or a PyTorch state dict (`.pth`, e.g. the
+    /// authors' released weights; needs `config`).
     pub checkpoint: PathBuf,
+    /// Architecture: a preset name or a model-config JSON. Required for a PyTorch file;
+    /// overrides the stored config of a depthsense checkpoint.
+    #[serde(default)]
+    pub config: Option<String>,
+    /// `key=value` overrides of the config (`ModelConfig::set_option`).
+    #[serde(default)]
+    pub set: Vec<String>,
     pub data: PathBuf,
     /// "held-out" (default: the `test` split, or the scenes `train` held out), "all", or a
     /// split name of the index (test-night, official-val, …).
@@ -45,6 +56,8 @@ impl Default for EvalOptions {
     fn default() -> Self {
         Self {
             checkpoint: PathBuf::from("runs/train/best.safetensors"),
+            config: None,
+            set: Vec::new(),
             data: PathBuf::from("prepared"),
             split: HELD_OUT.into(),
             val_every_scene: 5,
@@ -82,16 +95,51 @@ pub fn select_split(
     Ok(v)
 }
 
-/// Evaluate a checkpoint. Returns the report (every row).
+/// Loads a network for `eval` / `predict`: a depthsense checkpoint, or a PyTorch state dict
+/// (the authors' released weights) with `config` naming the architecture (preset name or
+/// model-config JSON; SPEC §6.1). `set` holds `key=value` overrides applied to `config` (or,
+/// without `config`, to the checkpoint's stored config). Returns the import report for a
+/// PyTorch file.
+pub fn load_model(
+    checkpoint_path: &Path,
+    config: Option<&str>,
+    set: &[String],
+    device: tch::Device,
+) -> Result<(Loaded, Option<LoadReport>), TrainError> {
+    let cfg = match (config, set.is_empty()) {
+        (Some(c), _) => Some(ModelConfig::resolve(c)?.with_options(set)?),
+        (None, true) => None,
+        (None, false) if !checkpoint::is_torch_file(checkpoint_path)? => Some(
+            checkpoint::read_config(checkpoint_path)?
+                .0
+                .with_options(set)?,
+        ),
+        (None, false) => None, // load_any names the missing --config
+    };
+    Ok(checkpoint::load_any(checkpoint_path, cfg.as_ref(), device)?)
+}
+
+/// Evaluate a checkpoint (see [`load_model`] for what `opts.checkpoint` may be). Returns the
+/// report (every row).
 pub fn run_eval(opts: &EvalOptions, progress: &ProgressBar) -> Result<Report, TrainError> {
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let (loaded, _) = load_model(&opts.checkpoint, opts.config.as_deref(), &opts.set, device)?;
+    run_eval_loaded(opts, &loaded, progress)
+}
+
+/// Evaluate an already loaded network (`opts.checkpoint`, `config` and `set` are not read).
+pub fn run_eval_loaded(
+    opts: &EvalOptions,
+    loaded: &Loaded,
+    progress: &ProgressBar,
+) -> Result<Report, TrainError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
         return Err(TrainError::Config(format!(
             "--radar-drop must be within [0, 1], got {}",
             opts.radar_drop
         )));
     }
-    let device = depthsense_model::device::parse_device(&opts.device)?;
-    let loaded = checkpoint::load(&opts.checkpoint, device)?;
+    let device = loaded.vs.device();
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(
         &select_split(&ds, &opts.split, opts.val_every_scene)?,
@@ -142,4 +190,90 @@ pub fn write_tables(dir: &Path, models: &[(&str, &Report)]) -> Result<(), TrainE
             .map_err(|e| TrainError::Other(e.to_string()))?
             .as_bytes(),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use depthsense_model::{pickle, DepthNet};
+    use tch::{nn::VarStore, Device, Tensor};
+
+    fn narrow_released() -> ModelConfig {
+        ModelConfig::released()
+            .with_options(&[
+                "width=8",
+                "radar-width=8",
+                "decoder-channels=16",
+                "head-channels=16",
+                "out-height=64",
+                "out-width=128",
+            ])
+            .unwrap()
+    }
+
+    #[test]
+    fn load_model_takes_a_pytorch_state_dict_with_config_and_our_checkpoints() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = narrow_released();
+        let vs = VarStore::new(Device::Cpu);
+        let _net = DepthNet::new(&vs.root(), &cfg).unwrap();
+        // the authors' key names (SPEC §6.1), as `torch.save(model.state_dict())` writes them
+        let theirs = |k: &str| -> String {
+            if let Some(r) = k.strip_prefix("rgb.").or(k.strip_prefix("decoder.")) {
+                format!("retinanet.backbone.{r}")
+            } else if let Some(r) = k.strip_prefix("radar.") {
+                format!("resnet_radar.backbone.{r}")
+            } else {
+                k.replace("head.conv1", "concat_process.1")
+                    .replace("head.conv2", "concat_process.4")
+            }
+        };
+        let sd: Vec<(String, Tensor)> = vs
+            .variables()
+            .into_iter()
+            .map(|(k, v)| (theirs(&k), v.detach() * 1.5))
+            .collect();
+        let pth = dir.path().join("paper_weights.pth");
+        pickle::write_torch_state_dict(&pth, &sd).unwrap();
+
+        // a .pth needs --config
+        let e = load_model(&pth, None, &[], Device::Cpu)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("paper_weights.pth") && e.contains("--config"),
+            "{e}"
+        );
+        // a JSON config works as well as a preset name; --set applies on top
+        let json = dir.path().join("released-narrow.json");
+        std::fs::write(&json, serde_json::to_string(&cfg).unwrap()).unwrap();
+        let (l, rep) = load_model(
+            &pth,
+            Some(json.to_str().unwrap()),
+            &["decode-offset=0.5".into()],
+            Device::Cpu,
+        )
+        .unwrap();
+        let rep = rep.unwrap();
+        assert_eq!(rep.loaded.len(), sd.len());
+        assert_eq!(l.config.sid.decode_offset_m, 0.5);
+        assert!(l.config.clamp_logits && l.config.radar_in_metres);
+        let k = "rgb.layer3.0.conv2.weight";
+        assert!(l.vs.variables()[k].equal(&sd.iter().find(|x| x.0 == theirs(k)).unwrap().1));
+        assert!(rep.to_string().starts_with("weights: "));
+        // the wrong architecture names every mismatch
+        let e = load_model(&pth, Some("released"), &[], Device::Cpu)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("mismatching shapes"), "{e}");
+
+        // our checkpoints load as before; --set overrides the stored config
+        let ck = dir.path().join("ck.safetensors");
+        checkpoint::save(&ck, &l.vs, &l.config, &serde_json::Value::Null).unwrap();
+        let (l2, rep2) = load_model(&ck, None, &[], Device::Cpu).unwrap();
+        assert!(rep2.is_none());
+        assert_eq!(l2.config, l.config);
+        let (l3, _) = load_model(&ck, None, &["decode-offset=0".into()], Device::Cpu).unwrap();
+        assert_eq!(l3.config.sid.decode_offset_m, 0.0);
+    }
 }

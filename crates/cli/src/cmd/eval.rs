@@ -4,13 +4,21 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_train::evaluate::{run_eval, write_tables, EvalOptions};
+use depthsense_train::evaluate::{load_model, run_eval_loaded, write_tables, EvalOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Checkpoint written by `train` (e.g. RUN/best.safetensors).
+    /// Checkpoint written by `train` (e.g. RUN/best.safetensors), or a PyTorch state dict
+    /// such as the authors' paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
     checkpoint: PathBuf,
+    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
+    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
+    #[arg(long)]
+    config: Option<String>,
+    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
     /// Prepared data directory (holds index.json).
     #[arg(long)]
     data: PathBuf,
@@ -69,6 +77,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     });
     let opts = EvalOptions {
         checkpoint: a.checkpoint,
+        config: a.config,
+        set: a.set,
         data: a.data,
         split: a.split,
         val_every_scene: a.val_every_scene,
@@ -87,8 +97,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,
         name: a.name.clone(),
     };
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let (loaded, load_report) =
+        load_model(&opts.checkpoint, opts.config.as_deref(), &opts.set, device)?;
+    if let Some(r) = &load_report {
+        eprint!("{}: {r}", opts.checkpoint.display());
+    }
     let pb = super::train::progress_bar("eval");
-    let report = run_eval(&opts, &pb)?;
+    let report = run_eval_loaded(&opts, &loaded, &pb)?;
     pb.finish_and_clear();
     let models = [(a.name.as_str(), &report)];
     write_tables(&out, &models)?;

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_model::checkpoint;
+use depthsense_train::evaluate::load_model;
 use depthsense_train::predict::{
     input_from_prepared, input_from_raw, input_from_token, predict, write_outputs,
 };
@@ -12,9 +12,17 @@ use depthsense_train::trainer::radar_input_for;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Checkpoint written by `train`.
+    /// Checkpoint written by `train`, or a PyTorch state dict such as the authors'
+    /// paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
     checkpoint: PathBuf,
+    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
+    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
+    #[arg(long)]
+    config: Option<String>,
+    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
     /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
     #[arg(long, conflicts_with_all = ["token", "image"])]
     sample: Option<PathBuf>,
@@ -77,7 +85,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         anyhow::bail!("give one input: --sample DIR, --token T --dataroot D, or --image J --radar P --calibration C");
     };
     let device = depthsense_model::device::parse_device(&a.device)?;
-    let loaded = checkpoint::load(&a.checkpoint, device)?;
+    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
+    if let Some(r) = &load_report {
+        eprint!("{}: {r}", a.checkpoint.display());
+    }
     let radar = radar_input_for(&loaded.config, None)?;
     let depth = predict(&loaded.net, &input, radar, device)?;
     let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
