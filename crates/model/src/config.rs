@@ -61,6 +61,65 @@ pub enum RadarBranchKind {
     Bottleneck,
 }
 
+/// Which prepared radar map(s) feed the radar channels (SPEC §5). Stored with the model so that
+/// `eval` and `predict` feed a network the input it was trained on.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum RadarInput {
+    /// Height-extended strips (SPEC §5, the paper's default input): 1 channel.
+    #[default]
+    Height,
+    /// One pixel per radar point (SPEC §5 raw): 1 channel.
+    Raw,
+    /// Raw then height-extended: 2 channels.
+    RawHeight,
+}
+
+impl RadarInput {
+    /// Number of radar channels this input produces.
+    pub fn channels(self) -> usize {
+        match self {
+            Self::Height | Self::Raw => 1,
+            Self::RawHeight => 2,
+        }
+    }
+
+    /// The input for a network with `c` radar channels (0/1 → height, 2 → raw + height).
+    pub fn for_channels(c: i64) -> Result<Self, ModelError> {
+        match c {
+            0 | 1 => Ok(Self::Height),
+            2 => Ok(Self::RawHeight),
+            other => Err(ModelError::InvalidConfig(format!(
+                "no prepared radar input has {other} channels (1 = height-extended or raw, \
+                 2 = raw + height-extended; MER's 7 channels are not prepared)"
+            ))),
+        }
+    }
+
+    /// The name used on the command line and in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Height => "height",
+            Self::Raw => "raw",
+            Self::RawHeight => "raw-height",
+        }
+    }
+}
+
+impl std::str::FromStr for RadarInput {
+    type Err = ModelError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "height" => Ok(Self::Height),
+            "raw" => Ok(Self::Raw),
+            "raw-height" => Ok(Self::RawHeight),
+            o => Err(ModelError::InvalidConfig(format!(
+                "unknown radar input {o:?} (height, raw, raw-height)"
+            ))),
+        }
+    }
+}
+
 /// Spacing-increasing discretisation (SPEC §7).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
 pub struct SidConfig {
@@ -114,6 +173,18 @@ pub struct ModelConfig {
     pub dropout: f64,
     /// Radar input channels: 1 (height-extended or raw) or 7 (raw + 6 MER), SPEC §5.
     pub radar_channels: i64,
+    /// Which prepared radar map(s) the radar channels carry (SPEC §5). Set by `train`, read by
+    /// `eval` and `predict`. Absent in old checkpoints: height-extended.
+    #[serde(default)]
+    pub radar_input: RadarInput,
+    /// Radar enters the network in metres as the authors' code feeds it (released), instead of
+    /// scaled by 1/β (our default, SPEC §6). Absent in old checkpoints: false.
+    #[serde(default)]
+    pub radar_in_metres: bool,
+    /// Clamp the 2K logits to [1e-8, 1e8] before the pairwise softmax — the peers' bug of
+    /// SPEC §7, needed only to reproduce the authors' released weights (`released` preset).
+    #[serde(default)]
+    pub clamp_logits: bool,
     /// Radar branch architecture (late fusion).
     pub radar_branch: RadarBranchKind,
     /// Base width of the radar branch (64 in SPEC §6).
@@ -125,6 +196,11 @@ pub struct ModelConfig {
     pub sid: SidConfig,
     /// align_corners of the bilinear upsampling of head outputs (released: true). SPEC §6.
     pub align_corners: bool,
+    /// The network sees its inputs downscaled by this integer factor (image: s×s average; radar:
+    /// nearest depth per s×s cell) and still decodes at `out_height`×`out_width`, where the loss
+    /// and the metrics are computed. 1 = full resolution (paper); small CPU presets use 2.
+    #[serde(default = "one")]
+    pub input_downscale: i64,
     /// Full-resolution output height (350, SPEC §3).
     pub out_height: i64,
     /// Full-resolution output width (800, SPEC §3).
@@ -149,11 +225,15 @@ impl ModelConfig {
             head_pre_dropout: false,
             dropout: 0.5,
             radar_channels: 1,
+            radar_input: RadarInput::Height,
+            radar_in_metres: false,
+            clamp_logits: false,
             radar_branch: RadarBranchKind::Basic,
             radar_width: 64,
             radar_out_channels: 512,
             sid: SidConfig::default(),
             align_corners: true,
+            input_downscale: 1,
             out_height: 350,
             out_width: 800,
         }
@@ -176,11 +256,20 @@ impl ModelConfig {
             head_pre_dropout: true,
             dropout: 0.5,
             radar_channels: 1,
+            // The authors' conventions (their code): radar in metres, clamped logits,
+            // decoded depth = SID bin centre − 0.3 m (SPEC §7).
+            radar_input: RadarInput::Height,
+            radar_in_metres: true,
+            clamp_logits: true,
             radar_branch: RadarBranchKind::Bottleneck,
             radar_width: 64,
             radar_out_channels: 512,
-            sid: SidConfig::default(),
+            sid: SidConfig {
+                decode_offset_m: 0.3,
+                ..SidConfig::default()
+            },
             align_corners: true,
+            input_downscale: 1,
             out_height: 350,
             out_width: 800,
         }
@@ -201,8 +290,19 @@ impl ModelConfig {
             head_channels: 32,
             radar_width: 8,
             radar_out_channels: 64,
+            dropout: Self::dropout_for_head(32),
             ..Self::paper()
         }
+    }
+
+    /// Head Dropout2d probability scaled with the head's width: the paper's 0.5 at its 512+
+    /// channels, p = 0.5·C/512 below. Dropout2d(0.5) on a 32-channel head zeroes 16 of 32
+    /// feature maps of the whole image each step, and the tiny network then collapses to a
+    /// constant depth even with the fixed initialisation (measured,
+    /// ../shared/notes/training-init-evidence.md); at 0.5·32/512 ≈ 0.03 it drops about one
+    /// map per image, the same *number* of maps relative to the paper's redundancy.
+    pub fn dropout_for_head(head_channels: i64) -> f64 {
+        0.5 * (head_channels as f64 / 512.0).clamp(0.0, 1.0)
     }
 
     /// A preset by name: `paper`, `released` or `tiny`.
@@ -255,11 +355,21 @@ impl ModelConfig {
         if s.bins < 1 || !ordered {
             return bad(format!("sid {s:?}: need bins ≥ 1 and 0 < alpha_m < beta_m"));
         }
+        if !(1..=8).contains(&self.input_downscale) {
+            return bad(format!(
+                "input_downscale {} (expected 1..=8)",
+                self.input_downscale
+            ));
+        }
         if self.out_height < 1 || self.out_width < 1 {
             return bad("out_height and out_width must be ≥ 1".into());
         }
         Ok(())
     }
+}
+
+fn one() -> i64 {
+    1
 }
 
 fn parse_bool(key: &str, v: &str) -> Result<bool, ModelError> {
@@ -286,6 +396,9 @@ impl ModelConfig {
         "attention (on|off)",
         "head (ordinal|l1|l2)",
         "radar-channels (1|7)",
+        "radar-input (height|raw|raw-height)",
+        "radar-in-metres (on|off)",
+        "clamp-logits (on|off; the released code's bug, SPEC §7)",
         "radar-branch (basic|bottleneck)",
         "radar-width",
         "decoder (topdown|released)",
@@ -298,6 +411,7 @@ impl ModelConfig {
         "beta",
         "decode-offset (metres)",
         "align-corners (on|off)",
+        "input-downscale (1 = full resolution)",
         "out-height",
         "out-width",
     ];
@@ -328,6 +442,12 @@ impl ModelConfig {
                 }
             }
             "radar-channels" => self.radar_channels = parse_num(key, v)?,
+            "radar-input" => {
+                self.radar_input = v.parse()?;
+                self.radar_channels = self.radar_input.channels() as i64;
+            }
+            "radar-in-metres" | "radar-in-meters" => self.radar_in_metres = parse_bool(key, v)?,
+            "clamp-logits" => self.clamp_logits = parse_bool(key, v)?,
             "radar-branch" => {
                 self.radar_branch = match lower.as_str() {
                     "basic" => RadarBranchKind::Basic,
@@ -360,6 +480,7 @@ impl ModelConfig {
             "beta" | "beta-m" => self.sid.beta_m = parse_num(key, v)?,
             "decode-offset" | "decode-offset-m" => self.sid.decode_offset_m = parse_num(key, v)?,
             "align-corners" => self.align_corners = parse_bool(key, v)?,
+            "input-downscale" => self.input_downscale = parse_num(key, v)?,
             "out-height" => self.out_height = parse_num(key, v)?,
             "out-width" => self.out_width = parse_num(key, v)?,
             other => {

@@ -39,6 +39,57 @@ pub(crate) fn out_len(n: i64, k: i64, s: i64, p: i64, d: i64) -> i64 {
     (n + 2 * p - d * (k - 1) - 1) / s + 1
 }
 
+/// How a conv's parameters start (DEVELOPERS: initialisation is part of the method).
+///
+/// tch's `ConvConfig::default()` is He-uniform with ReLU gain (bound √6/√fan_in, bias 0): 2.45×
+/// PyTorch's `nn.Conv2d` bound per layer, which compounds through the decoder, attention and
+/// head (no BatchNorm there) into saturated initial logits — the network then sits on the label
+/// marginal (../shared/notes/training-init-evidence.md). We never use tch's default.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ConvInit {
+    /// PyTorch's `nn.Conv2d.reset_parameters`: kaiming_uniform(a = √5), i.e. weight and bias
+    /// ~ U(±1/√fan_in), fan_in = cin·k·k. Every conv without BatchNorm after it.
+    PyTorch,
+    /// torchvision's ResNet: weight ~ N(0, 2/fan_out), fan_out = cout·k·k (kaiming_normal,
+    /// mode fan_out, ReLU), bias 0. Convs followed by BatchNorm.
+    TorchvisionResNet,
+    /// Weight and bias 0: the spatial-attention conv, so that its gate starts as the identity.
+    Zero,
+}
+
+impl ConvInit {
+    fn inits(self, cin: i64, cout: i64, k: i64) -> (nn::Init, nn::Init) {
+        match self {
+            ConvInit::PyTorch => {
+                let bound = 1.0 / ((cin * k * k) as f64).sqrt();
+                let u = nn::Init::Uniform {
+                    lo: -bound,
+                    up: bound,
+                };
+                (u, u)
+            }
+            ConvInit::TorchvisionResNet => (
+                nn::Init::Randn {
+                    mean: 0.0,
+                    stdev: (2.0 / (cout * k * k) as f64).sqrt(),
+                },
+                nn::Init::Const(0.0),
+            ),
+            ConvInit::Zero => (nn::Init::Const(0.0), nn::Init::Const(0.0)),
+        }
+    }
+}
+
+/// BatchNorm as PyTorch starts it: γ = 1, β = 0 (tch's default draws γ ~ U(0, 1)).
+pub(crate) fn batch_norm2d(p: &P, channels: i64) -> nn::BatchNorm {
+    let cfg = nn::BatchNormConfig {
+        ws_init: nn::Init::Const(1.0),
+        bs_init: nn::Init::Const(0.0),
+        ..Default::default()
+    };
+    nn::batch_norm2d(&p.p, channels, cfg)
+}
+
 /// A 2-d convolution remembering its geometry.
 pub(crate) struct Conv {
     conv: nn::Conv2D,
@@ -63,11 +114,20 @@ impl Conv {
         dil: i64,
         bias: bool,
     ) -> Conv {
+        Self::with_init(p, [cin, cout, k, stride, pad, dil], bias, ConvInit::PyTorch)
+    }
+
+    /// A conv with an explicit initialisation; `geom` = [cin, cout, k, stride, pad, dil].
+    pub fn with_init(p: &P, geom: [i64; 6], bias: bool, init: ConvInit) -> Conv {
+        let [cin, cout, k, stride, pad, dil] = geom;
+        let (ws_init, bs_init) = init.inits(cin, cout, k);
         let cfg = nn::ConvConfig {
             stride,
             padding: pad,
             dilation: dil,
             bias,
+            ws_init,
+            bs_init,
             ..Default::default()
         };
         Conv {
@@ -122,8 +182,13 @@ impl ConvBn {
         dil: i64,
     ) -> ConvBn {
         ConvBn {
-            conv: Conv::new(pc, cin, cout, k, stride, pad, dil, false),
-            bn: nn::batch_norm2d(&pb.p, cout, Default::default()),
+            conv: Conv::with_init(
+                pc,
+                [cin, cout, k, stride, pad, dil],
+                false,
+                ConvInit::TorchvisionResNet,
+            ),
+            bn: batch_norm2d(pb, cout),
         }
     }
     /// Conv then BN (no activation), shapes as [`Conv::forward`].

@@ -10,6 +10,8 @@ pub mod checkpoint;
 pub mod config;
 pub mod device;
 mod error;
+#[cfg(test)]
+mod init_tests;
 mod layers;
 mod net;
 pub mod ordinal;
@@ -21,7 +23,7 @@ pub mod sid;
 pub mod weights;
 
 pub use config::{
-    DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, SidConfig, StemKind,
+    DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, RadarInput, SidConfig, StemKind,
 };
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;

@@ -3,7 +3,7 @@
 use tch::{nn, Kind, Tensor};
 
 use crate::config::{DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, StemKind};
-use crate::layers::{BlockKind, Conv, MacRows, ResNet, ResNetSpec, P};
+use crate::layers::{BlockKind, Conv, ConvInit, MacRows, ResNet, ResNetSpec, P};
 use crate::{ordinal, ModelError};
 
 fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {
@@ -288,10 +288,16 @@ impl DepthNet {
         );
         let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(&root, cfg));
         let fused = decoder.out_channels() + radar.as_ref().map_or(0, |r| r.out_channels);
-        // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → sigmoid.
-        let attention = cfg
-            .attention
-            .then(|| Conv::new(&root.sub("attention").sub("conv"), 2, 1, 7, 1, 3, 1, true));
+        // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → gate. The conv
+        // starts at zero so that the gate 2σ(s) starts as the identity (see `forward_logits_t`).
+        let attention = cfg.attention.then(|| {
+            Conv::with_init(
+                &root.sub("attention").sub("conv"),
+                [2, 1, 7, 1, 3, 1],
+                true,
+                ConvInit::Zero,
+            )
+        });
         let h = root.sub("head");
         let head1 = Conv::new(&h.sub("conv1"), fused, cfg.head_channels, 1, 1, 0, 1, true);
         let head2 = Conv::new(
@@ -326,8 +332,15 @@ impl DepthNet {
     /// h×w is stride 8 (top-down decoder) or 32 (released decoder).
     pub fn forward_logits_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
         let cfg = &self.cfg;
-        // The network sees radar depth scaled by 1/β (the caller passes metres).
-        let radar_scaled = || radar.to_kind(image.kind()) * (1.0 / cfg.sid.beta_m);
+        let (image, radar) = &self.downscale_inputs(image, radar);
+        // The network sees radar depth scaled by 1/β (the caller passes metres), or in metres
+        // as the authors' code feeds it (`radar_in_metres`, released).
+        let radar_scale = if cfg.radar_in_metres {
+            1.0
+        } else {
+            1.0 / cfg.sid.beta_m
+        };
+        let radar_scaled = || radar.to_kind(image.kind()) * radar_scale;
         let input = match cfg.fusion {
             Fusion::Early => Tensor::cat(&[image.shallow_clone(), radar_scaled()], 1),
             _ => image.shallow_clone(),
@@ -338,11 +351,7 @@ impl DepthNet {
             let r = resize_to(&rb.forward_t(&radar_scaled(), train), hw_of(&f), false);
             f = Tensor::cat(&[f, r], 1);
         }
-        if let Some(att) = &self.attention {
-            let mean = f.mean_dim(1, true, f.kind());
-            let (max, _) = f.max_dim(1, true);
-            f = &f * att.forward(&Tensor::cat(&[mean, max], 1)).sigmoid();
-        }
+        f = self.attend(&f);
         if cfg.head_pre_dropout {
             f = f.feature_dropout(cfg.dropout, train);
         }
@@ -359,12 +368,59 @@ impl DepthNet {
         }
     }
 
+    /// `input_downscale` = s > 1: image `[B,3,H,W]` → `[B,3,H/s,W/s]` by s×s averaging, radar
+    /// `[B,C,H,W]` → `[B,C,H/s,W/s]` keeping the nearest non-zero depth of each s×s cell (SPEC
+    /// §5: nearest wins). Outputs are still decoded at `out_height`×`out_width`.
+    fn downscale_inputs(&self, image: &Tensor, radar: &Tensor) -> (Tensor, Tensor) {
+        let s = self.cfg.input_downscale;
+        if s <= 1 {
+            return (image.shallow_clone(), radar.shallow_clone());
+        }
+        let image_s = image.avg_pool2d([s, s], [s, s], [0, 0], false, true, None::<i64>);
+        // Nearest non-zero: max-pool of 1/d over the cell (0 stays 0), then back to metres.
+        let inv = radar.clamp_min(1e-6).reciprocal() * radar.gt(0.0).to_kind(radar.kind());
+        let inv_s = inv.max_pool2d([s, s], [s, s], [0, 0], [1, 1], false);
+        let radar_s = inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind());
+        (image_s, radar_s)
+    }
+
+    /// The spatial attention module (SPEC §6, CBAM): `[B,C,h,w]` → `[B,C,h,w]`, the features
+    /// times a per-pixel gate from [mean, max] over channels → 7x7 conv. Identity without it.
+    ///
+    /// Gate 2σ(s) instead of the paper's σ(s): the same function class (the head's first layer
+    /// is a linear 1x1 conv, which absorbs the constant 2), but with the conv starting at zero
+    /// the module starts as the identity instead of halving (σ(0) = ½) or, with a random conv,
+    /// saturating the features.
+    pub(crate) fn attend(&self, f: &Tensor) -> Tensor {
+        match &self.attention {
+            Some(att) => {
+                let mean = f.mean_dim(1, true, f.kind());
+                let (max, _) = f.max_dim(1, true);
+                f * (att.forward(&Tensor::cat(&[mean, max], 1)).sigmoid() * 2.0)
+            }
+            None => f.shallow_clone(),
+        }
+    }
+
     /// Head output at low resolution (see [`DepthNet::forward_logits_t`] for inputs):
     /// ordinal → `[B,K,h,w]` logit differences z_k = b_k − a_k (SPEC §7); regression →
     /// `[B,1,h,w]` depth in metres.
+    ///
+    /// With `clamp_logits` (released conventions) the ordinal output is instead
+    /// `[B,K,out_height,out_width]`: the 2K logits are upsampled to the output resolution,
+    /// clamped to [1e-8, 1e8] and then paired ([`ordinal::clamped_pair_differences`]), because
+    /// the clamp does not commute with upsampling. `loss`, `decode` and
+    /// [`ordinal::ordinal_levels`] take either form.
     pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
         let y = self.forward_logits_t(image, radar, train);
-        match self.cfg.head {
+        let cfg = &self.cfg;
+        match cfg.head {
+            HeadKind::Ordinal if cfg.clamp_logits => ordinal::clamped_pair_differences(
+                &y,
+                cfg.out_height,
+                cfg.out_width,
+                cfg.align_corners,
+            ),
             HeadKind::Ordinal => ordinal::pair_differences(&y),
             HeadKind::L1 | HeadKind::L2 => y,
         }

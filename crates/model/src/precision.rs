@@ -69,3 +69,27 @@ pub fn vs_to_channels_last(vs: &tch::nn::VarStore) {
         }
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::{Device, Kind, Tensor};
+
+    #[test]
+    fn bf16_autocast_runs_convolutions_in_bf16() {
+        if !tch::Cuda::is_available() {
+            eprintln!("skipped: bf16 autocast is CUDA-only and no CUDA device is present");
+            return;
+        }
+        let x = Tensor::randn([1, 3, 8, 8], (Kind::Float, Device::Cuda(0)));
+        let w = Tensor::randn([4, 3, 3, 3], (Kind::Float, Device::Cuda(0)));
+        let y = with_autocast(Precision::Bf16, || {
+            x.conv2d(&w, None::<Tensor>, [1], [1], [1], 1)
+        });
+        assert_eq!(y.kind(), Kind::BFloat16);
+        let y = with_autocast(Precision::Fp32, || {
+            x.conv2d(&w, None::<Tensor>, [1], [1], [1], 1)
+        });
+        assert_eq!(y.kind(), Kind::Float);
+    }
+}

@@ -1,0 +1,91 @@
+//! Initialisation matches PyTorch / torchvision (DEVELOPERS: initialisation is part of the
+//! method). Each test fails on tch's defaults (BN γ ~ U(0,1), He-uniform convs, random gate).
+
+use tch::{nn::VarStore, Device, Kind, Tensor};
+
+use crate::{DepthNet, ModelConfig};
+
+fn tiny_net() -> (VarStore, DepthNet) {
+    tch::manual_seed(3);
+    let vs = VarStore::new(Device::Cpu);
+    let net = DepthNet::new(&vs.root(), &ModelConfig::tiny()).unwrap();
+    (vs, net)
+}
+
+fn is_bn(name: &str) -> bool {
+    let last = name.rsplit('.').nth(1).unwrap_or("");
+    last.starts_with("bn") || name.contains("downsample.1")
+}
+
+#[test]
+fn batchnorm_starts_at_gamma_one_beta_zero() {
+    let (vs, _) = tiny_net();
+    let mut n = 0;
+    for (name, t) in vs.variables() {
+        if is_bn(&name) && name.ends_with(".weight") {
+            assert!(t.eq(1.0).all().int64_value(&[]) == 1, "{name} γ ≠ 1");
+            n += 1;
+        }
+        if is_bn(&name) && name.ends_with(".bias") {
+            assert!(t.eq(0.0).all().int64_value(&[]) == 1, "{name} β ≠ 0");
+        }
+    }
+    assert!(n > 20, "found only {n} BatchNorm layers");
+}
+
+#[test]
+fn convs_without_batchnorm_use_pytorch_bounds() {
+    // nn.Conv2d: weight and bias ~ U(±1/√fan_in). tch's default reaches √6/√fan_in.
+    let (vs, _) = tiny_net();
+    let vars = vs.variables();
+    let mut checked = 0;
+    for (name, w) in &vars {
+        let non_bn_conv = name.starts_with("decoder.") || name.starts_with("head.");
+        if !non_bn_conv || !name.ends_with(".weight") || w.dim() != 4 {
+            continue;
+        }
+        let s = w.size();
+        let fan_in = (s[1] * s[2] * s[3]) as f64;
+        let bound = 1.0 / fan_in.sqrt();
+        let max = w.abs().max().double_value(&[]);
+        assert!(
+            max <= bound + 1e-7,
+            "{name}: |w| max {max} > 1/√fan_in {bound}"
+        );
+        // A uniform draw of this many values comes close to the bound (not a constant init).
+        if w.numel() >= 256 {
+            assert!(max > 0.9 * bound, "{name}: |w| max {max} ≪ bound {bound}");
+        }
+        let b = &vars[&name.replace(".weight", ".bias")];
+        let bmax = b.abs().max().double_value(&[]);
+        assert!(
+            bmax <= bound + 1e-7 && bmax > 0.0,
+            "{name} bias: max {bmax}, bound {bound}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 8, "checked only {checked} convs");
+}
+
+#[test]
+fn resnet_convs_follow_torchvision_fan_out_normal() {
+    // torchvision ResNet: kaiming_normal(mode = fan_out, ReLU): std = √(2 / (cout·k·k)).
+    let (vs, _) = tiny_net();
+    let w = &vs.variables()["rgb.layer3.0.conv2.weight"];
+    let s = w.size();
+    let want = (2.0 / (s[0] * s[2] * s[3]) as f64).sqrt();
+    let got = w.std(true).double_value(&[]);
+    assert!((got / want - 1.0).abs() < 0.05, "std {got}, want {want}");
+}
+
+#[test]
+fn attention_is_the_identity_at_initialisation() {
+    let (_, net) = tiny_net();
+    let f = Tensor::randn([2, 24, 5, 7], (Kind::Float, Device::Cpu)) * 3.0;
+    let g = net.attend(&f);
+    let diff = (&g - &f).abs().max().double_value(&[]);
+    assert_eq!(
+        diff, 0.0,
+        "attention output differs from its input by {diff}"
+    );
+}
