@@ -34,6 +34,8 @@ enum Command {
     Predict(cmd::predict::Args),
     /// Synthesise a world, prepare, train, evaluate and write a report, end to end.
     Demo(cmd::demo::Args),
+    /// Experiments of the paper built from training runs (ablation: variants × seeds).
+    Experiment(cmd::experiment::Args),
     /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader).
     Bench(cmd::bench::Args),
 }
@@ -49,6 +51,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Command::Eval(a) => cmd::eval::run(a),
         Command::Predict(a) => cmd::predict::run(a),
         Command::Demo(a) => cmd::demo::run(a),
+        Command::Experiment(a) => cmd::experiment::run(a),
         Command::Bench(a) => cmd::bench::run(a),
     }
 }

@@ -7,6 +7,7 @@
 //! - [`evaluate`]: `eval` (SPEC §10 tables 1–3 as Markdown, CSV, JSON; radar drop);
 //! - [`predict`]: depth for a prepared sample or raw files;
 //! - [`demo`]: synth → prepare → train RGB-only and fusion → eval → report;
+//! - [`experiments`]: SPEC §10 experiments from training runs (`ablation`: variants × seeds);
 //! - [`bench`]: training and loader throughput;
 //! - [`plot`]: curves and depth pictures.
 
@@ -15,6 +16,7 @@ pub mod data;
 pub mod demo;
 pub mod error;
 pub mod evaluate;
+pub mod experiments;
 pub mod plot;
 pub mod predict;
 pub mod sgd;

@@ -234,3 +234,248 @@ pub fn denormalise(chw: &[f32], w: u32, h: u32) -> image::RgbImage {
     }
     img
 }
+
+/// One panel of [`bar_charts_png`]: bars with symmetric error bars.
+#[derive(Debug, Clone, Copy)]
+pub struct BarPanel<'a> {
+    pub title: &'a str,
+    pub labels: &'a [&'a str],
+    pub means: &'a [f64],
+    /// Half-length of each error bar (e.g. the sample std); non-finite = no error bar.
+    pub stds: &'a [f64],
+    pub y_label: &'a str,
+}
+
+fn bar_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    p: &BarPanel<'_>,
+    text: bool,
+) -> Result<(), TrainError> {
+    let n = p.labels.len().min(p.means.len());
+    let err = |i: usize| {
+        p.stds
+            .get(i)
+            .copied()
+            .filter(|s| s.is_finite())
+            .unwrap_or(0.0)
+    };
+    let mut y1 = 0.0f64;
+    for i in 0..n {
+        if p.means[i].is_finite() {
+            y1 = y1.max(p.means[i] + err(i).abs());
+        }
+    }
+    if y1 <= 0.0 {
+        y1 = 1.0;
+    }
+    let y1 = y1 * 1.12;
+    let mut b = ChartBuilder::on(area);
+    b.margin(14);
+    if text {
+        b.caption(p.title, ("sans-serif", 18))
+            .x_label_area_size(34)
+            .y_label_area_size(56);
+    } else {
+        b.x_label_area_size(4).y_label_area_size(4);
+    }
+    let mut chart = b
+        .build_cartesian_2d(0.0f64..n.max(1) as f64, 0.0f64..y1)
+        .map_err(plot_err)?;
+    let mut mesh = chart.configure_mesh();
+    mesh.disable_x_mesh().x_labels(0);
+    if text {
+        mesh.y_desc(p.y_label);
+    } else {
+        mesh.y_labels(0);
+    }
+    mesh.draw().map_err(plot_err)?;
+    for i in 0..n {
+        let m = p.means[i];
+        if !m.is_finite() {
+            continue;
+        }
+        let c = COLOURS[i % COLOURS.len()];
+        let (x0, x1) = (i as f64 + 0.15, i as f64 + 0.85);
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(x0, 0.0), (x1, m)],
+                c.mix(0.8).filled(),
+            )))
+            .map_err(plot_err)?;
+        let s = err(i).abs();
+        if s > 0.0 {
+            let xc = i as f64 + 0.5;
+            let (lo, hi) = ((m - s).max(0.0), m + s);
+            let style = BLACK.stroke_width(2);
+            chart
+                .draw_series([
+                    PathElement::new(vec![(xc, lo), (xc, hi)], style),
+                    PathElement::new(vec![(xc - 0.12, lo), (xc + 0.12, lo)], style),
+                    PathElement::new(vec![(xc - 0.12, hi), (xc + 0.12, hi)], style),
+                ])
+                .map_err(plot_err)?;
+        }
+        if text {
+            // Variant name under the bar (drawn on the panel: outside the plotting area).
+            let (px, py) = chart.backend_coord(&(i as f64 + 0.5, 0.0));
+            let base = area.get_base_pixel();
+            let style = ("sans-serif", 15).into_font().color(&BLACK).pos(
+                plotters::style::text_anchor::Pos::new(
+                    plotters::style::text_anchor::HPos::Center,
+                    plotters::style::text_anchor::VPos::Top,
+                ),
+            );
+            area.draw(&Text::new(
+                p.labels[i].to_string(),
+                (px - base.0, py - base.1 + 6),
+                style,
+            ))
+            .map_err(plot_err)?;
+            let above = ("sans-serif", 13).into_font().color(&BLACK).pos(
+                plotters::style::text_anchor::Pos::new(
+                    plotters::style::text_anchor::HPos::Center,
+                    plotters::style::text_anchor::VPos::Bottom,
+                ),
+            );
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!("{m:.3}"),
+                    (i as f64 + 0.5, m + s + 0.015 * y1),
+                    above,
+                )))
+                .map_err(plot_err)?;
+        }
+    }
+    Ok(())
+}
+
+/// Several bar charts side by side (one per panel), PNG bytes (500 px wide per panel).
+pub fn bar_charts_png(panels: &[BarPanel<'_>]) -> Result<Vec<u8>, TrainError> {
+    let k = panels.len().max(1) as u32;
+    let (w, h) = (500 * k, 420u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    let text = fonts_available();
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let areas = root.split_evenly((1, k as usize));
+        for (a, p) in areas.iter().zip(panels) {
+            bar_panel(a, p, text)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| TrainError::Other("plot buffer has the wrong size".into()))?;
+    encode_rgb(&img)
+}
+
+/// A bar chart of `means` with ± `stds` error bars (non-finite std = no bar), PNG bytes.
+pub fn bar_chart_png(
+    title: &str,
+    labels: &[&str],
+    means: &[f64],
+    stds: &[f64],
+    y_label: &str,
+) -> Result<Vec<u8>, TrainError> {
+    bar_charts_png(&[BarPanel {
+        title,
+        labels,
+        means,
+        stds,
+        y_label,
+    }])
+}
+
+/// Panels (e.g. image, radar, GT, predictions) side by side — in two rows when more than
+/// three would make the picture wider than 2400 px — each with its caption above it, and one
+/// shared colour bar in metres (0..`max_m`, the [`colorize_depth`] map: near = red) at the
+/// bottom. Panels of different sizes are centred in cells of the largest size. PNG bytes.
+/// Without a system font the captions and tick labels are left out.
+pub fn picture_row_png(
+    panels: &[(&str, image::RgbImage)],
+    max_m: f32,
+) -> Result<Vec<u8>, TrainError> {
+    if panels.is_empty() {
+        return Err(TrainError::Other("picture row: no panels".into()));
+    }
+    let text = fonts_available();
+    let cw = panels
+        .iter()
+        .map(|(_, p)| p.width())
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let ch = panels
+        .iter()
+        .map(|(_, p)| p.height())
+        .max()
+        .unwrap_or(1)
+        .max(1);
+    let n = panels.len() as u32;
+    let rows = if n > 3 && n * cw > 2400 { 2 } else { 1 };
+    let cols = n.div_ceil(rows);
+    let (gap, cap_h) = (8u32, if text { 26u32 } else { 4 });
+    let bar_h = 18u32;
+    let tick_h = if text { 40u32 } else { 8 };
+    let w = cols * cw + (cols + 1) * gap;
+    let grid_h = rows * (cap_h + ch) + (rows + 1) * gap;
+    let h = grid_h + bar_h + tick_h + gap;
+    let mut canvas = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
+    let mut origins = vec![];
+    for (i, (_, p)) in panels.iter().enumerate() {
+        let (r, c) = (i as u32 / cols, i as u32 % cols);
+        let x = gap + c * (cw + gap) + (cw - p.width()) / 2;
+        let y = gap + r * (cap_h + ch + gap) + cap_h + (ch - p.height()) / 2;
+        image::imageops::replace(&mut canvas, p, x as i64, y as i64);
+        origins.push((gap + c * (cw + gap), gap + r * (cap_h + ch + gap)));
+    }
+    // Colour bar: the colorize_depth map itself, sampled at pixel centres.
+    let (bx0, bw) = (gap + cw / 8, (w - 2 * gap - cw / 4).max(2));
+    let by0 = grid_h;
+    let ramp: Vec<f32> = (0..bw)
+        .map(|x| (x as f32 + 0.5) / bw as f32 * max_m)
+        .collect();
+    let bar = colorize_depth(&ramp, bw, 1, max_m);
+    for y in 0..bar_h {
+        for x in 0..bw {
+            canvas.put_pixel(bx0 + x, by0 + y, *bar.get_pixel(x, 0));
+        }
+    }
+    if text {
+        let mut buf = canvas.into_raw();
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+            let cap_style = ("sans-serif", 20).into_font().color(&BLACK);
+            for ((name, _), (x, y)) in panels.iter().zip(&origins) {
+                root.draw(&Text::new(
+                    name.to_string(),
+                    (*x as i32 + 2, *y as i32 + 3),
+                    cap_style.clone(),
+                ))
+                .map_err(plot_err)?;
+            }
+            let tick_style = ("sans-serif", 15).into_font().color(&BLACK);
+            let ticks = 4;
+            for t in 0..=ticks {
+                let f = t as f32 / ticks as f32;
+                let x = bx0 as i32 + (f * (bw - 1) as f32) as i32;
+                let y = (by0 + bar_h) as i32;
+                root.draw(&PathElement::new(vec![(x, y), (x, y + 5)], BLACK))
+                    .map_err(plot_err)?;
+                let label = format!("{:.0}", f * max_m);
+                root.draw(&Text::new(label, (x - 6, y + 7), tick_style.clone()))
+                    .map_err(plot_err)?;
+            }
+            root.draw(&Text::new(
+                "depth (m)".to_string(),
+                ((bx0 + bw / 2) as i32 - 30, (by0 + bar_h) as i32 + 22),
+                tick_style,
+            ))
+            .map_err(plot_err)?;
+            root.present().map_err(plot_err)?;
+        }
+        canvas = image::RgbImage::from_raw(w, h, buf)
+            .ok_or_else(|| TrainError::Other("picture buffer has the wrong size".into()))?;
+    }
+    encode_rgb(&canvas)
+}

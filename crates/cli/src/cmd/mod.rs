@@ -5,6 +5,7 @@ pub mod bench_synth;
 pub mod bench_train;
 pub mod demo;
 pub mod eval;
+pub mod experiment;
 pub mod inspect;
 pub mod model_info;
 pub mod predict;
