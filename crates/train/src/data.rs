@@ -26,53 +26,8 @@ pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
 /// ImageNet standard deviation (SPEC §6).
 pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 
-/// Which prepared radar map(s) feed the network's radar channels.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum RadarInput {
-    /// Height-extended strips (SPEC §5, the paper's default input): 1 channel.
-    #[default]
-    Height,
-    /// One pixel per radar point (SPEC §5 raw): 1 channel.
-    Raw,
-    /// Raw then height-extended: 2 channels.
-    RawHeight,
-}
-
-impl RadarInput {
-    pub fn channels(self) -> usize {
-        match self {
-            Self::Height | Self::Raw => 1,
-            Self::RawHeight => 2,
-        }
-    }
-
-    /// The input for a network with `c` radar channels (1 → height, 2 → raw + height).
-    pub fn for_channels(c: i64) -> Result<Self, TrainError> {
-        match c {
-            0 | 1 => Ok(Self::Height),
-            2 => Ok(Self::RawHeight),
-            other => Err(TrainError::Config(format!(
-                "no prepared radar input has {other} channels (1 = height-extended, \
-                 2 = raw + height-extended; MER's 7 channels are not prepared)"
-            ))),
-        }
-    }
-}
-
-impl std::str::FromStr for RadarInput {
-    type Err = TrainError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "height" => Ok(Self::Height),
-            "raw" => Ok(Self::Raw),
-            "raw-height" => Ok(Self::RawHeight),
-            o => Err(TrainError::Config(format!(
-                "unknown radar input {o:?} (height, raw, raw-height)"
-            ))),
-        }
-    }
-}
+/// Which prepared radar map(s) feed the network's radar channels (stored in the model config).
+pub use depthsense_model::RadarInput;
 
 /// Which lidar map is the training target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -181,69 +136,140 @@ impl Dataset {
     }
 }
 
-/// The train / validation partition used by `train` (and the matching test set of `eval`).
+/// The train / validation / test partition: `train` fits, `val` selects (checkpoints, epochs,
+/// hyper-parameters), `test` only reports. The three scene sets are disjoint in every mode.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Partition {
-    /// How it was made: "splits" (the index's train/test split names) or
-    /// "scene-modulo" (every `every`-th scene, sorted by name, is held out).
+    /// How it was made (see [`partition`]).
     pub method: String,
     pub train: Vec<IndexEntry>,
     pub val: Vec<IndexEntry>,
-    /// Scenes held out for validation / testing.
+    pub test: Vec<IndexEntry>,
+    /// Scenes of the validation set (names, sorted).
     pub val_scenes: Vec<String>,
+    /// Scenes of the test set (names, sorted).
+    pub test_scenes: Vec<String>,
 }
 
-/// Split samples into training and held-out sets.
-///
-/// When the index carries both a `train` and a `test` split (the shipped nuScenes scene lists),
-/// they are used. Otherwise (e.g. a synthetic world prepared with `--split all`) the scenes are
-/// sorted by name and every `every`-th scene starting with the last of each group
-/// (positions every−1, 2·every−1, …) is held out; with fewer than `every` scenes the last
-/// scene is held out. Deterministic; the held-out scene names are recorded.
-pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
-    let names = ds.split_names();
-    if names.contains("train") && names.contains("test") {
-        let train = ds.split("train");
-        let val = ds.split("test");
-        let val_scenes: BTreeSet<String> = val.iter().map(|e| e.scene_name.clone()).collect();
-        return Ok(Partition {
-            method: "splits".into(),
-            train,
-            val,
-            val_scenes: val_scenes.into_iter().collect(),
-        });
-    }
-    let mut scenes = ds.scenes();
-    scenes.sort();
-    if scenes.len() < 2 {
-        return Err(TrainError::Data(format!(
-            "{}: need at least 2 scenes to hold one out for validation, found {}",
-            ds.root.display(),
-            scenes.len()
-        )));
-    }
+fn scene_names(entries: &[IndexEntry]) -> Vec<String> {
+    let set: BTreeSet<String> = entries.iter().map(|e| e.scene_name.clone()).collect();
+    set.into_iter().collect()
+}
+
+/// Scenes at positions every−1, 2·every−1, … of `scenes` (sorted); the last one when that
+/// picks none and there are at least 2.
+fn every_nth(scenes: &[String], every: usize) -> Vec<String> {
     let every = every.max(2);
-    let mut val_scenes: Vec<String> = scenes
+    let mut picked: Vec<String> = scenes
         .iter()
         .enumerate()
         .filter(|(i, _)| i % every == every - 1)
         .map(|(_, s)| s.clone())
         .collect();
-    if val_scenes.is_empty() {
-        val_scenes.push(scenes[scenes.len() - 1].clone());
+    if picked.is_empty() && scenes.len() >= 2 {
+        picked.push(scenes[scenes.len() - 1].clone());
     }
-    let (val, train): (Vec<_>, Vec<_>) = ds
+    picked
+}
+
+/// Split samples into training, validation and test sets; nothing is ever selected on test.
+///
+/// 1. The index has `train` and `val` splits (`prepare` writes them: a synthetic world's own
+///    lists, or the released lists with a fixed validation subset of the training scenes):
+///    they are used, and `test` is the `test` split (possibly empty).
+/// 2. The index has `train` (and maybe `test`) but no `val` (prepared before validation
+///    splits existed): the validation scenes are every `every`-th training scene by name.
+/// 3. No split lists (`--split all`): scenes sorted by name; positions ≡ every−1 (mod every)
+///    are test, positions ≡ every−2 are validation, the rest train (at least one scene each
+///    when there are ≥ 3 scenes).
+///
+/// Deterministic; the scene names of val and test are recorded.
+pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
+    let names = ds.split_names();
+    let build = |method: String,
+                 train: Vec<IndexEntry>,
+                 val: Vec<IndexEntry>,
+                 test: Vec<IndexEntry>| Partition {
+        method,
+        val_scenes: scene_names(&val),
+        test_scenes: scene_names(&test),
+        train,
+        val,
+        test,
+    };
+    if names.contains("train") && names.contains("val") {
+        return Ok(build(
+            "splits (train / val / test of index.json)".into(),
+            ds.split("train"),
+            ds.split("val"),
+            ds.split("test"),
+        ));
+    }
+    if names.contains("train") {
+        let train_all = ds.split("train");
+        let val_scenes = every_nth(&scene_names(&train_all), every);
+        let (val, train): (Vec<_>, Vec<_>) = train_all
+            .into_iter()
+            .partition(|e| val_scenes.contains(&e.scene_name));
+        return Ok(build(
+            format!(
+                "train split, every {}th training scene by name held out for validation",
+                every.max(2)
+            ),
+            train,
+            val,
+            ds.split("test"),
+        ));
+    }
+    let mut scenes = ds.scenes();
+    scenes.sort();
+    if scenes.len() < 3 {
+        return Err(TrainError::Data(format!(
+            "{}: need at least 3 scenes for train / validation / test, found {}",
+            ds.root.display(),
+            scenes.len()
+        )));
+    }
+    let every = every.max(3);
+    let mut test_scenes: Vec<String> = Vec::new();
+    let mut val_scenes: Vec<String> = Vec::new();
+    for (i, s) in scenes.iter().enumerate() {
+        if i % every == every - 1 {
+            test_scenes.push(s.clone());
+        } else if i % every == every - 2 {
+            val_scenes.push(s.clone());
+        }
+    }
+    if test_scenes.is_empty() {
+        test_scenes.push(scenes[scenes.len() - 1].clone());
+    }
+    if val_scenes.is_empty() {
+        val_scenes.push(scenes[scenes.len() - 2].clone());
+    }
+    let of = |set: &[String]| -> Vec<IndexEntry> {
+        ds.index
+            .samples
+            .iter()
+            .filter(|e| set.contains(&e.scene_name))
+            .cloned()
+            .collect()
+    };
+    let train: Vec<IndexEntry> = ds
         .index
         .samples
         .iter()
+        .filter(|e| !val_scenes.contains(&e.scene_name) && !test_scenes.contains(&e.scene_name))
         .cloned()
-        .partition(|e| val_scenes.contains(&e.scene_name));
-    Ok(Partition {
-        method: format!("scene-modulo (every {every}th scene by name held out)"),
+        .collect();
+    Ok(build(
+        format!(
+            "scene-modulo (no split lists: of the scenes sorted by name, every {every}th is test, \
+             the one before it validation)"
+        ),
         train,
-        val,
-        val_scenes,
-    })
+        of(&val_scenes),
+        of(&test_scenes),
+    ))
 }
 
 /// One decoded, augmented, normalised sample (CPU, channel-major).

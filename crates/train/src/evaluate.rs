@@ -81,7 +81,8 @@ pub fn select_split(
     every: usize,
 ) -> Result<Vec<IndexEntry>, TrainError> {
     let v = if split == HELD_OUT {
-        partition(ds, every)?.val
+        // The test scenes: never the validation scenes that selected the checkpoint.
+        partition(ds, every)?.test
     } else {
         ds.split(split)
     };

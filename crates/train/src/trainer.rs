@@ -36,6 +36,11 @@ pub const LAST_CKPT: &str = "last.safetensors";
 pub const LAST_OPTIM: &str = "last.optim.safetensors";
 pub const BEST_CKPT: &str = "best.safetensors";
 
+/// Autocast dtype of `train --amp` (bf16: fp16 without loss scaling underflows the ordinal
+/// loss's per-pixel gradients).
+pub const AMP_PRECISION: depthsense_model::precision::Precision =
+    depthsense_model::precision::Precision::Bf16;
+
 /// Everything a training run is made of. Defaults are the paper's (SPEC §8).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainOptions {
@@ -177,7 +182,9 @@ struct State {
     val_rmse: Option<f64>,
 }
 
-/// Radar input for a model config (fusion None → no radar).
+/// Radar input for a model config (fusion None → no radar): `requested` when given (it must
+/// have the model's channel count), else the input the model was trained on (stored in its
+/// config, SPEC §5).
 pub fn radar_input_for(
     cfg: &ModelConfig,
     requested: Option<RadarInput>,
@@ -185,13 +192,11 @@ pub fn radar_input_for(
     if cfg.fusion == Fusion::None {
         return Ok(None);
     }
-    let r = match requested {
-        Some(r) => r,
-        None => RadarInput::for_channels(cfg.radar_channels)?,
-    };
+    let r = requested.unwrap_or(cfg.radar_input);
     if r.channels() as i64 != cfg.radar_channels {
         return Err(TrainError::Config(format!(
-            "radar input {r:?} has {} channel(s) but the model expects radar_channels = {}",
+            "radar input {} has {} channel(s) but the model expects radar_channels = {}",
+            r.name(),
             r.channels(),
             cfg.radar_channels
         )));

@@ -200,9 +200,55 @@ fn scene_modulo_partition_is_deterministic() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 10, 1);
     let p = partition(&ds, 5).unwrap();
-    assert_eq!(p.val_scenes, vec!["toy-0004", "toy-0009"]);
-    assert_eq!((p.train.len(), p.val.len()), (8, 2));
+    assert_eq!(p.test_scenes, vec!["toy-0004", "toy-0009"]);
+    assert_eq!(p.val_scenes, vec!["toy-0003", "toy-0008"]);
+    assert_eq!((p.train.len(), p.val.len(), p.test.len()), (6, 2, 2));
     assert!(p.method.starts_with("scene-modulo"));
+    assert_eq!(partition(&ds, 5).unwrap(), p, "deterministic");
+}
+
+fn retag(ds: &mut Dataset, f: impl Fn(usize) -> Vec<&'static str>) {
+    let mut scenes = ds.scenes();
+    scenes.sort();
+    for e in ds.index.samples.iter_mut() {
+        let i = scenes.iter().position(|s| *s == e.scene_name).unwrap();
+        e.splits = f(i).into_iter().map(String::from).collect();
+    }
+}
+
+/// Validation never overlaps test, whichever split information the index carries.
+#[test]
+fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut ds = toy(tmp.path(), 12, 1);
+    let check = |ds: &Dataset, mode: &str| {
+        let p = partition(ds, 5).unwrap();
+        let names = |v: &[depthsense_prep::layout::IndexEntry]| {
+            v.iter().map(|e| e.scene_name.clone()).collect::<std::collections::BTreeSet<_>>()
+        };
+        let (tr, va, te) = (names(&p.train), names(&p.val), names(&p.test));
+        assert!(!va.is_empty() && !tr.is_empty(), "{mode}: {p:?}");
+        assert!(va.is_disjoint(&te), "{mode}: val {va:?} test {te:?}");
+        assert!(va.is_disjoint(&tr) && tr.is_disjoint(&te), "{mode}");
+        p
+    };
+    // 1. No split lists (`--split all`): three-way scene modulo.
+    let p = check(&ds, "scene-modulo");
+    assert!(!p.test.is_empty());
+    // 2. train / test lists only (an index prepared before validation lists existed): val
+    // comes out of train, test stays test.
+    retag(&mut ds, |i| if i % 4 == 3 { vec!["test", "test-day"] } else { vec!["train"] });
+    let p = check(&ds, "train/test");
+    assert!(p.test.iter().all(|e| e.splits.contains(&"test".to_string())));
+    assert!(p.val.iter().all(|e| e.splits == ["train"]));
+    // 3. train / val / test lists (prepare of a synthetic world or the shipped lists).
+    retag(&mut ds, |i| match i % 4 {
+        3 => vec!["test"],
+        2 => vec!["val"],
+        _ => vec!["train"],
+    });
+    let p = check(&ds, "train/val/test");
+    assert_eq!((p.train.len(), p.val.len(), p.test.len()), (6, 3, 3));
 }
 
 /// Resume continues exactly; a short run lowers the validation RMSE; RUN/ holds its files;

@@ -32,6 +32,10 @@ pub struct Args {
     /// Disable the spatial attention module of late fusion.
     #[arg(long)]
     no_attention: bool,
+    /// Any model-config field as key=value (repeatable), applied after the options above;
+    /// e.g. `--set width=32 --set head-channels=64` (see `depthsense model-info --help`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
     /// Epochs (paper: 40).
     #[arg(long, default_value_t = 40)]
     epochs: usize,
@@ -72,7 +76,8 @@ pub struct Args {
     #[arg(long, default_value_t = 4)]
     prefetch: usize,
     /// Radar map(s) for the radar channels: height, raw or raw-height (default: from the
-    /// model's radar_channels: 1 → height, 2 → raw-height).
+    /// model's radar_channels: 1 → height, 2 → raw-height). Stored in the checkpoint's model
+    /// config: `eval` and `predict` feed the same input.
     #[arg(long)]
     radar_input: Option<String>,
     /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
@@ -81,11 +86,12 @@ pub struct Args {
     /// Disable flip and brightness/colour/gamma jitter.
     #[arg(long)]
     no_augment: bool,
-    /// Without train/test split lists (e.g. synthetic data), every N-th scene (sorted by
-    /// name) is held out for validation.
+    /// Only for data prepared without validation lists: every N-th training scene (sorted by
+    /// name) is held out for validation (and, without any split lists, every N-th scene is
+    /// test and the one before it validation). Never selects on test scenes.
     #[arg(long, default_value_t = 5)]
     val_every_scene: usize,
-    /// Validate on at most this many held-out samples (evenly spaced).
+    /// Validate on at most this many validation samples (evenly spaced).
     #[arg(long)]
     max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
@@ -153,6 +159,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if a.no_attention {
         model.attention = false;
     }
+    let model = model.with_options(&a.set)?;
     let opts = TrainOptions {
         data: a.data,
         out: a.out.clone(),
@@ -205,7 +212,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let last = history.last().map_or(f64::NAN, |v| v.rmse);
     eprintln!(
         "{} iterations of {} in {:.1} s ({:.2} img/s); validation RMSE {first:.3} m → {last:.3} m \
-         (best {}) on {} held-out samples ({})",
+         (best {}) on {} validation samples ({})",
         s.iterations_done,
         s.total_iterations,
         s.seconds,

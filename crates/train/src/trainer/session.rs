@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_model::precision::{with_autocast, Precision};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
@@ -12,10 +13,12 @@ use tch::{nn::VarStore, Device, Kind};
 
 use super::{
     all_finite, append_jsonl, batch_tensors, evaluate_net, radar_input_for, save_ckpt, subsample,
-    truncate_metrics, write_curves, State, TrainOptions, TrainSummary, ValRecord, BEST_CKPT,
-    CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    truncate_metrics, write_curves, State, TrainOptions, TrainSummary, ValRecord, AMP_PRECISION,
+    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
-use crate::data::{mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition};
+use crate::data::{
+    mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
+};
 use crate::error::TrainError;
 use crate::sgd::{poly_lr, Sgd};
 
@@ -164,11 +167,14 @@ impl<'o> Trainer<'o> {
         let lr = poly_lr(opts.lr, it, self.total, opts.lr_power);
         // Dropout draws depend only on (seed, iteration): exact resume.
         tch::manual_seed((mix64(opts.seed ^ mix64(it + 1)) >> 1) as i64);
-        let out = if opts.amp && self.device.is_cuda() {
-            tch::autocast(true, || self.net.forward_t(&image, &radar_t, true))
+        // `--amp`: bf16 autocast (CUDA only). Not fp16: fp16 without loss scaling underflows the
+        // ≈1e-6 per-pixel gradients of the ordinal loss; bf16 has fp32's exponent range.
+        let precision = if opts.amp {
+            AMP_PRECISION
         } else {
-            self.net.forward_t(&image, &radar_t, true)
+            Precision::Fp32
         };
+        let out = with_autocast(precision, || self.net.forward_t(&image, &radar_t, true));
         let loss = self.net.loss(&out.to_kind(Kind::Float), &target);
         let lv = loss.double_value(&[]);
         if !lv.is_finite() {
@@ -294,9 +300,9 @@ impl<'o> Trainer<'o> {
                 opts.epochs,
                 batch.size as f64 / dt.max(1e-9)
             ));
-            let epoch_end = it % self.bpe == 0;
+            let epoch_end = it.is_multiple_of(self.bpe);
             let stop_here = opts.stop_after == Some(it);
-            let periodic = opts.checkpoint_every > 0 && it % opts.checkpoint_every == 0;
+            let periodic = opts.checkpoint_every > 0 && it.is_multiple_of(opts.checkpoint_every);
             if !epoch_end && (stop_here || periodic) {
                 self.state.epoch = epoch;
                 self.checkpoint()?;
@@ -377,6 +383,13 @@ fn model_config_for_data(
     let mut cfg = opts.model.clone();
     cfg.out_height = probe.height as i64;
     cfg.out_width = probe.width as i64;
+    // The radar input is part of the model (SPEC §5): `--radar-input` when given, else the
+    // config's, adjusted to a 2-channel config.
+    cfg.radar_input = match opts.radar_input {
+        Some(r) => r,
+        None if cfg.radar_input.channels() as i64 == cfg.radar_channels => cfg.radar_input,
+        None => RadarInput::for_channels(cfg.radar_channels)?,
+    };
     Ok(cfg)
 }
 
