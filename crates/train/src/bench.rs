@@ -27,6 +27,9 @@ pub struct BenchTrainOptions {
     pub device: String,
     pub jobs: usize,
     pub amp: bool,
+    /// `key=value` model-config overrides (e.g. `input-downscale=2`).
+    #[serde(default)]
+    pub set: Vec<String>,
 }
 
 impl Default for BenchTrainOptions {
@@ -41,6 +44,7 @@ impl Default for BenchTrainOptions {
             device: "auto".into(),
             jobs: 0,
             amp: false,
+            set: Vec::new(),
         }
     }
 }
@@ -64,7 +68,7 @@ pub fn bench_train(
     };
     let ds = Dataset::open(&root)?;
     let entries = ds.split("all");
-    let mut cfg = ModelConfig::preset(&opts.preset)?;
+    let mut cfg = ModelConfig::preset(&opts.preset)?.with_options(&opts.set)?;
     let radar = radar_input_for(&cfg, None)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),

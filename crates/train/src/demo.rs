@@ -102,11 +102,11 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
     let mut p = DemoPlan {
         // More keyframes rather than epochs, and the tiny network at half input resolution
         // (decoded and scored at 800x350): measured in BENCHMARKS.md ("demo budget").
-        scenes: 12,
+        scenes: 16,
         keyframes_per_scene: 10,
         lidar_sweeps: 2,
         preset: "tiny".into(),
-        epochs: 10,
+        epochs: 14,
         batch_size: 4,
         lr: 2e-3,
         max_batches_per_epoch: None,
@@ -305,6 +305,9 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
         reports.push((name.to_string(), rep));
     }
     pb.finish();
+    for token in &pic_tokens {
+        write_picture_row(&report_dir.join("samples").join(token))?;
+    }
     let models: Vec<(&str, &Report)> = reports.iter().map(|(n, r)| (n.as_str(), r)).collect();
     write_tables(&report_dir, &models)?;
     for (name, dir, _, _) in &runs {
@@ -397,7 +400,7 @@ fn write_pictures(
         let p = dir.join(name);
         write_atomic(&p, &encode_rgb(img)?).map_err(|e| TrainError::io(&p, e))
     };
-    let max_m = 80.0;
+    let max_m = PICTURE_MAX_M;
     let e = ds
         .index
         .samples
@@ -423,6 +426,30 @@ fn write_pictures(
     )?;
     Ok(())
 }
+
+/// `dir/row.png`: image, radar, GT, RGB-only and fusion predictions side by side with one
+/// colour bar in metres (the panels written by [`write_pictures`]).
+fn write_picture_row(dir: &Path) -> Result<(), TrainError> {
+    let read = |name: &str| -> Result<image::RgbImage, TrainError> {
+        let p = dir.join(name);
+        image::open(&p)
+            .map(|i| i.to_rgb8())
+            .map_err(|e| TrainError::Other(format!("{}: {e}", p.display())))
+    };
+    let panels = [
+        ("image", read("image.png")?),
+        ("radar (points, m)", read("radar.png")?),
+        ("lidar GT (m)", read("gt.png")?),
+        ("RGB only", read("pred_rgb.png")?),
+        ("radar fusion + attention", read("pred_fusion.png")?),
+    ];
+    let png = crate::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
+    let p = dir.join("row.png");
+    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))
+}
+
+/// Upper end of the colour map of every depth picture (metres).
+const PICTURE_MAX_M: f32 = 80.0;
 
 fn write_readme(
     dir: &Path,
@@ -465,7 +492,8 @@ fn write_readme(
     md.push_str(&format!("| total | {:.1} |\n\n", s.total_seconds));
     md.push_str(&depthsense_metrics::tables::markdown_report(models));
     md.push_str(
-        "\nPictures: `samples/<token>/` (image, radar overlay, GT, prediction and |error| per model); \
+        "\nPictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
+         and the single panels (image, radar overlay, GT, prediction and |error| per model); \
          curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.\n",
     );
     let p = dir.join("README.md");

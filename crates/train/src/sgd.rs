@@ -198,7 +198,16 @@ mod tests {
         let run = |split: Option<usize>, dir: &Path| -> Vec<f64> {
             tch::manual_seed(3);
             let vs = VarStore::new(tch::Device::Cpu);
-            let lin = nn::linear(vs.root(), 4, 1, Default::default());
+            let mut lin = nn::linear(vs.root(), 4, 1, Default::default());
+            // Fixed weights: `manual_seed` is process-wide and parallel tests draw from the
+            // same generator, so a seeded random init is not reproducible here.
+            tch::no_grad(|| {
+                let w = Tensor::from_slice(&[0.1f32, -0.2, 0.3, 0.05]).view([1, 4]);
+                lin.ws.copy_(&w);
+                if let Some(b) = lin.bs.as_mut() {
+                    b.copy_(&Tensor::from_slice(&[0.2f32]));
+                }
+            });
             let x = Tensor::arange(8, (Kind::Float, tch::Device::Cpu)).view([2, 4]) / 8.0;
             let mut opt = Sgd::new(&vs, 0.9, 1e-4);
             let mut out = vec![];

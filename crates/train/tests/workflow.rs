@@ -224,7 +224,9 @@ fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
     let check = |ds: &Dataset, mode: &str| {
         let p = partition(ds, 5).unwrap();
         let names = |v: &[depthsense_prep::layout::IndexEntry]| {
-            v.iter().map(|e| e.scene_name.clone()).collect::<std::collections::BTreeSet<_>>()
+            v.iter()
+                .map(|e| e.scene_name.clone())
+                .collect::<std::collections::BTreeSet<_>>()
         };
         let (tr, va, te) = (names(&p.train), names(&p.val), names(&p.test));
         assert!(!va.is_empty() && !tr.is_empty(), "{mode}: {p:?}");
@@ -237,9 +239,18 @@ fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
     assert!(!p.test.is_empty());
     // 2. train / test lists only (an index prepared before validation lists existed): val
     // comes out of train, test stays test.
-    retag(&mut ds, |i| if i % 4 == 3 { vec!["test", "test-day"] } else { vec!["train"] });
+    retag(&mut ds, |i| {
+        if i % 4 == 3 {
+            vec!["test", "test-day"]
+        } else {
+            vec!["train"]
+        }
+    });
     let p = check(&ds, "train/test");
-    assert!(p.test.iter().all(|e| e.splits.contains(&"test".to_string())));
+    assert!(p
+        .test
+        .iter()
+        .all(|e| e.splits.contains(&"test".to_string())));
     assert!(p.val.iter().all(|e| e.splits == ["train"]));
     // 3. train / val / test lists (prepare of a synthetic world or the shipped lists).
     retag(&mut ds, |i| match i % 4 {

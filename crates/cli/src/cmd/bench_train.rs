@@ -34,6 +34,9 @@ pub struct Args {
     /// bf16 autocast (CUDA only).
     #[arg(long)]
     amp: bool,
+    /// Any model-config field as key=value (repeatable), e.g. `--set input-downscale=2`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
     /// Also write the JSON report to this file.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -50,6 +53,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         device: a.device,
         jobs: a.jobs,
         amp: a.amp,
+        set: a.set,
     };
     let pb = super::train::progress_bar("bench");
     let v = bench_train(&opts, &pb)?;
