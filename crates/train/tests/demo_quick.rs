@@ -31,6 +31,17 @@ fn quick_demo_writes_the_report() {
         assert!(r.join(f).exists(), "{f} missing");
     }
     assert!(s.rgb_rmse.is_finite() && s.fusion_rmse.is_finite());
+    // Selected on val, reported on test: two disjoint, non-empty scene lists in summary.json.
+    let sj: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(r.join("summary.json")).unwrap()).unwrap();
+    let names =
+        |k: &str| -> Vec<String> { serde_json::from_value(sj["summary"][k].clone()).unwrap() };
+    let (val, test) = (names("val_scenes"), names("test_scenes"));
+    assert!(!val.is_empty() && !test.is_empty(), "{sj}");
+    assert!(
+        val.iter().all(|v| !test.contains(v)),
+        "val {val:?} test {test:?}"
+    );
     let md = std::fs::read_to_string(r.join("tables.md")).unwrap();
     assert!(
         md.contains("| rgb | combined |") && md.contains("| fusion | combined |"),
@@ -47,6 +58,7 @@ fn quick_demo_writes_the_report() {
         "pred_fusion.png",
         "err_rgb.png",
         "err_fusion.png",
+        "row.png",
     ] {
         assert!(dir.join(f).exists(), "{f} missing");
     }
@@ -58,8 +70,11 @@ fn demo_plans_fit_the_device() {
     let cpu = plan(&DemoOptions::default(), false);
     assert_eq!(
         (cpu.preset.as_str(), cpu.scenes, cpu.epochs),
-        ("tiny", 10, 12)
+        ("tiny", 16, 14)
     );
+    // The paper's fusion model: attention on, the preset's (width-scaled) head dropout.
+    assert!(cpu.attention && cpu.dropout > 0.0);
+    assert_eq!(cpu.dropout, depthsense_model::ModelConfig::tiny().dropout);
     let gpu = plan(&DemoOptions::default(), true);
     assert!(gpu.scenes > cpu.scenes && gpu.epochs > cpu.epochs);
     // The wide variant builds (names and shapes valid).
