@@ -11,6 +11,14 @@ use depthsense_train::trainer::{
 };
 use indicatif::ProgressBar;
 
+/// libtorch's generator is process-wide: tests that train hold this lock so that each run's
+/// initial weights come from its own seed.
+static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
+    TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 const W: u32 = 128;
 const H: u32 = 64;
 
@@ -34,6 +42,7 @@ fn std_over(v: &[f32], mask: &[bool]) -> f64 {
 
 #[test]
 fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
+    let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let ds = toy(&data, 20, 8);
@@ -95,6 +104,7 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
 
 #[test]
 fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
+    let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     toy(&data, 3, 2);

@@ -15,6 +15,15 @@ use indicatif::ProgressBar;
 const W: u32 = 128;
 const H: u32 = 64;
 
+/// libtorch's generator is process-wide: `train` seeds it and then draws the initial weights
+/// and the dropout masks, so two tests training at once in this binary would interleave their
+/// draws and a run would not be reproducible. Tests that train hold this lock.
+static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
+    TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
     depthsense_train::data::write_toy_dataset(dir, scenes, per_scene, W, H, 11).unwrap();
     Dataset::open(dir).unwrap()
@@ -266,6 +275,7 @@ fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
 /// a checkpoint of another config is refused naming the tensors; eval and predict work.
 #[test]
 fn train_resume_mismatch_eval_predict() {
+    let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 6 scenes of 4: test toy-0004, validation toy-0003, 16 train samples (4 batches of 4).
@@ -429,6 +439,7 @@ fn train_resume_mismatch_eval_predict() {
 
 #[test]
 fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
+    let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     toy(&data, 5, 4);
