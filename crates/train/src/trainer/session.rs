@@ -414,7 +414,7 @@ fn fresh(
     let net = DepthNet::new(&vs.root(), cfg)?;
     if let Some(w) = &opts.backbone_weights {
         let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
-        eprintln!("backbone weights from {}: {report:?}", w.display());
+        eprintln!("backbone weights from {}:\n{report}", w.display());
     }
     let _ = std::fs::remove_file(run.join(METRICS_FILE));
     let sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
