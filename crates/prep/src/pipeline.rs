@@ -9,7 +9,7 @@ use std::time::Instant;
 use depthsense_nuscenes::depth_png::{encode_png_fast, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::{
-    cam_from_sensor, ego_from_sensor, global_from_ego, rotation_from_wxyz, Camera,
+    apply_f32, cam_from_sensor, ego_from_sensor, global_from_ego, rotation_from_wxyz, Camera, Rigid,
 };
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
 use depthsense_nuscenes::tables::{NuScenes, Sample, SampleAnnotation, SampleData, Token};
@@ -215,25 +215,52 @@ pub fn compute_sample(
     )
 }
 
-fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
-    let nu = job.nu;
-    let opts = job.opts;
-    let mut decode_s = 0.0;
-    let mut project_s = 0.0;
-    let cam_sd = nu.keyframe(sample.token, "CAM_FRONT").ok_or_else(|| {
+/// Time spent in one sample, added to the run's [`StageTimes`] when the sample is done.
+#[derive(Debug, Default)]
+struct Clock {
+    decode_s: f64,
+    project_s: f64,
+}
+
+impl Clock {
+    fn decode<T>(&mut self, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let r = f();
+        self.decode_s += t.elapsed().as_secs_f64();
+        r
+    }
+    fn project<T>(&mut self, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let r = f();
+        self.project_s += t.elapsed().as_secs_f64();
+        r
+    }
+}
+
+/// The keyframe's camera and lidar records and the full-resolution camera model.
+struct KeyframeSensors<'a> {
+    cam_sd: &'a SampleData,
+    lidar_sd: &'a SampleData,
+    cam: Camera,
+}
+
+fn keyframe_sensors<'a>(
+    nu: &'a NuScenes,
+    sample: &Sample,
+) -> Result<KeyframeSensors<'a>, PrepError> {
+    let missing = |channel: &str| {
         PrepError::Nu(NuError::BadRecord {
             table: "sample",
             token: sample.token.to_string(),
-            reason: "has no CAM_FRONT keyframe in sample_data".into(),
+            reason: format!("has no {channel} keyframe in sample_data"),
         })
-    })?;
-    let lidar_sd = nu.keyframe(sample.token, "LIDAR_TOP").ok_or_else(|| {
-        PrepError::Nu(NuError::BadRecord {
-            table: "sample",
-            token: sample.token.to_string(),
-            reason: "has no LIDAR_TOP keyframe in sample_data".into(),
-        })
-    })?;
+    };
+    let cam_sd = nu
+        .keyframe(sample.token, "CAM_FRONT")
+        .ok_or_else(|| missing("CAM_FRONT"))?;
+    let lidar_sd = nu
+        .keyframe(sample.token, "LIDAR_TOP")
+        .ok_or_else(|| missing("LIDAR_TOP"))?;
     let cam_cs = nu.get_calibrated_sensor(
         cam_sd.calibrated_sensor_token,
         "sample_data",
@@ -252,103 +279,145 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
     } else {
         (1600, 900)
     };
-    let cam = Camera::from_intrinsic(&k, w, h);
-    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    Ok(KeyframeSensors {
+        cam_sd,
+        lidar_sd,
+        cam: Camera::from_intrinsic(&k, w, h),
+    })
+}
 
-    // Image.
-    let t = Instant::now();
-    let img_path = nu.path_of(cam_sd);
-    let jpeg = std::fs::read(&img_path).map_err(|e| io_err(&img_path, e))?;
-    let rgb = image::load_from_memory(&jpeg)
-        .map_err(|e| {
+/// CAM_FRONT JPEG → 800x350 RGB8 training frame (SPEC §3).
+fn frame_image(
+    nu: &NuScenes,
+    cam_sd: &SampleData,
+    clock: &mut Clock,
+) -> Result<Vec<u8>, PrepError> {
+    clock.decode(|| {
+        let img_path = nu.path_of(cam_sd);
+        let jpeg = std::fs::read(&img_path).map_err(|e| io_err(&img_path, e))?;
+        let bad_image = |reason: String| {
             PrepError::Nu(NuError::Image {
                 path: img_path.display().to_string(),
-                reason: e.to_string(),
+                reason,
             })
-        })?
-        .into_rgb8();
-    let (iw, ih) = rgb.dimensions();
-    let image_rgb = maps::image_to_frame(rgb.as_raw(), iw, ih).ok_or_else(|| {
-        PrepError::Nu(NuError::Image {
-            path: img_path.display().to_string(),
-            reason: format!("expected a 1600x900 image, found {iw}x{ih}"),
-        })
-    })?;
-    decode_s += t.elapsed().as_secs_f64();
+        };
+        let rgb = image::load_from_memory(&jpeg)
+            .map_err(|e| bad_image(e.to_string()))?
+            .into_rgb8();
+        let (iw, ih) = rgb.dimensions();
+        maps::image_to_frame(rgb.as_raw(), iw, ih)
+            .ok_or_else(|| bad_image(format!("expected a 1600x900 image, found {iw}x{ih}")))
+    })
+}
 
-    // Sparse lidar GT and low-height mask: keyframe sweep only (SPEC §4).
+/// Sparse GT and low-height mask from the keyframe sweep.
+struct KeyframeLidar {
+    sparse: Raster,
+    lowheight_mask: Vec<u8>,
+    cam_from_lidar: Rigid,
+    nan_dropped: u64,
+}
+
+/// Sparse lidar GT and low-height mask: keyframe sweep only (SPEC §4).
+fn keyframe_lidar(
+    nu: &NuScenes,
+    ks: &KeyframeSensors,
+    counts: &mut BTreeMap<String, u64>,
+    clock: &mut Clock,
+) -> Result<KeyframeLidar, PrepError> {
+    let lidar_path = nu.path_of(ks.lidar_sd);
+    let scan = clock.decode(|| read_lidar_pcd_bin(&lidar_path))?;
     let t = Instant::now();
-    let lidar_path = nu.path_of(lidar_sd);
-    let scan = read_lidar_pcd_bin(&lidar_path)?;
-    decode_s += t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let pts: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-    let cam_from_lidar = cam_from_sensor(nu, lidar_sd, cam_sd)?;
-    let ego_from_lidar = ego_from_sensor(nu, lidar_sd)?.to_f32();
-    let heights: Vec<f32> = pts
+    let points_sensor: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    let cam_from_lidar = cam_from_sensor(nu, ks.lidar_sd, ks.cam_sd)?;
+    let ego_from_lidar = ego_from_sensor(nu, ks.lidar_sd)?.to_f32();
+    let heights_m: Vec<f32> = points_sensor
         .iter()
-        .map(|p| depthsense_nuscenes::geometry::apply_f32(&ego_from_lidar, *p)[2])
+        .map(|p| apply_f32(&ego_from_lidar, *p)[2])
         .collect();
-    let sparse = maps::project_points(&pts, &cam_from_lidar, &cam, |i| heights[i]);
+    let sparse = maps::project_points(&points_sensor, &cam_from_lidar, &ks.cam, |i| heights_m[i]);
     let lowheight_mask = maps::lowheight_mask(&sparse);
-    counts.insert("lidar_points".into(), pts.len() as u64);
+    counts.insert("lidar_points".into(), points_sensor.len() as u64);
     counts.insert("lidar_in_image".into(), sparse.in_frame);
     counts.insert("lidar_sparse_pixels".into(), sparse.valid());
     counts.insert(
         "lowheight_pixels".into(),
         lowheight_mask.iter().filter(|v| **v > 0).count() as u64,
     );
-    let mut nan_dropped = scan.nan_dropped as u64;
-    project_s += t.elapsed().as_secs_f64();
+    clock.project_s += t.elapsed().as_secs_f64();
+    Ok(KeyframeLidar {
+        sparse,
+        lowheight_mask,
+        cam_from_lidar,
+        nan_dropped: scan.nan_dropped as u64,
+    })
+}
 
-    // Dense target: ±K sweeps through their own ego poses, moving boxes removed (SPEC §4).
-    let kk = opts.lidar_sweeps;
-    let annotations_present = nu.sample_annotation.is_some();
+/// Moving boxes of the scene's keyframes around the sweeps' times (empty without
+/// annotations).
+fn nearby_moving_boxes(
+    nu: &NuScenes,
+    sample: &Sample,
+    others: &[&SampleData],
+) -> Vec<(i64, Vec<MovingBox>)> {
+    let mut box_cache: Vec<(i64, Vec<MovingBox>)> = Vec::new();
+    if nu.sample_annotation.is_none() {
+        return box_cache;
+    }
+    let scene_samples = nu.scene_samples(sample.scene_token);
+    let lo = others
+        .iter()
+        .map(|s| s.timestamp_us)
+        .min()
+        .unwrap_or(sample.timestamp_us)
+        - 600_000;
+    let hi = others
+        .iter()
+        .map(|s| s.timestamp_us)
+        .max()
+        .unwrap_or(sample.timestamp_us)
+        + 600_000;
+    for s in scene_samples
+        .iter()
+        .filter(|s| s.timestamp_us >= lo && s.timestamp_us <= hi)
+    {
+        box_cache.push((s.timestamp_us, moving_boxes(nu, s)));
+    }
+    box_cache
+}
+
+/// Dense target: ±K sweeps through their own ego poses, moving boxes removed (SPEC §4).
+fn dense_lidar(
+    nu: &NuScenes,
+    sample: &Sample,
+    ks: &KeyframeSensors,
+    sparse: &Raster,
+    k: usize,
+    counts: &mut BTreeMap<String, u64>,
+    clock: &mut Clock,
+) -> Result<(Raster, u64), PrepError> {
     let mut dense = Raster {
         depth_m: sparse.depth_m.clone(),
         payload: vec![0.0; sparse.payload.len()],
         in_frame: sparse.in_frame,
     };
+    let mut nan_dropped = 0u64;
     let mut moving_removed = 0u64;
     let mut sweeps_used = 1u64;
-    if kk > 0 {
+    if k > 0 {
         let mut others: Vec<&SampleData> = nu
-            .sweeps_back(lidar_sd, kk + 1)
+            .sweeps_back(ks.lidar_sd, k + 1)
             .into_iter()
             .skip(1)
             .collect();
-        others.extend(nu.sweeps_forward(lidar_sd, kk + 1).into_iter().skip(1));
-        // Moving boxes of the scene's samples, for the sweep's nearest keyframe.
-        let scene_samples = nu.scene_samples(sample.scene_token);
-        let mut box_cache: Vec<(i64, Vec<MovingBox>)> = Vec::new();
-        if annotations_present {
-            let lo = others
-                .iter()
-                .map(|s| s.timestamp_us)
-                .min()
-                .unwrap_or(sample.timestamp_us)
-                - 600_000;
-            let hi = others
-                .iter()
-                .map(|s| s.timestamp_us)
-                .max()
-                .unwrap_or(sample.timestamp_us)
-                + 600_000;
-            for s in scene_samples
-                .iter()
-                .filter(|s| s.timestamp_us >= lo && s.timestamp_us <= hi)
-            {
-                box_cache.push((s.timestamp_us, moving_boxes(nu, s)));
-            }
-        }
-        let cam_from_global = global_from_ego(nu, cam_sd)?
-            .compose(&ego_from_sensor(nu, cam_sd)?)
+        others.extend(nu.sweeps_forward(ks.lidar_sd, k + 1).into_iter().skip(1));
+        let box_cache = nearby_moving_boxes(nu, sample, &others);
+        let cam_from_global = global_from_ego(nu, ks.cam_sd)?
+            .compose(&ego_from_sensor(nu, ks.cam_sd)?)
             .inverse();
         for sw in others {
-            let t = Instant::now();
             let p = nu.path_of(sw);
-            let s = read_lidar_pcd_bin(&p)?;
-            decode_s += t.elapsed().as_secs_f64();
+            let s = clock.decode(|| read_lidar_pcd_bin(&p))?;
             let t = Instant::now();
             nan_dropped += s.nan_dropped as u64;
             let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_sensor(nu, sw)?);
@@ -360,7 +429,7 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
                 .unwrap_or(&[]);
             let mut kept: Vec<[f32; 3]> = Vec::with_capacity(s.points.len());
             for q in &s.points {
-                let pg = depthsense_nuscenes::geometry::apply_f32(&g, [q[0], q[1], q[2]]);
+                let pg = apply_f32(&g, [q[0], q[1], q[2]]);
                 let inside = boxes.iter().any(|b| {
                     let dt = ((b.timestamp_us - sw.timestamp_us).abs() as f64) * 1e-6;
                     let m = BOX_MARGIN_M + b.speed_mps * dt;
@@ -380,32 +449,51 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
                     kept.push(pg);
                 }
             }
-            maps::project_into(&mut dense, &kept, &cam_from_global, &cam, |_| 0.0);
+            maps::project_into(&mut dense, &kept, &cam_from_global, &ks.cam, |_| 0.0);
             sweeps_used += 1;
-            project_s += t.elapsed().as_secs_f64();
+            clock.project_s += t.elapsed().as_secs_f64();
         }
     }
-    let t = Instant::now();
-    let occluded = maps::occlusion_filter(&mut dense.depth_m);
-    project_s += t.elapsed().as_secs_f64();
+    let occluded = clock.project(|| maps::occlusion_filter(&mut dense.depth_m));
     counts.insert("lidar_dense_sweeps".into(), sweeps_used);
     counts.insert("lidar_dense_pixels".into(), dense.valid());
     counts.insert("lidar_dense_occluded_removed".into(), occluded);
     counts.insert("lidar_moving_removed".into(), moving_removed);
+    Ok((dense, nan_dropped))
+}
 
-    // Radar (SPEC §5): N sweeps of each chosen channel.
-    let mut radar_raw = Raster::default();
-    let mut radar_height = Raster::default();
+/// Radar inputs of one sample.
+struct RadarInputs {
+    raw: Raster,
+    height: Raster,
+    cam_from_radar: BTreeMap<String, [[f64; 4]; 4]>,
+    /// Requested channels without a keyframe in this sample.
+    missing: Vec<String>,
+    nan_dropped: u64,
+}
+
+/// Radar (SPEC §5): N sweeps of each chosen channel.
+fn radar_inputs(
+    nu: &NuScenes,
+    sample: &Sample,
+    ks: &KeyframeSensors,
+    opts: &PrepareOptions,
+    sd_tokens: &mut BTreeMap<String, String>,
+    counts: &mut BTreeMap<String, u64>,
+    clock: &mut Clock,
+) -> Result<RadarInputs, PrepError> {
+    let mut out = RadarInputs {
+        raw: Raster::default(),
+        height: Raster::default(),
+        cam_from_radar: BTreeMap::new(),
+        missing: Vec::new(),
+        nan_dropped: 0,
+    };
     let mut radar_points = 0u64;
     let mut radar_filtered = 0u64;
-    let mut cam_from_radar = BTreeMap::new();
-    let mut sd_tokens = BTreeMap::new();
-    sd_tokens.insert("CAM_FRONT".to_string(), cam_sd.token.to_string());
-    sd_tokens.insert("LIDAR_TOP".to_string(), lidar_sd.token.to_string());
-    let mut radar_missing = Vec::new();
     for ch in &opts.radar_channels {
         let Some(kf) = nu.keyframe(sample.token, ch) else {
-            radar_missing.push(ch.clone());
+            out.missing.push(ch.clone());
             continue;
         };
         sd_tokens.insert(ch.clone(), kf.token.to_string());
@@ -414,41 +502,43 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
             .into_iter()
             .enumerate()
         {
-            let t = Instant::now();
             let p = nu.path_of(sw);
-            let scan = read_radar_pcd(&p)?;
-            decode_s += t.elapsed().as_secs_f64();
+            let scan = clock.decode(|| read_radar_pcd(&p))?;
             let t = Instant::now();
-            nan_dropped += scan.nan_dropped as u64;
-            let (pts, out) = scan.filtered(opts.radar_filters);
-            radar_filtered += out as u64;
+            out.nan_dropped += scan.nan_dropped as u64;
+            let (pts, filtered_out) = scan.filtered(opts.radar_filters);
+            radar_filtered += filtered_out as u64;
             radar_points += pts.len() as u64;
             let dt = opts
                 .radar_velocity_compensation
-                .then(|| (cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
+                .then(|| (ks.cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
             let pos = maps::radar_positions(&pts, dt);
-            let tf = cam_from_sensor(nu, sw, cam_sd)?;
+            let tf = cam_from_sensor(nu, sw, ks.cam_sd)?;
             if si == 0 {
-                cam_from_radar.insert(ch.clone(), tf.to_mat4());
+                out.cam_from_radar.insert(ch.clone(), tf.to_mat4());
             }
             let m = tf.to_f32();
-            let pc: Vec<[f32; 3]> = pos
-                .iter()
-                .map(|q| depthsense_nuscenes::geometry::apply_f32(&m, *q))
-                .collect();
-            maps::radar_maps(&pc, &cam, &mut radar_raw, &mut radar_height);
-            project_s += t.elapsed().as_secs_f64();
+            let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
+            maps::radar_maps(&points_cam, &ks.cam, &mut out.raw, &mut out.height);
+            clock.project_s += t.elapsed().as_secs_f64();
         }
     }
     counts.insert("radar_points".into(), radar_points);
-    counts.insert("radar_in_image".into(), radar_raw.in_frame);
-    counts.insert("radar_raw_pixels".into(), radar_raw.valid());
-    counts.insert("radar_height_pixels".into(), radar_height.valid());
+    counts.insert("radar_in_image".into(), out.raw.in_frame);
+    counts.insert("radar_raw_pixels".into(), out.raw.valid());
+    counts.insert("radar_height_pixels".into(), out.height.valid());
     counts.insert("radar_filtered_out".into(), radar_filtered);
-    counts.insert("nan_dropped".into(), nan_dropped);
+    Ok(out)
+}
 
-    let scene = nu.get_scene(sample.scene_token, "sample", sample.token, "scene_token")?;
-    let settings = serde_json::json!({
+/// The settings recorded in `meta.json`.
+fn sample_settings(
+    nu: &NuScenes,
+    opts: &PrepareOptions,
+    radar_missing: &[String],
+) -> serde_json::Value {
+    let annotations_present = nu.sample_annotation.is_some();
+    serde_json::json!({
         "version": nu.version,
         "split": opts.split,
         "radar_sweeps": opts.radar_sweeps,
@@ -458,7 +548,7 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
         "radar_velocity_compensation": opts.radar_velocity_compensation,
         "radar_h_up_m": maps::RADAR_H_UP_M,
         "radar_h_down_m": maps::RADAR_H_DOWN_M,
-        "lidar_sweeps_k": kk,
+        "lidar_sweeps_k": opts.lidar_sweeps,
         "occlusion_filter": {"rx": maps::OCC_RX, "ry": maps::OCC_RY, "rel": maps::OCC_REL, "abs_m": maps::OCC_ABS_M},
         "moving_objects": if annotations_present {
             format!("removed from non-keyframe sweeps: boxes of annotations moving faster than {MOVING_SPEED_MPS} m/s or with a moving attribute, +{BOX_MARGIN_M} m + speed·|Δt| margin")
@@ -467,7 +557,43 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
         },
         "annotations_present": annotations_present,
         "lowheight_band_m": [maps::LOW_HEIGHT_MIN_M, maps::LOW_HEIGHT_MAX_M],
-    });
+    })
+}
+
+fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
+    let nu = job.nu;
+    let opts = job.opts;
+    let mut clock = Clock::default();
+    let ks = keyframe_sensors(nu, sample)?;
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    let image_rgb = frame_image(nu, ks.cam_sd, &mut clock)?;
+    let kl = keyframe_lidar(nu, &ks, &mut counts, &mut clock)?;
+    let (dense, dense_nan) = dense_lidar(
+        nu,
+        sample,
+        &ks,
+        &kl.sparse,
+        opts.lidar_sweeps,
+        &mut counts,
+        &mut clock,
+    )?;
+    let mut sd_tokens = BTreeMap::new();
+    sd_tokens.insert("CAM_FRONT".to_string(), ks.cam_sd.token.to_string());
+    sd_tokens.insert("LIDAR_TOP".to_string(), ks.lidar_sd.token.to_string());
+    let radar = radar_inputs(
+        nu,
+        sample,
+        &ks,
+        opts,
+        &mut sd_tokens,
+        &mut counts,
+        &mut clock,
+    )?;
+    counts.insert(
+        "nan_dropped".into(),
+        kl.nan_dropped + dense_nan + radar.nan_dropped,
+    );
+    let scene = nu.get_scene(sample.scene_token, "sample", sample.token, "scene_token")?;
     let meta = SampleMeta {
         sample_token: sample.token.to_string(),
         scene_token: scene.token.to_string(),
@@ -475,25 +601,25 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
         conditions: conditions_of(&scene.description),
         timestamp_us: sample.timestamp_us,
         sample_data_tokens: sd_tokens,
-        intrinsics_frame: cam.frame_intrinsics(),
-        intrinsics_full: cam.intrinsics(),
-        cam_from_lidar: cam_from_lidar.to_mat4(),
-        cam_from_radar,
+        intrinsics_frame: ks.cam.frame_intrinsics(),
+        intrinsics_full: ks.cam.intrinsics(),
+        cam_from_lidar: kl.cam_from_lidar.to_mat4(),
+        cam_from_radar: radar.cam_from_radar,
         counts,
-        settings,
+        settings: sample_settings(nu, opts, &radar.missing),
     };
     if let Ok(mut tm) = job.times.lock() {
-        tm.decode_s += decode_s;
-        tm.project_s += project_s;
+        tm.decode_s += clock.decode_s;
+        tm.project_s += clock.project_s;
     }
     Ok(SampleMaps {
         meta,
         image_rgb,
-        lidar_sparse: sparse.to_depth_map(),
+        lidar_sparse: kl.sparse.to_depth_map(),
         lidar_dense: dense.to_depth_map(),
-        lowheight_mask,
-        radar_raw: radar_raw.to_depth_map(),
-        radar_height: radar_height.to_depth_map(),
+        lowheight_mask: kl.lowheight_mask,
+        radar_raw: radar.raw.to_depth_map(),
+        radar_height: radar.height.to_depth_map(),
     })
 }
 
