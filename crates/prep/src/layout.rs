@@ -48,12 +48,18 @@ pub enum Condition {
 /// Conditions of a scene: "night" and/or "rain" in its description, else day.
 /// A scene that is both night and rain belongs to both rows (splits/README).
 pub fn conditions_of(description: &str) -> Vec<Condition> {
-    let d = description.to_lowercase();
+    // Whole words only (issue 10): "train", "terrain" and "drain" are not rain.
+    let words: Vec<String> = description
+        .split(|c: char| !c.is_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .map(str::to_lowercase)
+        .collect();
+    let has = |w: &str| words.iter().any(|x| x == w);
     let mut out = Vec::new();
-    if d.contains("night") {
+    if has("night") {
         out.push(Condition::Night);
     }
-    if d.contains("rain") {
+    if has("rain") {
         out.push(Condition::Rain);
     }
     if out.is_empty() {
@@ -141,6 +147,34 @@ mod tests {
             vec![Condition::Night, Condition::Rain]
         );
         assert_eq!(conditions_of("Parked cars, peds"), vec![Condition::Day]);
+    }
+
+    #[test]
+    fn condition_words_are_whole_words() {
+        // issue 10 defect 6: substrings of other words are not conditions.
+        assert_eq!(
+            conditions_of("Pedestrians, train station"),
+            vec![Condition::Day]
+        );
+        assert_eq!(conditions_of("Drain cover, terrain"), vec![Condition::Day]);
+        assert_eq!(
+            conditions_of("Brainstorm, nightclub, overnight parking"),
+            vec![Condition::Day]
+        );
+        assert_eq!(
+            conditions_of("Night, rain, parking lot"),
+            vec![Condition::Night, Condition::Rain]
+        );
+        assert_eq!(
+            conditions_of("Rain, night"),
+            vec![Condition::Night, Condition::Rain]
+        );
+        assert_eq!(
+            conditions_of("heavy rain; wet road (night)"),
+            vec![Condition::Night, Condition::Rain]
+        );
+        assert_eq!(conditions_of("Rain-soaked road"), vec![Condition::Rain]);
+        assert_eq!(conditions_of(""), vec![Condition::Day]);
     }
 
     #[test]
