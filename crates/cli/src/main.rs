@@ -38,6 +38,9 @@ enum Command {
     Experiment(cmd::experiment::Args),
     /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader).
     Bench(cmd::bench::Args),
+    /// MER (multi-channel enhanced radar): train the radar–pixel association network, apply it
+    /// to prepared data, report coverage and error.
+    Mer(cmd::mer::Args),
 }
 
 fn run() -> anyhow::Result<ExitCode> {
@@ -53,6 +56,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Experiment(a) => cmd::experiment::run(a),
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Mer(a) => cmd::mer::run(a),
     }
 }
 

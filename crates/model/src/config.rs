@@ -73,6 +73,10 @@ pub enum RadarInput {
     Raw,
     /// Raw then height-extended: 2 channels.
     RawHeight,
+    /// MER (SPEC §5): raw, then the 6 channels d·[conf > θ], θ ∈ {0.5, 0.6, 0.7, 0.8, 0.9,
+    /// 0.95}, derived when loading from `radar_mer_depth.png` / `radar_mer_conf.png`
+    /// (`depthsense mer apply`): 7 channels.
+    Mer,
 }
 
 impl RadarInput {
@@ -81,6 +85,7 @@ impl RadarInput {
         match self {
             Self::Height | Self::Raw => 1,
             Self::RawHeight => 2,
+            Self::Mer => 7,
         }
     }
 
@@ -89,9 +94,10 @@ impl RadarInput {
         match c {
             0 | 1 => Ok(Self::Height),
             2 => Ok(Self::RawHeight),
+            7 => Ok(Self::Mer),
             other => Err(ModelError::InvalidConfig(format!(
-                "no prepared radar input has {other} channels (1 = height-extended or raw, \
-                 2 = raw + height-extended; MER's 7 channels are not prepared)"
+                "no radar input has {other} channels (1 = height-extended or raw, \
+                 2 = raw + height-extended, 7 = raw + 6 MER)"
             ))),
         }
     }
@@ -102,6 +108,7 @@ impl RadarInput {
             Self::Height => "height",
             Self::Raw => "raw",
             Self::RawHeight => "raw-height",
+            Self::Mer => "mer",
         }
     }
 }
@@ -113,8 +120,9 @@ impl std::str::FromStr for RadarInput {
             "height" => Ok(Self::Height),
             "raw" => Ok(Self::Raw),
             "raw-height" => Ok(Self::RawHeight),
+            "mer" => Ok(Self::Mer),
             o => Err(ModelError::InvalidConfig(format!(
-                "unknown radar input {o:?} (height, raw, raw-height)"
+                "unknown radar input {o:?} (height, raw, raw-height, mer)"
             ))),
         }
     }
@@ -396,7 +404,7 @@ impl ModelConfig {
         "attention (on|off)",
         "head (ordinal|l1|l2)",
         "radar-channels (1|7)",
-        "radar-input (height|raw|raw-height)",
+        "radar-input (height|raw|raw-height|mer)",
         "radar-in-metres (on|off)",
         "clamp-logits (on|off; the released code's bug, SPEC §7)",
         "radar-branch (basic|bottleneck)",

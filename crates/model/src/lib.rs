@@ -4,7 +4,8 @@
 //! - [`DepthNet`]: `forward_t` → low-resolution head output, `loss`, `decode`;
 //! - [`ordinal`]: the exact and efficient ordinal loss/decoding, [`reference`]: the naive form;
 //! - [`checkpoint`]: safetensors + config JSON; [`weights`]: torchvision / released imports;
-//! - [`report`]: parameters per module and multiply-adds at 350x800.
+//! - [`report`]: parameters per module and multiply-adds at 350x800;
+//! - [`pda`]: the MER radar–pixel association network (SPEC §5).
 
 pub mod checkpoint;
 pub mod config;
@@ -15,6 +16,7 @@ mod init_tests;
 mod layers;
 mod net;
 pub mod ordinal;
+pub mod pda;
 pub mod pickle;
 pub mod precision;
 pub mod reference;

@@ -451,6 +451,25 @@ pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, see
     }
 }
 
+/// The 7 MER radar planes (SPEC §5): raw, then d·[conf > θ] for the 6 thresholds, derived
+/// from `radar_mer_depth.png` / `radar_mer_conf.png`. A MER pixel carries the exact depth of
+/// one raw return, so MER pixels whose depth is no longer among the raw returns (dropped by
+/// `radar_drop` or a failure mode) are removed with them.
+fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), TrainError> {
+    let (mut depth, conf) = crate::mer::read_mer_maps(dir)?;
+    let mp = dir.join(crate::mer::MER_DEPTH_FILE);
+    check_size(&depth, raw.width as usize, raw.height as usize, &mp)?;
+    let kept: BTreeSet<u32> = raw.depth_m.iter().map(|d| d.to_bits()).collect();
+    for d in depth.depth_m.iter_mut() {
+        if *d > 0.0 && !kept.contains(&d.to_bits()) {
+            *d = 0.0;
+        }
+    }
+    out.extend_from_slice(&raw.depth_m);
+    out.extend_from_slice(&crate::mer::derive_channels(&depth.depth_m, &conf.depth_m));
+    Ok(())
+}
+
 /// Read one sample directory. `draw` is the sample's random stream (augmentation).
 pub fn load_sample(
     ds: &Dataset,
@@ -508,6 +527,7 @@ pub fn load_sample(
                 radar.extend_from_slice(&raw.depth_m);
                 radar.extend_from_slice(&height.depth_m);
             }
+            RadarInput::Mer => mer_planes(&dir, &raw, &mut radar)?,
         }
         radar_channels = opts.radar.channels();
     }

@@ -8,6 +8,7 @@
 //! - [`predict`]: depth for a prepared sample or raw files;
 //! - [`demo`]: synth → prepare → train RGB-only and fusion → eval → report;
 //! - [`experiments`]: SPEC §10 experiments from training runs (`ablation`: variants × seeds);
+//! - [`mer`]: MER (SPEC §5): association labels, the PDA network's training, `mer apply`;
 //! - [`bench`]: training and loader throughput;
 //! - [`plot`]: curves and depth pictures.
 
@@ -17,6 +18,7 @@ pub mod demo;
 pub mod error;
 pub mod evaluate;
 pub mod experiments;
+pub mod mer;
 pub mod plot;
 pub mod predict;
 pub mod sgd;

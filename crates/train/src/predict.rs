@@ -39,6 +39,9 @@ pub struct PredictInput {
     pub radar_height: DepthMap,
     /// Sparse lidar GT when known (prepared sample / dataroot token).
     pub gt: Option<DepthMap>,
+    /// MER (depth, confidence) maps (SPEC §5): read from a prepared sample where `mer apply`
+    /// wrote them, or computed by [`crate::mer::apply::attach_mer`] (`--mer-checkpoint`).
+    pub mer: Option<(DepthMap, DepthMap)>,
 }
 
 /// Read a prepared sample directory.
@@ -60,6 +63,11 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         radar_height: read_depth(&dir.join(RADAR_HEIGHT_FILE))?,
         gt: if gt_path.exists() {
             Some(read_depth(&gt_path)?)
+        } else {
+            None
+        },
+        mer: if dir.join(crate::mer::MER_DEPTH_FILE).exists() {
+            Some(crate::mer::read_mer_maps(dir)?)
         } else {
             None
         },
@@ -92,6 +100,7 @@ pub fn input_from_token(
         radar_raw: maps.radar_raw,
         radar_height: maps.radar_height,
         gt: Some(maps.lidar_sparse),
+        mer: None,
     })
 }
 
@@ -165,6 +174,7 @@ pub fn input_from_raw(
         radar_raw: raw.to_depth_map(),
         radar_height: height.to_depth_map(),
         gt: None,
+        mer: None,
     })
 }
 
@@ -179,12 +189,27 @@ pub fn predict(
     let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
         .view([1, 3, h as i64, w as i64])
         .to_device(device);
+    let mer_channels;
     let planes: Vec<&[f32]> = match radar {
         None => vec![],
         Some(RadarInput::Height) => vec![&input.radar_height.depth_m],
         Some(RadarInput::Raw) => vec![&input.radar_raw.depth_m],
         Some(RadarInput::RawHeight) => {
             vec![&input.radar_raw.depth_m, &input.radar_height.depth_m]
+        }
+        Some(RadarInput::Mer) => {
+            let (d, c) = input.mer.as_ref().ok_or_else(|| {
+                TrainError::Config(format!(
+                    "{}: the model takes MER radar (SPEC §5) but the input has no MER maps: \
+                     run `depthsense mer apply` on the prepared data or pass --mer-checkpoint",
+                    input.name
+                ))
+            })?;
+            mer_channels = crate::mer::derive_channels(&d.depth_m, &c.depth_m);
+            let n = d.depth_m.len();
+            let mut v: Vec<&[f32]> = vec![&input.radar_raw.depth_m];
+            v.extend(mer_channels.chunks(n));
+            v
         }
     };
     let radar_t = if planes.is_empty() {

@@ -322,7 +322,7 @@ fn all_finite(vs: &VarStore) -> bool {
     })
 }
 
-fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
+pub(crate) fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
     let mut f = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -332,7 +332,7 @@ fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
 }
 
 /// Keep only the records of metrics.jsonl up to `iteration` (resume after an interruption).
-fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
+pub(crate) fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(());
     };

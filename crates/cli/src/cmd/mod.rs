@@ -7,6 +7,7 @@ pub mod demo;
 pub mod eval;
 pub mod experiment;
 pub mod inspect;
+pub mod mer;
 pub mod model_info;
 pub mod predict;
 pub mod prepare;

@@ -58,10 +58,15 @@ pub struct Args {
     /// Device: auto, cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
     device: String,
+    /// PDA checkpoint (`depthsense mer train`) that computes the MER maps of the input, for
+    /// a model trained with `--radar-input mer` (SPEC §5). Needed for --token and --image;
+    /// a prepared sample uses the maps `mer apply` wrote unless this is given.
+    #[arg(long)]
+    mer_checkpoint: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let input = if let Some(dir) = &a.sample {
+    let mut input = if let Some(dir) = &a.sample {
         input_from_prepared(dir)?
     } else if let Some(token) = &a.token {
         let dataroot = a
@@ -90,6 +95,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         eprint!("{}: {r}", a.checkpoint.display());
     }
     let radar = radar_input_for(&loaded.config, None)?;
+    if let Some(ck) = &a.mer_checkpoint {
+        let pda = depthsense_model::pda::load(ck, device)?;
+        depthsense_train::mer::apply::attach_mer(&mut input, &pda.net, device)?;
+    }
     let depth = predict(&loaded.net, &input, radar, device)?;
     let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
     let valid: Vec<f32> = depth.depth_m.iter().copied().filter(|d| *d > 0.0).collect();

@@ -75,9 +75,10 @@ pub struct Args {
     /// Batches decoded ahead of the training step.
     #[arg(long, default_value_t = 4)]
     prefetch: usize,
-    /// Radar map(s) for the radar channels: height, raw or raw-height (default: from the
-    /// model's radar_channels: 1 → height, 2 → raw-height). Stored in the checkpoint's model
-    /// config: `eval` and `predict` feed the same input.
+    /// Radar map(s) for the radar channels: height, raw, raw-height or mer (raw + 6 MER
+    /// channels, after `depthsense mer apply`; sets radar_channels = 7). Default: from the
+    /// model's radar_channels (1 → height, 2 → raw-height, 7 → mer). Stored in the
+    /// checkpoint's model config: `eval` and `predict` feed the same input.
     #[arg(long)]
     radar_input: Option<String>,
     /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
@@ -158,6 +159,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     if a.no_attention {
         model.attention = false;
+    }
+    if let Some(r) = &a.radar_input {
+        // The radar input fixes the channel count (mer: raw + 6 MER = 7, SPEC §5).
+        model.set_option("radar-input", r)?;
     }
     let model = model.with_options(&a.set)?;
     let opts = TrainOptions {

@@ -1,0 +1,462 @@
+//! The radar–pixel association network of MER (SPEC §5, RC-PDA): for every radar pixel of a
+//! low-resolution grid, 180 logits, one per neighbour of its window (2 px left/right, 30 up,
+//! 5 down), saying whether that neighbour shares the radar return's depth.
+//!
+//! - [`PdaConfig`]: presets `paper` and `tiny`, the window, the grid and the label thresholds;
+//! - [`PdaNet`]: a small U-Net (conv3x3 + BN + ReLU levels, stride-2 downsampling, nearest
+//!   upsampling with skip concatenation, 1x1 head). Optical flow (an RC-PDA input) is optional
+//!   in SPEC §5 and left out: the inputs are the image and the raw radar only.
+//! - [`balanced_bce`]: class-balanced binary cross-entropy over labelled radar pixels only;
+//! - [`save`] / [`load`]: one safetensors file with the config in its metadata (atomic).
+//!
+//! Initialisation is PyTorch's `nn.Conv2d` default for every conv (U(±1/√fan_in)) and
+//! BatchNorm γ = 1, β = 0 (crate::layers, README "Training that learns").
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use tch::{nn, nn::ModuleT, Device, Kind, Tensor};
+
+use crate::checkpoint::{copy_into, parse_safetensors, safetensors_bytes, write_atomic};
+use crate::layers::{batch_norm2d, Conv, P};
+use crate::ModelError;
+
+/// Format tag of a PDA checkpoint's metadata.
+pub const FORMAT: &str = "depthsense-pda-v1";
+const KEY_FORMAT: &str = "format";
+const KEY_CONFIG: &str = "depthsense.pda_config";
+const KEY_EXTRA: &str = "depthsense.extra";
+
+/// The association window around a radar pixel, in grid pixels (SPEC §5: 2 left, 2 right,
+/// 30 up, 5 down → 5 × 36 = 180 neighbours, the radar pixel itself included).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MerWindow {
+    pub left: i64,
+    pub right: i64,
+    pub up: i64,
+    pub down: i64,
+}
+
+impl MerWindow {
+    /// SPEC §5.
+    pub const PAPER: MerWindow = MerWindow {
+        left: 2,
+        right: 2,
+        up: 30,
+        down: 5,
+    };
+
+    /// Number of neighbours (= logits per pixel).
+    pub fn len(&self) -> usize {
+        ((self.left + self.right + 1) * (self.up + self.down + 1)) as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Offsets (dx, dy) in channel order: k = (dy + up)·(left + right + 1) + (dx + left),
+    /// dy from −up (above) to +down, dx from −left to +right.
+    pub fn offsets(&self) -> Vec<(i64, i64)> {
+        let mut out = Vec::with_capacity(self.len());
+        for dy in -self.up..=self.down {
+            for dx in -self.left..=self.right {
+                out.push((dx, dy));
+            }
+        }
+        out
+    }
+}
+
+/// The PDA network and the MER conventions it was trained with.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct PdaConfig {
+    /// Preset name (informational).
+    pub name: String,
+    /// Channels of each U-Net level; level 0 runs at the grid resolution, level i at 1/2^i.
+    pub widths: Vec<i64>,
+    pub window: MerWindow,
+    /// MER grid = training frame / `grid_scale` (2: 400x175, RC-PDA's 1/4 of the 1600x900
+    /// camera image, so that the window spans what SPEC §5's "1/4 resolution" window spans).
+    pub grid_scale: i64,
+    /// Radar and lidar beyond this depth are dropped (SPEC §5: 50 m).
+    pub max_depth_m: f64,
+    /// Association label: |Δd| < `abs_threshold_m` (1 m) and |Δd|/d < `rel_threshold` (5 %).
+    pub abs_threshold_m: f64,
+    pub rel_threshold: f64,
+    /// The network sees radar depth / `radar_scale_m` and a radar-present mask.
+    pub radar_scale_m: f64,
+}
+
+impl PdaConfig {
+    /// RC-PDA-sized: four levels 32/64/128/256 (receptive field > the 36-row window).
+    pub fn paper() -> Self {
+        PdaConfig {
+            name: "paper".into(),
+            widths: vec![32, 64, 128, 256],
+            window: MerWindow::PAPER,
+            grid_scale: 2,
+            max_depth_m: 50.0,
+            abs_threshold_m: 1.0,
+            rel_threshold: 0.05,
+            radar_scale_m: 80.0,
+        }
+    }
+
+    /// For CPU runs and demos: four levels 8/16/32/64.
+    pub fn tiny() -> Self {
+        PdaConfig {
+            name: "tiny".into(),
+            widths: vec![8, 16, 32, 64],
+            ..Self::paper()
+        }
+    }
+
+    /// For tests only: three levels 4/8/8.
+    pub fn test() -> Self {
+        PdaConfig {
+            name: "test".into(),
+            widths: vec![4, 8, 8],
+            ..Self::paper()
+        }
+    }
+
+    /// `paper`, `tiny` or `test`, or a PDA config JSON file.
+    pub fn resolve(spec: &str) -> Result<Self, ModelError> {
+        match spec.trim().to_ascii_lowercase().as_str() {
+            "paper" => return Ok(Self::paper()),
+            "tiny" => return Ok(Self::tiny()),
+            "test" => return Ok(Self::test()),
+            _ => {}
+        }
+        let path = Path::new(spec);
+        if !path.is_file() {
+            return Err(ModelError::InvalidConfig(format!(
+                "unknown PDA preset `{spec}` (paper, tiny, test, or a PDA config JSON file)"
+            )));
+        }
+        let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
+        let cfg: Self = serde_json::from_str(&text)
+            .map_err(|e| ModelError::format(path, format!("not a PDA config JSON: {e}")))?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn validate(&self) -> Result<(), ModelError> {
+        let bad = |m: String| Err(ModelError::InvalidConfig(format!("PDA: {m}")));
+        if self.widths.is_empty() || self.widths.iter().any(|&w| w < 1) {
+            return bad(format!(
+                "widths {:?} (need ≥ 1 level, each ≥ 1)",
+                self.widths
+            ));
+        }
+        let w = &self.window;
+        if w.left < 0 || w.right < 0 || w.up < 0 || w.down < 0 {
+            return bad(format!("window {w:?} has a negative side"));
+        }
+        if !(1..=8).contains(&self.grid_scale) {
+            return bad(format!("grid_scale {} (1..=8)", self.grid_scale));
+        }
+        let positive = [
+            self.max_depth_m,
+            self.abs_threshold_m,
+            self.rel_threshold,
+            self.radar_scale_m,
+        ];
+        // `x > 0.0` is false for NaN too.
+        if positive
+            .iter()
+            .any(|x| x.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater))
+        {
+            return bad(format!(
+                "max_depth_m, abs_threshold_m, rel_threshold and radar_scale_m must be > 0 \
+                 (got {positive:?})"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// conv3x3 (no bias) + BN + ReLU.
+struct Cbr {
+    conv: Conv,
+    bn: nn::BatchNorm,
+}
+
+impl Cbr {
+    fn new(p: &P, cin: i64, cout: i64, stride: i64) -> Self {
+        Cbr {
+            conv: Conv::new(&p.sub("conv"), cin, cout, 3, stride, 1, 1, false),
+            bn: batch_norm2d(&p.sub("bn"), cout),
+        }
+    }
+    fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
+        self.bn.forward_t(&self.conv.forward(x), train).relu()
+    }
+}
+
+/// The association network (see the module docs).
+pub struct PdaNet {
+    cfg: PdaConfig,
+    /// Per level: two conv-BN-ReLU (the first with stride 2 from level 1 on).
+    enc: Vec<[Cbr; 2]>,
+    /// Per level below the last: conv-BN-ReLU on [upsampled coarser level, skip].
+    dec: Vec<Cbr>,
+    head: Conv,
+}
+
+impl std::fmt::Debug for PdaNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PdaNet").field("cfg", &self.cfg).finish()
+    }
+}
+
+/// Input channels: ImageNet-normalised RGB (3), radar depth / radar_scale_m (1), radar mask (1).
+pub const INPUT_CHANNELS: i64 = 5;
+
+impl PdaNet {
+    pub fn new(p: &nn::Path, cfg: &PdaConfig) -> Result<Self, ModelError> {
+        cfg.validate()?;
+        let root = P::root(p);
+        let w = &cfg.widths;
+        let mut enc = Vec::with_capacity(w.len());
+        for (i, &c) in w.iter().enumerate() {
+            let pi = root.sub(&format!("enc{i}"));
+            let (cin, stride) = if i == 0 {
+                (INPUT_CHANNELS, 1)
+            } else {
+                (w[i - 1], 2)
+            };
+            enc.push([
+                Cbr::new(&pi.sub("0"), cin, c, stride),
+                Cbr::new(&pi.sub("1"), c, c, 1),
+            ]);
+        }
+        let dec = (0..w.len() - 1)
+            .map(|i| Cbr::new(&root.sub(&format!("dec{i}")), w[i + 1] + w[i], w[i], 1))
+            .collect();
+        let k = cfg.window.len() as i64;
+        let head = Conv::new(&root.sub("head"), w[0], k, 1, 1, 0, 1, true);
+        Ok(PdaNet {
+            cfg: cfg.clone(),
+            enc,
+            dec,
+            head,
+        })
+    }
+
+    pub fn config(&self) -> &PdaConfig {
+        &self.cfg
+    }
+
+    /// Image `[B,3,h,w]` (ImageNet-normalised) and radar `[B,1,h,w]` (metres, 0 = none), both
+    /// at the MER grid → association logits `[B,K,h,w]`, K = window length (180); channel k is
+    /// the neighbour at `window.offsets()[k]` of the radar return at that pixel.
+    pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+        let radar = radar.to_kind(image.kind());
+        let mask = radar.gt(0.0).to_kind(image.kind());
+        let x = Tensor::cat(
+            &[image.shallow_clone(), &radar / self.cfg.radar_scale_m, mask],
+            1,
+        );
+        let mut skips = Vec::with_capacity(self.enc.len());
+        let mut x = x;
+        for [a, b] in &self.enc {
+            x = b.forward_t(&a.forward_t(&x, train), train);
+            skips.push(x.shallow_clone());
+        }
+        for i in (0..self.dec.len()).rev() {
+            let skip = &skips[i];
+            let s = skip.size();
+            let up = x.upsample_nearest2d([s[2], s[3]], None, None);
+            x = self.dec[i].forward_t(&Tensor::cat(&[up, skip.shallow_clone()], 1), train);
+        }
+        self.head.forward(&x)
+    }
+}
+
+/// Weights of the two classes so that positives and negatives weigh half each (class-balanced
+/// BCE, SPEC §5): (w_pos, w_neg) = (1/(2·n_pos), 1/(2·n_neg)); a class that is absent gets
+/// weight 0 and the other one 1/n (a plain mean). Both absent: (0, 0).
+pub fn class_weights(n_pos: f64, n_neg: f64) -> (f64, f64) {
+    match (n_pos > 0.0, n_neg > 0.0) {
+        (true, true) => (0.5 / n_pos, 0.5 / n_neg),
+        (true, false) => (1.0 / n_pos, 0.0),
+        (false, true) => (0.0, 1.0 / n_neg),
+        (false, false) => (0.0, 0.0),
+    }
+}
+
+/// Class-balanced binary cross-entropy with logits over the labelled pairs only:
+/// `logits`, `labels` (1 = associated, 0 = not) and `mask` (1 = labelled) of one shape, e.g.
+/// `[N,K]` for N radar pixels. Returns a scalar: Σ mask·(w_pos·y·softplus(−x) +
+/// w_neg·(1−y)·softplus(x)) with [`class_weights`] from this batch's counts.
+pub fn balanced_bce(logits: &Tensor, labels: &Tensor, mask: &Tensor) -> Tensor {
+    let x = logits.to_kind(Kind::Float);
+    let pos = labels * mask;
+    let neg = (labels.ones_like() - labels) * mask;
+    let (wp, wn) = class_weights(pos.sum(Kind::Double).double_value(&[]), {
+        neg.sum(Kind::Double).double_value(&[])
+    });
+    let lp = (-&x).softplus() * pos * wp;
+    let ln = x.softplus() * neg * wn;
+    (lp + ln).sum(Kind::Float)
+}
+
+/// Rows of `logits` `[B,K,h,w]` at flat pixel indices `idx` (b·h·w + v·w + u, Int64) → `[N,K]`.
+pub fn gather_pixels(logits: &Tensor, idx: &Tensor) -> Tensor {
+    let k = logits.size()[1];
+    logits
+        .permute([0, 2, 3, 1])
+        .reshape([-1, k])
+        .index_select(0, idx)
+}
+
+/// Trainable parameters of a var store.
+pub fn parameter_count(vs: &nn::VarStore) -> i64 {
+    vs.trainable_variables()
+        .iter()
+        .map(|t| t.numel() as i64)
+        .sum()
+}
+
+/// A loaded PDA checkpoint.
+pub struct LoadedPda {
+    pub vs: nn::VarStore,
+    pub net: PdaNet,
+    pub config: PdaConfig,
+    pub extra: serde_json::Value,
+}
+
+/// Saves every variable of `vs` with `cfg` and `extra`, atomically (one safetensors file).
+pub fn save(
+    path: &Path,
+    vs: &nn::VarStore,
+    cfg: &PdaConfig,
+    extra: &serde_json::Value,
+) -> Result<(), ModelError> {
+    let tensors: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+    let mut meta = BTreeMap::new();
+    meta.insert(KEY_FORMAT.to_string(), FORMAT.to_string());
+    let cfg_s = serde_json::to_string(cfg).map_err(|e| ModelError::InvalidConfig(e.to_string()))?;
+    meta.insert(KEY_CONFIG.to_string(), cfg_s);
+    meta.insert(
+        KEY_EXTRA.to_string(),
+        serde_json::to_string(extra).unwrap_or_else(|_| "null".into()),
+    );
+    write_atomic(path, &safetensors_bytes(&tensors, &meta)?)
+}
+
+/// Loads a checkpoint written by [`save`], building the network from its stored config.
+pub fn load(path: &Path, device: Device) -> Result<LoadedPda, ModelError> {
+    let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
+    let (tensors, meta) = parse_safetensors(path, &bytes)?;
+    if meta.get(KEY_FORMAT).map(String::as_str) != Some(FORMAT) {
+        return Err(ModelError::format(
+            path,
+            format!(
+                "not a PDA checkpoint (no `{FORMAT}` tag; `mer apply` needs the output of \
+                 `depthsense mer train`)"
+            ),
+        ));
+    }
+    let cfg_s = meta
+        .get(KEY_CONFIG)
+        .ok_or_else(|| ModelError::format(path, "PDA checkpoint has no config"))?;
+    let config: PdaConfig = serde_json::from_str(cfg_s)
+        .map_err(|e| ModelError::format(path, format!("stored PDA config is invalid: {e}")))?;
+    let extra = meta
+        .get(KEY_EXTRA)
+        .and_then(|s| serde_json::from_str(s).ok())
+        .unwrap_or(serde_json::Value::Null);
+    let vs = nn::VarStore::new(device);
+    let net = PdaNet::new(&vs.root(), &config)?;
+    copy_into(path, &vs, &tensors)?;
+    Ok(LoadedPda {
+        vs,
+        net,
+        config,
+        extra,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn window_has_180_offsets_in_channel_order() {
+        let w = MerWindow::PAPER;
+        let o = w.offsets();
+        assert_eq!(o.len(), 180);
+        assert_eq!(o[0], (-2, -30));
+        assert_eq!(o[4], (2, -30));
+        assert_eq!(o[30 * 5 + 2], (0, 0), "the radar pixel itself");
+        assert_eq!(o[179], (2, 5));
+    }
+
+    #[test]
+    fn forward_shapes_and_pytorch_init() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = PdaNet::new(&vs.root(), &PdaConfig::test()).unwrap();
+        let img = Tensor::randn([2, 3, 19, 23], (Kind::Float, Device::Cpu));
+        let radar = Tensor::zeros([2, 1, 19, 23], (Kind::Float, Device::Cpu));
+        let y = net.forward_t(&img, &radar, false);
+        assert_eq!(y.size(), vec![2, 180, 19, 23]);
+        // PyTorch nn.Conv2d bound 1/√fan_in, BN γ = 1.
+        let vars = vs.variables();
+        let w0 = &vars["enc0.0.conv.weight"];
+        let bound = 1.0 / ((5 * 9) as f64).sqrt();
+        assert!(w0.abs().max().double_value(&[]) <= bound + 1e-7);
+        assert!(w0.abs().max().double_value(&[]) > 0.8 * bound);
+        assert_eq!(vars["enc0.0.bn.weight"].min().double_value(&[]), 1.0);
+        let hb = &vars["head.bias"];
+        assert!(hb.abs().max().double_value(&[]) <= 1.0 / 2.0 + 1e-7); // fan_in = 4
+    }
+
+    #[test]
+    fn class_weights_balance_the_two_classes() {
+        assert_eq!(class_weights(2.0, 8.0), (0.25, 0.0625));
+        assert_eq!(class_weights(0.0, 4.0), (0.0, 0.25));
+        assert_eq!(class_weights(3.0, 0.0), (1.0 / 3.0, 0.0));
+        assert_eq!(class_weights(0.0, 0.0), (0.0, 0.0));
+        // Total weight of each present class is ½.
+        let (wp, wn) = class_weights(7.0, 93.0);
+        assert!((wp * 7.0 - 0.5).abs() < 1e-12 && (wn * 93.0 - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn balanced_bce_by_hand() {
+        // 1 positive (logit 0), 3 negatives (logit 0, 0, 0), one unlabelled pair (ignored).
+        let x = Tensor::from_slice(&[0f32, 0.0, 0.0, 0.0, 50.0]);
+        let y = Tensor::from_slice(&[1f32, 0.0, 0.0, 0.0, 1.0]);
+        let m = Tensor::from_slice(&[1f32, 1.0, 1.0, 1.0, 0.0]);
+        let l = balanced_bce(&x, &y, &m).double_value(&[]);
+        assert!((l - 2f64.ln()).abs() < 1e-6, "{l}");
+        // A confident wrong positive costs as much as 3 wrong negatives of the same margin.
+        let x = Tensor::from_slice(&[-3f32, -3.0, -3.0, -3.0]);
+        let y = Tensor::from_slice(&[1f32, 0.0, 0.0, 0.0]);
+        let m = Tensor::ones([4], (Kind::Float, Device::Cpu));
+        let l = balanced_bce(&x, &y, &m).double_value(&[]);
+        let sp = |v: f64| (1.0 + v.exp()).ln();
+        assert!((l - (0.5 * sp(3.0) + 0.5 * sp(-3.0))).abs() < 1e-5, "{l}");
+    }
+
+    #[test]
+    fn save_load_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("pda.safetensors");
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = PdaNet::new(&vs.root(), &PdaConfig::test()).unwrap();
+        save(&p, &vs, net.config(), &serde_json::json!({"epoch": 1})).unwrap();
+        let l = load(&p, Device::Cpu).unwrap();
+        assert_eq!(l.config, PdaConfig::test());
+        assert_eq!(l.extra["epoch"], 1);
+        assert_eq!(parameter_count(&l.vs), parameter_count(&vs));
+        let a = vs.variables();
+        for (k, v) in l.vs.variables() {
+            assert!(v.equal(&a[&k]), "{k}");
+        }
+    }
+}

@@ -1,0 +1,383 @@
+//! `depthsense mer apply`: runs a trained PDA network on every prepared sample and writes the
+//! enhanced radar maps (SPEC §5): per pixel the maximum association confidence over every
+//! radar return whose window covers it, and that return's depth.
+//!
+//! Resumable and atomic like `prepare`: each file is written to a temporary sibling and
+//! renamed; the confidence map first, the depth map last, so a sample is done iff its
+//! `radar_mer_depth.png` exists. `O/mer.json` names the model (path and FNV-1a 64 of its
+//! bytes); applying another model is refused unless `--force`, which first removes every MER
+//! map so that an interrupted forced run cannot leave maps of two models behind.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_model::pda::{self, gather_pixels, PdaConfig, PdaNet};
+use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use tch::{Device, Tensor};
+
+use super::labels::{load_input, neighbour, Grid, PdaInput, RadarPixel};
+use super::{
+    derive_channels, encode_conf_png, file_fnv64, read_mer_maps, read_record, MerRecord,
+    MER_CONF_FILE, MER_DEPTH_FILE, MER_RECORD_FILE, THRESHOLDS,
+};
+use crate::data::{decode_rgb, read_depth, Dataset};
+use crate::error::TrainError;
+
+/// Options of `mer apply`.
+#[derive(Debug, Clone)]
+pub struct MerApplyOptions {
+    pub data: PathBuf,
+    pub checkpoint: PathBuf,
+    pub device: String,
+    /// Threads reading and encoding maps (0 = all cores).
+    pub jobs: usize,
+    /// Samples per forward pass.
+    pub batch_size: usize,
+    /// Recompute every sample (and replace maps of another model).
+    pub force: bool,
+    /// Write preview pictures for this many samples (evenly spaced over the index).
+    pub preview: usize,
+    /// Where previews go (default `<data>/mer_preview`).
+    pub preview_dir: Option<PathBuf>,
+}
+
+impl Default for MerApplyOptions {
+    fn default() -> Self {
+        Self {
+            data: PathBuf::from("prepared"),
+            checkpoint: PathBuf::from("runs/mer/best.safetensors"),
+            device: "auto".into(),
+            jobs: 0,
+            batch_size: 4,
+            force: false,
+            preview: 0,
+            preview_dir: None,
+        }
+    }
+}
+
+/// What `mer apply` did.
+#[derive(Debug, Clone)]
+pub struct MerApplySummary {
+    pub written: usize,
+    pub skipped: usize,
+    pub seconds: f64,
+    /// Samples written per second (0 when none was written).
+    pub samples_per_s: f64,
+    pub record: MerRecord,
+    pub previews: Vec<PathBuf>,
+}
+
+/// Enhanced maps on the grid from N radar pixels and their `[N, K]` association
+/// probabilities: (depth, confidence). Where windows overlap the higher confidence wins, and
+/// on equal confidence the nearer return (SPEC §5 "keeps, per pixel, the maximum affinity and
+/// its depth").
+pub fn mer_maps(
+    pixels: &[RadarPixel],
+    probs: &[f32],
+    g: &Grid,
+    cfg: &PdaConfig,
+) -> (Vec<f32>, Vec<f32>) {
+    let offsets = cfg.window.offsets();
+    let k = offsets.len();
+    let mut depth = vec![0f32; g.len()];
+    let mut conf = vec![0f32; g.len()];
+    for (i, p) in pixels.iter().enumerate() {
+        for (j, &(dx, dy)) in offsets.iter().enumerate() {
+            let Some(n) = neighbour(g, p.u, p.v, dx, dy) else {
+                continue;
+            };
+            let c = probs[i * k + j];
+            let better = c > conf[n] || (c == conf[n] && depth[n] > 0.0 && p.depth_m < depth[n]);
+            if better && c > 0.0 {
+                conf[n] = c;
+                depth[n] = p.depth_m;
+            }
+        }
+    }
+    (depth, conf)
+}
+
+/// Association probabilities `[N_b, K]` of each sample's radar pixels, one forward pass.
+pub fn predict_probs(
+    net: &PdaNet,
+    inputs: &[PdaInput],
+    device: Device,
+) -> Result<Vec<Vec<f32>>, TrainError> {
+    let g = inputs[0].grid;
+    if inputs.iter().any(|s| s.grid != g) {
+        return Err(TrainError::Data(
+            "frames of different sizes in one batch".into(),
+        ));
+    }
+    let (b, h, w) = (inputs.len() as i64, g.h as i64, g.w as i64);
+    let image: Vec<f32> = inputs
+        .iter()
+        .flat_map(|s| s.image.iter().copied())
+        .collect();
+    let radar: Vec<f32> = inputs
+        .iter()
+        .flat_map(|s| s.radar.iter().copied())
+        .collect();
+    let idx: Vec<i64> = inputs
+        .iter()
+        .enumerate()
+        .flat_map(|(bi, s)| {
+            s.pixels
+                .iter()
+                .map(move |p| (bi * g.len() + p.v * g.w + p.u) as i64)
+        })
+        .collect();
+    if idx.is_empty() {
+        return Ok(vec![vec![]; inputs.len()]);
+    }
+    let probs = tch::no_grad(|| {
+        let img = Tensor::from_slice(&image)
+            .view([b, 3, h, w])
+            .to_device(device);
+        let rad = Tensor::from_slice(&radar)
+            .view([b, 1, h, w])
+            .to_device(device);
+        let out = net.forward_t(&img, &rad, false);
+        let i = Tensor::from_slice(&idx).to_device(device);
+        gather_pixels(&out, &i)
+            .sigmoid()
+            .to_device(Device::Cpu)
+            .contiguous()
+    });
+    let flat = Vec::<f32>::try_from(probs.view([-1]))?;
+    let k = net.config().window.len();
+    let mut out = Vec::with_capacity(inputs.len());
+    let mut at = 0;
+    for s in inputs {
+        let n = s.pixels.len() * k;
+        out.push(flat[at..at + n].to_vec());
+        at += n;
+    }
+    Ok(out)
+}
+
+/// Writes one sample's maps at the training-frame resolution: confidence, then depth.
+fn write_sample(
+    dir: &Path,
+    input: &PdaInput,
+    probs: &[f32],
+    cfg: &PdaConfig,
+) -> Result<(), TrainError> {
+    let g = &input.grid;
+    let (depth, conf) = mer_maps(&input.pixels, probs, g, cfg);
+    let (fw, fh) = (g.frame_w as u32, g.frame_h as u32);
+    let conf_png = encode_conf_png(&g.to_frame(&conf), fw, fh)?;
+    let depth_map = DepthMap {
+        width: fw,
+        height: fh,
+        depth_m: g.to_frame(&depth),
+    };
+    let depth_png = encode_png(&depth_map).map_err(|e| TrainError::Data(e.to_string()))?;
+    for (name, bytes) in [(MER_CONF_FILE, conf_png), (MER_DEPTH_FILE, depth_png)] {
+        let p = dir.join(name);
+        write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
+    }
+    Ok(())
+}
+
+/// Checks `O/mer.json` against the model; with `force`, removes every MER map first. Writes
+/// the new record.
+fn prepare_record(
+    ds: &Dataset,
+    opts: &MerApplyOptions,
+    record: &MerRecord,
+) -> Result<(), TrainError> {
+    if let Some(old) = read_record(&ds.root)? {
+        let same = old.checkpoint_fnv64 == record.checkpoint_fnv64;
+        if !same && !opts.force {
+            return Err(TrainError::Config(format!(
+                "{}: MER maps of another PDA model ({}, fnv64 {}) are there; pass --force to \
+                 replace them with {}",
+                ds.root.join(MER_RECORD_FILE).display(),
+                old.checkpoint,
+                old.checkpoint_fnv64,
+                opts.checkpoint.display()
+            )));
+        }
+    }
+    if opts.force {
+        for e in &ds.index.samples {
+            for f in [MER_DEPTH_FILE, MER_CONF_FILE] {
+                let p = ds.sample_dir(e).join(f);
+                if p.exists() {
+                    std::fs::remove_file(&p).map_err(|err| TrainError::io(&p, err))?;
+                }
+            }
+        }
+    }
+    let p = ds.root.join(MER_RECORD_FILE);
+    let text =
+        serde_json::to_string_pretty(record).map_err(|e| TrainError::Other(e.to_string()))?;
+    write_atomic(&p, text.as_bytes()).map_err(|e| TrainError::io(&p, e))
+}
+
+/// Run `mer apply` (see the module docs).
+pub fn apply(
+    opts: &MerApplyOptions,
+    progress: &ProgressBar,
+) -> Result<MerApplySummary, TrainError> {
+    let started = Instant::now();
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let ds = Dataset::open(&opts.data)?;
+    let loaded = pda::load(&opts.checkpoint, device)?;
+    let cfg = loaded.config.clone();
+    let record = MerRecord {
+        checkpoint: opts.checkpoint.display().to_string(),
+        checkpoint_fnv64: file_fnv64(&opts.checkpoint)?,
+        pda: cfg.clone(),
+        thresholds: THRESHOLDS.to_vec(),
+        depth_file: MER_DEPTH_FILE.into(),
+        conf_file: MER_CONF_FILE.into(),
+    };
+    prepare_record(&ds, opts, &record)?;
+    let todo: Vec<&IndexEntry> = ds
+        .index
+        .samples
+        .iter()
+        .filter(|e| !ds.sample_dir(e).join(MER_DEPTH_FILE).exists())
+        .collect();
+    let skipped = ds.index.samples.len() - todo.len();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(if opts.jobs == 0 { 0 } else { opts.jobs })
+        .build()
+        .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
+    progress.set_length(todo.len() as u64);
+    let t0 = Instant::now();
+    for chunk in todo.chunks(opts.batch_size.max(1)) {
+        let inputs: Vec<PdaInput> = pool.install(|| {
+            chunk
+                .par_iter()
+                .map(|e| load_input(&ds.sample_dir(e), &cfg, false))
+                .collect::<Result<_, _>>()
+        })?;
+        let probs = predict_probs(&loaded.net, &inputs, device)?;
+        pool.install(|| {
+            chunk
+                .par_iter()
+                .zip(&inputs)
+                .zip(&probs)
+                .try_for_each(|((e, i), p)| write_sample(&ds.sample_dir(e), i, p, &cfg))
+        })?;
+        progress.inc(chunk.len() as u64);
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let previews = write_previews(&ds, opts)?;
+    Ok(MerApplySummary {
+        written: todo.len(),
+        skipped,
+        seconds: started.elapsed().as_secs_f64(),
+        samples_per_s: if todo.is_empty() {
+            0.0
+        } else {
+            todo.len() as f64 / secs.max(1e-9)
+        },
+        record,
+        previews,
+    })
+}
+
+/// `--preview N`: for N samples, the image with raw radar, height-extended radar and MER at
+/// θ = 0.5 and 0.9 overlaid, one colour map (0–80 m, near = red) with its bar in metres.
+fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, TrainError> {
+    if opts.preview == 0 {
+        return Ok(vec![]);
+    }
+    let dir = opts
+        .preview_dir
+        .clone()
+        .unwrap_or_else(|| ds.root.join("mer_preview"));
+    std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
+    let entries = crate::trainer::subsample(&ds.index.samples, Some(opts.preview));
+    let mut out = vec![];
+    for e in &entries {
+        let p = dir.join(format!("{}.png", e.sample_token));
+        let bytes = preview_png(&ds.sample_dir(e))?;
+        write_atomic(&p, &bytes).map_err(|err| TrainError::io(&p, err))?;
+        out.push(p);
+    }
+    Ok(out)
+}
+
+/// The preview picture of one sample directory (PNG bytes).
+pub fn preview_png(dir: &Path) -> Result<Vec<u8>, TrainError> {
+    use crate::plot::{overlay_points, picture_row_png};
+    const MAX_M: f32 = 80.0;
+    let img = decode_rgb(&dir.join(IMAGE_FILE))?;
+    let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
+    let height = read_depth(&dir.join(RADAR_HEIGHT_FILE))?;
+    let (md, mc) = read_mer_maps(dir)?;
+    let ch = derive_channels(&md.depth_m, &mc.depth_m);
+    let n = md.depth_m.len();
+    let plane = |t: f32| {
+        let i = THRESHOLDS.iter().position(|x| *x == t).unwrap_or(0);
+        &ch[i * n..(i + 1) * n]
+    };
+    let count = |v: &[f32]| v.iter().filter(|d| **d > 0.0).count();
+    let panels = [
+        (
+            format!("raw radar ({} px)", count(&raw.depth_m)),
+            overlay_points(&img, &raw.depth_m, MAX_M, 2),
+        ),
+        (
+            format!("height-extended ({} px)", count(&height.depth_m)),
+            overlay_points(&img, &height.depth_m, MAX_M, 0),
+        ),
+        (
+            format!("MER conf > 0.5 ({} px)", count(plane(0.5))),
+            overlay_points(&img, plane(0.5), MAX_M, 0),
+        ),
+        (
+            format!("MER conf > 0.9 ({} px)", count(plane(0.9))),
+            overlay_points(&img, plane(0.9), MAX_M, 0),
+        ),
+    ];
+    let refs: Vec<(&str, image::RgbImage)> = panels
+        .iter()
+        .map(|(s, i)| (s.as_str(), i.clone()))
+        .collect();
+    picture_row_png(&refs, MAX_M)
+}
+
+/// Computes the MER maps of a `predict` input with a PDA network (`predict --mer-checkpoint`:
+/// sample tokens and raw files carry no MER maps of their own).
+pub fn attach_mer(
+    input: &mut crate::predict::PredictInput,
+    net: &PdaNet,
+    device: Device,
+) -> Result<(), TrainError> {
+    let cfg = net.config();
+    let pi = super::labels::pda_input(&input.image, &input.radar_raw.depth_m, cfg, false);
+    let probs = predict_probs(net, std::slice::from_ref(&pi), device)?;
+    let g = &pi.grid;
+    let (depth, conf) = mer_maps(&pi.pixels, &probs[0], g, cfg);
+    let (w, h) = (g.frame_w as u32, g.frame_h as u32);
+    // As `mer apply` stores them: confidence quantised to 16 bits.
+    let conf: Vec<f32> = g
+        .to_frame(&conf)
+        .iter()
+        .map(|c| super::quantise_conf(*c))
+        .collect();
+    input.mer = Some((
+        DepthMap {
+            width: w,
+            height: h,
+            depth_m: g.to_frame(&depth),
+        },
+        DepthMap {
+            width: w,
+            height: h,
+            depth_m: conf,
+        },
+    ));
+    Ok(())
+}
