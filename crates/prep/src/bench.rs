@@ -455,8 +455,8 @@ pub fn build_fixture_world(
     Ok(out.to_path_buf())
 }
 
-/// Projection + rasterisation of one keyframe (sparse lidar, low-height mask, occlusion
-/// filter, radar raw + height-extended), files already decoded. Returns the median seconds
+/// Projection + rasterisation of one keyframe (sparse lidar, low-height mask, keyframe
+/// surface, radar raw + height-extended), files already decoded. Returns the median seconds
 /// over `reps` repetitions and the lidar/radar point counts.
 pub fn time_projection(fixture: &Path, reps: usize) -> Result<serde_json::Value, PrepError> {
     let nu = NuScenes::load(fixture, "v1.0-mini")?;
@@ -490,8 +490,9 @@ pub fn time_projection(fixture: &Path, reps: usize) -> Result<serde_json::Value,
             depthsense_nuscenes::geometry::apply_f32(&e_l, pts[i])[2]
         });
         let mask = maps::lowheight_mask(&r);
-        let mut dense = r.depth_m.clone();
-        maps::occlusion_filter(&mut dense);
+        // The keyframe surface that other sweeps are judged against (K > 0).
+        let surface = maps::KeyframeSurface::new(&r.depth_m);
+        sink += (surface.judge(400, 175, 10.0) == maps::Visibility::Hidden) as u64;
         // 15 radar sweeps (5 sweeps × 3 channels) of the same file.
         let (rp, _) = radar.filtered(true);
         let c_r = cam_from_sensor(&nu, radar_sd, cam_sd)?.to_f32();

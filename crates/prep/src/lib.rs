@@ -5,6 +5,7 @@ pub mod bench;
 pub mod inspect;
 pub mod layout;
 pub mod maps;
+pub mod motion;
 pub mod pipeline;
 pub mod splits;
 

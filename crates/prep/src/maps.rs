@@ -14,13 +14,196 @@ pub const LOW_HEIGHT_MAX_M: f32 = 2.0;
 pub const RADAR_H_UP_M: f32 = 1.5;
 pub const RADAR_H_DOWN_M: f32 = 0.25;
 
-/// Occlusion filter of the dense target (SPEC §4): a point is dropped when a nearer point of
-/// the accumulated map lies within ±`OCC_RX` columns and ±`OCC_RY` rows and
-/// `d > OCC_REL · d_near + OCC_ABS_M`.
-pub const OCC_RX: i64 = 2;
-pub const OCC_RY: i64 = 1;
+/// Depth-consistency tolerance of the dense target (SPEC §4): depth `d` is behind depth `s`
+/// when `d > OCC_REL · s + OCC_ABS_M`.
 pub const OCC_REL: f32 = 1.1;
 pub const OCC_ABS_M: f32 = 0.5;
+/// Half-width (columns) of the band in which [`KeyframeSurface`] looks for keyframe returns.
+pub const OCC_RX: i64 = 2;
+/// Rows up and down that [`KeyframeSurface`] searches for a bracketing keyframe return: more
+/// than the gap between two LIDAR_TOP rings in the training frame (1.33° ≈ 15 rows).
+pub const OCC_MAX_GAP_ROWS: i64 = 24;
+
+/// Near-sensor radius (m) of the ego car's own returns: nuscenes-devkit
+/// `LidarPointCloud.remove_close(1.0)`, applied by its `from_file_multisweep` to every sweep.
+pub const NEAR_SENSOR_M: f32 = 1.0;
+
+/// Drop the ego car's own returns (roof, the no-return points at the origin) from a sensor-frame
+/// LIDAR_TOP scan, exactly as nuscenes-devkit `LidarPointCloud.remove_close(radius)`: a point
+/// goes when |x| < radius **and** |y| < radius in the sensor frame (a square, not a disc; z is
+/// not looked at). SPEC §4: the dense target accumulates the world, not the car. Returns the
+/// kept points (x, y, z) and how many were dropped.
+pub fn remove_close(points_sensor: &[[f32; 5]], radius_m: f32) -> (Vec<[f32; 3]>, u64) {
+    let mut kept = Vec::with_capacity(points_sensor.len());
+    for p in points_sensor {
+        if !(p[0].abs() < radius_m && p[1].abs() < radius_m) {
+            kept.push([p[0], p[1], p[2]]);
+        }
+    }
+    let dropped = (points_sensor.len() - kept.len()) as u64;
+    (kept, dropped)
+}
+
+/// What the keyframe surface says about a point of another sweep (SPEC §4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Visibility {
+    /// Between the keyframe returns that bracket its pixel (or at their depth): kept.
+    Consistent,
+    /// Behind both bracketing keyframe returns: hidden from the keyframe's view, dropped.
+    Hidden,
+    /// In front of both bracketing keyframe returns: in space the keyframe beam crossed
+    /// freely (an unannotated mover, a ghost), dropped.
+    FreeSpace,
+    /// No keyframe return above or below it within [`OCC_MAX_GAP_ROWS`]: no evidence, kept.
+    NoEvidence,
+}
+
+/// The keyframe sweep's own surface in the training frame, for judging points of other sweeps
+/// (SPEC §4: "remove points that are hidden behind the single-sweep surface").
+///
+/// The keyframe scan is dense along a ring (a return every ~4 columns) and sparse across rings
+/// (~15 rows apart), so a pixel is judged against the two keyframe returns that bracket it in
+/// its column band (±[`OCC_RX`] columns): the nearest keyframe row at or above it and at or
+/// below it, each within [`OCC_MAX_GAP_ROWS`]. With `near`/`far` the smallest/largest keyframe
+/// depth of those two band rows, a point at depth d is
+/// - [`Visibility::Hidden`] when `d > OCC_REL·far + OCC_ABS_M` (behind everything the keyframe
+///   saw there),
+/// - [`Visibility::FreeSpace`] when `OCC_REL·d + OCC_ABS_M < near` (in front of it),
+/// - otherwise consistent. Inverse depth is linear in the row on a plane, so ground and walls
+///   between two rings are consistent; a depth edge between the rings keeps both sides.
+///
+/// Keyframe pixels themselves are never judged: the dense target keeps every one of them.
+pub struct KeyframeSurface {
+    /// Per pixel (row-major): (near, far) of the bracketing band row above and below;
+    /// 0 = none within reach.
+    above: Vec<(f32, f32)>,
+    below: Vec<(f32, f32)>,
+}
+
+impl KeyframeSurface {
+    pub fn new(keyframe_depth_m: &[f32]) -> KeyframeSurface {
+        let w = FRAME_W as i64;
+        let h = FRAME_H as i64;
+        // Band rows: nearest and farthest keyframe depth within ±OCC_RX columns.
+        let mut band = vec![(0f32, 0f32); N];
+        for y in 0..h {
+            for x in 0..w {
+                let mut near = f32::INFINITY;
+                let mut far = 0f32;
+                for xx in (x - OCC_RX).max(0)..=(x + OCC_RX).min(w - 1) {
+                    let d = keyframe_depth_m[(y * w + xx) as usize];
+                    if d > 0.0 {
+                        near = near.min(d);
+                        far = far.max(d);
+                    }
+                }
+                if far > 0.0 {
+                    band[(y * w + x) as usize] = (near, far);
+                }
+            }
+        }
+        let mut above = vec![(0f32, 0f32); N];
+        let mut below = vec![(0f32, 0f32); N];
+        for x in 0..w {
+            let mut last: Option<((f32, f32), i64)> = None;
+            for y in 0..h {
+                let i = (y * w + x) as usize;
+                if band[i].1 > 0.0 {
+                    last = Some((band[i], y));
+                }
+                if let Some((v, yy)) = last {
+                    if y - yy <= OCC_MAX_GAP_ROWS {
+                        above[i] = v;
+                    }
+                }
+            }
+            let mut last: Option<((f32, f32), i64)> = None;
+            for y in (0..h).rev() {
+                let i = (y * w + x) as usize;
+                if band[i].1 > 0.0 {
+                    last = Some((band[i], y));
+                }
+                if let Some((v, yy)) = last {
+                    if yy - y <= OCC_MAX_GAP_ROWS {
+                        below[i] = v;
+                    }
+                }
+            }
+        }
+        KeyframeSurface { above, below }
+    }
+
+    /// Judge depth `depth_m` at training-frame pixel (x, y).
+    #[inline]
+    pub fn judge(&self, x: u32, y: u32, depth_m: f32) -> Visibility {
+        let i = y as usize * FRAME_W as usize + x as usize;
+        let (a, b) = (self.above[i], self.below[i]);
+        if a.1 <= 0.0 || b.1 <= 0.0 {
+            return Visibility::NoEvidence;
+        }
+        let near = a.0.min(b.0);
+        let far = a.1.max(b.1);
+        if depth_m > OCC_REL * far + OCC_ABS_M {
+            Visibility::Hidden
+        } else if OCC_REL * depth_m + OCC_ABS_M < near {
+            Visibility::FreeSpace
+        } else {
+            Visibility::Consistent
+        }
+    }
+}
+
+/// Counts of [`add_sweep_points`].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SweepCounts {
+    /// Points that landed in the frame.
+    pub in_frame: u64,
+    /// Landed on a keyframe pixel (the keyframe depth stands).
+    pub on_keyframe_pixel: u64,
+    pub hidden: u64,
+    pub free_space: u64,
+    pub kept: u64,
+}
+
+/// Add points of a non-keyframe sweep (already in the frame `cam_from_points` maps from) to the
+/// dense target `dense`, judged against the keyframe surface (SPEC §4, [`KeyframeSurface`]).
+/// `keyframe_depth_m` is the keyframe's own map: its pixels are never changed. Among the other
+/// sweeps' points the nearest wins.
+pub fn add_sweep_points(
+    dense: &mut Raster,
+    keyframe_depth_m: &[f32],
+    surface: &KeyframeSurface,
+    points: &[[f32; 3]],
+    cam_from_points: &Rigid,
+    cam: &Camera,
+) -> SweepCounts {
+    let m = cam_from_points.to_f32();
+    let mut c = SweepCounts::default();
+    for p in points {
+        let pc = apply_f32(&m, *p);
+        let Some((u, v, d)) = cam.project(pc) else {
+            continue;
+        };
+        let Some((x, y)) = to_frame(u, v) else {
+            continue;
+        };
+        c.in_frame += 1;
+        dense.in_frame += 1;
+        if keyframe_depth_m[y as usize * FRAME_W as usize + x as usize] > 0.0 {
+            c.on_keyframe_pixel += 1;
+            continue;
+        }
+        match surface.judge(x, y, d) {
+            Visibility::Hidden => c.hidden += 1,
+            Visibility::FreeSpace => c.free_space += 1,
+            Visibility::Consistent | Visibility::NoEvidence => {
+                c.kept += 1;
+                dense.splat(x, y, d, 0.0);
+            }
+        }
+    }
+    c
+}
 
 const N: usize = (FRAME_W * FRAME_H) as usize;
 
@@ -116,37 +299,6 @@ pub fn lowheight_mask(r: &Raster) -> Vec<u8> {
             }
         })
         .collect()
-}
-
-/// Occlusion filter over an accumulated nearest-wins map (SPEC §4); returns how many
-/// pixels were cleared.
-pub fn occlusion_filter(depth_m: &mut [f32]) -> u64 {
-    let w = FRAME_W as i64;
-    let h = FRAME_H as i64;
-    let src = depth_m.to_vec();
-    let mut removed = 0;
-    for y in 0..h {
-        for x in 0..w {
-            let d = src[(y * w + x) as usize];
-            if d <= 0.0 {
-                continue;
-            }
-            let mut near = d;
-            for yy in (y - OCC_RY).max(0)..=(y + OCC_RY).min(h - 1) {
-                for xx in (x - OCC_RX).max(0)..=(x + OCC_RX).min(w - 1) {
-                    let n = src[(yy * w + xx) as usize];
-                    if n > 0.0 && n < near {
-                        near = n;
-                    }
-                }
-            }
-            if d > OCC_REL * near + OCC_ABS_M {
-                depth_m[(y * w + x) as usize] = 0.0;
-                removed += 1;
-            }
-        }
-    }
-    removed
 }
 
 /// Radar raw and height-extended maps (SPEC §5) from camera-frame radar points.
@@ -294,18 +446,6 @@ mod tests {
         assert_eq!(f[0], 150);
         assert_eq!(f[800 * 3], 0);
         assert!(image_to_frame(&rgb[..10], 5, 2).is_none());
-    }
-
-    #[test]
-    fn occlusion_filter_drops_hidden_background() {
-        let mut d = vec![0f32; N];
-        d[100 * 800 + 100] = 10.0;
-        d[100 * 800 + 101] = 30.0; // background next to foreground: hidden
-        d[101 * 800 + 300] = 30.0; // isolated: kept
-        d[101 * 800 + 301] = 31.0; // consistent neighbour: kept
-        assert_eq!(occlusion_filter(&mut d), 1);
-        assert_eq!(d[100 * 800 + 101], 0.0);
-        assert_eq!(d[101 * 800 + 301], 31.0);
     }
 
     #[test]

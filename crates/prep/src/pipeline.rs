@@ -18,6 +18,7 @@ use rayon::prelude::*;
 
 use crate::layout::{self, conditions_of, IndexEntry, PreparedIndex, SampleMeta};
 use crate::maps::{self, Raster};
+use crate::motion::{self, BoxAt, TrackPoint};
 
 pub use crate::splits::split_scene_tokens;
 
@@ -101,10 +102,14 @@ pub enum PrepError {
     Other(String),
 }
 
-/// Speed above which an annotated object counts as moving (m/s).
-pub const MOVING_SPEED_MPS: f64 = 0.5;
-/// Margin added to every side of a moving box before removing points (m).
-pub const BOX_MARGIN_M: f64 = 0.25;
+pub use crate::motion::{BOX_MARGIN_M, MAX_TIME_DIFF_S, MOVING_SPEED_MPS};
+
+/// Version of the dense-target rules, stored with the settings: a prepared folder made under
+/// other rules is not mixed with this run's samples. `keyframe-surface-1`: near-sensor points
+/// removed from every sweep (devkit `remove_close(1.0)`), other sweeps judged against the
+/// keyframe surface (keyframe pixels always kept), moving boxes interpolated to each sweep's
+/// time with a 0.2 m margin.
+pub const DENSE_RULES: &str = "keyframe-surface-1";
 
 /// Time spent per stage, summed over samples (seconds).
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -129,66 +134,6 @@ pub struct SampleMaps {
 
 fn io_err(path: &Path, e: std::io::Error) -> PrepError {
     PrepError::Nu(NuError::io(path, e))
-}
-
-/// A box of a moving object in the global frame.
-struct MovingBox {
-    center: [f64; 3],
-    /// global_from_box rotation.
-    rot: [[f64; 3]; 3],
-    half: [f64; 3],
-    speed_mps: f64,
-    timestamp_us: i64,
-}
-
-/// Moving-object rule (documented in the README): an annotation is moving when its speed,
-/// from the neighbouring annotations of the same instance (devkit `box_velocity`: next −
-/// prev over their sample times), exceeds 0.5 m/s, or when it carries an attribute whose name
-/// ends in ".moving" or is "cycle.with_rider".
-fn moving_boxes(nu: &NuScenes, sample: &Sample) -> Vec<MovingBox> {
-    let anns = nu.sample_annotations(sample.token);
-    let ts = |a: &SampleAnnotation| {
-        nu.get_sample(a.sample_token, "sample_annotation", a.token, "sample_token")
-            .ok()
-            .map(|s| s.timestamp_us)
-    };
-    let mut out = Vec::new();
-    for a in anns {
-        let prev = a.prev.and_then(|t| nu.annotation(t));
-        let next = a.next.and_then(|t| nu.annotation(t));
-        let (p0, p1) = (prev.unwrap_or(a), next.unwrap_or(a));
-        let speed = match (ts(p0), ts(p1)) {
-            (Some(t0), Some(t1)) if t1 > t0 => {
-                let d: f64 = (0..3)
-                    .map(|i| (p1.translation[i] - p0.translation[i]).powi(2))
-                    .sum::<f64>()
-                    .sqrt();
-                d / ((t1 - t0) as f64 * 1e-6)
-            }
-            _ => 0.0,
-        };
-        let attr_moving = a.attribute_tokens.iter().any(|t| {
-            nu.get_attribute(*t, "sample_annotation", a.token, "attribute_tokens")
-                .map(|at| at.name.ends_with(".moving") || at.name == "cycle.with_rider")
-                .unwrap_or(false)
-        });
-        if speed <= MOVING_SPEED_MPS && !attr_moving {
-            continue;
-        }
-        let Ok(rot) = rotation_from_wxyz(a.rotation, &format!("sample_annotation {}", a.token))
-        else {
-            continue;
-        };
-        // size = (width, length, height); box x axis is the length (devkit).
-        out.push(MovingBox {
-            center: a.translation,
-            rot,
-            half: [a.size[1] / 2.0, a.size[0] / 2.0, a.size[2] / 2.0],
-            speed_mps: speed.max(if attr_moving { 1.0 } else { 0.0 }),
-            timestamp_us: sample.timestamp_us,
-        });
-    }
-    out
 }
 
 /// Everything a worker needs besides the tables.
@@ -328,7 +273,9 @@ fn keyframe_lidar(
     let lidar_path = nu.path_of(ks.lidar_sd);
     let scan = clock.decode(|| read_lidar_pcd_bin(&lidar_path))?;
     let t = Instant::now();
-    let points_sensor: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    // The ego car's own returns never reach the camera's frame from the keyframe pose, but they
+    // go here too, as from every sweep (devkit remove_close).
+    let (points_sensor, near_removed) = maps::remove_close(&scan.points, maps::NEAR_SENSOR_M);
     let cam_from_lidar = cam_from_sensor(nu, ks.lidar_sd, ks.cam_sd)?;
     let ego_from_lidar = ego_from_sensor(nu, ks.lidar_sd)?.to_f32();
     let heights_m: Vec<f32> = points_sensor
@@ -337,7 +284,8 @@ fn keyframe_lidar(
         .collect();
     let sparse = maps::project_points(&points_sensor, &cam_from_lidar, &ks.cam, |i| heights_m[i]);
     let lowheight_mask = maps::lowheight_mask(&sparse);
-    counts.insert("lidar_points".into(), points_sensor.len() as u64);
+    counts.insert("lidar_points".into(), scan.points.len() as u64);
+    counts.insert("lidar_near_sensor_removed".into(), near_removed);
     counts.insert("lidar_in_image".into(), sparse.in_frame);
     counts.insert("lidar_sparse_pixels".into(), sparse.valid());
     counts.insert(
@@ -353,56 +301,103 @@ fn keyframe_lidar(
     })
 }
 
-/// Moving boxes of the scene's keyframes around the sweeps' times (empty without
-/// annotations).
-fn nearby_moving_boxes(
-    nu: &NuScenes,
-    sample: &Sample,
-    others: &[&SampleData],
-) -> Vec<(i64, Vec<MovingBox>)> {
-    let mut box_cache: Vec<(i64, Vec<MovingBox>)> = Vec::new();
-    if nu.sample_annotation.is_none() {
-        return box_cache;
-    }
-    let scene_samples = nu.scene_samples(sample.scene_token);
-    let lo = others
-        .iter()
-        .map(|s| s.timestamp_us)
-        .min()
-        .unwrap_or(sample.timestamp_us)
-        - 600_000;
-    let hi = others
-        .iter()
-        .map(|s| s.timestamp_us)
-        .max()
-        .unwrap_or(sample.timestamp_us)
-        + 600_000;
-    for s in scene_samples
-        .iter()
-        .filter(|s| s.timestamp_us >= lo && s.timestamp_us <= hi)
-    {
-        box_cache.push((s.timestamp_us, moving_boxes(nu, s)));
-    }
-    box_cache
+/// One annotation as a [`TrackPoint`] (`None` for a rotation that is not a unit quaternion:
+/// such a box is not used).
+fn track_point(nu: &NuScenes, a: &SampleAnnotation, timestamp_us: i64) -> Option<TrackPoint> {
+    rotation_from_wxyz(a.rotation, "sample_annotation").ok()?;
+    let at = |t: Token| -> Option<(i64, [f64; 3])> {
+        let b = nu.annotation(t)?;
+        let s = nu
+            .get_sample(b.sample_token, "sample_annotation", b.token, "sample_token")
+            .ok()?;
+        Some((s.timestamp_us, b.translation))
+    };
+    let velocity_mps = motion::devkit_velocity(
+        a.prev.and_then(at),
+        (timestamp_us, a.translation),
+        a.next.and_then(at),
+    );
+    let speed_mps = velocity_mps
+        .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+        .unwrap_or(0.0);
+    let attr_moving = a.attribute_tokens.iter().any(|t| {
+        nu.get_attribute(*t, "sample_annotation", a.token, "attribute_tokens")
+            .map(|at| at.name.ends_with(".moving") || at.name == "cycle.with_rider")
+            .unwrap_or(false)
+    });
+    Some(TrackPoint {
+        timestamp_us,
+        center_m: a.translation,
+        rotation_wxyz: a.rotation,
+        size_wlh_m: a.size,
+        velocity_mps,
+        moving: speed_mps > MOVING_SPEED_MPS || attr_moving,
+    })
 }
 
-/// Dense target: ±K sweeps through their own ego poses, moving boxes removed (SPEC §4).
+/// Annotation tracks (sorted by time, instance order) of the scene's instances that move at
+/// some annotation within [`MAX_TIME_DIFF_S`] of `t_lo_us..=t_hi_us`; empty without
+/// annotations. See [`crate::motion`] for the rule.
+fn moving_tracks(
+    nu: &NuScenes,
+    sample: &Sample,
+    t_lo_us: i64,
+    t_hi_us: i64,
+) -> Vec<Vec<TrackPoint>> {
+    if nu.sample_annotation.is_none() {
+        return Vec::new();
+    }
+    let reach_us = (MAX_TIME_DIFF_S * 1e6) as i64;
+    let mut by_instance: BTreeMap<String, Vec<TrackPoint>> = BTreeMap::new();
+    for s in nu
+        .scene_samples(sample.scene_token)
+        .into_iter()
+        .filter(|s| s.timestamp_us >= t_lo_us - reach_us && s.timestamp_us <= t_hi_us + reach_us)
+    {
+        for a in nu.sample_annotations(s.token) {
+            if let Some(p) = track_point(nu, a, s.timestamp_us) {
+                by_instance
+                    .entry(a.instance_token.to_string())
+                    .or_default()
+                    .push(p);
+            }
+        }
+    }
+    by_instance
+        .into_values()
+        .filter(|t| t.iter().any(|p| p.moving))
+        .map(|mut t| {
+            t.sort_by_key(|p| p.timestamp_us);
+            t
+        })
+        .collect()
+}
+
+/// Dense target (SPEC §4, README "Dense target"): the keyframe's own pixels, plus the points
+/// of ±K sweeps moved through their own ego poses that survive, in this order,
+/// 1. near-sensor removal (the ego car's own returns, devkit `remove_close(1.0)`),
+/// 2. moving boxes interpolated to the sweep's time ([`crate::motion`]),
+/// 3. the keyframe-surface test ([`maps::KeyframeSurface`]): hidden and free-space points go.
+///
+/// A keyframe pixel is never removed or overwritten; among the other sweeps the nearest wins.
 fn dense_lidar(
     nu: &NuScenes,
     sample: &Sample,
     ks: &KeyframeSensors,
-    sparse: &Raster,
+    keyframe: &Raster,
     k: usize,
     counts: &mut BTreeMap<String, u64>,
     clock: &mut Clock,
 ) -> Result<(Raster, u64), PrepError> {
     let mut dense = Raster {
-        depth_m: sparse.depth_m.clone(),
-        payload: vec![0.0; sparse.payload.len()],
-        in_frame: sparse.in_frame,
+        depth_m: keyframe.depth_m.clone(),
+        payload: vec![0.0; keyframe.payload.len()],
+        in_frame: keyframe.in_frame,
     };
     let mut nan_dropped = 0u64;
+    let mut near_removed = 0u64;
     let mut moving_removed = 0u64;
+    let mut judged = maps::SweepCounts::default();
     let mut sweeps_used = 1u64;
     if k > 0 {
         let mut others: Vec<&SampleData> = nu
@@ -411,7 +406,13 @@ fn dense_lidar(
             .skip(1)
             .collect();
         others.extend(nu.sweeps_forward(ks.lidar_sd, k + 1).into_iter().skip(1));
-        let box_cache = nearby_moving_boxes(nu, sample, &others);
+        let surface = clock.project(|| maps::KeyframeSurface::new(&keyframe.depth_m));
+        let t_lo = others.iter().map(|s| s.timestamp_us).min();
+        let t_hi = others.iter().map(|s| s.timestamp_us).max();
+        let tracks = match (t_lo, t_hi) {
+            (Some(lo), Some(hi)) => moving_tracks(nu, sample, lo, hi),
+            _ => Vec::new(),
+        };
         let cam_from_global = global_from_ego(nu, ks.cam_sd)?
             .compose(&ego_from_sensor(nu, ks.cam_sd)?)
             .inverse();
@@ -420,44 +421,49 @@ fn dense_lidar(
             let s = clock.decode(|| read_lidar_pcd_bin(&p))?;
             let t = Instant::now();
             nan_dropped += s.nan_dropped as u64;
+            let (points_sensor, near) = maps::remove_close(&s.points, maps::NEAR_SENSOR_M);
+            near_removed += near;
             let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_sensor(nu, sw)?);
             let g = global_from_sensor.to_f32();
-            let boxes = box_cache
+            let boxes: Vec<BoxAt> = tracks
                 .iter()
-                .min_by_key(|(ts, _)| (ts - sw.timestamp_us).abs())
-                .map(|(_, b)| b.as_slice())
-                .unwrap_or(&[]);
-            let mut kept: Vec<[f32; 3]> = Vec::with_capacity(s.points.len());
-            for q in &s.points {
-                let pg = apply_f32(&g, [q[0], q[1], q[2]]);
-                let inside = boxes.iter().any(|b| {
-                    let dt = ((b.timestamp_us - sw.timestamp_us).abs() as f64) * 1e-6;
-                    let m = BOX_MARGIN_M + b.speed_mps * dt;
-                    let d = [
-                        pg[0] as f64 - b.center[0],
-                        pg[1] as f64 - b.center[1],
-                        pg[2] as f64 - b.center[2],
-                    ];
-                    (0..3).all(|a| {
-                        let l = b.rot[0][a] * d[0] + b.rot[1][a] * d[1] + b.rot[2][a] * d[2];
-                        l.abs() <= b.half[a] + m
-                    })
-                });
-                if inside {
+                .filter_map(|tr| motion::box_at(tr, sw.timestamp_us, BOX_MARGIN_M))
+                .collect();
+            let mut points_global: Vec<[f32; 3]> = Vec::with_capacity(points_sensor.len());
+            for q in &points_sensor {
+                let pg = apply_f32(&g, *q);
+                if boxes.iter().any(|b| b.contains(pg)) {
                     moving_removed += 1;
                 } else {
-                    kept.push(pg);
+                    points_global.push(pg);
                 }
             }
-            maps::project_into(&mut dense, &kept, &cam_from_global, &ks.cam, |_| 0.0);
+            let c = maps::add_sweep_points(
+                &mut dense,
+                &keyframe.depth_m,
+                &surface,
+                &points_global,
+                &cam_from_global,
+                &ks.cam,
+            );
+            judged.in_frame += c.in_frame;
+            judged.on_keyframe_pixel += c.on_keyframe_pixel;
+            judged.hidden += c.hidden;
+            judged.free_space += c.free_space;
+            judged.kept += c.kept;
             sweeps_used += 1;
             clock.project_s += t.elapsed().as_secs_f64();
         }
     }
-    let occluded = clock.project(|| maps::occlusion_filter(&mut dense.depth_m));
     counts.insert("lidar_dense_sweeps".into(), sweeps_used);
     counts.insert("lidar_dense_pixels".into(), dense.valid());
-    counts.insert("lidar_dense_occluded_removed".into(), occluded);
+    counts.insert("lidar_dense_near_sensor_removed".into(), near_removed);
+    counts.insert("lidar_dense_occluded_removed".into(), judged.hidden);
+    counts.insert("lidar_dense_free_space_removed".into(), judged.free_space);
+    counts.insert(
+        "lidar_dense_on_keyframe_pixel".into(),
+        judged.on_keyframe_pixel,
+    );
     counts.insert("lidar_moving_removed".into(), moving_removed);
     Ok((dense, nan_dropped))
 }
@@ -549,9 +555,11 @@ fn sample_settings(
         "radar_h_up_m": maps::RADAR_H_UP_M,
         "radar_h_down_m": maps::RADAR_H_DOWN_M,
         "lidar_sweeps_k": opts.lidar_sweeps,
-        "occlusion_filter": {"rx": maps::OCC_RX, "ry": maps::OCC_RY, "rel": maps::OCC_REL, "abs_m": maps::OCC_ABS_M},
+        "dense_rules": DENSE_RULES,
+        "near_sensor_removal": format!("every sweep: devkit remove_close({}), |x| < {0} m and |y| < {0} m in the sensor frame", maps::NEAR_SENSOR_M),
+        "occlusion_filter": {"against": "keyframe surface (keyframe pixels always kept)", "rx": maps::OCC_RX, "max_gap_rows": maps::OCC_MAX_GAP_ROWS, "rel": maps::OCC_REL, "abs_m": maps::OCC_ABS_M},
         "moving_objects": if annotations_present {
-            format!("removed from non-keyframe sweeps: boxes of annotations moving faster than {MOVING_SPEED_MPS} m/s or with a moving attribute, +{BOX_MARGIN_M} m + speed·|Δt| margin")
+            format!("removed from non-keyframe sweeps: boxes of instances moving faster than {MOVING_SPEED_MPS} m/s or with a moving attribute, interpolated to the sweep time (linear centre, slerp rotation, max_time_diff {MAX_TIME_DIFF_S} s), +{BOX_MARGIN_M} m margin")
         } else {
             "not removed: this version has no sample_annotation table".to_string()
         },
@@ -820,6 +828,7 @@ fn map_settings(opts: &PrepareOptions) -> Vec<(&'static str, serde_json::Value)>
             serde_json::json!(opts.radar_velocity_compensation),
         ),
         ("lidar_sweeps_k", serde_json::json!(opts.lidar_sweeps)),
+        ("dense_rules", serde_json::json!(DENSE_RULES)),
     ]
 }
 
