@@ -1,0 +1,147 @@
+//! Builds `shim/dist.cpp` against the libtorch that tch links (same include paths, C++17 and
+//! `_GLIBCXX_USE_CXX11_ABI` as torch-sys), and links libtorch_cpu (c10d, Gloo, TCPStore).
+//!
+//! libtorch is found as torch-sys finds it: `$LIBTORCH` (include/, lib/) or the active
+//! Python's `torch` package (`LIBTORCH_USE_PYTORCH=1`, the project's `.venv`).
+//!
+//! The wheel ships `ProcessGroupGloo.hpp` without the Gloo headers it includes; the shim uses
+//! only ProcessGroupGloo's library functions, so `shim/gloo_decl/` declares the few Gloo names
+//! that header mentions. `$GLOO_INCLUDE` points at a real Gloo checkout instead.
+//!
+//! Feature `nccl`: also compile ProcessGroupNCCL (`-DUSE_C10D_NCCL`), with the CUDA runtime and
+//! NCCL headers of the wheel's `nvidia-*` packages (or `$CUDA_INCLUDE` / `$NCCL_INCLUDE`), and
+//! link libtorch_cuda.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+include!("../../build-support/torch_link.rs");
+
+struct Torch {
+    includes: Vec<PathBuf>,
+    lib: PathBuf,
+    cxx11_abi: String,
+    site_packages: Option<PathBuf>,
+}
+
+fn find_torch() -> Torch {
+    println!("cargo:rerun-if-env-changed=LIBTORCH");
+    println!("cargo:rerun-if-env-changed=LIBTORCH_CXX11_ABI");
+    if let Ok(root) = std::env::var("LIBTORCH") {
+        let root = PathBuf::from(root);
+        return Torch {
+            includes: vec![
+                root.join("include"),
+                root.join("include/torch/csrc/api/include"),
+            ],
+            lib: root.join("lib"),
+            cxx11_abi: std::env::var("LIBTORCH_CXX11_ABI").unwrap_or_else(|_| "1".into()),
+            site_packages: None,
+        };
+    }
+    let python = if std::env::var_os("VIRTUAL_ENV").is_some() {
+        "python"
+    } else {
+        "python3"
+    };
+    let script = "import os, torch\n\
+                  d = os.path.dirname(torch.__file__)\n\
+                  print('DIR:', d)\n\
+                  print('ABI:', int(torch._C._GLIBCXX_USE_CXX11_ABI))\n";
+    let out = Command::new(python)
+        .args(["-c", script])
+        .output()
+        .unwrap_or_else(|e| panic!("depthsense-dist: cannot run {python}: {e}"));
+    if !out.status.success() {
+        panic!(
+            "depthsense-dist: `{python} -c 'import torch'` failed (activate .venv or set LIBTORCH): {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut dir = None;
+    let mut abi = "1".to_string();
+    for l in text.lines() {
+        if let Some(d) = l.strip_prefix("DIR: ") {
+            dir = Some(PathBuf::from(d.trim()));
+        }
+        if let Some(a) = l.strip_prefix("ABI: ") {
+            abi = a.trim().to_string();
+        }
+    }
+    let dir = dir.expect("depthsense-dist: python printed no torch directory");
+    Torch {
+        includes: vec![
+            dir.join("include"),
+            dir.join("include/torch/csrc/api/include"),
+        ],
+        lib: dir.join("lib"),
+        cxx11_abi: abi,
+        site_packages: dir.parent().map(Path::to_path_buf),
+    }
+}
+
+fn env_dir(var: &str) -> Option<PathBuf> {
+    println!("cargo:rerun-if-env-changed={var}");
+    std::env::var_os(var).map(PathBuf::from)
+}
+
+fn main() {
+    println!("cargo:rerun-if-changed=shim/dist.cpp");
+    println!("cargo:rerun-if-changed=shim/gloo_decl");
+    let torch = find_torch();
+    let mut build = cc::Build::new();
+    build
+        .cpp(true)
+        .pic(true)
+        .warnings(false)
+        .includes(&torch.includes)
+        .flag("-std=c++17")
+        .flag(format!("-D_GLIBCXX_USE_CXX11_ABI={}", torch.cxx11_abi))
+        .flag("-DGLOG_USE_GLOG_EXPORT")
+        .define("USE_C10D_GLOO", None)
+        .file("shim/dist.cpp");
+    match env_dir("GLOO_INCLUDE") {
+        Some(g) => build.include(g),
+        None => build.include("shim/gloo_decl"),
+    };
+    let nccl = std::env::var_os("CARGO_FEATURE_NCCL").is_some();
+    if nccl {
+        let nvidia = torch.site_packages.as_ref().map(|s| s.join("nvidia"));
+        let cuda_inc = env_dir("CUDA_INCLUDE").or_else(|| {
+            let n = nvidia.as_ref()?;
+            ["cu13/include", "cuda_runtime/include"]
+                .iter()
+                .map(|s| n.join(s))
+                .find(|p| p.join("cuda_runtime_api.h").exists())
+        });
+        let nccl_inc = env_dir("NCCL_INCLUDE").or_else(|| {
+            let p = nvidia.as_ref()?.join("nccl/include");
+            p.join("nccl.h").exists().then_some(p)
+        });
+        match (cuda_inc, nccl_inc) {
+            (Some(c), Some(n)) => {
+                build
+                    .include(c)
+                    .include(n)
+                    .define("USE_C10D_NCCL", None)
+                    .define("USE_CUDA", None)
+                    .define("DSD_NCCL", None);
+            }
+            (c, n) => panic!(
+                "depthsense-dist feature `nccl`: CUDA runtime headers {} and nccl.h {}; set \
+                 CUDA_INCLUDE / NCCL_INCLUDE",
+                if c.is_some() { "found" } else { "not found" },
+                if n.is_some() { "found" } else { "not found" }
+            ),
+        }
+    }
+    build.compile("depthsense_dist_shim");
+    println!("cargo:rustc-link-search=native={}", torch.lib.display());
+    println!("cargo:rustc-link-lib=dylib=torch_cpu");
+    println!("cargo:rustc-link-lib=dylib=c10");
+    if nccl {
+        println!("cargo:rustc-link-lib=dylib=torch_cuda");
+    }
+    link_torch();
+}

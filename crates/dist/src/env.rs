@@ -1,0 +1,237 @@
+//! The launch environment: what `torchrun`, Kubernetes PyTorchJob and Slurm (`srun`) set.
+
+use crate::DistError;
+
+/// torchrun's default rendezvous port.
+pub const DEFAULT_PORT: u16 = 29500;
+
+/// Where this process sits in the job.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DistEnv {
+    pub rank: usize,
+    pub world_size: usize,
+    pub local_rank: usize,
+    pub master_addr: String,
+    pub master_port: u16,
+    /// "torchrun" (RANK / WORLD_SIZE / …) or "slurm" (SLURM_PROCID / SLURM_NTASKS / …).
+    pub source: &'static str,
+}
+
+impl DistEnv {
+    /// Read the process environment. `Ok(None)`: not launched as a distributed job (neither
+    /// `WORLD_SIZE` nor `SLURM_NTASKS` set).
+    pub fn from_env() -> Result<Option<Self>, DistError> {
+        Self::from_vars(|k| std::env::var(k).ok())
+    }
+
+    /// [`DistEnv::from_env`] over any variable source (tests).
+    ///
+    /// torchrun variables win; Slurm's are the fallback for each missing one: `SLURM_PROCID`
+    /// → RANK, `SLURM_NTASKS` → WORLD_SIZE, `SLURM_LOCALID` → LOCAL_RANK, the first host of
+    /// `SLURM_JOB_NODELIST` (`SLURM_NODELIST`) → MASTER_ADDR, and MASTER_PORT defaults to
+    /// 20000 + `SLURM_JOB_ID` mod 10000 under Slurm (29500 otherwise), so concurrent jobs on a
+    /// node do not collide.
+    pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Option<Self>, DistError> {
+        let get = |k: &str| get(k).filter(|v| !v.trim().is_empty());
+        let torchrun = get("WORLD_SIZE").is_some();
+        let slurm = !torchrun && get("SLURM_NTASKS").is_some();
+        if !torchrun && !slurm {
+            return Ok(None);
+        }
+        let num = |k: &str, v: String| -> Result<usize, DistError> {
+            v.trim().parse::<usize>().map_err(|_| DistError::Env {
+                var: k.to_string(),
+                reason: format!("{v:?} is not a non-negative integer"),
+            })
+        };
+        let pick = |primary: &str, fallback: &str| -> Option<(String, String)> {
+            get(primary)
+                .map(|v| (primary.to_string(), v))
+                .or_else(|| get(fallback).map(|v| (fallback.to_string(), v)))
+        };
+        let (wk, wv) = pick("WORLD_SIZE", "SLURM_NTASKS").ok_or_else(|| DistError::Env {
+            var: "WORLD_SIZE".into(),
+            reason: "not set".into(),
+        })?;
+        let world_size = num(&wk, wv)?;
+        if world_size == 0 {
+            return Err(DistError::Env {
+                var: wk,
+                reason: "must be at least 1".into(),
+            });
+        }
+        let (rk, rv) = pick("RANK", "SLURM_PROCID").ok_or_else(|| DistError::Env {
+            var: "RANK".into(),
+            reason: format!(
+                "not set but {wk}={world_size} is: every process needs its rank (launch with \
+                 torchrun, srun or `depthsense train --nproc N`)"
+            ),
+        })?;
+        let rank = num(&rk, rv)?;
+        if rank >= world_size {
+            return Err(DistError::Env {
+                var: rk,
+                reason: format!("rank {rank} is not below {wk}={world_size}"),
+            });
+        }
+        let local_rank = match pick("LOCAL_RANK", "SLURM_LOCALID") {
+            Some((k, v)) => num(&k, v)?,
+            None => 0,
+        };
+        let master_addr = match get("MASTER_ADDR") {
+            Some(a) => a.trim().to_string(),
+            None => match get("SLURM_JOB_NODELIST").or_else(|| get("SLURM_NODELIST")) {
+                Some(list) => first_host(&list).ok_or_else(|| DistError::Env {
+                    var: "MASTER_ADDR".into(),
+                    reason: format!(
+                        "not set, and the first host of SLURM_JOB_NODELIST={list:?} cannot be \
+                         read: set MASTER_ADDR to the first node's name"
+                    ),
+                })?,
+                None if world_size == 1 => "127.0.0.1".into(),
+                None => {
+                    return Err(DistError::Env {
+                        var: "MASTER_ADDR".into(),
+                        reason: "not set (the address of rank 0's host)".into(),
+                    })
+                }
+            },
+        };
+        let master_port = match get("MASTER_PORT") {
+            Some(p) => p.trim().parse::<u16>().map_err(|_| DistError::Env {
+                var: "MASTER_PORT".into(),
+                reason: format!("{p:?} is not a port number"),
+            })?,
+            None => match get("SLURM_JOB_ID").and_then(|j| j.trim().parse::<u64>().ok()) {
+                Some(job) => 20000 + (job % 10000) as u16,
+                None => DEFAULT_PORT,
+            },
+        };
+        Ok(Some(DistEnv {
+            rank,
+            world_size,
+            local_rank,
+            master_addr,
+            master_port,
+            source: if torchrun { "torchrun" } else { "slurm" },
+        }))
+    }
+}
+
+/// First host of a Slurm node list: `node[01-04,07],gpu3` → `node01`; `a,b` → `a`.
+/// `None` for forms this does not read (e.g. several bracket groups in one name).
+pub fn first_host(list: &str) -> Option<String> {
+    let list = list.trim();
+    // The first entry ends at the first comma outside brackets.
+    let mut depth = 0i32;
+    let mut end = list.len();
+    for (i, c) in list.char_indices() {
+        match c {
+            '[' => depth += 1,
+            ']' => depth -= 1,
+            ',' if depth == 0 => {
+                end = i;
+                break;
+            }
+            _ => {}
+        }
+    }
+    let entry = &list[..end];
+    if entry.is_empty() {
+        return None;
+    }
+    let Some(open) = entry.find('[') else {
+        return Some(entry.to_string());
+    };
+    let close = entry.find(']')?;
+    if close < open || entry[close + 1..].contains('[') {
+        return None;
+    }
+    let prefix = &entry[..open];
+    let first = entry[open + 1..close].split(',').next()?;
+    let lo = first.split('-').next()?;
+    if lo.is_empty() || !lo.chars().all(|c| c.is_ascii_digit()) {
+        return None;
+    }
+    Some(format!("{prefix}{lo}{}", &entry[close + 1..]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    fn env(pairs: &[(&str, &str)]) -> Result<Option<DistEnv>, DistError> {
+        let m: HashMap<String, String> = pairs
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        DistEnv::from_vars(|k| m.get(k).cloned())
+    }
+
+    #[test]
+    fn torchrun_variables() {
+        let e = env(&[
+            ("RANK", "3"),
+            ("WORLD_SIZE", "8"),
+            ("LOCAL_RANK", "1"),
+            ("MASTER_ADDR", "10.0.0.2"),
+            ("MASTER_PORT", "1234"),
+        ])
+        .unwrap()
+        .unwrap();
+        assert_eq!(
+            (e.rank, e.world_size, e.local_rank, e.master_port),
+            (3, 8, 1, 1234)
+        );
+        assert_eq!(e.master_addr, "10.0.0.2");
+        assert_eq!(e.source, "torchrun");
+        assert_eq!(env(&[]).unwrap(), None);
+    }
+
+    #[test]
+    fn errors_name_the_variable() {
+        let e = env(&[("WORLD_SIZE", "2"), ("MASTER_ADDR", "h")]).unwrap_err();
+        assert!(e.to_string().contains("RANK"), "{e}");
+        let e = env(&[("WORLD_SIZE", "2"), ("RANK", "2"), ("MASTER_ADDR", "h")]).unwrap_err();
+        assert!(e.to_string().contains("RANK"), "{e}");
+        let e = env(&[("WORLD_SIZE", "two"), ("RANK", "0")]).unwrap_err();
+        assert!(e.to_string().contains("WORLD_SIZE"), "{e}");
+        let e = env(&[("WORLD_SIZE", "2"), ("RANK", "0")]).unwrap_err();
+        assert!(e.to_string().contains("MASTER_ADDR"), "{e}");
+        let e = env(&[
+            ("WORLD_SIZE", "2"),
+            ("RANK", "0"),
+            ("MASTER_ADDR", "h"),
+            ("MASTER_PORT", "99999"),
+        ])
+        .unwrap_err();
+        assert!(e.to_string().contains("MASTER_PORT"), "{e}");
+    }
+
+    #[test]
+    fn slurm_fallback() {
+        let e = env(&[
+            ("SLURM_NTASKS", "4"),
+            ("SLURM_PROCID", "2"),
+            ("SLURM_LOCALID", "0"),
+            ("SLURM_JOB_NODELIST", "gpu[07-08]"),
+            ("SLURM_JOB_ID", "123456"),
+        ])
+        .unwrap()
+        .unwrap();
+        assert_eq!((e.rank, e.world_size, e.local_rank), (2, 4, 0));
+        assert_eq!(e.master_addr, "gpu07");
+        assert_eq!(e.master_port, 23456);
+        assert_eq!(e.source, "slurm");
+    }
+
+    #[test]
+    fn nodelists() {
+        assert_eq!(first_host("node[01-04,07],gpu3").as_deref(), Some("node01"));
+        assert_eq!(first_host("a,b").as_deref(), Some("a"));
+        assert_eq!(first_host("n[3,5]-ib").as_deref(), Some("n3-ib"));
+        assert_eq!(first_host("x[1-2]y[3-4]"), None);
+        assert_eq!(first_host(""), None);
+    }
+}
