@@ -28,6 +28,13 @@ pub enum Protocol {
     Mask,
     /// Keep every GT pixel; clamp both GT and prediction to the cap (peers' protocol).
     Clamp,
+    /// RadarNet's evaluation (Singh et al., CVPR 2023, `nesl/radar-camera-fusion-depth`,
+    /// `src/fusionnet_main.py` `run`/`validate`): pixels with 0 < GT < cap (strict), the
+    /// prediction used as the network gave it (no clip to [α, β]; non-finite values still
+    /// count as the clip maximum), metrics per image then the mean over images (`pooled` is
+    /// refused). GT is whatever sparse map is scored: their test GT is the single keyframe
+    /// lidar sweep, as ours (README "RadarNet's protocol").
+    Radarnet,
 }
 
 impl std::str::FromStr for Protocol {
@@ -36,10 +43,11 @@ impl std::str::FromStr for Protocol {
         match s {
             "mask" => Ok(Self::Mask),
             "clamp" => Ok(Self::Clamp),
+            "radarnet" => Ok(Self::Radarnet),
             other => Err(MetricsError::BadName {
                 what: "protocol",
                 name: other.to_string(),
-                allowed: "mask, clamp",
+                allowed: "mask, clamp, radarnet",
             }),
         }
     }
@@ -129,6 +137,11 @@ impl EvalConfig {
                 "clip range must satisfy 0 < min < max, got [{}, {}]",
                 self.clip_min_m, self.clip_max_m
             )));
+        }
+        if self.protocol == Protocol::Radarnet && self.aggregate == Aggregate::Pooled {
+            return Err(MetricsError::Config(
+                "the radarnet protocol averages per image: it cannot be pooled".into(),
+            ));
         }
         Ok(())
     }
@@ -374,10 +387,10 @@ impl Evaluator {
             }
             let p_raw = img.pred_m[i] as f64;
             // A non-finite prediction counts as the far clip value: never silently dropped.
-            let p = if p_raw.is_finite() {
-                p_raw.clamp(lo, hi)
-            } else {
-                hi
+            let p = match (p_raw.is_finite(), self.cfg.protocol) {
+                (false, _) => hi,
+                (true, Protocol::Radarnet) => p_raw,
+                (true, _) => p_raw.clamp(lo, hi),
             };
             let low = img.lowheight.is_some_and(|m| m[i]);
             for (c, &cap) in self.cfg.caps_m.iter().enumerate() {
@@ -389,6 +402,12 @@ impl Evaluator {
                         (y, p)
                     }
                     Protocol::Clamp => (y.min(cap), p.min(cap)),
+                    Protocol::Radarnet => {
+                        if y >= cap {
+                            continue;
+                        }
+                        (y, p)
+                    }
                 };
                 sums[c].add_pixel(yy, pp);
                 if low {

@@ -302,3 +302,49 @@ fn tables_layout_and_values() {
         .lines()
         .any(|l| l == "fusion,lowheight,1,2,0.500,0.500,0.500,21.260,0.350,0.507"));
 }
+
+#[test]
+fn radarnet_protocol_strict_cap_no_clip_per_image() {
+    // gt = [10, 50, 60, 0], pred = [0.5, 40, 60, 3], cap 50: only pixel 0 is kept
+    // (50 is not < 50; 60 beyond; 0 has no GT). The prediction 0.5 is not clipped to 1:
+    // |10 − 0.5| = 9.5.
+    let gt = [10.0f32, 50.0, 60.0, 0.0];
+    let pred = [0.5f32, 40.0, 60.0, 3.0];
+    let img = EvalImage {
+        pred_m: &pred,
+        gt_m: &gt,
+        lowheight: None,
+        conditions: &["day"],
+    };
+    let cfg = EvalConfig {
+        caps_m: vec![50.0, 80.0],
+        protocol: Protocol::Radarnet,
+        ..EvalConfig::default()
+    };
+    let r = evaluate(&[img], &cfg).unwrap();
+    let row = r.row("combined", "full", 50.0).unwrap();
+    assert_eq!(row.n_pixels, 1);
+    close(row.metrics.mae, 9.5, 1e-12);
+    // cap 80: pixels 0, 1, 2 → errors 9.5, 10, 0 → MAE 19.5 / 3
+    let row = r.row("combined", "full", 80.0).unwrap();
+    assert_eq!(row.n_pixels, 3);
+    close(row.metrics.mae, 19.5 / 3.0, 1e-12);
+    // the mask protocol keeps GT = 50 at cap 50 and clips 0.5 to 1
+    let m = evaluate(
+        &[img],
+        &EvalConfig {
+            caps_m: vec![50.0],
+            ..EvalConfig::default()
+        },
+    )
+    .unwrap();
+    let row = m.row("combined", "full", 50.0).unwrap();
+    assert_eq!(row.n_pixels, 2);
+    close(row.metrics.mae, (9.0 + 10.0) / 2.0, 1e-12);
+    assert_eq!("radarnet".parse::<Protocol>().unwrap(), Protocol::Radarnet);
+    let pooled = EvalConfig {
+        aggregate: Aggregate::Pooled,
+        ..cfg
+    };
+    assert!(Evaluator::new(pooled).is_err());
+}

@@ -55,6 +55,9 @@ pub struct LoadOptions {
     pub radar_drop: f64,
     /// Seed of the augmentation and radar-drop draws.
     pub seed: u64,
+    /// Whole radars absent, returns beyond a range absent, clutter added (SPEC §10.8).
+    #[serde(default)]
+    pub failure: crate::experiments::failure::RadarFailure,
 }
 
 impl Default for LoadOptions {
@@ -67,6 +70,7 @@ impl Default for LoadOptions {
             no_radar: false,
             radar_drop: 0.0,
             seed: 0,
+            failure: Default::default(),
         }
     }
 }
@@ -380,6 +384,15 @@ impl Augment {
     }
 }
 
+/// A sample directory's `meta.json`.
+pub fn read_meta(dir: &Path) -> Result<depthsense_prep::layout::SampleMeta, TrainError> {
+    let p = dir.join(META_FILE);
+    serde_json::from_slice(&read_file(&p)?).map_err(|e| TrainError::Parse {
+        path: p.display().to_string(),
+        reason: e.to_string(),
+    })
+}
+
 fn read_file(path: &Path) -> Result<Vec<u8>, TrainError> {
     std::fs::read(path).map_err(|e| TrainError::io(path, e))
 }
@@ -519,6 +532,11 @@ pub fn load_sample(
         if opts.radar_drop > 0.0 {
             let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
             drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
+        }
+        if opts.failure.is_active() {
+            let meta = read_meta(&dir)?;
+            let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
+            opts.failure.apply(&mut raw, &mut height, &meta, seed)?;
         }
         match opts.radar {
             RadarInput::Height => radar.extend_from_slice(&height.depth_m),
@@ -706,6 +724,20 @@ pub struct EpochPlan {
 
 impl Loader {
     pub fn start(ds: &Dataset, opts: &LoadOptions, plan: &EpochPlan) -> Result<Loader, TrainError> {
+        Self::start_shard(ds, opts, plan, 0, 1)
+    }
+
+    /// [`Loader::start`] for rank `rank` of `world` data-parallel ranks: the global batches
+    /// (of `plan.batch_size`) are those of one process, whatever `world` is, and this rank
+    /// gets the contiguous slice `[rank·B/world, (rank+1)·B/world)` of each. Per-sample draws
+    /// depend on the sample's position in the epoch only, so augmentation is too.
+    pub fn start_shard(
+        ds: &Dataset,
+        opts: &LoadOptions,
+        plan: &EpochPlan,
+        rank: usize,
+        world: usize,
+    ) -> Result<Loader, TrainError> {
         if plan.batch_size == 0 {
             return Err(TrainError::Config("batch size must be at least 1".into()));
         }
@@ -714,6 +746,17 @@ impl Loader {
             order.chunks(plan.batch_size).map(|c| c.to_vec()).collect();
         if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
             groups.pop();
+        }
+        if world > 1 {
+            for g in groups.iter_mut() {
+                let n = g.len();
+                if n < world {
+                    return Err(TrainError::Config(format!(
+                        "a batch of {n} sample(s) cannot be shared by {world} ranks"
+                    )));
+                }
+                *g = g[rank * n / world..(rank + 1) * n / world].to_vec();
+            }
         }
         let batches = groups.len();
         let groups: Vec<(usize, Vec<usize>)> = groups

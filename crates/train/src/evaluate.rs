@@ -1,20 +1,28 @@
 //! `depthsense eval`: a checkpoint on prepared data → the tables of SPEC §10 items 1–3 as
 //! Markdown, CSV and JSON, with the number of images and pixels behind each row; radar drop
 //! for the sensor-failure ablation (SPEC §10.8).
+//!
+//! Every score goes through [`score_image`] (one image into the metrics [`Evaluator`]):
+//! `eval --checkpoint` (via `trainer::evaluate_net`) and `eval --predictions` (any method's
+//! depth maps on disk, [`run_eval_predictions`]) therefore share protocol, caps, GT,
+//! conditions and tables exactly.
+
+pub mod npy;
 
 use std::path::{Path, PathBuf};
 
-use depthsense_metrics::{tables, EvalConfig, Report};
+use depthsense_metrics::{tables, EvalConfig, EvalImage, Evaluator, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_model::ModelConfig;
 use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_prep::layout::IndexEntry;
+use depthsense_prep::layout::{Condition, IndexEntry, LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE};
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
-use crate::data::{partition, Dataset, LoadOptions, RadarInput};
+use crate::data::{partition, read_depth, Dataset, LoadOptions, RadarInput};
 use crate::error::TrainError;
+use crate::experiments::failure::RadarFailure;
 use crate::trainer::{evaluate_net, radar_input_for, subsample};
 
 /// Which samples to evaluate.
@@ -41,6 +49,9 @@ pub struct EvalOptions {
     pub eval: EvalConfig,
     /// Fraction of radar points removed (1.0 = radar absent).
     pub radar_drop: f64,
+    /// Whole radars / far returns removed, clutter added (SPEC §10.8).
+    #[serde(default)]
+    pub failure: RadarFailure,
     pub seed: u64,
     pub batch_size: usize,
     pub device: String,
@@ -63,6 +74,7 @@ impl Default for EvalOptions {
             val_every_scene: 5,
             eval: EvalConfig::default(),
             radar_drop: 0.0,
+            failure: RadarFailure::default(),
             seed: 0,
             batch_size: 4,
             device: "auto".into(),
@@ -134,6 +146,16 @@ pub fn run_eval_loaded(
     loaded: &Loaded,
     progress: &ProgressBar,
 ) -> Result<Report, TrainError> {
+    eval_with(opts, loaded, progress, |_, _| Ok(()))
+}
+
+/// [`run_eval_loaded`] with a callback on every batch and its predictions.
+fn eval_with(
+    opts: &EvalOptions,
+    loaded: &Loaded,
+    progress: &ProgressBar,
+    on_batch: impl FnMut(&crate::data::Batch, &[f32]) -> Result<(), TrainError>,
+) -> Result<Report, TrainError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
         return Err(TrainError::Config(format!(
             "--radar-drop must be within [0, 1], got {}",
@@ -151,9 +173,11 @@ pub fn run_eval_loaded(
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),
         radar_drop: opts.radar_drop,
+        failure: opts.failure.clone(),
         seed: opts.seed,
         ..LoadOptions::default()
     };
+    opts.failure.validate()?;
     progress.set_length(entries.len() as u64);
     evaluate_net(
         &loaded.net,
@@ -165,8 +189,277 @@ pub fn run_eval_loaded(
         opts.jobs,
         device,
         progress,
-        |_, _| Ok(()),
+        on_batch,
     )
+}
+
+/// Names of conditions as the metrics rows use them.
+pub fn condition_names(c: &[Condition]) -> Vec<&'static str> {
+    c.iter()
+        .map(|c| match c {
+            Condition::Day => "day",
+            Condition::Night => "night",
+            Condition::Rain => "rain",
+        })
+        .collect()
+}
+
+/// The one scorer (SPEC §9): one image's prediction (metres, row-major, training frame)
+/// against its sparse GT, low-height mask (empty = absent) and scene conditions.
+pub fn score_image(
+    ev: &mut Evaluator,
+    sparse_m: &[f32],
+    lowheight: &[bool],
+    conditions: &[Condition],
+    pred_m: &[f32],
+) -> Result<(), TrainError> {
+    let conds = condition_names(conditions);
+    ev.add(&EvalImage {
+        pred_m,
+        gt_m: sparse_m,
+        lowheight: (!lowheight.is_empty()).then_some(lowheight),
+        conditions: &conds,
+    })?;
+    Ok(())
+}
+
+/// What the scorer needs of a prepared sample: sparse GT and low-height mask.
+#[derive(Debug, Clone)]
+pub struct GroundTruth {
+    pub width: usize,
+    pub height: usize,
+    pub sparse_m: Vec<f32>,
+    /// Empty when the sample has no mask file.
+    pub lowheight: Vec<bool>,
+}
+
+/// Read a sample's sparse GT and low-height mask (what `load_sample` reads with `eval_maps`).
+pub fn load_ground_truth(ds: &Dataset, e: &IndexEntry) -> Result<GroundTruth, TrainError> {
+    let dir = ds.sample_dir(e);
+    let gt = read_depth(&dir.join(LIDAR_SPARSE_FILE))?;
+    let (w, h) = (gt.width as usize, gt.height as usize);
+    let mpath = dir.join(LOWHEIGHT_MASK_FILE);
+    let lowheight = if mpath.exists() {
+        let img = image::open(&mpath).map_err(|err| TrainError::Parse {
+            path: mpath.display().to_string(),
+            reason: err.to_string(),
+        })?;
+        let m: Vec<bool> = img.to_luma8().pixels().map(|p| p.0[0] > 127).collect();
+        if m.len() != w * h {
+            return Err(TrainError::Data(format!(
+                "{}: mask has {} pixels, expected {}",
+                mpath.display(),
+                m.len(),
+                w * h
+            )));
+        }
+        m
+    } else {
+        vec![]
+    };
+    Ok(GroundTruth {
+        width: w,
+        height: h,
+        sparse_m: gt.depth_m,
+        lowheight,
+    })
+}
+
+/// File formats of predictions on disk.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PredFormat {
+    /// 16-bit PNG, depth × 256, 0 = no prediction (KITTI convention, SPEC §3).
+    Png,
+    /// NumPy float32 metres.
+    Npy,
+}
+
+impl PredFormat {
+    pub fn ext(self) -> &'static str {
+        match self {
+            PredFormat::Png => "png",
+            PredFormat::Npy => "npy",
+        }
+    }
+}
+
+impl std::str::FromStr for PredFormat {
+    type Err = TrainError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "png" => Ok(Self::Png),
+            "npy" => Ok(Self::Npy),
+            o => Err(TrainError::Config(format!(
+                "unknown prediction format {o:?} (png, npy)"
+            ))),
+        }
+    }
+}
+
+/// The prediction file of a sample in `dir`: `<token>.npy`, `<token>.png`,
+/// `<token>/depth.npy` or `<token>/depth.png` (first found, in that order).
+pub fn find_prediction(dir: &Path, token: &str) -> Option<(PathBuf, PredFormat)> {
+    [
+        (dir.join(format!("{token}.npy")), PredFormat::Npy),
+        (dir.join(format!("{token}.png")), PredFormat::Png),
+        (dir.join(token).join("depth.npy"), PredFormat::Npy),
+        (dir.join(token).join("depth.png"), PredFormat::Png),
+    ]
+    .into_iter()
+    .find(|(p, _)| p.is_file())
+}
+
+/// Read one prediction file as (values in metres, width, height).
+pub fn read_prediction(path: &Path, f: PredFormat) -> Result<(Vec<f32>, usize, usize), TrainError> {
+    match f {
+        PredFormat::Png => {
+            let m = read_depth(path)?;
+            Ok((m.depth_m, m.width as usize, m.height as usize))
+        }
+        PredFormat::Npy => {
+            let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
+            let (v, h, w) = npy::decode(&bytes, path)?;
+            Ok((v, w, h))
+        }
+    }
+}
+
+/// Write one prediction (metres, `w`x`h`) as `<dir>/<token>.<ext>`.
+pub fn write_prediction(
+    dir: &Path,
+    token: &str,
+    pred: &[f32],
+    w: usize,
+    h: usize,
+    f: PredFormat,
+) -> Result<PathBuf, TrainError> {
+    let p = dir.join(format!("{token}.{}", f.ext()));
+    let bytes = match f {
+        PredFormat::Npy => npy::encode_f32(pred, h, w),
+        PredFormat::Png => {
+            depthsense_nuscenes::depth_png::encode_png(&depthsense_nuscenes::depth_png::DepthMap {
+                width: w as u32,
+                height: h as u32,
+                depth_m: pred.to_vec(),
+            })
+            .map_err(|e| TrainError::Data(e.to_string()))?
+        }
+    };
+    write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
+    Ok(p)
+}
+
+/// `eval --predictions`: another method's depth maps, one per sample token.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PredictionsOptions {
+    /// Folder of `<token>.png` / `<token>.npy` (see [`find_prediction`]).
+    pub dir: PathBuf,
+    pub data: PathBuf,
+    pub split: String,
+    pub val_every_scene: usize,
+    pub eval: EvalConfig,
+    pub max_samples: Option<usize>,
+    /// Samples of the split without a prediction file: an error (false) or skipped and
+    /// counted (true).
+    pub allow_missing: bool,
+}
+
+/// What was scored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PredictionsSummary {
+    pub scored: usize,
+    pub png: usize,
+    pub npy: usize,
+    /// Tokens of the split without a prediction file.
+    pub missing: Vec<String>,
+}
+
+/// Score prediction files with exactly the `eval --checkpoint` protocol ([`score_image`]).
+pub fn run_eval_predictions(
+    opts: &PredictionsOptions,
+    progress: &ProgressBar,
+) -> Result<(Report, PredictionsSummary), TrainError> {
+    let ds = Dataset::open(&opts.data)?;
+    let entries = subsample(
+        &select_split(&ds, &opts.split, opts.val_every_scene)?,
+        opts.max_samples,
+    );
+    let mut ev = Evaluator::new(opts.eval.clone())?;
+    let mut sum = PredictionsSummary {
+        scored: 0,
+        png: 0,
+        npy: 0,
+        missing: vec![],
+    };
+    progress.set_length(entries.len() as u64);
+    for e in &entries {
+        progress.inc(1);
+        let Some((path, fmt)) = find_prediction(&opts.dir, &e.sample_token) else {
+            sum.missing.push(e.sample_token.clone());
+            continue;
+        };
+        let gt = load_ground_truth(&ds, e)?;
+        let (pred, w, h) = read_prediction(&path, fmt)?;
+        if (w, h) != (gt.width, gt.height) {
+            return Err(TrainError::Data(format!(
+                "{}: prediction is {w}x{h} but the ground truth of the training frame is {}x{} \
+                 (SPEC §3: predictions must be in the 800x350 frame `prepare` writes)",
+                path.display(),
+                gt.width,
+                gt.height
+            )));
+        }
+        score_image(&mut ev, &gt.sparse_m, &gt.lowheight, &e.conditions, &pred)?;
+        sum.scored += 1;
+        match fmt {
+            PredFormat::Png => sum.png += 1,
+            PredFormat::Npy => sum.npy += 1,
+        }
+    }
+    if !sum.missing.is_empty() && !opts.allow_missing {
+        return Err(TrainError::Data(format!(
+            "{}: {} of {} samples of split {:?} have no prediction (e.g. {}.png / .npy); pass \
+             --allow-missing to score the others",
+            opts.dir.display(),
+            sum.missing.len(),
+            entries.len(),
+            opts.split,
+            sum.missing[0]
+        )));
+    }
+    Ok((ev.finish(), sum))
+}
+
+/// Run a network over the samples of `opts` (as `eval` would) and write each prediction as
+/// `<out>/<token>.<ext>` for every format in `formats`; returns the report and the count.
+pub fn write_predictions(
+    opts: &EvalOptions,
+    loaded: &Loaded,
+    out: &Path,
+    formats: &[PredFormat],
+    progress: &ProgressBar,
+) -> Result<(Report, usize), TrainError> {
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    let mut n = 0usize;
+    let report = eval_with(opts, loaded, progress, |b, pred| {
+        let hw = b.width * b.height;
+        for (i, s) in b.samples.iter().enumerate() {
+            for &f in formats {
+                write_prediction(
+                    out,
+                    &s.token,
+                    &pred[i * hw..(i + 1) * hw],
+                    b.width,
+                    b.height,
+                    f,
+                )?;
+            }
+            n += 1;
+        }
+        Ok(())
+    })?;
+    Ok((report, n))
 }
 
 /// Write `tables.md`, `tables.csv` and `tables.json` (every row of every report plus the

@@ -285,25 +285,14 @@ pub fn evaluate_net(
         }
         let pred_v: Vec<f32> = Vec::<f32>::try_from(pred.view([-1]))?;
         for (i, s) in batch.samples.iter().enumerate() {
-            let conds: Vec<&str> = s
-                .conditions
-                .iter()
-                .map(|c| match c {
-                    depthsense_prep::layout::Condition::Day => "day",
-                    depthsense_prep::layout::Condition::Night => "night",
-                    depthsense_prep::layout::Condition::Rain => "rain",
-                })
-                .collect();
-            ev.add(&depthsense_metrics::EvalImage {
-                pred_m: &pred_v[i * hw..(i + 1) * hw],
-                gt_m: &s.sparse_m,
-                lowheight: if s.lowheight.is_empty() {
-                    None
-                } else {
-                    Some(&s.lowheight)
-                },
-                conditions: &conds,
-            })?;
+            // The one scorer, shared with `eval --predictions`.
+            crate::evaluate::score_image(
+                &mut ev,
+                &s.sparse_m,
+                &s.lowheight,
+                &s.conditions,
+                &pred_v[i * hw..(i + 1) * hw],
+            )?;
         }
         on_batch(&batch, &pred_v)?;
         progress.inc(batch.size as u64);

@@ -1,17 +1,33 @@
-//! `depthsense eval`: the paper's tables (SPEC §10 items 1–3) for a checkpoint.
+//! `depthsense eval`: the paper's tables (SPEC §10 items 1–3) for a checkpoint, or for any
+//! method's predictions on disk (`--predictions DIR`), through the same scorer.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_train::evaluate::{load_model, run_eval_loaded, write_tables, EvalOptions};
+use depthsense_train::evaluate::{
+    load_model, run_eval_loaded, run_eval_predictions, write_tables, EvalOptions,
+    PredictionsOptions,
+};
+use depthsense_train::experiments::failure::RadarFailure;
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("what").required(true).args(["checkpoint", "predictions"])))]
 pub struct Args {
     /// Checkpoint written by `train` (e.g. RUN/best.safetensors), or a PyTorch state dict
     /// such as the authors' paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
-    checkpoint: PathBuf,
+    checkpoint: Option<PathBuf>,
+    /// Instead of a checkpoint: a folder of another method's predictions, one per sample
+    /// token, in the 800x350 training frame: <token>.png (16-bit, depth×256, KITTI
+    /// convention) or <token>.npy (float32 metres), or <token>/depth.{npy,png}. Scored with
+    /// exactly the same protocol, caps, GT and tables as --checkpoint.
+    #[arg(long, conflicts_with_all = ["checkpoint", "config", "set", "radar_drop", "radar_input", "drop_radars", "drop_beyond_m", "clutter"])]
+    predictions: Option<PathBuf>,
+    /// With --predictions: score the samples that have a file and list the others, instead
+    /// of failing when some are missing.
+    #[arg(long, requires = "predictions")]
+    allow_missing: bool,
     /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
     /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
     #[arg(long)]
@@ -36,10 +52,24 @@ pub struct Args {
     /// Fraction of radar points removed at random (1.0 = radar absent): sensor failure.
     #[arg(long, default_value_t = 0.0)]
     radar_drop: f64,
-    /// Seed of the radar drop.
+    /// Radars absent (sensor failure): channel names, comma separated (e.g.
+    /// RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT), or `all`. Dropping only some of a sample's radars
+    /// needs per-radar points and is refused on prepared maps.
+    #[arg(long, value_delimiter = ',')]
+    drop_radars: Vec<String>,
+    /// Remove every radar return (and its height strip) deeper than this many metres.
+    #[arg(long)]
+    drop_beyond_m: Option<f64>,
+    /// Add this many ghost radar points per sample (deterministic in --seed; README
+    /// "Sensor failure" gives the rule).
+    #[arg(long, default_value_t = 0)]
+    clutter: usize,
+    /// Seed of the radar drop and of the clutter.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Pixels beyond the cap: mask (dropped, default) or clamp (GT and prediction clamped).
+    /// Pixels beyond the cap: mask (dropped, default), clamp (GT and prediction clamped:
+    /// peers'), or radarnet (RadarNet's evaluation: 0 < GT < cap, prediction not clipped,
+    /// per image then mean; README "RadarNet's protocol").
     #[arg(long, default_value = "mask")]
     protocol: String,
     /// Aggregation: image (metrics per image, then mean; default) or pooled (over pixels).
@@ -68,30 +98,46 @@ pub struct Args {
     name: String,
 }
 
+fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
+    Ok(EvalConfig {
+        caps_m: a.caps.clone(),
+        protocol: a.protocol.parse::<Protocol>()?,
+        aggregate: a.aggregate.parse::<Aggregate>()?,
+        ..EvalConfig::default()
+    })
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if let Some(dir) = a.predictions.clone() {
+        return run_predictions(a, dir);
+    }
+    let checkpoint = a
+        .checkpoint
+        .clone()
+        .ok_or_else(|| anyhow::anyhow!("give --checkpoint or --predictions"))?;
     let out = a.out.clone().unwrap_or_else(|| {
-        a.checkpoint
+        checkpoint
             .parent()
             .map(|p| p.join("eval"))
             .unwrap_or_else(|| PathBuf::from("eval"))
     });
     let opts = EvalOptions {
-        checkpoint: a.checkpoint,
-        config: a.config,
-        set: a.set,
-        data: a.data,
-        split: a.split,
+        checkpoint,
+        config: a.config.clone(),
+        set: a.set.clone(),
+        data: a.data.clone(),
+        split: a.split.clone(),
         val_every_scene: a.val_every_scene,
-        eval: EvalConfig {
-            caps_m: a.caps,
-            protocol: a.protocol.parse::<Protocol>()?,
-            aggregate: a.aggregate.parse::<Aggregate>()?,
-            ..EvalConfig::default()
-        },
+        eval: eval_config(&a)?,
         radar_drop: a.radar_drop,
+        failure: RadarFailure {
+            drop_radars: a.drop_radars.clone(),
+            drop_beyond_m: a.drop_beyond_m,
+            clutter: a.clutter,
+        },
         seed: a.seed,
         batch_size: a.batch_size,
-        device: a.device,
+        device: a.device.clone(),
         jobs: a.jobs,
         max_samples: a.max_samples,
         radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,
@@ -110,9 +156,39 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     write_tables(&out, &models)?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
-        "{} images evaluated (radar drop {}); tables written to {}/tables.{{md,csv,json}}",
+        "{} images evaluated (radar drop {}, failure: {}); tables written to {}/tables.{{md,csv,json}}",
         report.images_seen,
         opts.radar_drop,
+        opts.failure.label(),
+        out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
+    let out = a.out.clone().unwrap_or_else(|| dir.join("eval"));
+    let opts = PredictionsOptions {
+        dir,
+        data: a.data.clone(),
+        split: a.split.clone(),
+        val_every_scene: a.val_every_scene,
+        eval: eval_config(&a)?,
+        max_samples: a.max_samples,
+        allow_missing: a.allow_missing,
+    };
+    let pb = super::train::progress_bar("eval");
+    let (report, sum) = run_eval_predictions(&opts, &pb)?;
+    pb.finish_and_clear();
+    let models = [(a.name.as_str(), &report)];
+    write_tables(&out, &models)?;
+    println!("{}", depthsense_metrics::tables::markdown_report(&models));
+    eprintln!(
+        "{} predictions scored ({} png, {} npy), {} samples without a file; tables written to \
+         {}/tables.{{md,csv,json}}",
+        sum.scored,
+        sum.png,
+        sum.npy,
+        sum.missing.len(),
         out.display()
     );
     Ok(ExitCode::SUCCESS)

@@ -24,8 +24,22 @@ pub struct Args {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
-    #[arg(long, conflicts_with_all = ["token", "image"])]
+    #[arg(long, conflicts_with_all = ["token", "image", "data"])]
     sample: Option<PathBuf>,
+    /// Input 4: every sample of a split of a prepared data directory; writes
+    /// OUT/<token>.png (16-bit, depth×256) and/or OUT/<token>.npy (float32 metres), the
+    /// layout `eval --predictions` reads.
+    #[arg(long, conflicts_with_all = ["token", "image"])]
+    data: Option<PathBuf>,
+    /// With --data: held-out (test scenes), all, or a split name of the index.
+    #[arg(long, default_value = "held-out", requires = "data")]
+    split: String,
+    /// With --data: file formats, comma separated (png, npy).
+    #[arg(long, value_delimiter = ',', default_value = "png", requires = "data")]
+    format: Vec<String>,
+    /// With --data: batch size of inference.
+    #[arg(long, default_value_t = 4, requires = "data")]
+    batch_size: usize,
     /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
     #[arg(long, requires = "dataroot", conflicts_with = "image")]
     token: Option<String>,
@@ -87,7 +101,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .ok_or_else(|| anyhow::anyhow!("--image needs --calibration"))?;
         input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
     } else {
-        anyhow::bail!("give one input: --sample DIR, --token T --dataroot D, or --image J --radar P --calibration C");
+        anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
     };
     let device = depthsense_model::device::parse_device(&a.device)?;
     let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;

@@ -89,6 +89,7 @@ impl<'o> Trainer<'o> {
             no_radar: radar.is_none(),
             radar_drop: 0.0,
             seed: opts.seed,
+            failure: Default::default(),
         };
         let full_batches = part.train.len() / opts.batch_size;
         let natural = if full_batches > 0 { full_batches } else { 1 };
