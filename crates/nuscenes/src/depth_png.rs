@@ -129,14 +129,45 @@ pub fn write_depth_png(path: &Path, map: &DepthMap) -> Result<(), DepthPngError>
     })
 }
 
+/// Largest decoded/compressed size ratio accepted (deflate's own limit is about 1032:1).
+const MAX_INFLATE_RATIO: u64 = 1100;
+/// Decoded bytes always allowed, whatever the file size.
+const MIN_DECODE_BUDGET: u64 = 1 << 20;
+/// Decoded bytes never exceeded.
+const MAX_DECODE_BUDGET: u64 = 512 << 20;
+
 /// Decode 16-bit PNG bytes into metres. `name` only labels errors.
+///
+/// The image size in the header is checked against the file length before anything is
+/// allocated (issue 10): a PNG cannot inflate to more than ~1100× its length, so a tiny file
+/// claiming 30000×30000 pixels is refused with an error, not a 1.8 GB allocation.
 pub fn decode_png(bytes: &[u8], name: &str) -> Result<DepthMap, DepthPngError> {
-    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::Png).map_err(|e| {
-        DepthPngError::Decode {
-            path: name.to_string(),
-            reason: e.to_string(),
+    let decode_err = |reason: String| DepthPngError::Decode {
+        path: name.to_string(),
+        reason,
+    };
+    let budget = (bytes.len() as u64)
+        .saturating_mul(MAX_INFLATE_RATIO)
+        .clamp(MIN_DECODE_BUDGET, MAX_DECODE_BUDGET);
+    // IHDR is the first chunk: signature (8), length (4), "IHDR" (4), width, height (BE u32).
+    if bytes.len() >= 24 && &bytes[12..16] == b"IHDR" {
+        let w = u32::from_be_bytes([bytes[16], bytes[17], bytes[18], bytes[19]]) as u64;
+        let h = u32::from_be_bytes([bytes[20], bytes[21], bytes[22], bytes[23]]) as u64;
+        // ≥ 2 bytes per pixel for the 16-bit maps this reader accepts.
+        let need = w.saturating_mul(h).saturating_mul(2);
+        if need > budget {
+            return Err(decode_err(format!(
+                "header claims {w}x{h} pixels, more than a {} byte PNG can hold",
+                bytes.len()
+            )));
         }
-    })?;
+    }
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(budget.saturating_mul(2));
+    let mut reader =
+        image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| decode_err(e.to_string()))?;
     let found = format!("{:?}", img.color());
     let luma = match img {
         image::DynamicImage::ImageLuma16(buf) => buf,
@@ -209,6 +240,42 @@ mod tests {
         }
         assert_eq!(back.valid_count(), 3);
         assert_eq!(back.at(2, 1), (42.123f32 * 256.0).round() / 256.0);
+    }
+
+    #[test]
+    fn hostile_png_headers_are_errors_not_allocations() {
+        // issue 10 defect 4: a valid tiny PNG whose IHDR claims 30000×30000 (and 2^32-1
+        // squared) pixels; the CRC is fixed up so that only the size is wrong.
+        let good = encode_png(&DepthMap::zeros(4, 3)).unwrap();
+        for (w, h) in [(30_000u32, 30_000u32), (u32::MAX, u32::MAX), (1 << 20, 2)] {
+            let mut b = good.clone();
+            b[16..20].copy_from_slice(&w.to_be_bytes());
+            b[20..24].copy_from_slice(&h.to_be_bytes());
+            let crc = crc32(&b[12..29]);
+            b[29..33].copy_from_slice(&crc.to_be_bytes());
+            let err = decode_png(&b, "huge.png").unwrap_err().to_string();
+            assert!(err.contains("huge.png"), "{err}");
+        }
+        // truncated files and garbage name the file
+        for cut in [0, 7, 8, 20, 33, good.len() / 2] {
+            let err = decode_png(&good[..cut], "cut.png").unwrap_err().to_string();
+            assert!(err.contains("cut.png"), "{err}");
+        }
+    }
+
+    fn crc32(data: &[u8]) -> u32 {
+        let mut c = 0xffff_ffffu32;
+        for &b in data {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
     }
 
     #[test]

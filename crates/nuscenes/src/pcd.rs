@@ -242,11 +242,27 @@ pub struct PcdHeader {
 }
 
 impl PcdHeader {
-    /// Bytes per point (sum of size × count).
+    /// Bytes per point (sum of size × count). [`parse_pcd_header`] guarantees that this
+    /// neither overflows nor exceeds [`MAX_PCD_POINT_BYTES`]; on a hand-built header the sum
+    /// saturates.
     pub fn point_bytes(&self) -> usize {
-        self.fields.iter().map(|f| f.size * f.count).sum()
+        self.fields.iter().fold(0usize, |acc, f| {
+            acc.saturating_add(f.size.saturating_mul(f.count))
+        })
+    }
+
+    /// Number of value columns (sum of COUNT).
+    pub fn columns(&self) -> usize {
+        self.fields
+            .iter()
+            .fold(0usize, |acc, f| acc.saturating_add(f.count))
     }
 }
+
+/// Largest point record a PCD header may declare (bytes per point, and value columns).
+/// Real files have a few dozen bytes; the bound keeps a hostile `COUNT` from driving
+/// allocations or loops before any data is checked.
+pub const MAX_PCD_POINT_BYTES: usize = 1 << 16;
 
 /// A generic point cloud: one f64 column per (field, count element).
 #[derive(Debug, Clone)]
@@ -386,10 +402,33 @@ pub fn parse_pcd_header(bytes: &[u8], name: &str) -> Result<PcdHeader> {
             count: counts[i],
         });
     }
+    let mut point_bytes = 0usize;
+    for f in &out_fields {
+        point_bytes = f
+            .size
+            .checked_mul(f.count)
+            .and_then(|b| point_bytes.checked_add(b))
+            .filter(|&b| b <= MAX_PCD_POINT_BYTES)
+            .ok_or_else(|| {
+                pcd_err(
+                    name,
+                    format!(
+                        "unknown PCD field layout: points of more than {MAX_PCD_POINT_BYTES} bytes (field {:?} SIZE {} COUNT {})",
+                        f.name, f.size, f.count
+                    ),
+                )
+            })?;
+    }
     let width = width.ok_or_else(|| pcd_err(name, "header has no WIDTH"))?;
     let height = height.unwrap_or(1);
-    let points = points.unwrap_or(width * height);
-    if points != width * height {
+    let wh = width.checked_mul(height).ok_or_else(|| {
+        pcd_err(
+            name,
+            format!("header WIDTH×HEIGHT {width}×{height} overflows"),
+        )
+    })?;
+    let points = points.unwrap_or(wh);
+    if points != wh {
         return Err(pcd_err(
             name,
             format!("header POINTS {points} disagrees with WIDTH×HEIGHT {width}×{height}"),
@@ -420,8 +459,21 @@ fn read_scalar(b: &[u8], ty: char, size: usize) -> f64 {
     }
 }
 
-/// LZF decompression (the codec of PCD `binary_compressed`).
+/// Largest output/input ratio of LZF (a 3-byte back-reference of 264 bytes).
+const LZF_MAX_EXPANSION: usize = 88;
+
+/// LZF decompression (the codec of PCD `binary_compressed`). Corrupt input is an error,
+/// never a panic; memory is bounded by the input length, whatever `out_len` claims.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u8>, String> {
+    // One 3-byte back-reference yields at most 264 bytes: anything claiming more than that
+    // expansion is corrupt, and is refused before allocating `out_len` bytes.
+    let max_out = input.len().saturating_mul(LZF_MAX_EXPANSION);
+    if out_len > max_out {
+        return Err(format!(
+            "LZF header promises {out_len} bytes from {} compressed bytes (at most {max_out} possible)",
+            input.len()
+        ));
+    }
     let mut out = Vec::with_capacity(out_len);
     let mut i = 0;
     while i < input.len() {
@@ -431,6 +483,11 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u
             let len = ctrl + 1;
             if i + len > input.len() {
                 return Err("LZF literal run past the end of the input".into());
+            }
+            if out.len() + len > out_len {
+                return Err(format!(
+                    "LZF output longer than the {out_len} bytes the header promises"
+                ));
             }
             out.extend_from_slice(&input[i..i + len]);
             i += len;
@@ -451,6 +508,11 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u
             i += 1;
             if back > out.len() {
                 return Err("LZF back-reference before the start of the output".into());
+            }
+            if out.len() + len > out_len {
+                return Err(format!(
+                    "LZF output longer than the {out_len} bytes the header promises"
+                ));
             }
             let start = out.len() - back;
             for k in 0..len {
@@ -492,16 +554,33 @@ pub fn parse_pcd(bytes: &[u8], name: &str) -> Result<PcdCloud> {
         }
     }
     let pb = header.point_bytes();
-    let body = &bytes[header.data_offset..];
-    let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); names.len()];
+    let body = bytes.get(header.data_offset..).unwrap_or(&[]);
+    // The header's point count is checked against the data before any allocation depends on
+    // it (issue 10): at most one point per byte of data (per value in ascii).
+    let plausible = match header.data {
+        PcdData::Ascii => body.len() / (2 * names.len().max(1)) + 1,
+        PcdData::Binary => body.len() / pb.max(1),
+        PcdData::BinaryCompressed => body.len().saturating_mul(LZF_MAX_EXPANSION) / pb.max(1),
+    };
+    if n > plausible {
+        return Err(pcd_err(
+            name,
+            format!(
+                "truncated: header promises {n} points of {pb} bytes, the {} bytes of {:?} data cannot hold more than {plausible}",
+                body.len(),
+                header.data
+            ),
+        ));
+    }
+    let mut columns: Vec<Vec<f64>> = (0..names.len()).map(|_| Vec::with_capacity(n)).collect();
     match header.data {
         PcdData::Binary => {
-            let need = n * pb;
+            let need = n.saturating_mul(pb);
             if body.len() < need {
                 return Err(pcd_err(
                     name,
                     format!(
-                        "truncated: header promises {n} points × {pb} bytes = {need} bytes of data, file has {}",
+                        "truncated: header promises {n} points × {pb} bytes of data, file has {} bytes",
                         body.len()
                     ),
                 ));
@@ -519,7 +598,7 @@ pub fn parse_pcd(bytes: &[u8], name: &str) -> Result<PcdCloud> {
             }
             let csize = u32::from_le_bytes([body[0], body[1], body[2], body[3]]) as usize;
             let usize_ = u32::from_le_bytes([body[4], body[5], body[6], body[7]]) as usize;
-            if usize_ != n * pb {
+            if Some(usize_) != n.checked_mul(pb) {
                 return Err(pcd_err(
                     name,
                     format!(
@@ -527,7 +606,7 @@ pub fn parse_pcd(bytes: &[u8], name: &str) -> Result<PcdCloud> {
                     ),
                 ));
             }
-            if body.len() < 8 + csize {
+            if body.len() - 8 < csize {
                 return Err(pcd_err(
                     name,
                     format!(
@@ -637,13 +716,13 @@ pub fn parse_radar_pcd(bytes: &[u8], name: &str) -> Result<RadarScan> {
     let mut scan = RadarScan::default();
     if is_nuscenes_layout {
         let n = header.points;
-        let body = &bytes[header.data_offset..];
-        let need = n * RADAR_POINT_BYTES;
+        let body = bytes.get(header.data_offset..).unwrap_or(&[]);
+        let need = n.saturating_mul(RADAR_POINT_BYTES);
         if body.len() < need {
             return Err(pcd_err(
                 name,
                 format!(
-                    "truncated: header promises {n} points × 43 bytes = {need} bytes of data, file has {}",
+                    "truncated: header promises {n} points × 43 bytes of data, file has {} bytes",
                     body.len()
                 ),
             ));
@@ -890,6 +969,132 @@ mod tests {
         assert_eq!(s.points, vec![[1.0, 2.0, 3.0, 4.0, 5.0]]);
         assert_eq!(s.nan_dropped, 1);
         assert!(parse_lidar_pcd_bin(&[0u8; 21], "short.bin").is_err());
+    }
+
+    fn radar_header(n: &str, width: &str, height: &str, data: &str) -> String {
+        format!(
+            "# .PCD v0.7\nVERSION 0.7\nFIELDS {}\nSIZE 4 4 4 1 2 4 4 4 4 4 1 1 1 1 1 1 1 1\nTYPE F F F I I F F F F F I I I I I I I I\nCOUNT 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1 1\nWIDTH {width}\nHEIGHT {height}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n",
+            RADAR_FIELD_NAMES.join(" ")
+        )
+    }
+
+    fn assert_err(bytes: &[u8], name: &str, want: &str) {
+        for r in [
+            parse_radar_pcd(bytes, name).map(|_| ()),
+            parse_pcd(bytes, name).map(|_| ()),
+        ] {
+            let err = r.expect_err("hostile input must be an error").to_string();
+            assert!(err.contains(name) && err.contains(want), "{err}");
+        }
+    }
+
+    #[test]
+    fn header_claiming_a_trillion_points_is_an_error_not_an_abort() {
+        // issue 10 defect 4: no allocation may follow a header value unchecked.
+        let n = "1000000000000";
+        for data in ["binary", "ascii"] {
+            let mut b = radar_header(n, n, "1", data).into_bytes();
+            b.extend_from_slice(&[0u8; 43 * 3]);
+            assert_err(&b, "huge.pcd", "truncated");
+        }
+        // binary_compressed: sizes that agree with n × 43 only modulo 2^64 or 2^32.
+        let mut b = radar_header(n, n, "1", "binary_compressed").into_bytes();
+        b.extend_from_slice(&8u32.to_le_bytes());
+        b.extend_from_slice(&(43u32 * 1000).to_le_bytes());
+        b.extend_from_slice(&[7, 1, 2, 3, 4, 5, 6, 7, 8]);
+        assert_err(&b, "huge-c.pcd", "huge-c.pcd");
+        // usize::MAX points: n × 43 overflows.
+        let max = usize::MAX.to_string();
+        let b = radar_header(&max, &max, "1", "binary").into_bytes();
+        assert_err(&b, "max.pcd", "truncated");
+    }
+
+    #[test]
+    fn width_times_height_overflow_is_an_error() {
+        let w = (1usize << 40).to_string();
+        let h = (1usize << 30).to_string();
+        let b = radar_header("0", &w, &h, "binary").into_bytes();
+        assert_err(&b, "wh.pcd", "overflows");
+        let b = radar_header("12", "3", "4", "binary").into_bytes();
+        assert_err(&b, "wh2.pcd", "truncated");
+    }
+
+    #[test]
+    fn huge_count_is_refused_before_any_loop_or_allocation() {
+        let b = b"VERSION 0.7\nFIELDS x\nSIZE 4\nTYPE F\nCOUNT 1000000000000\nWIDTH 0\nPOINTS 0\nDATA binary\n";
+        let err = parse_pcd(b, "count.pcd").unwrap_err().to_string();
+        assert!(err.contains("count.pcd") && err.contains("bytes"), "{err}");
+        let max = format!(
+            "VERSION 0.7\nFIELDS x y\nSIZE 8 8\nTYPE F F\nCOUNT {} 2\nWIDTH 0\nPOINTS 0\nDATA ascii\n",
+            usize::MAX / 8
+        );
+        assert!(parse_pcd(max.as_bytes(), "m.pcd").is_err());
+    }
+
+    #[test]
+    fn truncated_data_of_every_kind_is_an_error() {
+        let pts = sample_points();
+        let fields: Vec<PcdField> = (0..18)
+            .map(|k| PcdField {
+                name: RADAR_FIELD_NAMES[k].into(),
+                size: RADAR_FIELD_SIZES[k],
+                ty: RADAR_FIELD_TYPES[k],
+                count: 1,
+            })
+            .collect();
+        let rows: Vec<Vec<f64>> = pts
+            .iter()
+            .map(|p| (0..18).map(|k| p.field(k)).collect())
+            .collect();
+        for full in [
+            encode_radar_pcd_binary(&pts),
+            encode_pcd_ascii(&fields, &rows),
+            encode_radar_pcd_binary_compressed(&pts),
+        ] {
+            let h = parse_pcd_header(&full, "x").unwrap().data_offset;
+            let ascii = parse_pcd_header(&full, "x").unwrap().data == PcdData::Ascii;
+            // Every cut inside the data (ascii: at a line boundary loses whole points).
+            for cut in h..full.len() {
+                let b = &full[..cut];
+                if ascii && cut > h && full[cut - 1] != b'\n' {
+                    continue;
+                }
+                if parse_pcd(b, "t.pcd").is_ok() && cut < h + 43 * pts.len() {
+                    panic!("cut at {cut} of {} parsed", full.len());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bad_lzf_is_an_error() {
+        // back-reference before the start, literal past the end, truncated back-reference
+        assert!(lzf_decompress(&[0x20, 0], 3).is_err());
+        assert!(lzf_decompress(&[5, 1, 2], 6).is_err());
+        assert!(lzf_decompress(&[0, 1, 0xe0], 10).is_err());
+        assert!(lzf_decompress(&[0, 1, 0xe0, 0], 10).is_err());
+        // output longer or shorter than promised
+        assert!(lzf_decompress(&[1, b'a', b'b', 2 << 5, 1], 5).is_err());
+        assert!(lzf_decompress(&[1, b'a', b'b'], 3).is_err());
+        // a size no input of this length can produce: refused before allocating
+        let err = lzf_decompress(&[0, 1], usize::MAX).unwrap_err();
+        assert!(err.contains("promises"), "{err}");
+        let err = lzf_decompress(&[], 1 << 40).unwrap_err();
+        assert!(err.contains("promises"), "{err}");
+        // in a file: corrupt stream, compressed size past the end, uncompressed size wrong
+        let pts = sample_points();
+        let good = encode_radar_pcd_binary_compressed(&pts);
+        let h = parse_pcd_header(&good, "x").unwrap().data_offset;
+        let mut b = good.clone();
+        b[h + 8] = 0xff; // a back-reference as the first op
+        assert_err(&b, "lzf.pcd", "LZF");
+        let mut b = good.clone();
+        b[h..h + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert_err(&b, "csize.pcd", "truncated");
+        let mut b = good.clone();
+        b[h + 4..h + 8].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert_err(&b, "usize.pcd", "uncompressed size");
+        assert_err(&good[..h + 5], "short.pcd", "truncated");
     }
 
     fn fixtures() -> std::path::PathBuf {
