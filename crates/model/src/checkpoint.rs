@@ -143,11 +143,21 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
         let dtype = v.get("dtype").and_then(|d| d.as_str()).unwrap_or("");
         let (kind, es) = kind_of(dtype)
             .ok_or_else(|| bad(format!("tensor {name}: unsupported dtype `{dtype}`")))?;
+        // Every dimension must be a non-negative integer; the element count and byte length
+        // are computed in checked arithmetic (issue 10: sizes come from the file).
         let shape: Vec<i64> = v
             .get("shape")
             .and_then(|s| s.as_array())
-            .map(|a| a.iter().filter_map(|x| x.as_i64()).collect())
-            .ok_or_else(|| bad(format!("tensor {name}: no shape")))?;
+            .and_then(|a| {
+                a.iter()
+                    .map(|x| x.as_i64().filter(|&d| d >= 0))
+                    .collect::<Option<Vec<i64>>>()
+            })
+            .ok_or_else(|| {
+                bad(format!(
+                    "tensor {name}: no shape, or a dimension that is not a non-negative integer"
+                ))
+            })?;
         let offs: Vec<usize> = v
             .get("data_offsets")
             .and_then(|s| s.as_array())
@@ -160,8 +170,11 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
         if offs.len() != 2 || offs[0] > offs[1] {
             return Err(bad(format!("tensor {name}: bad data_offsets")));
         }
-        let numel: i64 = shape.iter().product();
-        if offs[1] - offs[0] != numel as usize * es {
+        let nbytes = shape
+            .iter()
+            .try_fold(es as u64, |a, &d| a.checked_mul(d as u64))
+            .ok_or_else(|| bad(format!("tensor {name}: shape {shape:?} overflows")))?;
+        if (offs[1] - offs[0]) as u64 != nbytes {
             return Err(bad(format!(
                 "tensor {name}: {} bytes for shape {shape:?} {dtype}",
                 offs[1] - offs[0]

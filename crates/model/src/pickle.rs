@@ -114,7 +114,8 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
-        if self.pos + n > self.b.len() {
+        // `n` comes from the file: compare against what is left, never `pos + n`.
+        if n > self.b.len() - self.pos {
             return Err(format!(
                 "pickle truncated at byte {} (wanted {n} more)",
                 self.pos
@@ -224,28 +225,165 @@ pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
     parse_pickle_at(bytes, 0).map(|(v, _)| v)
 }
 
+/// Deepest nesting of containers a pickle may build. Real `torch.save` files nest a few
+/// dozen levels; the bound keeps recursion (walking, dropping) far from the stack limit.
+pub const MAX_PICKLE_DEPTH: u32 = 256;
+
+/// Size accounting of one value: nesting depth and a weight (nodes + bytes/8) that bounds
+/// what copying it costs.
+#[derive(Clone, Copy, Default)]
+struct Meta {
+    depth: u32,
+    weight: u64,
+}
+
+impl Meta {
+    fn leaf(v: &Value) -> Meta {
+        let bytes = match v {
+            Value::Str(s) => s.len(),
+            Value::Bytes(b) => b.len(),
+            Value::Global(m, n) => m.len() + n.len(),
+            Value::Storage { dtype, key } => dtype.len() + key.len(),
+            _ => 0,
+        };
+        Meta {
+            depth: 0,
+            weight: 1 + bytes as u64 / 8,
+        }
+    }
+    /// A container holding values of these metas.
+    fn around<'m>(children: impl IntoIterator<Item = &'m Meta>) -> Meta {
+        let mut m = Meta {
+            depth: 1,
+            weight: 1,
+        };
+        for c in children {
+            m.depth = m.depth.max(c.depth + 1);
+            m.weight = m.weight.saturating_add(c.weight);
+        }
+        m
+    }
+    /// `self` after `child` was put inside it.
+    fn absorb(&mut self, child: Meta) {
+        self.depth = self.depth.max(child.depth + 1);
+        self.weight = self.weight.saturating_add(child.weight);
+    }
+}
+
+/// The pickle machine's stack with per-value [`Meta`], the MARK positions, and the budget of
+/// copies (memo and DUP) left: a hostile pickle can neither nest without bound nor grow
+/// exponentially through the memo ("billion laughs").
+struct Machine {
+    items: Vec<(Value, Meta)>,
+    marks: Vec<usize>,
+    copy_budget: u64,
+}
+
+impl Machine {
+    fn push(&mut self, v: Value, m: Meta) -> Result<(), String> {
+        if m.depth > MAX_PICKLE_DEPTH {
+            return Err(format!(
+                "pickle nests deeper than {MAX_PICKLE_DEPTH} levels"
+            ));
+        }
+        if matches!(v, Value::Mark) {
+            self.marks.push(self.items.len());
+        }
+        self.items.push((v, m));
+        Ok(())
+    }
+    fn leaf(&mut self, v: Value) -> Result<(), String> {
+        let m = Meta::leaf(&v);
+        self.push(v, m)
+    }
+    fn pop(&mut self) -> Result<(Value, Meta), String> {
+        let (v, m) = self
+            .items
+            .pop()
+            .ok_or_else(|| "pickle stack underflow".to_string())?;
+        if matches!(v, Value::Mark) {
+            self.marks.pop();
+        }
+        Ok((v, m))
+    }
+    /// The top `n` values (TUPLE1..3).
+    fn pop_n(&mut self, n: usize) -> Result<(Vec<Value>, Meta), String> {
+        if self.items.len() < n {
+            return Err("pickle stack underflow in TUPLEn".into());
+        }
+        let at = self.items.len() - n;
+        while self.marks.last().is_some_and(|&i| i >= at) {
+            self.marks.pop();
+        }
+        let popped = self.items.split_off(at);
+        let meta = Meta::around(popped.iter().map(|(_, m)| m));
+        Ok((popped.into_iter().map(|(v, _)| v).collect(), meta))
+    }
+    /// Everything above the topmost MARK (which is removed).
+    fn pop_mark(&mut self) -> Result<(Vec<Value>, Meta), String> {
+        let i = self.marks.pop().ok_or("pickle: MARK not found")?;
+        let popped = self.items.split_off(i + 1);
+        self.items.pop();
+        let meta = Meta::around(popped.iter().map(|(_, m)| m));
+        Ok((popped.into_iter().map(|(v, _)| v).collect(), meta))
+    }
+    fn last_mut(&mut self) -> Option<(&mut Value, &mut Meta)> {
+        self.items.last_mut().map(|(v, m)| (v, m))
+    }
+    /// A copy of the top value, charged to the copy budget.
+    fn copy_top(&mut self, op: &str) -> Result<(Value, Meta), String> {
+        let m = self
+            .items
+            .last()
+            .map(|(_, m)| *m)
+            .ok_or_else(|| format!("{op} on empty stack"))?;
+        self.charge(m)?;
+        let v = self
+            .items
+            .last()
+            .map(|(v, _)| v.clone())
+            .unwrap_or(Value::None);
+        Ok((v, m))
+    }
+    fn charge(&mut self, m: Meta) -> Result<(), String> {
+        self.copy_budget = self.copy_budget.checked_sub(m.weight).ok_or_else(|| {
+            "pickle copies more data through its memo than any real file (memo bomb?)".to_string()
+        })?;
+        Ok(())
+    }
+    /// Checks the depth of the top value after something was put inside it.
+    fn check_top(&self) -> Result<(), String> {
+        match self.items.last() {
+            Some((_, m)) if m.depth > MAX_PICKLE_DEPTH => Err(format!(
+                "pickle nests deeper than {MAX_PICKLE_DEPTH} levels"
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
 /// Parses one pickle starting at byte `start`; returns the value and the position after STOP.
+///
+/// Hostile input is an error, never a panic, a hang or an allocation beyond a small multiple
+/// of the input (issue 10): lengths are checked against the bytes left, nesting is bounded by
+/// [`MAX_PICKLE_DEPTH`], and memo/DUP copies by a budget proportional to the input length.
 pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
+    if start > bytes.len() {
+        return Err(format!(
+            "pickle starts at byte {start}, past the end ({} bytes)",
+            bytes.len()
+        ));
+    }
     let mut r = Reader {
         b: bytes,
         pos: start,
     };
-    let mut stack: Vec<Value> = Vec::new();
-    let mut memo: HashMap<u32, Value> = HashMap::new();
-    let pop = |stack: &mut Vec<Value>| {
-        stack
-            .pop()
-            .ok_or_else(|| "pickle stack underflow".to_string())
+    let mut st = Machine {
+        items: Vec::new(),
+        marks: Vec::new(),
+        copy_budget: (bytes.len() as u64).saturating_mul(16) + (1 << 20),
     };
-    let pop_mark = |stack: &mut Vec<Value>| -> Result<Vec<Value>, String> {
-        let i = stack
-            .iter()
-            .rposition(|v| matches!(v, Value::Mark))
-            .ok_or("pickle: MARK not found")?;
-        let items = stack.split_off(i + 1);
-        stack.pop();
-        Ok(items)
-    };
+    let mut memo: HashMap<u32, (Value, Meta)> = HashMap::new();
     loop {
         let op = r.u8()?;
         match op {
@@ -255,52 +393,42 @@ pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), Str
             0x95 => {
                 r.u64()?;
             } // FRAME
-            b'.' => return pop(&mut stack).map(|v| (v, r.pos)),
-            b'}' => stack.push(Value::Dict(Vec::new())),
-            b']' | 0x8f => stack.push(Value::List(Vec::new())),
-            b')' => stack.push(Value::Tuple(Vec::new())),
-            b'(' => stack.push(Value::Mark),
-            b'N' => stack.push(Value::None),
-            0x88 => stack.push(Value::Bool(true)),
-            0x89 => stack.push(Value::Bool(false)),
-            b'q' => {
-                let i = r.u8()? as u32;
-                memo.insert(i, stack.last().cloned().ok_or("BINPUT on empty stack")?);
+            b'.' => return st.pop().map(|(v, _)| (v, r.pos)),
+            b'}' => st.leaf(Value::Dict(Vec::new()))?,
+            b']' | 0x8f => st.leaf(Value::List(Vec::new()))?,
+            b')' => st.leaf(Value::Tuple(Vec::new()))?,
+            b'(' => st.leaf(Value::Mark)?,
+            b'N' => st.leaf(Value::None)?,
+            0x88 => st.leaf(Value::Bool(true))?,
+            0x89 => st.leaf(Value::Bool(false))?,
+            b'q' | b'r' | 0x94 => {
+                let i = match op {
+                    b'q' => r.u8()? as u32,
+                    b'r' => r.u32()?,
+                    _ => memo.len() as u32,
+                };
+                let name = match op {
+                    b'q' => "BINPUT",
+                    b'r' => "LONG_BINPUT",
+                    _ => "MEMOIZE",
+                };
+                let v = st.copy_top(name)?;
+                memo.insert(i, v);
             }
-            b'r' => {
-                let i = r.u32()?;
-                memo.insert(
-                    i,
-                    stack.last().cloned().ok_or("LONG_BINPUT on empty stack")?,
-                );
-            }
-            0x94 => {
-                let i = memo.len() as u32;
-                memo.insert(i, stack.last().cloned().ok_or("MEMOIZE on empty stack")?);
-            }
-            b'h' => {
-                let i = r.u8()? as u32;
-                stack.push(
-                    memo.get(&i)
-                        .cloned()
-                        .ok_or(format!("BINGET {i}: not in memo"))?,
-                );
-            }
-            b'j' => {
-                let i = r.u32()?;
-                stack.push(
-                    memo.get(&i)
-                        .cloned()
-                        .ok_or(format!("LONG_BINGET {i}: not in memo"))?,
-                );
+            b'h' | b'j' => {
+                let i = if op == b'h' { r.u8()? as u32 } else { r.u32()? };
+                let (v, m) = memo.get(&i).ok_or(format!("BINGET {i}: not in memo"))?;
+                let m = *m;
+                st.charge(m)?;
+                st.push(v.clone(), m)?;
             }
             b'X' | 0x8c | 0x8d => {
                 let n = match op {
                     b'X' => r.u32()? as usize,
                     0x8c => r.u8()? as usize,
-                    _ => r.u64()? as usize,
+                    _ => usize::try_from(r.u64()?).unwrap_or(usize::MAX),
                 };
-                stack.push(Value::Str(String::from_utf8_lossy(r.take(n)?).into_owned()));
+                st.leaf(Value::Str(String::from_utf8_lossy(r.take(n)?).into_owned()))?;
             }
             b'U' | b'T' | b'B' | b'C' => {
                 let n = if op == b'U' || op == b'C' {
@@ -309,62 +437,62 @@ pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), Str
                     r.u32()? as usize
                 };
                 let data = r.take(n)?.to_vec();
-                stack.push(if op == b'U' || op == b'T' {
+                st.leaf(if op == b'U' || op == b'T' {
                     Value::Str(String::from_utf8_lossy(&data).into_owned())
                 } else {
                     Value::Bytes(data)
-                });
+                })?;
             }
             b'c' => {
                 let m = r.line()?;
                 let n = r.line()?;
-                stack.push(Value::Global(m, n));
+                st.leaf(Value::Global(m, n))?;
             }
             0x93 => {
-                let n = pop(&mut stack)?;
-                let m = pop(&mut stack)?;
+                let (n, _) = st.pop()?;
+                let (m, _) = st.pop()?;
                 match (m, n) {
-                    (Value::Str(m), Value::Str(n)) => stack.push(Value::Global(m, n)),
+                    (Value::Str(m), Value::Str(n)) => st.leaf(Value::Global(m, n))?,
                     _ => return Err("STACK_GLOBAL with non-string operands".into()),
                 }
             }
             b'Q' => {
-                let pid = pop(&mut stack)?;
+                let (pid, _) = st.pop()?;
                 let items = match pid {
                     Value::Tuple(t) => t,
                     _ => return Err("persistent id is not a tuple".into()),
                 };
                 match (items.first(), items.get(1), items.get(2)) {
-                    (Some(Value::Str(tag)), Some(st), Some(Value::Str(key)))
+                    (Some(Value::Str(tag)), Some(sv), Some(Value::Str(key)))
                         if tag == "storage" =>
                     {
-                        let dtype = match st {
+                        let dtype = match sv {
                             Value::Global(_, n) => n.clone(),
                             Value::Str(s) => s.clone(),
                             _ => "UntypedStorage".into(),
                         };
-                        stack.push(Value::Storage {
+                        st.leaf(Value::Storage {
                             dtype,
                             key: key.clone(),
-                        });
+                        })?;
                     }
                     _ => {
                         return Err("persistent id is not a ('storage', type, key, …) tuple".into())
                     }
                 }
             }
-            b'J' => stack.push(Value::Int(r.u32()? as i32 as i64)),
-            b'K' => stack.push(Value::Int(r.u8()? as i64)),
+            b'J' => st.leaf(Value::Int(r.u32()? as i32 as i64))?,
+            b'K' => st.leaf(Value::Int(r.u8()? as i64))?,
             b'M' => {
                 let b = r.take(2)?;
-                stack.push(Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64));
+                st.leaf(Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64))?;
             }
             0x8a => {
                 let n = r.u8()? as usize;
                 let b = r.take(n)?;
                 if n > 8 {
                     // only the legacy format's magic number is this wide
-                    stack.push(Value::Bytes(b.to_vec()));
+                    st.leaf(Value::Bytes(b.to_vec()))?;
                     continue;
                 }
                 let mut v: i64 = 0;
@@ -374,96 +502,114 @@ pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), Str
                 if n > 0 && n < 8 && b[n - 1] & 0x80 != 0 {
                     v -= 1i64 << (8 * n);
                 }
-                stack.push(Value::Int(v));
+                st.leaf(Value::Int(v))?;
             }
             b'G' => {
                 let b = r.take(8)?;
-                stack.push(Value::Float(f64::from_be_bytes(
+                st.leaf(Value::Float(f64::from_be_bytes(
                     b.try_into().map_err(|_| "short read")?,
-                )));
+                )))?;
             }
             0x85..=0x87 => {
-                let n = (op - 0x84) as usize;
-                if stack.len() < n {
-                    return Err("pickle stack underflow in TUPLEn".into());
-                }
-                let items = stack.split_off(stack.len() - n);
-                stack.push(Value::Tuple(items));
+                let (items, m) = st.pop_n((op - 0x84) as usize)?;
+                st.push(Value::Tuple(items), m)?;
             }
             b't' => {
-                let items = pop_mark(&mut stack)?;
-                stack.push(Value::Tuple(items));
+                let (items, m) = st.pop_mark()?;
+                st.push(Value::Tuple(items), m)?;
             }
-            b'l' => {
-                let items = pop_mark(&mut stack)?;
-                stack.push(Value::List(items));
+            b'l' | 0x91 => {
+                let (items, m) = st.pop_mark()?;
+                st.push(Value::List(items), m)?;
             }
             b'd' => {
-                let items = pop_mark(&mut stack)?;
+                let (items, m) = st.pop_mark()?;
                 let mut d = Vec::new();
                 let mut it = items.into_iter();
                 while let (Some(k), Some(v)) = (it.next(), it.next()) {
                     d.push((k, v));
                 }
-                stack.push(Value::Dict(d));
-            }
-            0x91 => {
-                let items = pop_mark(&mut stack)?;
-                stack.push(Value::List(items));
+                st.push(Value::Dict(d), m)?;
             }
             b'R' | 0x81 => {
-                let args = pop(&mut stack)?;
-                let callable = pop(&mut stack)?;
-                stack.push(reduce(callable, args)?);
+                let (args, ma) = st.pop()?;
+                let (callable, mc) = st.pop()?;
+                let m = Meta::around([&ma, &mc]);
+                st.push(reduce(callable, args)?, m)?;
             }
             b'b' => {
-                let st = pop(&mut stack)?;
-                match stack.last_mut() {
-                    Some(Value::Object { state, .. }) => **state = st,
+                let (state_v, ms) = st.pop()?;
+                match st.last_mut() {
+                    Some((Value::Object { state, .. }, m)) => {
+                        **state = state_v;
+                        m.absorb(ms);
+                    }
                     Some(_) => {} // OrderedDict attributes (`_metadata`) etc.: ignored
                     None => return Err("BUILD on empty stack".into()),
                 }
+                st.check_top()?;
             }
             b's' => {
-                let v = pop(&mut stack)?;
-                let k = pop(&mut stack)?;
-                match stack.last_mut() {
-                    Some(Value::Dict(d)) => d.push((k, v)),
+                let (v, mv) = st.pop()?;
+                let (k, mk) = st.pop()?;
+                match st.last_mut() {
+                    Some((Value::Dict(d), m)) => {
+                        d.push((k, v));
+                        m.absorb(mv);
+                        m.absorb(mk);
+                    }
                     _ => return Err("SETITEM on a non-dict".into()),
                 }
+                st.check_top()?;
             }
             b'u' => {
-                let items = pop_mark(&mut stack)?;
-                match stack.last_mut() {
-                    Some(Value::Dict(d)) => {
+                let (items, mi) = st.pop_mark()?;
+                match st.last_mut() {
+                    Some((Value::Dict(d), m)) => {
                         let mut it = items.into_iter();
                         while let (Some(k), Some(v)) = (it.next(), it.next()) {
                             d.push((k, v));
                         }
+                        m.absorb(Meta {
+                            depth: mi.depth.saturating_sub(1),
+                            weight: mi.weight,
+                        });
                     }
                     _ => return Err("SETITEMS on a non-dict".into()),
                 }
+                st.check_top()?;
             }
             b'a' => {
-                let v = pop(&mut stack)?;
-                match stack.last_mut() {
-                    Some(Value::List(l)) => l.push(v),
+                let (v, mv) = st.pop()?;
+                match st.last_mut() {
+                    Some((Value::List(l), m)) => {
+                        l.push(v);
+                        m.absorb(mv);
+                    }
                     _ => return Err("APPEND on a non-list".into()),
                 }
+                st.check_top()?;
             }
             b'e' | 0x90 => {
-                let items = pop_mark(&mut stack)?;
-                match stack.last_mut() {
-                    Some(Value::List(l)) => l.extend(items),
+                let (items, mi) = st.pop_mark()?;
+                match st.last_mut() {
+                    Some((Value::List(l), m)) => {
+                        l.extend(items);
+                        m.absorb(Meta {
+                            depth: mi.depth.saturating_sub(1),
+                            weight: mi.weight,
+                        });
+                    }
                     _ => return Err("APPENDS on a non-list".into()),
                 }
+                st.check_top()?;
             }
             b'0' => {
-                pop(&mut stack)?;
+                st.pop()?;
             }
             b'2' => {
-                let v = stack.last().cloned().ok_or("DUP on empty stack")?;
-                stack.push(v);
+                let (v, m) = st.copy_top("DUP")?;
+                st.push(v, m)?;
             }
             other => {
                 return Err(format!(
@@ -527,10 +673,17 @@ const LEGACY_MAGIC: [u8; 10] = [0x6c, 0xfc, 0x9c, 0x46, 0xf9, 0x20, 0x6a, 0xa8, 
 /// pickles, the storage-key list, then each storage as an 8-byte element count + raw data).
 pub fn read_torch_file(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
     let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
+    read_torch_bytes(path, &bytes)
+}
+
+/// [`read_torch_file`] on bytes already in memory; `path` only names the file in errors.
+/// Every size in the file is checked against the bytes present before anything is
+/// allocated from it (issue 10).
+pub fn read_torch_bytes(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
     if bytes.starts_with(b"PK") {
-        read_zip(path, &bytes)
+        read_zip(path, bytes)
     } else if bytes.first() == Some(&0x80) {
-        read_legacy(path, &bytes)
+        read_legacy(path, bytes)
     } else {
         Err(ModelError::format(
             path,
@@ -558,10 +711,35 @@ fn read_zip(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelErr
         let mut e = zip
             .by_name(name)
             .map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
-        let mut buf = Vec::with_capacity(e.size() as usize);
-        e.read_to_end(&mut buf).map_err(|e| {
-            ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
-        })?;
+        // The declared size is only a hint: never allocate more than deflate can produce
+        // from the archive, and never read past the declared size.
+        let declared = e.size();
+        let possible = (bytes.len() as u64).saturating_mul(1100);
+        if declared > possible {
+            return Err(ModelError::format(
+                path,
+                format!(
+                    "record {name} claims {declared} bytes, more than a {} byte archive can hold",
+                    bytes.len()
+                ),
+            ));
+        }
+        let mut buf = Vec::with_capacity(declared.min(bytes.len() as u64) as usize);
+        (&mut e)
+            .take(declared.saturating_add(1))
+            .read_to_end(&mut buf)
+            .map_err(|e| {
+                ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
+            })?;
+        if buf.len() as u64 != declared {
+            return Err(ModelError::format(
+                path,
+                format!(
+                    "record {name} holds {} bytes, its header says {declared}",
+                    buf.len()
+                ),
+            ));
+        }
         Ok(buf)
     };
     if let Ok(order) = read_entry(&format!("{prefix}byteorder")) {
@@ -619,7 +797,7 @@ fn read_legacy(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, Model
         }
         let numel = u64::from_le_bytes(bytes[pos..pos + 8].try_into().unwrap_or([0; 8])) as usize;
         pos += 8;
-        let len = numel.checked_mul(es).filter(|l| pos + l <= bytes.len());
+        let len = numel.checked_mul(es).filter(|&l| l <= bytes.len() - pos);
         let Some(len) = len else {
             return Err(bad(format!(
                 "truncated: storage {key} needs {numel}×{es} bytes"
@@ -654,22 +832,46 @@ fn materialize(
             )
         })?;
         let numel = data.len() / es;
-        // Bounds check of the strided view against the storage.
-        let last: i64 = t.offset
-            + t.size
-                .iter()
-                .zip(&t.stride)
-                .map(|(s, st)| (s - 1).max(0) * st)
-                .sum::<i64>();
-        let empty = t.size.contains(&0);
-        if !empty && (t.offset < 0 || last as usize >= numel) {
-            return Err(ModelError::format(
+        // Bounds check of the strided view against the storage, in checked arithmetic: every
+        // number here comes from the file (issue 10).
+        let view_err = |why: &str| {
+            ModelError::format(
                 path,
                 format!(
-                    "tensor {name}: view {:?}/{:?}+{} exceeds its storage of {numel} elements (truncated?)",
+                    "tensor {name}: view {:?}/{:?}+{} {why} (storage of {numel} elements)",
                     t.size, t.stride, t.offset
                 ),
-            ));
+            )
+        };
+        if t.size.len() != t.stride.len() {
+            return Err(view_err("has sizes and strides of different lengths"));
+        }
+        if t.offset < 0 || t.size.iter().any(|&s| s < 0) || t.stride.iter().any(|&s| s < 0) {
+            return Err(view_err("has a negative size, stride or offset"));
+        }
+        let empty = t.size.contains(&0);
+        let view_numel = t
+            .size
+            .iter()
+            .try_fold(1i64, |a, &s| a.checked_mul(s))
+            .ok_or_else(|| view_err("has more elements than fit in 64 bits"))?;
+        let last = t
+            .size
+            .iter()
+            .zip(&t.stride)
+            .try_fold(t.offset, |a, (&s, &st)| {
+                (s - 1)
+                    .max(0)
+                    .checked_mul(st)
+                    .and_then(|x| a.checked_add(x))
+            })
+            .ok_or_else(|| view_err("overflows"))?;
+        if !empty && last as u64 >= numel as u64 {
+            return Err(view_err("exceeds its storage (truncated?)"));
+        }
+        // Stride-0 views would let a few bytes expand into any amount of memory.
+        if view_numel as u64 > (numel as u64).max(1 << 16) {
+            return Err(view_err("expands beyond its storage"));
         }
         let tensor = if empty {
             Tensor::f_zeros(&t.size, (kind, Device::Cpu))?
