@@ -132,7 +132,35 @@ pub struct PreparedIndex {
     pub val_scenes: Vec<String>,
     #[serde(default)]
     pub test_scenes: Vec<String>,
+    /// The map settings every sample of this folder was prepared with (radar sweeps and
+    /// channels, filters, K, dense-target rules; `pipeline::map_settings`), stored once: a run
+    /// with other settings is refused. Empty in an index written before issue 10.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub settings: BTreeMap<String, serde_json::Value>,
+    /// Set in a shard's own index (`index.shard-I-of-N.json`, see [`shard_index_file`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<ShardInfo>,
 }
+
+/// Which part of a sharded `prepare` an index holds.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ShardInfo {
+    /// 0-based shard number I of `--shard I/N`.
+    pub index: usize,
+    /// N.
+    pub count: usize,
+    /// Scene tokens of this shard, in the order of the unsharded run (scene j of the selected
+    /// scenes goes to shard j mod N).
+    pub scenes: Vec<String>,
+}
+
+/// File name of shard `index` of `count` in the output folder: `index.shard-I-of-N.json`.
+pub fn shard_index_file(index: usize, count: usize) -> String {
+    format!("index.shard-{index}-of-{count}.json")
+}
+
+/// Lock file guarding `index.json` and the shard index files of an output folder.
+pub const INDEX_LOCK_FILE: &str = ".index.lock";
 
 #[cfg(test)]
 mod tests {

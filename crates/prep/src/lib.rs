@@ -2,6 +2,7 @@
 //! inputs, and the `prepare` pipeline with caching.
 
 pub mod bench;
+pub mod index;
 pub mod inspect;
 pub mod layout;
 pub mod maps;
@@ -9,4 +10,4 @@ pub mod motion;
 pub mod pipeline;
 pub mod splits;
 
-pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary};
+pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary, Shard};

@@ -7,7 +7,6 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use depthsense_nuscenes::depth_png::{encode_png_fast, DepthMap};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::{
     apply_f32, cam_from_sensor, ego_from_sensor, global_from_ego, rotation_from_wxyz, Camera, Rigid,
 };
@@ -44,6 +43,39 @@ pub struct PrepareOptions {
     pub jobs: usize,
     /// Exit status 0 even when some samples failed.
     pub keep_going: bool,
+    /// `--shard I/N`: prepare only the I-th of N disjoint parts (by scene) of the selection;
+    /// its index goes to `index.shard-I-of-N.json` (merge with `depthsense index merge`).
+    pub shard: Option<Shard>,
+}
+
+/// One part of a sharded `prepare` (`--shard I/N`, 0 ≤ I < N).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = PrepError;
+    /// "I/N" with 0 ≤ I < N (Slurm: `--shard $SLURM_ARRAY_TASK_ID/16`).
+    fn from_str(s: &str) -> Result<Shard, PrepError> {
+        let bad = |why: &str| {
+            PrepError::Shard(format!("--shard {s:?}: {why}; expected I/N with 0 ≤ I < N"))
+        };
+        let (i, n) = s.split_once('/').ok_or_else(|| bad("no '/'"))?;
+        let index: usize = i.trim().parse().map_err(|_| bad("I is not a number"))?;
+        let count: usize = n.trim().parse().map_err(|_| bad("N is not a number"))?;
+        if count == 0 || index >= count {
+            return Err(bad("out of range"));
+        }
+        Ok(Shard { index, count })
+    }
 }
 
 impl Default for PrepareOptions {
@@ -64,6 +96,7 @@ impl Default for PrepareOptions {
             radar_velocity_compensation: false,
             jobs: 0,
             keep_going: false,
+            shard: None,
         }
     }
 }
@@ -98,6 +131,24 @@ pub enum PrepError {
         old: String,
         new: String,
     },
+    #[error(
+        "{path}: unreadable prepared index ({reason}); it is not replaced: repair or remove it"
+    )]
+    CorruptIndex { path: String, reason: String },
+    #[error("{path} holds dataset version {old:?}, this run is {new:?}; use another --out")]
+    VersionMismatch {
+        path: String,
+        old: String,
+        new: String,
+    },
+    #[error("sample {sample} panicked while reading {input}: {reason}")]
+    Panicked {
+        sample: String,
+        input: String,
+        reason: String,
+    },
+    #[error("{0}")]
+    Shard(String),
     #[error("{0}")]
     Other(String),
 }
@@ -239,6 +290,7 @@ fn frame_image(
 ) -> Result<Vec<u8>, PrepError> {
     clock.decode(|| {
         let img_path = nu.path_of(cam_sd);
+        reading(&img_path);
         let jpeg = std::fs::read(&img_path).map_err(|e| io_err(&img_path, e))?;
         let bad_image = |reason: String| {
             PrepError::Nu(NuError::Image {
@@ -271,6 +323,7 @@ fn keyframe_lidar(
     clock: &mut Clock,
 ) -> Result<KeyframeLidar, PrepError> {
     let lidar_path = nu.path_of(ks.lidar_sd);
+    reading(&lidar_path);
     let scan = clock.decode(|| read_lidar_pcd_bin(&lidar_path))?;
     let t = Instant::now();
     // The ego car's own returns never reach the camera's frame from the keyframe pose, but they
@@ -418,6 +471,7 @@ fn dense_lidar(
             .inverse();
         for sw in others {
             let p = nu.path_of(sw);
+            reading(&p);
             let s = clock.decode(|| read_lidar_pcd_bin(&p))?;
             let t = Instant::now();
             nan_dropped += s.nan_dropped as u64;
@@ -509,6 +563,7 @@ fn radar_inputs(
             .enumerate()
         {
             let p = nu.path_of(sw);
+            reading(&p);
             let scan = clock.decode(|| read_radar_pcd(&p))?;
             let t = Instant::now();
             out.nan_dropped += scan.nan_dropped as u64;
@@ -576,6 +631,14 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
     let mut counts: BTreeMap<String, u64> = BTreeMap::new();
     let image_rgb = frame_image(nu, ks.cam_sd, &mut clock)?;
     let kl = keyframe_lidar(nu, &ks, &mut counts, &mut clock)?;
+    #[cfg(test)]
+    if PANIC_ON
+        .lock()
+        .map(|v| v.contains(&sample.token.to_string()))
+        .unwrap_or(false)
+    {
+        panic!("injected test panic");
+    }
     let (dense, dense_nan) = dense_lidar(
         nu,
         sample,
@@ -649,8 +712,24 @@ fn encode_rgb_png(rgb: &[u8], w: u32, h: u32, gray: bool) -> Result<Vec<u8>, Pre
     Ok(out)
 }
 
-/// Encode and write one sample atomically: files go to a temporary sibling directory,
-/// `meta.json` last, then the directory is renamed into place.
+/// Removes a temporary sample folder unless the sample was committed (also while unwinding
+/// from a panic), so a failed sample leaves nothing behind.
+struct TempDirGuard {
+    path: PathBuf,
+    committed: bool,
+}
+
+impl Drop for TempDirGuard {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+/// Encode and write one sample atomically: files go to this process's temporary sibling
+/// directory (`.tmp-<pid>-<token>`), `meta.json` last, then the directory is renamed into
+/// place. When another process completed the same sample meanwhile, this copy is dropped.
 fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Result<(), PrepError> {
     let t = Instant::now();
     let fw = layout::FRAME_W;
@@ -677,11 +756,11 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
     let encode_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let final_dir = out.join(&maps.meta.sample_token);
-    let tmp = out.join(format!(
-        ".tmp-{}-{}",
-        maps.meta.sample_token,
-        std::process::id()
-    ));
+    let mut guard = TempDirGuard {
+        path: out.join(crate::index::temp_dir_name(&maps.meta.sample_token)),
+        committed: false,
+    };
+    let tmp = guard.path.clone();
     let res = (|| -> Result<(), PrepError> {
         if tmp.exists() {
             std::fs::remove_dir_all(&tmp).map_err(|e| io_err(&tmp, e))?;
@@ -691,20 +770,77 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
             let p = tmp.join(name);
             std::fs::write(&p, bytes).map_err(|e| io_err(&p, e))?;
         }
+        let complete = |d: &Path| d.join(layout::META_FILE).is_file();
+        if complete(&final_dir) {
+            // Another process finished this sample meanwhile (same settings, same bytes).
+            return Ok(());
+        }
         if final_dir.exists() {
             // An incomplete directory (no meta.json) from an older run.
             std::fs::remove_dir_all(&final_dir).map_err(|e| io_err(&final_dir, e))?;
         }
-        std::fs::rename(&tmp, &final_dir).map_err(|e| io_err(&final_dir, e))
+        match std::fs::rename(&tmp, &final_dir) {
+            Ok(()) => {
+                guard.committed = true;
+                Ok(())
+            }
+            // Lost a race with another process that renamed its copy first.
+            Err(_) if complete(&final_dir) => Ok(()),
+            Err(e) => Err(io_err(&final_dir, e)),
+        }
     })();
-    if res.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
-    }
+    drop(guard);
     if let Ok(mut tm) = times.lock() {
         tm.encode_s += encode_s;
         tm.write_s += t.elapsed().as_secs_f64();
     }
     res
+}
+
+thread_local! {
+    /// The input file this worker thread is reading, for the message of a panic.
+    static CURRENT_INPUT: std::cell::RefCell<Option<PathBuf>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Note the file being read (named in the failure when the sample panics).
+fn reading(path: &Path) {
+    CURRENT_INPUT.with(|c| *c.borrow_mut() = Some(path.to_path_buf()));
+}
+
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "(no message)".to_string()
+    }
+}
+
+/// Unit tests: sample tokens whose preparation panics.
+#[cfg(test)]
+static PANIC_ON: Mutex<Vec<String>> = Mutex::new(Vec::new());
+
+/// Compute and write one sample; a panic anywhere inside (a reader bug, an arithmetic
+/// overflow, …) fails this sample only, with the file being read named, and leaves no output.
+fn prepare_one(job: &Job, sample: &Sample) -> Result<(), PrepError> {
+    CURRENT_INPUT.with(|c| *c.borrow_mut() = None);
+    let run = std::panic::AssertUnwindSafe(|| {
+        compute(job, sample).and_then(|m| write_sample(&job.opts.out, &m, job.times))
+    });
+    match std::panic::catch_unwind(run) {
+        Ok(r) => r,
+        Err(payload) => {
+            let input = CURRENT_INPUT.with(|c| c.borrow_mut().take());
+            Err(PrepError::Panicked {
+                sample: sample.token.to_string(),
+                input: input
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_else(|| "(no input file open)".into()),
+                reason: panic_text(payload.as_ref()),
+            })
+        }
+    }
 }
 
 /// Samples of the chosen split in scene order (splits from [`crate::splits::assign_splits`]).
@@ -754,15 +890,36 @@ pub fn prepare_timed(
     progress.set_message(format!("loading {} tables", opts.version));
     let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
     let assignment = crate::splits::assign_splits(&nu)?;
-    let samples = select_samples_in(&nu, &opts.split, &assignment)?;
-    progress.set_message(format!("{} split {}", opts.version, opts.split));
+    let selected = select_samples_in(&nu, &opts.split, &assignment)?;
+    let (samples, shard_info) = match opts.shard {
+        Some(sh) => {
+            let (samples, scenes) = shard_samples(&selected, sh);
+            (
+                samples,
+                Some(layout::ShardInfo {
+                    index: sh.index,
+                    count: sh.count,
+                    scenes,
+                }),
+            )
+        }
+        None => (selected, None),
+    };
+    progress.set_message(match opts.shard {
+        Some(sh) => format!("{} split {} shard {sh}", opts.version, opts.split),
+        None => format!("{} split {}", opts.version, opts.split),
+    });
     std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
-    // Stale temporary directories from an interrupted run.
-    if let Ok(rd) = std::fs::read_dir(&opts.out) {
-        for e in rd.flatten() {
-            if e.file_name().to_string_lossy().starts_with(".tmp-") {
-                let _ = std::fs::remove_dir_all(e.path());
-            }
+    // Temporary folders of interrupted runs (never those of a running process).
+    crate::index::remove_stale_temp_dirs(&opts.out);
+    // One version and one set of map settings per output folder: every index there must
+    // agree before any work is done (and again when this run's entries are written).
+    let settings = settings_map(opts);
+    let mut indexed = false;
+    for p in crate::index::index_files(&opts.out)? {
+        if let Some(ix) = crate::index::read_index(&p)? {
+            crate::index::check_index(&p, &ix, &nu.version, &settings)?;
+            indexed |= !ix.settings.is_empty();
         }
     }
     let done = |s: &Sample| {
@@ -772,11 +929,14 @@ pub fn prepare_timed(
             .is_file()
     };
     let (existing, todo): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| done(s));
-    if let Some(s) = existing.first() {
-        check_settings(
-            &opts.out.join(s.token.to_string()).join(layout::META_FILE),
-            opts,
-        )?;
+    if !indexed {
+        // A folder from before settings lived in the index: compare with a finished sample.
+        if let Some(s) = existing.first() {
+            check_settings(
+                &opts.out.join(s.token.to_string()).join(layout::META_FILE),
+                opts,
+            )?;
+        }
     }
     progress.set_length(todo.len() as u64);
     let times = Mutex::new(StageTimes::default());
@@ -792,7 +952,7 @@ pub fn prepare_timed(
     let results: Vec<(Token, Result<(), PrepError>)> = pool.install(|| {
         todo.par_iter()
             .map(|s| {
-                let r = compute(&job, s).and_then(|m| write_sample(&opts.out, &m, &times));
+                let r = prepare_one(&job, s);
                 progress.inc(1);
                 (s.token, r)
             })
@@ -812,9 +972,37 @@ pub fn prepare_timed(
             Err(e) => summary.failed.push((t.to_string(), e.to_string())),
         }
     }
-    write_index(&nu, opts, &samples, &ok, &assignment)?;
+    write_index(&nu, opts, &samples, &ok, &assignment, shard_info)?;
     let t = times.into_inner().unwrap_or_default();
     Ok((summary, t))
+}
+
+/// `--shard I/N`: the I-th of N disjoint parts of the selected samples, by scene (scene j of
+/// the selection, in its order, goes to shard j mod N), so a scene's sweeps are read by one
+/// process and the parts are balanced. Returns the shard's samples and its scene tokens.
+pub fn shard_samples<'a>(selected: &[&'a Sample], shard: Shard) -> (Vec<&'a Sample>, Vec<String>) {
+    let mut scene_order: Vec<Token> = Vec::new();
+    let mut seen: HashSet<Token> = HashSet::new();
+    for s in selected {
+        if seen.insert(s.scene_token) {
+            scene_order.push(s.scene_token);
+        }
+    }
+    let mine: Vec<Token> = scene_order
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| j % shard.count == shard.index)
+        .map(|(_, t)| *t)
+        .collect();
+    let mine_set: HashSet<Token> = mine.iter().copied().collect();
+    (
+        selected
+            .iter()
+            .copied()
+            .filter(|s| mine_set.contains(&s.scene_token))
+            .collect(),
+        mine.iter().map(|t| t.to_string()).collect(),
+    )
 }
 
 /// Settings that change the maps; a finished sample made with other values is not reused.
@@ -830,6 +1018,14 @@ fn map_settings(opts: &PrepareOptions) -> Vec<(&'static str, serde_json::Value)>
         ("lidar_sweeps_k", serde_json::json!(opts.lidar_sweeps)),
         ("dense_rules", serde_json::json!(DENSE_RULES)),
     ]
+}
+
+/// [`map_settings`] as stored in `index.json`.
+pub fn settings_map(opts: &PrepareOptions) -> BTreeMap<String, serde_json::Value> {
+    map_settings(opts)
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
 }
 
 fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepError> {
@@ -856,33 +1052,22 @@ fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepErr
     Ok(())
 }
 
-/// Merge this run's complete samples into `O/index.json` (entries of other runs are kept).
+/// Merge this run's complete samples into `O/index.json` (or the shard's
+/// `index.shard-I-of-N.json`) under the folder's index lock; entries of other runs are kept.
 fn write_index(
     nu: &NuScenes,
     opts: &PrepareOptions,
     samples: &[&Sample],
     ok: &HashSet<Token>,
     assignment: &crate::splits::SplitAssignment,
+    shard: Option<layout::ShardInfo>,
 ) -> Result<(), PrepError> {
-    let path = opts.out.join(layout::INDEX_FILE);
-    let mut index: PreparedIndex = match std::fs::read(&path) {
-        Ok(b) => serde_json::from_slice(&b).unwrap_or_default(),
-        Err(_) => PreparedIndex::default(),
+    let path = match &shard {
+        Some(s) => opts.out.join(layout::shard_index_file(s.index, s.count)),
+        None => opts.out.join(layout::INDEX_FILE),
     };
-    index.version = nu.version.clone();
-    index.split_source = match &assignment.lists_dir {
-        Some(d) => format!("{}: {}", assignment.source, d.display()),
-        None => assignment.source.clone(),
-    };
-    index.train_scenes = assignment.train_scenes.clone();
-    index.val_scenes = assignment.val_scenes.clone();
-    index.test_scenes = assignment.test_scenes.clone();
-    let mut pos: std::collections::HashMap<String, usize> = index
-        .samples
-        .iter()
-        .enumerate()
-        .map(|(i, e)| (e.sample_token.clone(), i))
-        .collect();
+    let settings = settings_map(opts);
+    let mut entries = Vec::new();
     let mut scene_splits: std::collections::HashMap<Token, Vec<String>> = Default::default();
     for s in samples.iter().filter(|s| ok.contains(&s.token)) {
         let scene = nu.get_scene(s.scene_token, "sample", s.token, "scene_token")?;
@@ -891,22 +1076,92 @@ fn write_index(
             .entry(scene.token)
             .or_insert_with(|| assignment.splits_of(&scene_tok))
             .clone();
-        let entry = IndexEntry {
+        entries.push(IndexEntry {
             sample_token: s.token.to_string(),
             scene_token: scene_tok,
             scene_name: scene.name.clone(),
             splits,
             conditions: conditions_of(&scene.description),
             dir: s.token.to_string(),
-        };
-        match pos.get(&entry.sample_token) {
-            Some(&i) => index.samples[i] = entry,
-            None => {
-                pos.insert(entry.sample_token.clone(), index.samples.len());
-                index.samples.push(entry);
-            }
-        }
+        });
     }
-    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| PrepError::Other(e.to_string()))?;
-    write_atomic(&path, &bytes).map_err(|e| io_err(&path, e))
+    let _lock = crate::index::lock_index(&opts.out)?;
+    // Read again under the lock: another process may have written it since the start.
+    let mut index = match crate::index::read_index(&path)? {
+        Some(ix) => {
+            crate::index::check_index(&path, &ix, &nu.version, &settings)?;
+            ix
+        }
+        None => PreparedIndex::default(),
+    };
+    index.version = nu.version.clone();
+    index.settings = settings;
+    index.split_source = match &assignment.lists_dir {
+        Some(d) => format!("{}: {}", assignment.source, d.display()),
+        None => assignment.source.clone(),
+    };
+    index.train_scenes = assignment.train_scenes.clone();
+    index.val_scenes = assignment.val_scenes.clone();
+    index.test_scenes = assignment.test_scenes.clone();
+    index.shard = shard;
+    crate::index::merge_entries(&mut index, entries);
+    crate::index::write_index_file(&path, &index)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use depthsense_synth::{generate, SynthConfig};
+    use indicatif::ProgressBar;
+
+    /// A panic inside one sample fails that sample (named, with the file being read), leaves
+    /// no folder for it, and every other sample of the run is prepared.
+    #[test]
+    fn a_panicking_sample_fails_alone() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("world");
+        let cfg = SynthConfig {
+            scenes: 2,
+            keyframes_per_scene: 2,
+            ..SynthConfig::tiny()
+        };
+        generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+        let nu = NuScenes::load(&root, &cfg.version_name).unwrap();
+        let victim = nu.sample[1].token.to_string();
+        PANIC_ON.lock().unwrap().push(victim.clone());
+        let out = tmp.path().join("out");
+        let opts = PrepareOptions {
+            dataroot: root,
+            version: cfg.version_name.clone(),
+            out: out.clone(),
+            radar_sweeps: 1,
+            jobs: 2,
+            ..Default::default()
+        };
+        let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        PANIC_ON.lock().unwrap().retain(|t| *t != victim);
+        assert_eq!(s.prepared, 3, "{:?}", s.failed);
+        assert_eq!(s.failed.len(), 1);
+        assert_eq!(s.failed[0].0, victim);
+        assert!(
+            s.failed[0].1.contains("panicked")
+                && s.failed[0].1.contains("injected test panic")
+                && s.failed[0].1.contains("LIDAR_TOP"),
+            "{}",
+            s.failed[0].1
+        );
+        assert!(!out.join(&victim).exists());
+        let names: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.iter().all(|n| !n.starts_with(".tmp")), "{names:?}");
+        let idx: PreparedIndex =
+            serde_json::from_slice(&std::fs::read(out.join(layout::INDEX_FILE)).unwrap()).unwrap();
+        assert_eq!(idx.samples.len(), 3);
+        assert!(idx.samples.iter().all(|e| e.sample_token != victim));
+        // A second run prepares the one that failed.
+        let s2 = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        assert_eq!((s2.prepared, s2.skipped_existing), (1, 3));
+    }
 }

@@ -1,0 +1,476 @@
+//! `O/index.json` and the shard indexes: reading (a corrupt file is an error, never replaced),
+//! the one-settings-per-folder rule, the lock that makes several `prepare` processes on one
+//! `--out` safe, stale temporary folders, and `depthsense index merge`.
+//!
+//! Concurrency rules for one output folder:
+//! - a sample is assembled in `.tmp-<pid>-<sample_token>` and renamed into place; when the
+//!   final folder is already complete (another process finished it first) the copy is dropped;
+//! - start-up removes only the temporary folders of processes that are no longer running
+//!   (`/proc/<pid>` absent; where there is no `/proc`, none);
+//! - `index.json` and `index.shard-I-of-N.json` are read, checked and rewritten while holding
+//!   `.index.lock` (created exclusively, holding the pid; a lock of a dead process is taken
+//!   over), and written by atomic rename.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use depthsense_nuscenes::fsutil::write_atomic;
+
+use crate::layout::{self, IndexEntry, PreparedIndex};
+use crate::pipeline::PrepError;
+
+/// How long to wait for another process's index lock.
+pub const LOCK_WAIT: Duration = Duration::from_secs(120);
+
+fn io_err(path: &Path, e: std::io::Error) -> PrepError {
+    PrepError::Output {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    }
+}
+
+/// Whether process `pid` is running. Without `/proc` nothing can be told: every other process
+/// counts as running.
+pub fn pid_alive(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    let proc_dir = Path::new("/proc");
+    if !proc_dir.join("self").exists() {
+        return true;
+    }
+    proc_dir.join(pid.to_string()).exists()
+}
+
+/// The held index lock; released (file removed) on drop.
+#[derive(Debug)]
+pub struct IndexLock {
+    path: PathBuf,
+}
+
+impl Drop for IndexLock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Take `out/.index.lock`, waiting up to [`LOCK_WAIT`] for a running holder; a lock left by a
+/// dead process is taken over.
+pub fn lock_index(out: &Path) -> Result<IndexLock, PrepError> {
+    use std::io::Write;
+    let path = out.join(layout::INDEX_LOCK_FILE);
+    let start = Instant::now();
+    loop {
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+        {
+            Ok(mut f) => {
+                f.write_all(std::process::id().to_string().as_bytes())
+                    .map_err(|e| io_err(&path, e))?;
+                return Ok(IndexLock { path });
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                let holder = std::fs::read_to_string(&path)
+                    .ok()
+                    .and_then(|s| s.trim().parse::<u32>().ok());
+                match holder {
+                    Some(pid) if !pid_alive(pid) => {
+                        // Left by a process that died: take it over.
+                        let _ = std::fs::remove_file(&path);
+                        continue;
+                    }
+                    _ => {}
+                }
+                if start.elapsed() > LOCK_WAIT {
+                    return Err(PrepError::Output {
+                        path: path.display().to_string(),
+                        reason: format!(
+                            "held by process {} for more than {} s; if no other prepare runs on this folder, remove the file",
+                            holder.map(|p| p.to_string()).unwrap_or_else(|| "?".into()),
+                            LOCK_WAIT.as_secs()
+                        ),
+                    });
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => return Err(io_err(&path, e)),
+        }
+    }
+}
+
+/// Read an index file: `None` when it does not exist, an error naming the file when it cannot
+/// be read or parsed (it is never silently replaced).
+pub fn read_index(path: &Path) -> Result<Option<PreparedIndex>, PrepError> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(io_err(path, e)),
+    };
+    serde_json::from_slice(&bytes)
+        .map(Some)
+        .map_err(|e| PrepError::CorruptIndex {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        })
+}
+
+/// Refuse an index of another dataset version or with other map settings.
+pub fn check_index(
+    path: &Path,
+    index: &PreparedIndex,
+    version: &str,
+    settings: &BTreeMap<String, serde_json::Value>,
+) -> Result<(), PrepError> {
+    if !index.version.is_empty() && index.version != version {
+        return Err(PrepError::VersionMismatch {
+            path: path.display().to_string(),
+            old: index.version.clone(),
+            new: version.to_string(),
+        });
+    }
+    if index.settings.is_empty() {
+        return Ok(());
+    }
+    check_settings_maps(path, &index.settings, settings)
+}
+
+/// Compare two settings maps key by key; the first difference is reported with both values.
+pub fn check_settings_maps(
+    path: &Path,
+    old: &BTreeMap<String, serde_json::Value>,
+    new: &BTreeMap<String, serde_json::Value>,
+) -> Result<(), PrepError> {
+    let keys: std::collections::BTreeSet<&String> = old.keys().chain(new.keys()).collect();
+    for k in keys {
+        let (o, n) = (
+            old.get(k).unwrap_or(&serde_json::Value::Null),
+            new.get(k).unwrap_or(&serde_json::Value::Null),
+        );
+        if o != n {
+            return Err(PrepError::SettingsMismatch {
+                path: path.display().to_string(),
+                what: k.clone(),
+                old: o.to_string(),
+                new: n.to_string(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Index files of a folder: `index.json` (if present) and every `index.shard-*.json`, sorted.
+pub fn index_files(dir: &Path) -> Result<Vec<PathBuf>, PrepError> {
+    let mut out = Vec::new();
+    let rd = match std::fs::read_dir(dir) {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(out),
+        Err(e) => return Err(io_err(dir, e)),
+    };
+    for e in rd {
+        let e = e.map_err(|e| io_err(dir, e))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name == layout::INDEX_FILE
+            || (name.starts_with("index.shard-") && name.ends_with(".json"))
+        {
+            out.push(e.path());
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Parse `.tmp-<pid>-<token>` (this version) or `.tmp-<token>-<pid>` (before issue 10).
+fn temp_dir_pid(name: &str) -> Option<u32> {
+    let rest = name.strip_prefix(".tmp-")?;
+    let (a, b) = rest.split_once('-')?;
+    if !a.is_empty() && a.bytes().all(|c| c.is_ascii_digit()) {
+        return a.parse().ok();
+    }
+    let b = b.rsplit('-').next().unwrap_or(b);
+    b.parse().ok()
+}
+
+/// Name of this process's temporary folder for a sample.
+pub fn temp_dir_name(sample_token: &str) -> String {
+    format!(".tmp-{}-{sample_token}", std::process::id())
+}
+
+/// Remove temporary sample folders of processes that are no longer running (never those of a
+/// running process: another `prepare` may be writing there). Returns how many went.
+pub fn remove_stale_temp_dirs(out: &Path) -> usize {
+    let Ok(rd) = std::fs::read_dir(out) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = temp_dir_pid(&name) else {
+            continue;
+        };
+        if !pid_alive(pid) && std::fs::remove_dir_all(e.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// Add or replace `entries` (by sample token) in `index`, keeping its order.
+pub fn merge_entries(index: &mut PreparedIndex, entries: impl IntoIterator<Item = IndexEntry>) {
+    let mut pos: HashMap<String, usize> = index
+        .samples
+        .iter()
+        .enumerate()
+        .map(|(i, e)| (e.sample_token.clone(), i))
+        .collect();
+    for e in entries {
+        match pos.get(&e.sample_token) {
+            Some(&i) => index.samples[i] = e,
+            None => {
+                pos.insert(e.sample_token.clone(), index.samples.len());
+                index.samples.push(e);
+            }
+        }
+    }
+}
+
+/// Write an index atomically.
+pub fn write_index_file(path: &Path, index: &PreparedIndex) -> Result<(), PrepError> {
+    let bytes = serde_json::to_vec_pretty(index).map_err(|e| PrepError::Other(e.to_string()))?;
+    write_atomic(path, &bytes).map_err(|e| io_err(path, e))
+}
+
+/// What `depthsense index merge` did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MergeSummary {
+    /// Index files read.
+    pub sources: Vec<PathBuf>,
+    /// Samples in the merged index.
+    pub samples: usize,
+    /// Sample folders moved into the output folder from other folders.
+    pub moved: usize,
+}
+
+/// `depthsense index merge OUT [DIR...]`: combine the shard indexes of `out` (and the
+/// `index.json` and shard indexes of each other folder in `others`, whose sample folders are
+/// moved into `out`) into `out/index.json`, which keeps its own entries. Refuses sources of
+/// another version or with other map settings (naming both files), a shard set with a missing
+/// part, and shard sets of different N. The merged order is the unsharded run's: shard scene
+/// lists are interleaved (scene j came from shard j mod N).
+pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
+    std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
+    let _lock = lock_index(out)?;
+    let target = out.join(layout::INDEX_FILE);
+    let mut merged = read_index(&target)?.unwrap_or_default();
+    // (source file, its folder, index)
+    let mut sources: Vec<(PathBuf, PathBuf, PreparedIndex)> = Vec::new();
+    for p in index_files(out)? {
+        if p != target {
+            if let Some(ix) = read_index(&p)? {
+                sources.push((p, out.to_path_buf(), ix));
+            }
+        }
+    }
+    for d in others {
+        if d == out {
+            continue;
+        }
+        let files = index_files(d)?;
+        if files.is_empty() {
+            return Err(PrepError::Output {
+                path: d.display().to_string(),
+                reason: "holds no index.json or index.shard-*.json".into(),
+            });
+        }
+        for p in files {
+            if let Some(ix) = read_index(&p)? {
+                sources.push((p, d.clone(), ix));
+            }
+        }
+    }
+    if sources.is_empty() {
+        return Err(PrepError::Output {
+            path: out.display().to_string(),
+            reason: "nothing to merge: no index.shard-*.json here and no other folder given".into(),
+        });
+    }
+    // One version and one set of settings across everything, the target included.
+    let (ref_path, ref_index) = if merged.settings.is_empty() && merged.version.is_empty() {
+        (sources[0].0.clone(), sources[0].2.clone())
+    } else {
+        (target.clone(), merged.clone())
+    };
+    for (p, _, ix) in &sources {
+        if ix.version != ref_index.version {
+            return Err(PrepError::VersionMismatch {
+                path: format!("{} (against {})", p.display(), ref_path.display()),
+                old: ref_index.version.clone(),
+                new: ix.version.clone(),
+            });
+        }
+        check_settings_maps(
+            &PathBuf::from(format!("{} (against {})", p.display(), ref_path.display())),
+            &ref_index.settings,
+            &ix.settings,
+        )?;
+    }
+    // Shard sets must be complete and of one N.
+    let shard_counts: std::collections::BTreeSet<usize> = sources
+        .iter()
+        .filter_map(|(_, _, ix)| ix.shard.as_ref().map(|s| s.count))
+        .collect();
+    if shard_counts.len() > 1 {
+        return Err(PrepError::Shard(format!(
+            "shard indexes of different N ({shard_counts:?}) in {}; merge one sharding at a time",
+            out.display()
+        )));
+    }
+    let mut shards: BTreeMap<usize, usize> = BTreeMap::new();
+    for (i, (_, _, ix)) in sources.iter().enumerate() {
+        if let Some(s) = &ix.shard {
+            if shards.insert(s.index, i).is_some() {
+                return Err(PrepError::Shard(format!(
+                    "shard {}/{} appears twice among the sources",
+                    s.index, s.count
+                )));
+            }
+        }
+    }
+    if let Some(&n) = shard_counts.iter().next() {
+        let missing: Vec<usize> = (0..n).filter(|i| !shards.contains_key(i)).collect();
+        if !missing.is_empty() {
+            return Err(PrepError::Shard(format!(
+                "shards {missing:?} of {n} are missing (no {} for them); run them first",
+                missing
+                    .iter()
+                    .map(|i| layout::shard_index_file(*i, n))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )));
+        }
+    }
+    let mut summary = MergeSummary {
+        sources: sources.iter().map(|s| s.0.clone()).collect(),
+        ..Default::default()
+    };
+    // Move sample folders of other folders into `out`.
+    for (p, dir, ix) in &sources {
+        if dir == out {
+            continue;
+        }
+        for e in &ix.samples {
+            let src = dir.join(&e.dir);
+            let dst = out.join(&e.dir);
+            if dst.join(layout::META_FILE).is_file() {
+                continue;
+            }
+            if !src.join(layout::META_FILE).is_file() {
+                return Err(PrepError::Output {
+                    path: src.display().to_string(),
+                    reason: format!("listed in {} but not complete (no meta.json)", p.display()),
+                });
+            }
+            if dst.exists() {
+                std::fs::remove_dir_all(&dst).map_err(|e| io_err(&dst, e))?;
+            }
+            std::fs::rename(&src, &dst).map_err(|err| PrepError::Output {
+                path: src.display().to_string(),
+                reason: format!(
+                    "cannot move to {} ({err}); shard folders must be on the output's filesystem",
+                    dst.display()
+                ),
+            })?;
+            summary.moved += 1;
+        }
+    }
+    // Order: shards interleaved by scene, then other sources in file order.
+    let mut ordered: Vec<IndexEntry> = Vec::new();
+    if let Some(&n) = shard_counts.iter().next() {
+        let by_scene: Vec<HashMap<&str, Vec<&IndexEntry>>> = (0..n)
+            .map(|i| {
+                let mut m: HashMap<&str, Vec<&IndexEntry>> = HashMap::new();
+                for e in &sources[shards[&i]].2.samples {
+                    m.entry(e.scene_token.as_str()).or_default().push(e);
+                }
+                m
+            })
+            .collect();
+        let lists: Vec<&Vec<String>> = (0..n)
+            .map(|i| {
+                &sources[shards[&i]]
+                    .2
+                    .shard
+                    .as_ref()
+                    .expect("shard sources carry ShardInfo")
+                    .scenes
+            })
+            .collect();
+        let longest = lists.iter().map(|l| l.len()).max().unwrap_or(0);
+        for k in 0..longest {
+            for i in 0..n {
+                if let Some(scene) = lists[i].get(k) {
+                    if let Some(es) = by_scene[i].get(scene.as_str()) {
+                        ordered.extend(es.iter().map(|e| (*e).clone()));
+                    }
+                }
+            }
+        }
+    }
+    for (_, _, ix) in sources.iter().filter(|s| s.2.shard.is_none()) {
+        ordered.extend(ix.samples.iter().cloned());
+    }
+    let first = &sources[0].2;
+    merged.version = ref_index.version.clone();
+    merged.settings = ref_index.settings.clone();
+    merged.shard = None;
+    if merged.split_source.is_empty() {
+        merged.split_source = first.split_source.clone();
+        merged.train_scenes = first.train_scenes.clone();
+        merged.val_scenes = first.val_scenes.clone();
+        merged.test_scenes = first.test_scenes.clone();
+    }
+    merge_entries(&mut merged, ordered);
+    summary.samples = merged.samples.len();
+    write_index_file(&target, &merged)?;
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_dir_names_carry_the_pid() {
+        assert_eq!(temp_dir_pid(".tmp-1234-abcdef"), Some(1234));
+        assert_eq!(temp_dir_pid(".tmp-abcdef-99"), Some(99));
+        assert_eq!(temp_dir_pid(".tmp-abc"), None);
+        assert_eq!(temp_dir_pid("abc"), None);
+        assert!(temp_dir_name("tok").starts_with(&format!(".tmp-{}-", std::process::id())));
+    }
+
+    #[test]
+    fn lock_is_exclusive_and_a_dead_holder_is_taken_over() {
+        let d = tempfile::tempdir().unwrap();
+        let l = lock_index(d.path()).unwrap();
+        assert!(d.path().join(layout::INDEX_LOCK_FILE).is_file());
+        drop(l);
+        assert!(!d.path().join(layout::INDEX_LOCK_FILE).exists());
+        // A lock file of a process that does not exist.
+        std::fs::write(d.path().join(layout::INDEX_LOCK_FILE), "4000000000").unwrap();
+        let _l = lock_index(d.path()).unwrap();
+    }
+
+    #[test]
+    fn stale_temp_dirs_of_dead_processes_only() {
+        let d = tempfile::tempdir().unwrap();
+        let dead = d.path().join(".tmp-4000000000-aaaa");
+        let running = d.path().join(format!(".tmp-{}-bbbb", 1)); // pid 1 runs
+        std::fs::create_dir_all(&dead).unwrap();
+        std::fs::create_dir_all(&running).unwrap();
+        remove_stale_temp_dirs(d.path());
+        assert!(!dead.exists());
+        assert!(running.exists() || !Path::new("/proc/1").exists());
+    }
+}
