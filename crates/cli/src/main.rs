@@ -20,6 +20,8 @@ struct Cli {
 enum Command {
     /// Turn a raw nuScenes dataroot into training-frame maps (800x350 PNGs + meta.json).
     Prepare(cmd::prepare::Args),
+    /// Operations on prepared folders: `index merge` combines sharded preparation.
+    Index(cmd::index::Args),
     /// Print a JSON summary of a sensor file (.pcd, .pcd.bin, .jpg) or a version folder.
     Inspect(cmd::inspect::Args),
     /// Generate the synthetic nuScenes-format world (the embedded default dataset).
@@ -47,6 +49,7 @@ fn run() -> anyhow::Result<ExitCode> {
     let cli = Cli::parse();
     match cli.command {
         Command::Prepare(a) => cmd::prepare::run(a),
+        Command::Index(a) => cmd::index::run(a),
         Command::Inspect(a) => cmd::inspect::run(a),
         Command::Synth(a) => cmd::synth::run(a),
         Command::ModelInfo(a) => cmd::model_info::run(a),

@@ -6,6 +6,7 @@ pub mod bench_train;
 pub mod demo;
 pub mod eval;
 pub mod experiment;
+pub mod index;
 pub mod inspect;
 pub mod mer;
 pub mod model_info;

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_prep::{prepare, PrepareOptions};
+use depthsense_prep::{prepare, PrepareOptions, Shard};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
@@ -47,9 +47,15 @@ pub struct Args {
     /// Exit with status 0 even when some samples failed (they are still listed).
     #[arg(long)]
     keep_going: bool,
+    /// Prepare only part I of N (0-based; by scene, disjoint and deterministic), e.g.
+    /// `--shard $SLURM_ARRAY_TASK_ID/16`. The part's index goes to
+    /// OUT/index.shard-I-of-N.json; combine the parts with `depthsense index merge OUT`.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let shard = a.shard.as_deref().map(str::parse::<Shard>).transpose()?;
     let opts = PrepareOptions {
         dataroot: a.dataroot,
         version: a.version,
@@ -62,6 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         radar_velocity_compensation: a.radar_velocity_compensation,
         jobs: a.jobs,
         keep_going: a.keep_going,
+        shard,
     };
     let pb = ProgressBar::new(0);
     pb.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -86,6 +93,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         s.failed.len(),
         opts.out.display()
     );
+    if let Some(sh) = opts.shard {
+        eprintln!(
+            "shard {sh}: index in {}; when every shard is done: depthsense index merge {}",
+            opts.out
+                .join(depthsense_prep::layout::shard_index_file(
+                    sh.index, sh.count
+                ))
+                .display(),
+            opts.out.display()
+        );
+    }
     if !s.failed.is_empty() && !opts.keep_going {
         eprintln!("(use --keep-going to exit 0 despite failed samples)");
         return Ok(ExitCode::FAILURE);
