@@ -1,6 +1,6 @@
 //! Building blocks with analytic multiply-add counting: conv + BN, ResNet encoders (SPEC §6).
 
-use tch::{nn, nn::ModuleT, Tensor};
+use tch::{nn, Tensor};
 
 use crate::config::StemKind;
 
@@ -193,7 +193,7 @@ impl ConvBn {
     }
     /// Conv then BN (no activation), shapes as [`Conv::forward`].
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
-        self.bn.forward_t(&self.conv.forward(x), train)
+        crate::sync_bn::forward_t(&self.bn, &self.conv.forward(x), train)
     }
 }
 

@@ -5,7 +5,8 @@
 //! - [`ordinal`]: the exact and efficient ordinal loss/decoding, [`reference`]: the naive form;
 //! - [`checkpoint`]: safetensors + config JSON; [`weights`]: torchvision / released imports;
 //! - [`report`]: parameters per module and multiply-adds at 350x800;
-//! - [`pda`]: the MER radar–pixel association network (SPEC §5).
+//! - [`pda`]: the MER radar–pixel association network (SPEC §5);
+//! - [`sync_bn`]: the BatchNorm switch of data-parallel training (SyncBatchNorm).
 
 pub mod checkpoint;
 pub mod config;
@@ -22,6 +23,7 @@ pub mod precision;
 pub mod reference;
 pub mod report;
 pub mod sid;
+pub mod sync_bn;
 pub mod weights;
 
 pub use config::{

@@ -2,6 +2,7 @@
 //!
 //! - [`data`]: reads `depthsense prepare` output, SPEC §8 augmentation, parallel prefetching
 //!   loader, deterministic train/validation partition;
+//! - [`distributed`]: data-parallel training on c10d (Gloo / NCCL), `--nproc` launcher;
 //! - [`sgd`]: SGD with momentum whose state can be saved (exact resume);
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
 //! - [`evaluate`]: `eval` (SPEC §10 tables 1–3 as Markdown, CSV, JSON; radar drop);
@@ -15,6 +16,7 @@
 pub mod bench;
 pub mod data;
 pub mod demo;
+pub mod distributed;
 pub mod error;
 pub mod evaluate;
 pub mod experiments;

@@ -27,7 +27,7 @@ use crate::data::{
 use crate::error::TrainError;
 
 mod session;
-pub use session::{train, Trainer};
+pub use session::{train, train_distributed, Trainer};
 
 pub const CONFIG_FILE: &str = "config.json";
 pub const METRICS_FILE: &str = "metrics.jsonl";

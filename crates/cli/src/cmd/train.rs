@@ -1,12 +1,15 @@
 //! `depthsense train`: train a depth network on prepared data (SPEC §8).
 
+use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use depthsense_train::data::{RadarInput, TargetKind};
-use depthsense_train::trainer::{train, TrainOptions};
+use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
+use depthsense_train::trainer::{train, train_distributed, TrainOptions};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
@@ -110,6 +113,43 @@ pub struct Args {
     /// Validation aggregation: image (per image, then mean) or pooled (over all pixels).
     #[arg(long, default_value = "image")]
     aggregate: String,
+    /// Data-parallel: start N local worker processes (one per GPU, or N CPU processes) with
+    /// the environment torchrun sets. --batch-size is the global batch (a multiple of N).
+    /// Under torchrun / srun leave this out: the workers read RANK, WORLD_SIZE, … themselves.
+    #[arg(long, value_name = "N")]
+    nproc: Option<usize>,
+    /// With --nproc: the rendezvous port on 127.0.0.1 (default: a free one).
+    #[arg(long)]
+    master_port: Option<u16>,
+    /// Data-parallel: SyncBatchNorm (batch statistics over the global batch), so N ranks
+    /// train as one process with the same global batch.
+    #[arg(long)]
+    sync_bn: bool,
+    /// Data-parallel: seconds before a rendezvous or collective fails (naming the peer).
+    #[arg(long, default_value_t = 300)]
+    dist_timeout: u64,
+    /// Data-parallel: gradient all-reduce bucket size in MB (DDP's default 25).
+    #[arg(long, default_value_t = 25.0)]
+    bucket_mb: f64,
+    /// Data-parallel: after every step check that each rank's model equals rank 0's
+    /// (bitwise; one broadcast of the model per step — for tests and debugging).
+    #[arg(long)]
+    check_replicas: bool,
+}
+
+/// This process's arguments without `--nproc N` (what each worker runs).
+fn worker_args() -> Vec<OsString> {
+    let mut out = vec![];
+    let mut it = std::env::args_os().skip(1);
+    while let Some(a) = it.next() {
+        if a == "--nproc" {
+            it.next();
+        } else if a.to_string_lossy().starts_with("--nproc=") {
+        } else {
+            out.push(a);
+        }
+    }
+    out
 }
 
 pub fn parse_fusion(s: &str) -> anyhow::Result<Fusion> {
@@ -144,6 +184,16 @@ pub fn progress_bar(prefix: &str) -> ProgressBar {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let timeout = Duration::from_secs(a.dist_timeout.max(1));
+    if let Some(n) = a.nproc {
+        distributed::launch_local(
+            n,
+            &worker_args(),
+            a.master_port,
+            timeout + Duration::from_secs(30),
+        )?;
+        return Ok(ExitCode::SUCCESS);
+    }
     let mut model = ModelConfig::preset(&a.config)?;
     if let Some(f) = &a.fusion {
         model.fusion = parse_fusion(f)?;
@@ -165,7 +215,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         model.set_option("radar-input", r)?;
     }
     let model = model.with_options(&a.set)?;
-    let opts = TrainOptions {
+    let mut opts = TrainOptions {
         data: a.data,
         out: a.out.clone(),
         model,
@@ -204,8 +254,39 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             ..EvalConfig::default()
         },
     };
-    let pb = progress_bar("train");
-    let s = train(&opts, &pb)?;
+    let (s, pb) = match DistEnv::from_env()? {
+        None => {
+            if a.sync_bn {
+                eprintln!("note: --sync-bn has no effect in a single process");
+            }
+            let pb = progress_bar("train");
+            (train(&opts, &pb)?, pb)
+        }
+        Some(env) => {
+            opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
+            let device = depthsense_model::device::parse_device(&opts.device)?;
+            let dopts = DistOptions {
+                sync_bn: a.sync_bn,
+                bucket_bytes: (a.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
+                check_replicas: a.check_replicas,
+            };
+            let who = format!("rank {} of {}", env.rank, env.world_size);
+            let dist = Dist::from_env(dopts, device, timeout)
+                .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
+                .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
+            let pb = if env.rank == 0 {
+                progress_bar("train")
+            } else {
+                ProgressBar::hidden()
+            };
+            let s =
+                train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
+            if env.rank != 0 {
+                return Ok(ExitCode::SUCCESS);
+            }
+            (s, pb)
+        }
+    };
     pb.finish();
     // The whole history (a resumed run's summary only holds its own epochs).
     let history = depthsense_train::trainer::read_metrics(

@@ -19,6 +19,7 @@ use super::{
 use crate::data::{
     mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
 };
+use crate::distributed::Dist;
 use crate::error::TrainError;
 use crate::sgd::{poly_lr, Sgd};
 
@@ -42,6 +43,8 @@ pub struct Trainer<'o> {
     started: Instant,
     images: usize,
     train_secs: f64,
+    /// Data-parallel training: this process's rank of the job (None: a single process).
+    dist: Option<Dist>,
 }
 
 /// Loss and learning rate of one optimiser step.
@@ -53,11 +56,26 @@ struct StepResult {
 impl<'o> Trainer<'o> {
     /// Opens the data, partitions it, builds (or resumes) the network and writes RUN/config.json.
     pub fn new(opts: &'o TrainOptions) -> Result<Self, TrainError> {
+        Self::with_dist(opts, None)
+    }
+
+    /// [`Trainer::new`] for one rank of a data-parallel job (`None`: a single process);
+    /// `opts.batch_size` is the global batch (see [`crate::distributed`]).
+    pub fn with_dist(opts: &'o TrainOptions, mut dist: Option<Dist>) -> Result<Self, TrainError> {
         let started = Instant::now();
         if opts.batch_size == 0 || opts.epochs == 0 {
             return Err(TrainError::Config(
                 "batch size and epochs must be at least 1".into(),
             ));
+        }
+        let (main, world) = dist
+            .as_ref()
+            .map_or((true, 1), |d| (d.is_main(), d.world_size()));
+        if !opts.batch_size.is_multiple_of(world) {
+            return Err(TrainError::Config(format!(
+                "the global batch size {} is not a multiple of the {world} ranks",
+                opts.batch_size
+            )));
         }
         let device = depthsense_model::device::parse_device(&opts.device)?;
         let ds = Dataset::open(&opts.data)?;
@@ -76,10 +94,20 @@ impl<'o> Trainer<'o> {
         std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
         let (vs, net, state, sgd) = if opts.resume && run.join(LAST_CKPT).exists() {
-            resume(opts, &run, &cfg, device)?
+            resume(opts, &run, &cfg, device, main)?
         } else {
-            fresh(opts, &run, &cfg, device)?
+            fresh(opts, &run, &cfg, device, main)?
         };
+        if let Some(d) = dist.as_mut() {
+            if part.train.len() < opts.batch_size {
+                return Err(TrainError::Config(format!(
+                    "{} training samples: fewer than one global batch of {}",
+                    part.train.len(),
+                    opts.batch_size
+                )));
+            }
+            d.attach(&vs)?;
+        }
         let radar = radar_input_for(&cfg, opts.radar_input)?;
         let load = LoadOptions {
             radar: radar.unwrap_or_default(),
@@ -114,9 +142,22 @@ impl<'o> Trainer<'o> {
             started,
             images: 0,
             train_secs: 0.0,
+            dist,
         };
-        trainer.write_config()?;
+        if main {
+            trainer.write_config()?;
+        }
         Ok(trainer)
+    }
+
+    /// Rank 0 of a job, or a single process: the one that writes RUN/.
+    fn is_main(&self) -> bool {
+        self.dist.as_ref().is_none_or(|d| d.is_main())
+    }
+
+    /// Communication statistics of this rank (None for a single process).
+    pub fn comm_stats(&self) -> Option<crate::distributed::CommStats> {
+        self.dist.as_ref().map(|d| d.stats)
     }
 
     fn path(&self, name: &str) -> PathBuf {
@@ -145,10 +186,14 @@ impl<'o> Trainer<'o> {
 
     /// Metrics of the current network on the validation samples.
     pub fn validate(&self, epoch: u64) -> Result<ValRecord, TrainError> {
+        let shard = match &self.dist {
+            Some(d) => &self.val_entries[d.shard(self.val_entries.len())],
+            None => &self.val_entries[..],
+        };
         let r = evaluate_net(
             &self.net,
             &self.ds,
-            &self.val_entries,
+            shard,
             &self.load,
             &self.opts.eval,
             self.opts.batch_size,
@@ -157,6 +202,10 @@ impl<'o> Trainer<'o> {
             &ProgressBar::hidden(),
             |_, _| Ok(()),
         )?;
+        let r = match &self.dist {
+            Some(d) => d.reduce_report(&r)?,
+            None => r,
+        };
         Ok(ValRecord::from_report(epoch, self.state.iteration, &r))
     }
 
@@ -175,9 +224,16 @@ impl<'o> Trainer<'o> {
         } else {
             Precision::Fp32
         };
+        if let Some(d) = &self.dist {
+            d.before_forward()?;
+        }
         let out = with_autocast(precision, || self.net.forward_t(&image, &radar_t, true));
         let loss = self.net.loss(&out.to_kind(Kind::Float), &target);
-        let lv = loss.double_value(&[]);
+        let mut lv = loss.double_value(&[]);
+        if let Some(d) = &self.dist {
+            d.after_forward()?;
+            lv = d.mean_loss(lv)?;
+        }
         if !lv.is_finite() {
             let last = self.path(LAST_CKPT);
             return Err(TrainError::NonFiniteLoss {
@@ -192,9 +248,18 @@ impl<'o> Trainer<'o> {
             });
         }
         self.sgd.zero_grad();
-        loss.backward();
+        match self.dist.as_mut() {
+            None => loss.backward(),
+            Some(d) => {
+                loss.f_backward()?;
+                d.sync_grads()?;
+            }
+        }
         self.sgd.step(lr);
         self.state.iteration += 1;
+        if let Some(d) = &self.dist {
+            d.check_replicas(self.state.iteration)?;
+        }
         Ok(StepResult { loss: lv, lr })
     }
 
@@ -212,6 +277,9 @@ impl<'o> Trainer<'o> {
                     last.display()
                 ),
             });
+        }
+        if !self.is_main() {
+            return Ok(());
         }
         // Optimiser state first: a crash between the two leaves an optimiser file newer than the
         // checkpoint, which resume detects by the iteration numbers.
@@ -234,6 +302,9 @@ impl<'o> Trainer<'o> {
             self.state.best_val_rmse = Some(v.rmse);
         }
         self.checkpoint()?;
+        if !self.is_main() {
+            return Ok(v);
+        }
         if improved {
             save_ckpt(
                 &self.path(BEST_CKPT),
@@ -275,7 +346,11 @@ impl<'o> Trainer<'o> {
             jobs: opts.jobs,
             prefetch: opts.prefetch,
         };
-        let loader = Loader::start(&self.ds, &self.load, &plan)?;
+        let (rank, world) = self
+            .dist
+            .as_ref()
+            .map_or((0, 1), |d| (d.rank(), d.world_size()));
+        let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
         let (mut epoch_loss, mut epoch_n) = (0.0, 0usize);
         let mut t_iter = Instant::now();
         for batch in loader.take((self.bpe as usize).saturating_sub(skip)) {
@@ -285,15 +360,17 @@ impl<'o> Trainer<'o> {
             let dt = t_iter.elapsed().as_secs_f64();
             t_iter = Instant::now();
             self.train_secs += dt;
-            self.images += batch.size;
+            self.images += batch.size * world;
             epoch_loss += lv;
             epoch_n += 1;
             summary.losses.push((it, lv));
-            append_jsonl(
-                &self.path(METRICS_FILE),
-                &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
-                                    "loss": lv, "lr": lr}),
-            )?;
+            if self.is_main() {
+                append_jsonl(
+                    &self.path(METRICS_FILE),
+                    &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
+                                        "loss": lv, "lr": lr}),
+                )?;
+            }
             progress.set_position(it);
             progress.set_message(format!(
                 "epoch {}/{} loss {lv:.4} lr {lr:.2e} {:.1} img/s",
@@ -337,10 +414,12 @@ impl<'o> Trainer<'o> {
         if self.state.iteration == 0 {
             progress.set_message("validating the initial network");
             let v = self.validate(0)?;
-            append_jsonl(
-                &self.path(METRICS_FILE),
-                &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
-            )?;
+            if self.is_main() {
+                append_jsonl(
+                    &self.path(METRICS_FILE),
+                    &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
+                )?;
+            }
             summary.val.push(v);
         }
         let start_epoch = self.state.iteration / self.bpe;
@@ -359,8 +438,11 @@ impl<'o> Trainer<'o> {
         summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
         summary.seconds = self.started.elapsed().as_secs_f64();
         let metrics = self.path(METRICS_FILE);
-        if metrics.exists() {
+        if self.is_main() && metrics.exists() {
             write_curves(&metrics, &self.path(CURVES_FILE))?;
+        }
+        if let Some(d) = &self.dist {
+            d.barrier()?;
         }
         Ok(summary)
     }
@@ -402,9 +484,10 @@ fn fresh(
     run: &Path,
     cfg: &ModelConfig,
     device: Device,
+    main: bool,
 ) -> Result<Built, TrainError> {
     let last = run.join(LAST_CKPT);
-    if opts.resume {
+    if opts.resume && main {
         eprintln!(
             "note: --resume given but {} does not exist: starting from scratch",
             last.display()
@@ -417,7 +500,9 @@ fn fresh(
         let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
         eprintln!("backbone weights from {}:\n{report}", w.display());
     }
-    let _ = std::fs::remove_file(run.join(METRICS_FILE));
+    if main {
+        let _ = std::fs::remove_file(run.join(METRICS_FILE));
+    }
     let sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
     let state = State {
         kind: "depthsense-train".into(),
@@ -439,6 +524,7 @@ fn resume(
     run: &Path,
     cfg: &ModelConfig,
     device: Device,
+    main: bool,
 ) -> Result<Built, TrainError> {
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
@@ -493,11 +579,23 @@ fn resume(
             state.iteration
         )));
     }
-    truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
+    if main {
+        truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
+    }
     Ok((vs, net, state, sgd))
 }
 
 /// Train a network. See the module docs for what lands in `opts.out`.
 pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
     Trainer::new(opts)?.run(progress)
+}
+
+/// [`train`] as one rank of a data-parallel job (only rank 0 writes RUN/; pass a hidden
+/// progress bar on the other ranks).
+pub fn train_distributed(
+    opts: &TrainOptions,
+    dist: Dist,
+    progress: &ProgressBar,
+) -> Result<TrainSummary, TrainError> {
+    Trainer::with_dist(opts, Some(dist))?.run(progress)
 }

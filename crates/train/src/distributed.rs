@@ -1,0 +1,474 @@
+//! Data-parallel training on several processes, GPUs and machines (c10d through
+//! `depthsense-dist`): what [`crate::trainer::Trainer`] does differently when it is one rank
+//! of a job.
+//!
+//! - **Start**: parameters and buffers are broadcast from rank 0 (sorted by name), so every
+//!   replica starts identical (fresh or resumed).
+//! - **Data**: `--batch-size` is the *global* batch; global batch i holds the same samples
+//!   whatever the world size N is, and rank r takes the slice `[r·B/N, (r+1)·B/N)`
+//!   ([`crate::data::Loader::start_shard`]); augmentation draws are per sample.
+//! - **Step**: the loss of each rank is the mean over its slice; after backward the gradients
+//!   are averaged over the ranks in ≈25 MB flat buckets (DDP's default), then every rank takes
+//!   the same SGD step. The logged loss is the mean of the ranks' losses.
+//! - **BatchNorm**: without `--sync-bn` each rank normalises with its own slice's statistics
+//!   and the running statistics are broadcast from rank 0 before each forward (DDP's
+//!   `broadcast_buffers`); with `--sync-bn` the statistics are those of the global batch
+//!   ([`depthsense_dist::sync_bn`], installed through `depthsense_model::sync_bn`), so a run
+//!   on N ranks equals one process with the same global batch.
+//! - **Validation**: each rank evaluates a contiguous shard of the validation samples; the
+//!   reports are summed exactly (counts and weighted metric sums) and every rank gets the
+//!   same record.
+//! - **Files**: only rank 0 writes RUN/ (config, metrics, curves, checkpoints) and shows the
+//!   progress bar. Checkpoints do not depend on N: `--resume` works with any world size.
+
+use std::cell::RefCell;
+use std::ffi::OsString;
+use std::process::{Child, Command};
+use std::rc::Rc;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use depthsense_dist::sync_bn::{batch_norm, BnState};
+use depthsense_dist::{broadcast_flat, GradBuckets, ReduceOp};
+use depthsense_metrics::{Aggregate, Metrics, Report};
+use depthsense_model::sync_bn::{set_batch_norm_hook, BatchNormHook};
+use serde::{Deserialize, Serialize};
+use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
+
+pub use depthsense_dist::{
+    has_nccl, Backend, DistEnv, DistError, ProcessGroup, DEFAULT_BUCKET_BYTES, DEFAULT_TIMEOUT,
+};
+
+use crate::error::TrainError;
+
+impl From<DistError> for TrainError {
+    fn from(e: DistError) -> Self {
+        TrainError::Other(e.to_string())
+    }
+}
+
+/// Options of data-parallel training.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DistOptions {
+    /// SyncBatchNorm: batch statistics over the global batch.
+    pub sync_bn: bool,
+    /// Gradient bucket size in bytes (DDP: 25 MB).
+    pub bucket_bytes: usize,
+    /// After every step, compare every parameter with rank 0's, and with `sync_bn` every
+    /// BatchNorm statistic too (bitwise; one broadcast of the model per step — a check for
+    /// tests and debugging). Without `sync_bn` the statistics differ after each forward, as
+    /// under DDP, until rank 0's are broadcast before the next one.
+    pub check_replicas: bool,
+}
+
+impl Default for DistOptions {
+    fn default() -> Self {
+        Self {
+            sync_bn: false,
+            bucket_bytes: DEFAULT_BUCKET_BYTES,
+            check_replicas: false,
+        }
+    }
+}
+
+/// Communication time of a run on this rank.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+pub struct CommStats {
+    /// Steps whose gradients were all-reduced.
+    pub steps: u64,
+    /// Seconds in the gradient all-reduce (flatten, all-reduce, copy back).
+    pub grad_allreduce_s: f64,
+    /// Bytes all-reduced per step and the number of buckets.
+    pub grad_bytes: usize,
+    pub buckets: usize,
+}
+
+struct SyncBnHook {
+    pg: Arc<ProcessGroup>,
+    error: RefCell<Option<String>>,
+}
+
+impl BatchNormHook for SyncBnHook {
+    fn batch_norm(&self, x: &Tensor, bn: &nn::BatchNorm, momentum: f64, eps: f64) -> Tensor {
+        if self.error.borrow().is_none() {
+            let state = BnState {
+                weight: bn.ws.as_ref(),
+                bias: bn.bs.as_ref(),
+                running_mean: &bn.running_mean,
+                running_var: &bn.running_var,
+                momentum,
+                eps,
+            };
+            match batch_norm(&self.pg, x, &state) {
+                Ok(y) => return y,
+                Err(e) => *self.error.borrow_mut() = Some(format!("sync batch norm: {e}")),
+            }
+        }
+        // After a failure: local statistics; the trainer reports the error after the forward.
+        bn.forward_t(x, true)
+    }
+}
+
+/// This process's part in a data-parallel job.
+pub struct Dist {
+    pg: Arc<ProcessGroup>,
+    pub opts: DistOptions,
+    grads: Option<GradBuckets>,
+    /// Every variable sorted by name, the trainable ones, and the non-trainable floating-point
+    /// ones (BatchNorm statistics).
+    vars: Vec<Tensor>,
+    params: Vec<Tensor>,
+    buffers: Vec<Tensor>,
+    hook: Option<Rc<SyncBnHook>>,
+    pub stats: CommStats,
+}
+
+impl Dist {
+    pub fn new(pg: ProcessGroup, opts: DistOptions) -> Self {
+        Self {
+            pg: Arc::new(pg),
+            opts,
+            grads: None,
+            vars: vec![],
+            params: vec![],
+            buffers: vec![],
+            hook: None,
+            stats: CommStats::default(),
+        }
+    }
+
+    /// Join the job the environment describes (torchrun / Slurm / `--nproc`), with NCCL for a
+    /// CUDA `device` when compiled in and Gloo otherwise. `Ok(None)`: no distributed
+    /// environment (a plain single-process run).
+    pub fn from_env(
+        opts: DistOptions,
+        device: Device,
+        timeout: Duration,
+    ) -> Result<Option<Self>, TrainError> {
+        let Some(env) = DistEnv::from_env()? else {
+            return Ok(None);
+        };
+        let index = match device {
+            Device::Cuda(i) => Some(i),
+            _ => None,
+        };
+        let pg = ProcessGroup::new(&env, Backend::for_device(device), index, timeout)?;
+        Ok(Some(Self::new(pg, opts)))
+    }
+
+    pub fn rank(&self) -> usize {
+        self.pg.rank()
+    }
+    pub fn world_size(&self) -> usize {
+        self.pg.world_size()
+    }
+    pub fn is_main(&self) -> bool {
+        self.pg.is_main()
+    }
+    pub fn process_group(&self) -> &ProcessGroup {
+        &self.pg
+    }
+
+    /// Make the replicas identical (broadcast from rank 0), prepare the gradient buckets and
+    /// install SyncBatchNorm on this thread when asked.
+    pub(crate) fn attach(&mut self, vs: &VarStore) -> Result<(), TrainError> {
+        let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+        named.sort_by(|a, b| a.0.cmp(&b.0));
+        self.vars = named.iter().map(|(_, t)| t.shallow_clone()).collect();
+        self.buffers = named
+            .iter()
+            .filter(|(_, t)| !t.requires_grad() && t.is_floating_point())
+            .map(|(_, t)| t.shallow_clone())
+            .collect();
+        let params: Vec<Tensor> = named
+            .iter()
+            .filter(|(_, t)| t.requires_grad())
+            .map(|(_, t)| t.shallow_clone())
+            .collect();
+        broadcast_flat(&self.pg, &self.vars, 0, self.opts.bucket_bytes)?;
+        self.params = params.iter().map(|t| t.shallow_clone()).collect();
+        let grads = GradBuckets::new(params, self.opts.bucket_bytes);
+        self.stats.grad_bytes = grads.bucket_bytes().iter().sum();
+        self.stats.buckets = grads.bucket_bytes().len();
+        self.grads = Some(grads);
+        if self.opts.sync_bn {
+            let hook = Rc::new(SyncBnHook {
+                pg: self.pg.clone(),
+                error: RefCell::new(None),
+            });
+            set_batch_norm_hook(Some(hook.clone()));
+            self.hook = Some(hook);
+        }
+        Ok(())
+    }
+
+    /// Before a training forward: without SyncBatchNorm, rank 0's BatchNorm statistics.
+    pub(crate) fn before_forward(&self) -> Result<(), TrainError> {
+        if !self.opts.sync_bn && !self.buffers.is_empty() {
+            broadcast_flat(&self.pg, &self.buffers, 0, self.opts.bucket_bytes)?;
+        }
+        Ok(())
+    }
+
+    /// After a training forward: a SyncBatchNorm failure, if any.
+    pub(crate) fn after_forward(&self) -> Result<(), TrainError> {
+        if let Some(h) = &self.hook {
+            if let Some(e) = h.error.borrow_mut().take() {
+                return Err(TrainError::Other(e));
+            }
+        }
+        Ok(())
+    }
+
+    /// The mean over the ranks of this rank's loss.
+    pub(crate) fn mean_loss(&self, loss: f64) -> Result<f64, TrainError> {
+        let v = self
+            .pg
+            .all_reduce_f64(&[loss], ReduceOp::Avg, Device::Cpu)?;
+        Ok(v[0])
+    }
+
+    /// Average the gradients over the ranks (after backward).
+    pub(crate) fn sync_grads(&mut self) -> Result<(), TrainError> {
+        let Some(g) = &self.grads else {
+            return Err(TrainError::Other(
+                "distributed: gradients synchronised before attach".into(),
+            ));
+        };
+        let s = g.all_reduce(&self.pg)?;
+        self.stats.steps += 1;
+        self.stats.grad_allreduce_s += s.seconds;
+        Ok(())
+    }
+
+    /// With `check_replicas`: every parameter (and with `sync_bn` every buffer) equals rank
+    /// 0's, bit for bit.
+    pub(crate) fn check_replicas(&self, iteration: u64) -> Result<(), TrainError> {
+        if !self.opts.check_replicas {
+            return Ok(());
+        }
+        let checked = if self.opts.sync_bn {
+            &self.vars
+        } else {
+            &self.params
+        };
+        let (mine, theirs) = tch::no_grad(|| {
+            let parts: Vec<Tensor> = checked
+                .iter()
+                .filter(|t| t.is_floating_point())
+                .map(|t| t.to_kind(Kind::Float).reshape([-1]).to_device(Device::Cpu))
+                .collect();
+            let mine = Tensor::cat(&parts, 0);
+            (mine.copy(), mine)
+        });
+        self.pg.broadcast(std::slice::from_ref(&theirs), 0)?;
+        if !mine.equal(&theirs) {
+            let d = (&mine - &theirs).abs().max().double_value(&[]);
+            return Err(TrainError::Other(format!(
+                "rank {}: the model differs from rank 0's after iteration {iteration} \
+                 (max |Δ| = {d:e})",
+                self.rank()
+            )));
+        }
+        Ok(())
+    }
+
+    /// This rank's contiguous shard of `n` items.
+    pub fn shard(&self, n: usize) -> std::ops::Range<usize> {
+        let (r, w) = (self.rank(), self.world_size());
+        r * n / w..(r + 1) * n / w
+    }
+
+    /// The report of all ranks' shards from this rank's: counts and weighted metric sums are
+    /// all-reduced (exact up to floating-point summation order).
+    pub(crate) fn reduce_report(&self, r: &Report) -> Result<Report, TrainError> {
+        let agg = r.config.aggregate;
+        let mut v: Vec<f64> = Vec::with_capacity(r.rows.len() * 10 + 1);
+        for row in &r.rows {
+            let w = match agg {
+                Aggregate::Image => row.n_images as f64,
+                Aggregate::Pooled => row.n_pixels as f64,
+            };
+            let m = &row.metrics;
+            let sq = |x: f64| match agg {
+                Aggregate::Image => x,
+                Aggregate::Pooled => x * x,
+            };
+            v.extend_from_slice(&[
+                row.n_images as f64,
+                row.n_pixels as f64,
+                m.delta1 * w,
+                m.delta2 * w,
+                m.delta3 * w,
+                m.abs_rel * w,
+                m.sq_rel * w,
+                sq(m.rmse) * w,
+                sq(m.rmse_log) * w,
+                m.mae * w,
+            ]);
+        }
+        v.push(r.images_seen as f64);
+        let s = self.pg.all_reduce_f64(&v, ReduceOp::Sum, Device::Cpu)?;
+        let mut out = r.clone();
+        for (i, row) in out.rows.iter_mut().enumerate() {
+            let x = &s[i * 10..i * 10 + 10];
+            row.n_images = x[0].round() as u64;
+            row.n_pixels = x[1].round() as u64;
+            let w = match agg {
+                Aggregate::Image => x[0],
+                Aggregate::Pooled => x[1],
+            };
+            row.metrics = if w > 0.0 {
+                let root = |x: f64| match agg {
+                    Aggregate::Image => x,
+                    Aggregate::Pooled => x.max(0.0).sqrt(),
+                };
+                Metrics {
+                    delta1: x[2] / w,
+                    delta2: x[3] / w,
+                    delta3: x[4] / w,
+                    abs_rel: x[5] / w,
+                    sq_rel: x[6] / w,
+                    rmse: root(x[7] / w),
+                    rmse_log: root(x[8] / w),
+                    mae: x[9] / w,
+                }
+            } else {
+                Metrics::default()
+            };
+        }
+        out.images_seen = s[s.len() - 1].round() as u64;
+        Ok(out)
+    }
+
+    /// Wait for every rank.
+    pub fn barrier(&self) -> Result<(), TrainError> {
+        Ok(self.pg.barrier()?)
+    }
+}
+
+impl Drop for Dist {
+    fn drop(&mut self) {
+        if self.hook.take().is_some() {
+            set_batch_norm_hook(None);
+        }
+    }
+}
+
+/// The CUDA device of a local rank when `device` asks for CUDA ("auto" with CUDA present,
+/// "cuda"), else `device` unchanged. An explicit "cuda:N" is kept.
+pub fn device_for_local_rank(device: &str, local_rank: usize) -> String {
+    match device {
+        "cuda" => format!("cuda:{local_rank}"),
+        "auto" if tch::Cuda::is_available() => format!("cuda:{local_rank}"),
+        d => d.to_string(),
+    }
+}
+
+/// A free TCP port on the loopback interface (for a local job's MASTER_PORT).
+pub fn free_port() -> Result<u16, TrainError> {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .map_err(|e| TrainError::Other(format!("no free loopback port for MASTER_PORT: {e}")))
+}
+
+/// Start `nproc` local workers of this executable with `args` and the environment torchrun
+/// sets (RANK, LOCAL_RANK, WORLD_SIZE, LOCAL_WORLD_SIZE, GROUP_RANK, ROLE_RANK,
+/// ROLE_WORLD_SIZE, MASTER_ADDR=127.0.0.1, MASTER_PORT), and wait for them. When a worker
+/// fails, the others get `grace` to fail on their own (they name the peer that stopped), then
+/// are killed. Errors list every failed worker.
+pub fn launch_local(
+    nproc: usize,
+    args: &[OsString],
+    master_port: Option<u16>,
+    grace: Duration,
+) -> Result<(), TrainError> {
+    if nproc == 0 {
+        return Err(TrainError::Config("--nproc must be at least 1".into()));
+    }
+    if std::env::var_os("WORLD_SIZE").is_some() {
+        return Err(TrainError::Config(
+            "--nproc inside a distributed job (WORLD_SIZE is set): let torchrun / srun start \
+             the workers, or drop --nproc"
+                .into(),
+        ));
+    }
+    let exe = std::env::current_exe()
+        .map_err(|e| TrainError::Other(format!("cannot find this executable: {e}")))?;
+    let port = match master_port {
+        Some(p) => p,
+        None => free_port()?,
+    };
+    let mut children: Vec<(usize, Child)> = Vec::with_capacity(nproc);
+    for rank in 0..nproc {
+        let child = Command::new(&exe)
+            .args(args)
+            .env("RANK", rank.to_string())
+            .env("LOCAL_RANK", rank.to_string())
+            .env("WORLD_SIZE", nproc.to_string())
+            .env("LOCAL_WORLD_SIZE", nproc.to_string())
+            .env("GROUP_RANK", "0")
+            .env("ROLE_RANK", rank.to_string())
+            .env("ROLE_WORLD_SIZE", nproc.to_string())
+            .env("MASTER_ADDR", "127.0.0.1")
+            .env("MASTER_PORT", port.to_string())
+            .spawn();
+        match child {
+            Ok(c) => children.push((rank, c)),
+            Err(e) => {
+                for (_, c) in children.iter_mut() {
+                    let _ = c.kill();
+                    let _ = c.wait();
+                }
+                return Err(TrainError::Other(format!(
+                    "cannot start worker rank {rank} ({}): {e}",
+                    exe.display()
+                )));
+            }
+        }
+    }
+    let mut failed: Vec<String> = vec![];
+    let mut first_failure: Option<Instant> = None;
+    let mut running: Vec<(usize, Child)> = children;
+    while !running.is_empty() {
+        let mut still = vec![];
+        for (rank, mut c) in running {
+            match c.try_wait() {
+                Ok(Some(status)) => {
+                    if !status.success() {
+                        failed.push(format!("rank {rank} ({status})"));
+                        first_failure.get_or_insert_with(Instant::now);
+                    }
+                }
+                Ok(None) => still.push((rank, c)),
+                Err(e) => {
+                    failed.push(format!("rank {rank} (cannot wait: {e})"));
+                    first_failure.get_or_insert_with(Instant::now);
+                }
+            }
+        }
+        running = still;
+        if first_failure.is_some_and(|t| t.elapsed() > grace) {
+            for (rank, c) in running.iter_mut() {
+                let _ = c.kill();
+                let _ = c.wait();
+                failed.push(format!(
+                    "rank {rank} (killed {:.0} s after the first failure)",
+                    grace.as_secs_f64()
+                ));
+            }
+            running.clear();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(TrainError::Other(format!(
+            "{} of {nproc} worker(s) failed: {}",
+            failed.len(),
+            failed.join(", ")
+        )))
+    }
+}
