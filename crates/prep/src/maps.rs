@@ -84,22 +84,18 @@ impl KeyframeSurface {
     pub fn new(keyframe_depth_m: &[f32]) -> KeyframeSurface {
         let w = FRAME_W as i64;
         let h = FRAME_H as i64;
-        // Band rows: nearest and farthest keyframe depth within ±OCC_RX columns.
-        let mut band = vec![(0f32, 0f32); N];
-        for y in 0..h {
-            for x in 0..w {
-                let mut near = f32::INFINITY;
-                let mut far = 0f32;
-                for xx in (x - OCC_RX).max(0)..=(x + OCC_RX).min(w - 1) {
-                    let d = keyframe_depth_m[(y * w + xx) as usize];
-                    if d > 0.0 {
-                        near = near.min(d);
-                        far = far.max(d);
-                    }
-                }
-                if far > 0.0 {
-                    band[(y * w + x) as usize] = (near, far);
-                }
+        // Band rows: nearest and farthest keyframe depth within ±OCC_RX columns (built from
+        // the few thousand keyframe pixels, not by scanning every pixel's window).
+        let mut band = vec![(f32::INFINITY, 0f32); N];
+        for (i, &d) in keyframe_depth_m.iter().enumerate().take(N) {
+            if d <= 0.0 {
+                continue;
+            }
+            let (y, x) = ((i as i64) / w, (i as i64) % w);
+            for xx in (x - OCC_RX).max(0)..=(x + OCC_RX).min(w - 1) {
+                let b = &mut band[(y * w + xx) as usize];
+                b.0 = b.0.min(d);
+                b.1 = b.1.max(d);
             }
         }
         let mut above = vec![(0f32, 0f32); N];
@@ -446,6 +442,66 @@ mod tests {
         assert_eq!(f[0], 150);
         assert_eq!(f[800 * 3], 0);
         assert!(image_to_frame(&rgb[..10], 5, 2).is_none());
+    }
+
+    #[test]
+    fn keyframe_surface_brackets_and_verdicts() {
+        // Two keyframe "rings" 15 rows apart: row 100 at 20 m, row 115 at 10 m (ground-like:
+        // nearer below), every 4th column; a wall at 8 m over columns 400..420 on both rings.
+        let mut kf = vec![0f32; N];
+        for x in (0..800).step_by(4) {
+            let wall = (400..420).contains(&x);
+            kf[100 * 800 + x] = if wall { 8.0 } else { 20.0 };
+            kf[115 * 800 + x] = if wall { 8.0 } else { 10.0 };
+        }
+        let s = KeyframeSurface::new(&kf);
+        // Ground between the rings: consistent.
+        assert_eq!(s.judge(201, 107, 14.0), Visibility::Consistent);
+        // Behind the wall: hidden; in front of the ground: free space.
+        assert_eq!(s.judge(409, 107, 20.0), Visibility::Hidden);
+        assert_eq!(s.judge(201, 107, 5.0), Visibility::FreeSpace);
+        // Above the top ring there is nothing to bracket with.
+        assert_eq!(s.judge(201, 90, 50.0), Visibility::NoEvidence);
+        // Sweep points never touch keyframe pixels; judged points fill the gaps.
+        let mut dense = Raster {
+            depth_m: kf.clone(),
+            payload: vec![0.0; N],
+            in_frame: 0,
+        };
+        let c = cam();
+        // Camera points landing at frame (201, 107) → full-res (402.x, 414.x).
+        let at = |x: f32, y: f32, d: f32| {
+            [
+                ((2.0 * x + 0.5) - 800.0) * d / 1000.0,
+                ((2.0 * (y + 100.0) + 0.5) - 450.0) * d / 1000.0,
+                d,
+            ]
+        };
+        let pts = [
+            at(201.0, 107.0, 14.0),
+            at(409.0, 107.0, 20.0),
+            at(200.0, 100.0, 3.0),
+        ];
+        let n = add_sweep_points(&mut dense, &kf, &s, &pts, &Rigid::IDENTITY, &c);
+        assert_eq!(
+            (n.kept, n.hidden, n.on_keyframe_pixel, n.free_space),
+            (1, 1, 1, 0)
+        );
+        assert!((dense.depth_m[107 * 800 + 201] - 14.0).abs() < 1e-3);
+        assert_eq!(dense.depth_m[100 * 800 + 200], 20.0);
+    }
+
+    #[test]
+    fn remove_close_is_the_devkit_square() {
+        let pts = [
+            [0.5, 0.5, -0.3, 0.0, 0.0],  // roof: dropped
+            [0.99, -0.2, 5.0, 0.0, 0.0], // any z: dropped
+            [1.0, 0.0, 0.0, 0.0, 0.0],   // |x| = 1: kept (strict <)
+            [0.2, 3.0, 0.0, 0.0, 0.0],   // ahead: kept
+        ];
+        let (kept, dropped) = remove_close(&pts, NEAR_SENSOR_M);
+        assert_eq!(dropped, 2);
+        assert_eq!(kept, vec![[1.0, 0.0, 0.0], [0.2, 3.0, 0.0]]);
     }
 
     #[test]
