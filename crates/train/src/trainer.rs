@@ -84,6 +84,10 @@ pub struct TrainOptions {
     pub stop_after: Option<u64>,
     /// Validation metric settings (caps, protocol, aggregation).
     pub eval: EvalConfig,
+    /// Training scenes withheld per condition (SPEC §10.5; rule in
+    /// `experiments::reduced_data`). Absent from the JSON when empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub exclude: Vec<crate::experiments::reduced_data::Exclusion>,
 }
 
 impl Default for TrainOptions {
@@ -114,6 +118,7 @@ impl Default for TrainOptions {
             checkpoint_every: 0,
             stop_after: None,
             eval: EvalConfig::default(),
+            exclude: Vec::new(),
         }
     }
 }

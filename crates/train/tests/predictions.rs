@@ -222,3 +222,27 @@ fn dropping_every_radar_equals_radar_drop_one() {
     .unwrap();
     assert_eq!(far, intact);
 }
+
+#[test]
+fn failure_experiment_tables_every_scenario() {
+    use depthsense_train::experiments::failure::{
+        parse_scenarios, run_failure, FAILURE_CSV, FAILURE_JSON, FAILURE_MD, FAILURE_PNG,
+    };
+    let (tmp, _data, eo) = setup();
+    let sc = parse_scenarios("none;radar-drop=1;drop-radars=all;beyond=20,clutter=5").unwrap();
+    assert_eq!(sc[3].failure.drop_beyond_m, Some(20.0));
+    assert_eq!(sc[3].failure.clutter, 5);
+    for bad in ["radar-drop=2", "beyond=-1", "wobble=1"] {
+        assert!(parse_scenarios(bad).is_err(), "{bad}");
+    }
+    let out = tmp.path().join("failure");
+    let mp = indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden());
+    let r = run_failure(&eo, &sc, &out, Some("cmd".into()), &mp).unwrap();
+    for f in [FAILURE_MD, FAILURE_CSV, FAILURE_JSON, FAILURE_PNG] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    assert_eq!(r.results[1].report, r.results[2].report);
+    assert_ne!(r.results[0].report, r.results[1].report);
+    let md = std::fs::read_to_string(out.join(FAILURE_MD)).unwrap();
+    assert!(md.contains("| drop-radars=all |"), "{md}");
+}

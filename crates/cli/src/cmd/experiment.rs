@@ -1,5 +1,6 @@
 //! `depthsense experiment …`: SPEC §10 experiments built from training runs.
-//! `ablation`: fusion variants (SPEC §6) and loss (SPEC §10.4) × seeds, tested on test scenes.
+//! `ablation`: fusion variants (SPEC §6) and loss (SPEC §10.4) × seeds, tested on test scenes;
+//! `reduced-data` (SPEC §10.5), `failure` (SPEC §10.8), `cost` (SPEC §10.9).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,6 +24,101 @@ enum Experiment {
     /// and write OUT/ablation.{md,csv,json,png}: mean ± std over seeds. Resumable: finished
     /// runs are skipped, unfinished ones continue from their last checkpoint.
     Ablation(AblationArgs),
+    /// Reduced training data (SPEC §10.5): train the model with a fraction of some
+    /// condition's training scenes withheld (a grid of such exclusions × seeds), test every
+    /// run on the same test scenes, table the test metrics per test condition:
+    /// OUT/reduced_data.{md,csv,json,png}. Resumable like `ablation`.
+    ReducedData(ReducedDataArgs),
+    /// Sensor failure (SPEC §10.8): one checkpoint evaluated under failure scenarios (random
+    /// point drop, whole radars absent, returns beyond a range absent, clutter added):
+    /// OUT/failure.{md,csv,json,png}.
+    Failure(FailureArgs),
+}
+
+#[derive(clap::Args)]
+pub struct ReducedDataArgs {
+    /// Prepared data directory; it must have test scenes.
+    #[arg(long)]
+    data: PathBuf,
+    /// Output directory: runs/<cell>/seed<k>/ and reduced_data.{md,csv,json,png}.
+    #[arg(long)]
+    out: PathBuf,
+    /// Grid cells separated by `;`, each `full` or CONDITION=FRACTION[,…] (the training
+    /// scenes withheld, see `train --exclude`).
+    #[arg(long, default_value = depthsense_train::experiments::reduced_data::DEFAULT_GRID)]
+    grid: String,
+    /// Model preset (paper, released, tiny, tiny-wide) or a model-config JSON file.
+    #[arg(long, default_value = "paper")]
+    preset: String,
+    /// Any model-config field as key=value (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Number of seeds: 0, 1, …, N−1.
+    #[arg(long, default_value_t = 1)]
+    seeds: u64,
+    /// Epochs of each run (paper: 40).
+    #[arg(long, default_value_t = 40)]
+    epochs: usize,
+    /// Batch size of training and evaluation (paper: 8).
+    #[arg(long, default_value_t = 8)]
+    batch_size: usize,
+    /// Initial learning rate (paper: 1e-3).
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+    /// Device: auto, cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
+    /// Data-loader threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Validate on at most this many validation samples.
+    #[arg(long)]
+    max_val_samples: Option<usize>,
+    /// Train on at most this many batches per epoch (quick runs).
+    #[arg(long)]
+    max_batches_per_epoch: Option<usize>,
+    /// Only for data without split lists: the trainer's scene partition period.
+    #[arg(long, default_value_t = 5)]
+    val_every_scene: usize,
+}
+
+#[derive(clap::Args)]
+pub struct FailureArgs {
+    /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// Architecture for a .pth: a preset or a model-config JSON.
+    #[arg(long)]
+    config: Option<String>,
+    /// Prepared data directory.
+    #[arg(long)]
+    data: PathBuf,
+    /// Output directory for failure.{md,csv,json,png}.
+    #[arg(long)]
+    out: PathBuf,
+    /// Scenarios separated by `;`; each `none` or settings joined by `,`: radar-drop=F
+    /// (fraction of points), drop-radars=A+B (channel names or all), beyond=M (metres),
+    /// clutter=N (ghost points per sample).
+    #[arg(long, default_value = depthsense_train::experiments::failure::DEFAULT_SCENARIOS)]
+    scenarios: String,
+    /// Samples: held-out (test scenes), all, or a split name.
+    #[arg(long, default_value = "held-out")]
+    split: String,
+    /// Seed of the random drop and the clutter.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Batch size of inference.
+    #[arg(long, default_value_t = 4)]
+    batch_size: usize,
+    /// Device: auto, cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
+    /// Data-loader threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Evaluate at most this many samples (evenly spaced).
+    #[arg(long)]
+    max_samples: Option<usize>,
 }
 
 #[derive(clap::Args)]
@@ -93,7 +189,63 @@ pub struct AblationArgs {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     match a.command {
         Experiment::Ablation(a) => ablation(a),
+        Experiment::ReducedData(a) => reduced_data(a),
+        Experiment::Failure(a) => failure(a),
     }
+}
+
+fn command_line() -> Option<String> {
+    Some(std::env::args().collect::<Vec<_>>().join(" "))
+}
+
+fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
+    use depthsense_train::experiments::reduced_data::{
+        parse_grid, run_reduced_data, ReducedDataOptions, MD_FILE,
+    };
+    let opts = ReducedDataOptions {
+        data: a.data,
+        out: a.out,
+        preset: a.preset,
+        set: a.set,
+        grid: parse_grid(&a.grid)?,
+        seeds: (0..a.seeds).collect(),
+        epochs: a.epochs,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        device: a.device,
+        jobs: a.jobs,
+        max_val_samples: a.max_val_samples,
+        max_batches_per_epoch: a.max_batches_per_epoch,
+        val_every_scene: a.val_every_scene,
+        eval: EvalConfig::default(),
+        command_line: command_line(),
+    };
+    let r = run_reduced_data(&opts, &MultiProgress::new())?;
+    let md = std::fs::read_to_string(opts.out.join(MD_FILE))?;
+    println!("{md}");
+    eprintln!("{} runs in {:.1} s", r.runs.len(), r.total_seconds);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
+    use depthsense_train::evaluate::EvalOptions;
+    use depthsense_train::experiments::failure::{parse_scenarios, run_failure, FAILURE_MD};
+    let base = EvalOptions {
+        checkpoint: a.checkpoint,
+        config: a.config,
+        data: a.data,
+        split: a.split,
+        seed: a.seed,
+        batch_size: a.batch_size,
+        device: a.device,
+        jobs: a.jobs,
+        max_samples: a.max_samples,
+        ..EvalOptions::default()
+    };
+    let sc = parse_scenarios(&a.scenarios)?;
+    run_failure(&base, &sc, &a.out, command_line(), &MultiProgress::new())?;
+    println!("{}", std::fs::read_to_string(a.out.join(FAILURE_MD))?);
+    Ok(ExitCode::SUCCESS)
 }
 
 fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {

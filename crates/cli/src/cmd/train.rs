@@ -95,6 +95,12 @@ pub struct Args {
     /// test and the one before it validation). Never selects on test scenes.
     #[arg(long, default_value_t = 5)]
     val_every_scene: usize,
+    /// Withhold a fraction of one condition's TRAINING scenes (SPEC §10.5), e.g.
+    /// `night=1.0,rain=0.5`: per condition, its training scenes ordered by a fixed hash of
+    /// the scene name, the first round(fraction × n) withheld (README "Reduced training
+    /// data"). Validation and test scenes are unchanged.
+    #[arg(long, value_delimiter = ',', value_name = "CONDITION=FRACTION")]
+    exclude: Vec<String>,
     /// Validate on at most this many validation samples (evenly spaced).
     #[arg(long)]
     max_val_samples: Option<usize>,
@@ -244,6 +250,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         },
         augment: !a.no_augment,
         val_every_scene: a.val_every_scene,
+        exclude: a
+            .exclude
+            .iter()
+            .map(|x| x.parse::<depthsense_train::experiments::reduced_data::Exclusion>())
+            .collect::<Result<Vec<_>, _>>()?,
         max_val_samples: a.max_val_samples,
         max_batches_per_epoch: a.max_batches_per_epoch,
         checkpoint_every: a.checkpoint_every,

@@ -20,21 +20,21 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
 
-use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
-use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
+use depthsense_metrics::EvalConfig;
+use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
-use super::{signed, Machine, Stat};
-use crate::data::{partition, Dataset, LoadOptions, Partition};
-use crate::error::TrainError;
-use crate::trainer::{
-    evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
+use super::runner::{run_bar, train_and_test};
+pub use super::runner::{
+    summarise, PartitionInfo, RowValues, RunRecord, RunStatus, SummaryRow, RUN_EVAL_FILE,
 };
+use super::{signed, Machine, Stat};
+use crate::data::{partition, Dataset, Partition};
+use crate::error::TrainError;
+use crate::trainer::TrainOptions;
 
-/// The per-run evaluation file, written after the run's test evaluation.
-pub const RUN_EVAL_FILE: &str = "eval.json";
 pub const MD_FILE: &str = "ablation.md";
 pub const CSV_FILE: &str = "ablation.csv";
 pub const JSON_FILE: &str = "ablation.json";
@@ -185,82 +185,6 @@ impl Default for AblationOptions {
     }
 }
 
-/// What happened to a run in this invocation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum RunStatus {
-    /// Trained from scratch and evaluated.
-    Trained,
-    /// Continued from its last checkpoint, then evaluated.
-    Resumed,
-    /// Training had finished before: only evaluated.
-    Evaluated,
-    /// Training and evaluation had finished before: read back from eval.json.
-    Skipped,
-}
-
-/// The headline metrics of one report row.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RowValues {
-    pub condition: String,
-    pub region: String,
-    pub cap_m: f64,
-    pub n_images: u64,
-    pub n_pixels: u64,
-    pub delta1: f64,
-    pub rmse: f64,
-    pub abs_rel: f64,
-    pub mae: f64,
-}
-
-/// One run (variant × seed): stored as `RUN/eval.json`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RunRecord {
-    pub variant: String,
-    pub seed: u64,
-    pub run_dir: PathBuf,
-    /// Training seconds of the invocation(s) that trained it (a resumed run: the last one's,
-    /// plus the earlier ones' when recorded).
-    pub train_seconds: f64,
-    pub eval_seconds: f64,
-    /// train + eval.
-    pub wall_seconds: f64,
-    /// How the training part was done when the record was written.
-    pub status: RunStatus,
-    pub best_val_rmse: Option<f64>,
-    pub test_samples: usize,
-    /// Condition × region rows at the largest cap (SPEC §9).
-    pub rows: Vec<RowValues>,
-    /// The full test report (every cap).
-    pub report: Report,
-    /// The run's training options (resume decisions compare them).
-    pub train_options: TrainOptions,
-}
-
-impl RunRecord {
-    /// Combined / full image row.
-    pub fn headline(&self) -> Option<&RowValues> {
-        self.rows
-            .iter()
-            .find(|r| r.condition == "combined" && r.region == "full")
-    }
-}
-
-/// Mean ± std over seeds of one condition × region row of a variant.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SummaryRow {
-    pub variant: String,
-    pub condition: String,
-    pub region: String,
-    pub cap_m: f64,
-    /// Seeds whose run has at least one valid image in this row.
-    pub n: usize,
-    pub delta1: Option<Stat>,
-    pub rmse: Option<Stat>,
-    pub abs_rel: Option<Stat>,
-    pub mae: Option<Stat>,
-}
-
 /// A variant against the baseline on one headline metric (combined, full image).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Verdict {
@@ -283,28 +207,49 @@ pub struct Verdict {
     pub text: String,
 }
 
-/// The partition the runs were trained and tested on.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PartitionInfo {
-    pub method: String,
-    pub train_samples: usize,
-    pub val_samples: usize,
-    pub test_samples: usize,
-    pub val_scenes: Vec<String>,
-    pub test_scenes: Vec<String>,
-}
-
-impl From<&Partition> for PartitionInfo {
-    fn from(p: &Partition) -> Self {
-        Self {
-            method: p.method.clone(),
-            train_samples: p.train.len(),
-            val_samples: p.val.len(),
-            test_samples: p.test.len(),
-            val_scenes: p.val_scenes.clone(),
-            test_scenes: p.test_scenes.clone(),
-        }
-    }
+/// Train (or resume) and evaluate one run; or read it back when finished.
+#[allow(clippy::too_many_arguments)]
+fn one_run(
+    opts: &AblationOptions,
+    variant: Variant,
+    model: &ModelConfig,
+    seed: u64,
+    ds: &Dataset,
+    part: &Partition,
+    device: tch::Device,
+    mp: &MultiProgress,
+) -> Result<(RunRecord, RunStatus), TrainError> {
+    let run = opts
+        .out
+        .join("runs")
+        .join(variant.name())
+        .join(format!("seed{seed}"));
+    let topts = TrainOptions {
+        data: opts.data.clone(),
+        out: run.clone(),
+        model: model.clone(),
+        epochs: opts.epochs,
+        batch_size: opts.batch_size,
+        lr: opts.lr,
+        seed,
+        device: opts.device.clone(),
+        jobs: opts.jobs,
+        // Continue an interrupted run from its last checkpoint (exact resume).
+        resume: run.join(crate::trainer::LAST_CKPT).exists(),
+        max_val_samples: opts.max_val_samples,
+        max_batches_per_epoch: opts.max_batches_per_epoch,
+        val_every_scene: opts.val_every_scene,
+        ..TrainOptions::default()
+    };
+    train_and_test(
+        variant.name(),
+        &topts,
+        &opts.eval,
+        ds,
+        &part.test,
+        device,
+        mp,
+    )
 }
 
 /// Everything an ablation produced (= `ablation.json`).
@@ -338,7 +283,7 @@ impl AblationResult {
 }
 
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
-fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
+pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
     if spec == "tiny-wide" {
         return crate::demo::demo_model(spec);
     }
@@ -386,304 +331,6 @@ fn check_options(opts: &AblationOptions) -> Result<(), TrainError> {
         return Err(TrainError::Config(format!("seed {d} given twice")));
     }
     Ok(())
-}
-
-/// Training options as compared across invocations: without where the data and run live,
-/// the device, the thread counts (the loader is thread-count independent), `resume`,
-/// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
-fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
-    let mut v = serde_json::to_value(t).map_err(|e| TrainError::Other(e.to_string()))?;
-    if let Some(m) = v.as_object_mut() {
-        for k in [
-            "data",
-            "out",
-            "device",
-            "jobs",
-            "prefetch",
-            "resume",
-            "stop_after",
-            "checkpoint_every",
-        ] {
-            m.remove(k);
-        }
-    }
-    Ok(v)
-}
-
-/// JSON equality with numbers compared to 1e-12 relative (text round trips).
-fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
-    use serde_json::Value as V;
-    match (a, b) {
-        (V::Number(x), V::Number(y)) => match (x.as_f64(), y.as_f64()) {
-            (Some(x), Some(y)) => x == y || (x - y).abs() <= 1e-12 * x.abs().max(y.abs()),
-            _ => x == y,
-        },
-        (V::Array(x), V::Array(y)) => {
-            x.len() == y.len() && x.iter().zip(y).all(|(a, b)| same_json(a, b))
-        }
-        (V::Object(x), V::Object(y)) => {
-            x.len() == y.len()
-                && x.iter()
-                    .all(|(k, a)| y.get(k).is_some_and(|b| same_json(a, b)))
-        }
-        _ => a == b,
-    }
-}
-
-fn read_json(path: &Path) -> Result<serde_json::Value, TrainError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Parse {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-    })
-}
-
-/// True when RUN/metrics.jsonl records the end of epoch `epochs` and RUN/best.safetensors
-/// exists. Also returns the largest "seconds" recorded (training time of the last invocation).
-fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
-    let Ok(text) = std::fs::read_to_string(run.join(METRICS_FILE)) else {
-        return (false, None);
-    };
-    let mut done = false;
-    let mut secs: Option<f64> = None;
-    for l in text.lines() {
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
-            continue;
-        };
-        if v.get("kind").and_then(|k| k.as_str()) == Some("epoch") {
-            if v.get("epoch").and_then(|e| e.as_u64()) == Some(epochs as u64) {
-                done = true;
-            }
-            if let Some(s) = v.get("seconds").and_then(|s| s.as_f64()) {
-                secs = Some(secs.map_or(s, |p: f64| p.max(s)));
-            }
-        }
-    }
-    (done && run.join(BEST_CKPT).exists(), secs)
-}
-
-fn mismatch(run: &Path, file: &str) -> TrainError {
-    TrainError::Config(format!(
-        "{}: this run was made with other training options (see its {file}) than this \
-         ablation asks for; use another --out, or delete the run to redo it",
-        run.display()
-    ))
-}
-
-fn row_values(r: &Report) -> Vec<RowValues> {
-    let cap = r.config.main_cap();
-    let mut out = vec![];
-    for cond in CONDITIONS {
-        for region in REGIONS {
-            if let Some(row) = r.row(cond, region, cap) {
-                let m: Metrics = row.metrics;
-                out.push(RowValues {
-                    condition: cond.into(),
-                    region: region.into(),
-                    cap_m: cap,
-                    n_images: row.n_images,
-                    n_pixels: row.n_pixels,
-                    delta1: m.delta1,
-                    rmse: m.rmse,
-                    abs_rel: m.abs_rel,
-                    mae: m.mae,
-                });
-            }
-        }
-    }
-    out
-}
-
-fn run_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
-    let pb = mp.add(ProgressBar::new(0));
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>16.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(name.to_string());
-    pb
-}
-
-/// Train (or resume) and evaluate one run; or read it back when finished.
-#[allow(clippy::too_many_arguments)]
-fn one_run(
-    opts: &AblationOptions,
-    variant: Variant,
-    model: &ModelConfig,
-    seed: u64,
-    ds: &Dataset,
-    part: &Partition,
-    device: tch::Device,
-    mp: &MultiProgress,
-) -> Result<(RunRecord, RunStatus), TrainError> {
-    let run = opts
-        .out
-        .join("runs")
-        .join(variant.name())
-        .join(format!("seed{seed}"));
-    let topts = TrainOptions {
-        data: opts.data.clone(),
-        out: run.clone(),
-        model: model.clone(),
-        epochs: opts.epochs,
-        batch_size: opts.batch_size,
-        lr: opts.lr,
-        seed,
-        device: opts.device.clone(),
-        jobs: opts.jobs,
-        // Continue an interrupted run from its last checkpoint (exact resume).
-        resume: run.join(crate::trainer::LAST_CKPT).exists(),
-        max_val_samples: opts.max_val_samples,
-        max_batches_per_epoch: opts.max_batches_per_epoch,
-        val_every_scene: opts.val_every_scene,
-        ..TrainOptions::default()
-    };
-    let fp = fingerprint(&topts)?;
-    let eval_path = run.join(RUN_EVAL_FILE);
-    if eval_path.exists() {
-        let v = read_json(&eval_path)?;
-        let rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
-            path: eval_path.display().to_string(),
-            reason: e.to_string(),
-        })?;
-        if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != opts.eval {
-            return Err(mismatch(&run, RUN_EVAL_FILE));
-        }
-        return Ok((rec, RunStatus::Skipped));
-    }
-    let cfg_path = run.join(CONFIG_FILE);
-    if cfg_path.exists() {
-        let stored = read_json(&cfg_path)?;
-        let stored_opts: TrainOptions =
-            serde_json::from_value(stored["train"].clone()).map_err(|e| TrainError::Parse {
-                path: cfg_path.display().to_string(),
-                reason: format!("train: {e}"),
-            })?;
-        if !same_json(&fingerprint(&stored_opts)?, &fp) {
-            return Err(mismatch(&run, CONFIG_FILE));
-        }
-    }
-    let name = format!("{} seed{seed}", variant.name());
-    let pb = run_bar(mp, &name);
-    let (finished, earlier_secs) = training_finished(&run, opts.epochs);
-    let t = Instant::now();
-    let (status, train_seconds, best_val_rmse) = if finished {
-        let best = checkpoint::read_config(&run.join(BEST_CKPT))
-            .ok()
-            .and_then(|(_, extra)| extra["train_state"]["best_val_rmse"].as_f64());
-        (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
-    } else {
-        let resumed = topts.resume;
-        let s = train(&topts, &pb)?;
-        if s.interrupted || s.iterations_done < s.total_iterations {
-            return Err(TrainError::Other(format!(
-                "{}: training stopped at iteration {} of {}",
-                run.display(),
-                s.iterations_done,
-                s.total_iterations
-            )));
-        }
-        let status = if resumed {
-            RunStatus::Resumed
-        } else {
-            RunStatus::Trained
-        };
-        let best = s.best_val_rmse.is_finite().then_some(s.best_val_rmse);
-        (status, t.elapsed().as_secs_f64(), best)
-    };
-
-    // Test evaluation of the checkpoint selected on the validation scenes.
-    let t = Instant::now();
-    let best = run.join(BEST_CKPT);
-    if !best.exists() {
-        return Err(TrainError::Data(format!(
-            "{}: missing — no epoch improved the validation RMSE (non-finite?)",
-            best.display()
-        )));
-    }
-    let loaded = checkpoint::load(&best, device)?;
-    let radar = radar_input_for(&loaded.config, None)?;
-    let load = LoadOptions {
-        radar: radar.unwrap_or_default(),
-        no_radar: radar.is_none(),
-        ..LoadOptions::default()
-    };
-    pb.set_length(part.test.len() as u64);
-    pb.set_position(0);
-    pb.set_message("test evaluation");
-    let report = evaluate_net(
-        &loaded.net,
-        ds,
-        &part.test,
-        &load,
-        &opts.eval,
-        opts.batch_size,
-        opts.jobs,
-        device,
-        &pb,
-        |_, _| Ok(()),
-    )?;
-    let eval_seconds = t.elapsed().as_secs_f64();
-    let rec = RunRecord {
-        variant: variant.name().into(),
-        seed,
-        run_dir: run.clone(),
-        train_seconds,
-        eval_seconds,
-        wall_seconds: train_seconds + eval_seconds,
-        status,
-        best_val_rmse,
-        test_samples: part.test.len(),
-        rows: row_values(&report),
-        report,
-        train_options: topts,
-    };
-    let text = serde_json::to_string_pretty(&rec).map_err(|e| TrainError::Other(e.to_string()))?;
-    write_atomic(&eval_path, text.as_bytes()).map_err(|e| TrainError::io(&eval_path, e))?;
-    pb.finish_with_message(format!(
-        "test RMSE {:.3} m",
-        rec.headline().map_or(f64::NAN, |r| r.rmse)
-    ));
-    Ok((rec, status))
-}
-
-/// Mean ± std over seeds per variant × condition × region (rows without valid images in a
-/// run do not count for that run).
-pub fn summarise(variants: &[&str], runs: &[RunRecord]) -> Vec<SummaryRow> {
-    let mut out = vec![];
-    for &v in variants {
-        for region in REGIONS {
-            for cond in CONDITIONS {
-                let rows: Vec<&RowValues> = runs
-                    .iter()
-                    .filter(|r| r.variant == v)
-                    .filter_map(|r| {
-                        r.rows
-                            .iter()
-                            .find(|x| x.condition == cond && x.region == region && x.n_images > 0)
-                    })
-                    .collect();
-                let stat = |f: fn(&RowValues) -> f64| {
-                    Stat::of(&rows.iter().map(|r| f(r)).collect::<Vec<_>>())
-                };
-                out.push(SummaryRow {
-                    variant: v.into(),
-                    condition: cond.into(),
-                    region: region.into(),
-                    cap_m: rows.first().map_or(f64::NAN, |r| r.cap_m),
-                    n: rows.len(),
-                    delta1: stat(|r| r.delta1),
-                    rmse: stat(|r| r.rmse),
-                    abs_rel: stat(|r| r.abs_rel),
-                    mae: stat(|r| r.mae),
-                });
-            }
-        }
-    }
-    out
 }
 
 /// The verdict rule: the difference of the two means is "larger than the seed spread" when
@@ -1073,6 +720,7 @@ fn markdown(r: &AblationResult) -> String {
 
 #[cfg(test)]
 mod tests {
+    use super::super::runner::same_json;
     use super::*;
 
     #[test]

@@ -8,6 +8,8 @@
 
 pub mod ablation;
 pub mod failure;
+pub mod reduced_data;
+pub mod runner;
 
 use serde::{Deserialize, Serialize};
 

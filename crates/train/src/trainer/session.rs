@@ -79,7 +79,8 @@ impl<'o> Trainer<'o> {
         }
         let device = depthsense_model::device::parse_device(&opts.device)?;
         let ds = Dataset::open(&opts.data)?;
-        let part = partition(&ds, opts.val_every_scene)?;
+        let mut part = partition(&ds, opts.val_every_scene)?;
+        crate::experiments::reduced_data::apply_exclusions(&mut part, &opts.exclude);
         if part.train.is_empty() || part.val.is_empty() {
             return Err(TrainError::Data(format!(
                 "{}: {} training and {} validation samples ({}): need both",

@@ -1,0 +1,441 @@
+//! Reduced training data (SPEC §10.5): `train --exclude night=1.0,rain=0.5` withholds a
+//! fraction of one condition's TRAINING scenes, and `experiment reduced-data` trains a grid
+//! of such exclusions (several seeds each) and tables the test metrics per test condition.
+//!
+//! The withholding rule ([`withheld_scenes`]), deterministic and independent of the seed:
+//! for each `condition=fraction`, take the distinct scene names of the training partition
+//! whose conditions include that condition (a night+rain scene counts for both), order them
+//! by the key `(mix64(fnv1a64(name)), name)` (a fixed pseudo-random order that does not
+//! depend on the other scenes), and withhold the first `round(fraction × n)` (half away from
+//! zero). Exclusions of several conditions withhold the union. Validation and test scenes
+//! are never touched: every grid cell is selected and tested on the same scenes.
+//!
+//! ```text
+//! OUT/runs/<cell>/seed<k>/     an ordinary training run (+ eval.json, see `runner`)
+//! OUT/reduced_data.{md,csv,json,png}
+//! ```
+
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::str::FromStr;
+use std::time::Instant;
+
+use depthsense_metrics::{EvalConfig, CONDITIONS};
+use depthsense_model::ModelConfig;
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_prep::layout::{Condition, IndexEntry};
+use indicatif::MultiProgress;
+use serde::{Deserialize, Serialize};
+
+use super::runner::{run_bar, summarise, train_and_test, PartitionInfo, RunRecord, SummaryRow};
+use super::{Machine, Stat};
+use crate::data::{mix64, partition, Dataset, Partition};
+use crate::error::TrainError;
+use crate::trainer::{TrainOptions, LAST_CKPT};
+
+pub const MD_FILE: &str = "reduced_data.md";
+pub const CSV_FILE: &str = "reduced_data.csv";
+pub const JSON_FILE: &str = "reduced_data.json";
+pub const PNG_FILE: &str = "reduced_data.png";
+
+/// Withhold `fraction` of the training scenes of `condition`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Exclusion {
+    pub condition: Condition,
+    pub fraction: f64,
+}
+
+fn condition_name(c: Condition) -> &'static str {
+    match c {
+        Condition::Day => "day",
+        Condition::Night => "night",
+        Condition::Rain => "rain",
+    }
+}
+
+impl std::fmt::Display for Exclusion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}={}", condition_name(self.condition), self.fraction)
+    }
+}
+
+impl FromStr for Exclusion {
+    type Err = TrainError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = |why: &str| TrainError::Config(format!("--exclude {s:?}: {why}"));
+        let (c, f) = s
+            .split_once('=')
+            .ok_or_else(|| bad("expected CONDITION=FRACTION, e.g. night=1.0"))?;
+        let condition = match c.trim() {
+            "day" => Condition::Day,
+            "night" => Condition::Night,
+            "rain" => Condition::Rain,
+            _ => return Err(bad("condition must be day, night or rain")),
+        };
+        let fraction: f64 = f
+            .trim()
+            .parse()
+            .map_err(|_| bad("fraction must be a number"))?;
+        if !(0.0..=1.0).contains(&fraction) {
+            return Err(bad("fraction must be within [0, 1]"));
+        }
+        Ok(Exclusion {
+            condition,
+            fraction,
+        })
+    }
+}
+
+/// Parse "night=1.0,rain=0.5" (empty or "full" = no exclusion).
+pub fn parse_exclusions(s: &str) -> Result<Vec<Exclusion>, TrainError> {
+    let s = s.trim();
+    if s.is_empty() || s == "full" {
+        return Ok(vec![]);
+    }
+    s.split(',').map(|x| x.parse()).collect()
+}
+
+/// "night=1,rain=0.5", or "full".
+pub fn exclusions_label(ex: &[Exclusion]) -> String {
+    if ex.is_empty() {
+        "full".into()
+    } else {
+        ex.iter()
+            .map(|e| e.to_string())
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+}
+
+/// FNV-1a 64 of a string.
+fn fnv1a64(s: &str) -> u64 {
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// The scenes `exclude` withholds from `train` (module docs), sorted by name.
+pub fn withheld_scenes(train: &[IndexEntry], exclude: &[Exclusion]) -> Vec<String> {
+    let mut out = BTreeSet::new();
+    for ex in exclude {
+        let scenes: BTreeSet<&str> = train
+            .iter()
+            .filter(|e| e.conditions.contains(&ex.condition))
+            .map(|e| e.scene_name.as_str())
+            .collect();
+        let mut order: Vec<(u64, &str)> =
+            scenes.into_iter().map(|n| (mix64(fnv1a64(n)), n)).collect();
+        order.sort();
+        let k = (ex.fraction * order.len() as f64).round() as usize;
+        out.extend(order.iter().take(k).map(|(_, n)| n.to_string()));
+    }
+    out.into_iter().collect()
+}
+
+/// Remove the withheld scenes from `part.train` and say so in `part.method`; returns them.
+pub fn apply_exclusions(part: &mut Partition, exclude: &[Exclusion]) -> Vec<String> {
+    if exclude.is_empty() {
+        return vec![];
+    }
+    let gone = withheld_scenes(&part.train, exclude);
+    part.train.retain(|e| !gone.contains(&e.scene_name));
+    part.method = format!(
+        "{}; --exclude {} withheld {} training scene(s): {}",
+        part.method,
+        exclusions_label(exclude),
+        gone.len(),
+        gone.join(", ")
+    );
+    gone
+}
+
+/// One cell of the grid: a name and its exclusions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Cell {
+    pub name: String,
+    pub exclude: Vec<Exclusion>,
+}
+
+/// Parse "full;night=1;rain=1;day=0.5" (cells separated by `;`).
+pub fn parse_grid(s: &str) -> Result<Vec<Cell>, TrainError> {
+    s.split(';')
+        .filter(|c| !c.trim().is_empty())
+        .map(|c| {
+            let exclude = parse_exclusions(c)?;
+            Ok(Cell {
+                name: exclusions_label(&exclude),
+                exclude,
+            })
+        })
+        .collect()
+}
+
+/// The default grid: everything, then without half the day scenes, without night, without
+/// rain (our reading of SPEC §10.5; the paper's exact fractions are not in the SPEC).
+pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
+
+/// Everything a reduced-data experiment is made of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReducedDataOptions {
+    pub data: PathBuf,
+    pub out: PathBuf,
+    /// Model preset or config JSON (the paper's late fusion + attention by default).
+    pub preset: String,
+    pub set: Vec<String>,
+    pub grid: Vec<Cell>,
+    pub seeds: Vec<u64>,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub device: String,
+    pub jobs: usize,
+    pub max_val_samples: Option<usize>,
+    pub max_batches_per_epoch: Option<usize>,
+    pub val_every_scene: usize,
+    pub eval: EvalConfig,
+    pub command_line: Option<String>,
+}
+
+/// A cell's training set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellInfo {
+    pub name: String,
+    pub train_samples: usize,
+    pub withheld_scenes: Vec<String>,
+}
+
+/// Everything the experiment produced (= reduced_data.json).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReducedDataResult {
+    pub options: ReducedDataOptions,
+    pub machine: Machine,
+    pub partition: PartitionInfo,
+    pub cells: Vec<CellInfo>,
+    pub runs: Vec<RunRecord>,
+    pub summary: Vec<SummaryRow>,
+    pub total_seconds: f64,
+}
+
+impl ReducedDataResult {
+    pub fn row(&self, cell: &str, condition: &str) -> Option<&SummaryRow> {
+        self.summary
+            .iter()
+            .find(|r| r.variant == cell && r.condition == condition && r.region == "full")
+    }
+}
+
+fn check(opts: &ReducedDataOptions) -> Result<(), TrainError> {
+    if opts.grid.is_empty() || opts.seeds.is_empty() {
+        return Err(TrainError::Config(
+            "the grid and the seeds must not be empty".into(),
+        ));
+    }
+    let names: BTreeSet<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
+    if names.len() != opts.grid.len() {
+        return Err(TrainError::Config("a grid cell is given twice".into()));
+    }
+    Ok(())
+}
+
+fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64) -> TrainOptions {
+    let run = opts
+        .out
+        .join("runs")
+        .join(cell.name.replace([',', '='], "_"))
+        .join(format!("seed{seed}"));
+    TrainOptions {
+        data: opts.data.clone(),
+        out: run.clone(),
+        model: model.clone(),
+        epochs: opts.epochs,
+        batch_size: opts.batch_size,
+        lr: opts.lr,
+        seed,
+        device: opts.device.clone(),
+        jobs: opts.jobs,
+        resume: run.join(LAST_CKPT).exists(),
+        max_val_samples: opts.max_val_samples,
+        max_batches_per_epoch: opts.max_batches_per_epoch,
+        val_every_scene: opts.val_every_scene,
+        exclude: cell.exclude.clone(),
+        ..TrainOptions::default()
+    }
+}
+
+/// Train every cell × seed, test on the test scenes, write the tables and the chart.
+pub fn run_reduced_data(
+    opts: &ReducedDataOptions,
+    mp: &MultiProgress,
+) -> Result<ReducedDataResult, TrainError> {
+    let t0 = Instant::now();
+    check(opts)?;
+    let model = super::ablation::base_model(&opts.preset)?.with_options(&opts.set)?;
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let ds = Dataset::open(&opts.data)?;
+    let part = partition(&ds, opts.val_every_scene)?;
+    if part.test.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: no test samples ({}): reduced-data reports on the test scenes",
+            opts.data.display(),
+            part.method
+        )));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, e))?;
+    let overall = run_bar(mp, "reduced-data runs");
+    overall.set_length((opts.grid.len() * opts.seeds.len()) as u64);
+    let (mut runs, mut cells) = (vec![], vec![]);
+    for cell in &opts.grid {
+        let mut p = part.clone();
+        let gone = apply_exclusions(&mut p, &cell.exclude);
+        cells.push(CellInfo {
+            name: cell.name.clone(),
+            train_samples: p.train.len(),
+            withheld_scenes: gone,
+        });
+        for &seed in &opts.seeds {
+            overall.set_message(format!("{} seed{seed}", cell.name));
+            let t = topts(opts, &model, cell, seed);
+            let (rec, _) = train_and_test(&cell.name, &t, &opts.eval, &ds, &part.test, device, mp)?;
+            runs.push(rec);
+            overall.inc(1);
+        }
+    }
+    overall.finish_with_message("done");
+    let names: Vec<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
+    let result = ReducedDataResult {
+        options: opts.clone(),
+        machine: Machine::describe(device),
+        partition: PartitionInfo::from(&part),
+        cells,
+        summary: summarise(&names, &runs),
+        runs,
+        total_seconds: t0.elapsed().as_secs_f64(),
+    };
+    write_outputs(&result)?;
+    Ok(result)
+}
+
+fn save(path: PathBuf, bytes: &[u8]) -> Result<(), TrainError> {
+    write_atomic(&path, bytes).map_err(|e| TrainError::io(&path, e))
+}
+
+fn write_outputs(r: &ReducedDataResult) -> Result<(), TrainError> {
+    let dir = &r.options.out;
+    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    save(dir.join(JSON_FILE), json.as_bytes())?;
+    save(dir.join(CSV_FILE), csv(r).as_bytes())?;
+    save(dir.join(MD_FILE), markdown(r).as_bytes())?;
+    save(dir.join(PNG_FILE), &chart(r)?)
+}
+
+fn stat_of(
+    r: &ReducedDataResult,
+    cell: &str,
+    cond: &str,
+    f: fn(&SummaryRow) -> Option<Stat>,
+) -> Option<Stat> {
+    r.row(cell, cond).and_then(f)
+}
+
+fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, TrainError> {
+    let names: Vec<&str> = r.cells.iter().map(|c| c.name.as_str()).collect();
+    let mut cols: Vec<(String, Vec<f64>, Vec<f64>)> = vec![];
+    for cond in CONDITIONS {
+        let (m, s): (Vec<f64>, Vec<f64>) = names
+            .iter()
+            .map(|n| {
+                stat_of(r, n, cond, |x| x.rmse).map_or((f64::NAN, f64::NAN), |s| {
+                    (s.mean, s.std.unwrap_or(f64::NAN))
+                })
+            })
+            .unzip();
+        cols.push((format!("test RMSE (m), {cond} scenes"), m, s));
+    }
+    let panels: Vec<crate::plot::BarPanel> = cols
+        .iter()
+        .map(|(t, m, s)| crate::plot::BarPanel {
+            title: t,
+            labels: &names,
+            means: m,
+            stds: s,
+            y_label: "RMSE (m)",
+        })
+        .collect();
+    crate::plot::bar_charts_png(&panels)
+}
+
+fn cell_stat(s: Option<Stat>) -> String {
+    s.map_or("–".into(), |s| s.fmt(3))
+}
+
+fn markdown(r: &ReducedDataResult) -> String {
+    let o = &r.options;
+    let mut md = String::from("# Reduced training data (SPEC §10.5)\n\n");
+    md.push_str(&format!(
+        "Each cell trains `{}` with the listed training scenes withheld (rule: README \
+         \"Reduced training data\"), seeds {:?}, {} epoch(s); every run is selected on the \
+         same validation scenes and tested on the same **test** scenes ({}). Mean ± std over \
+         seeds, full image, cap {} m.\n\n",
+        o.preset,
+        o.seeds,
+        o.epochs,
+        r.partition.test_scenes.join(", "),
+        o.eval.main_cap()
+    ));
+    for (title, f) in [
+        (
+            "Test RMSE (m) per test condition",
+            (|x: &SummaryRow| x.rmse) as fn(&SummaryRow) -> Option<Stat>,
+        ),
+        ("Test δ1 per test condition", |x: &SummaryRow| x.delta1),
+    ] {
+        md.push_str(&format!("### {title}\n\n| trained without | train samples | combined | day | night | rain |\n|---|---:|---:|---:|---:|---:|\n"));
+        for c in &r.cells {
+            let cells: Vec<String> = CONDITIONS
+                .iter()
+                .map(|cond| cell_stat(stat_of(r, &c.name, cond, f)))
+                .collect();
+            md.push_str(&format!(
+                "| {} | {} | {} |\n",
+                c.name,
+                c.train_samples,
+                cells.join(" | ")
+            ));
+        }
+        md.push('\n');
+    }
+    md.push_str("### Withheld training scenes\n\n");
+    for c in &r.cells {
+        md.push_str(&format!(
+            "- {}: {}\n",
+            c.name,
+            if c.withheld_scenes.is_empty() {
+                "none".to_string()
+            } else {
+                c.withheld_scenes.join(", ")
+            }
+        ));
+    }
+    md.push_str(&format!(
+        "\nMachine: {}; {:.1} s.\n",
+        r.machine.line(),
+        r.total_seconds
+    ));
+    if let Some(c) = &o.command_line {
+        md.push_str(&format!("\nCommand: `{c}`\n"));
+    }
+    md
+}
+
+fn csv(r: &ReducedDataResult) -> String {
+    let mut s = String::from("cell,seed,condition,n_images,delta1,rmse_m,abs_rel,mae_m\n");
+    for run in &r.runs {
+        for x in run.rows.iter().filter(|x| x.region == "full") {
+            s.push_str(&format!(
+                "\"{}\",{},{},{},{:.6},{:.6},{:.6},{:.6}\n",
+                run.variant, run.seed, x.condition, x.n_images, x.delta1, x.rmse, x.abs_rel, x.mae
+            ));
+        }
+    }
+    s
+}
