@@ -33,6 +33,40 @@ enum Experiment {
     /// point drop, whole radars absent, returns beyond a range absent, clutter added):
     /// OUT/failure.{md,csv,json,png}.
     Failure(FailureArgs),
+    /// Parameters, MACs and inference time (SPEC §10.9) of every preset × variant on this
+    /// device, next to the paper's figures: OUT/cost.{md,csv,json}.
+    Cost(CostArgs),
+}
+
+#[derive(clap::Args)]
+pub struct CostArgs {
+    /// Output directory for cost.{md,csv,json}.
+    #[arg(long)]
+    out: PathBuf,
+    /// Presets (paper, released, tiny, tiny-wide) or model-config JSON files, comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "paper,released,tiny")]
+    presets: Vec<String>,
+    /// Fusion variants, comma separated (rgb, early, late, late-sam, l1, l2).
+    #[arg(long, value_delimiter = ',', default_value = "rgb,early,late,late-sam")]
+    variants: Vec<String>,
+    /// Images per batch (paper: 3).
+    #[arg(long, default_value_t = 3)]
+    batch: i64,
+    /// Input height (SPEC §3: 350).
+    #[arg(long, default_value_t = 350)]
+    height: i64,
+    /// Input width (SPEC §3: 800).
+    #[arg(long, default_value_t = 800)]
+    width: i64,
+    /// Untimed passes before timing.
+    #[arg(long, default_value_t = 1)]
+    warmup: usize,
+    /// Timed passes.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Device: auto, cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
 }
 
 #[derive(clap::Args)]
@@ -191,7 +225,33 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         Experiment::Ablation(a) => ablation(a),
         Experiment::ReducedData(a) => reduced_data(a),
         Experiment::Failure(a) => failure(a),
+        Experiment::Cost(a) => cost(a),
     }
+}
+
+fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
+    use depthsense_train::experiments::cost::{run_cost, CostOptions, MD_FILE};
+    let variants = a
+        .variants
+        .iter()
+        .map(|s| s.parse::<Variant>())
+        .collect::<Result<Vec<_>, _>>()?;
+    let o = CostOptions {
+        presets: a.presets,
+        variants,
+        batch: a.batch,
+        height: a.height,
+        width: a.width,
+        warmup: a.warmup,
+        repeats: a.repeats,
+        device: a.device,
+        command_line: command_line(),
+    };
+    let pb = super::train::progress_bar("cost");
+    run_cost(&o, &a.out, &pb)?;
+    pb.finish_and_clear();
+    println!("{}", std::fs::read_to_string(a.out.join(MD_FILE))?);
+    Ok(ExitCode::SUCCESS)
 }
 
 fn command_line() -> Option<String> {

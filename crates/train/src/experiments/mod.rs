@@ -7,6 +7,7 @@
 //! Shared here: seed statistics ([`Stat`]) and the description of the machine ([`Machine`]).
 
 pub mod ablation;
+pub mod cost;
 pub mod failure;
 pub mod reduced_data;
 pub mod runner;
