@@ -3,6 +3,7 @@
 #
 #   make demo   synthetic world → prepare → train → eval → runs/demo/report/
 #   make test   the whole test suite (Rust + the nuScenes devkit check of the synthetic world)
+#   make gpu-bundle  .gpu/: stripped binary + small prepared world + scripts for scripts/gpu-check.sh
 
 SHELL := /bin/bash
 PYTHON ?= python3
@@ -17,7 +18,7 @@ export LIBTORCH_USE_PYTORCH := 1
 CARGO ?= cargo
 BIN := target/release/depthsense
 
-.PHONY: all setup build demo test bench fmt clippy check clean-venv
+.PHONY: all setup build demo test bench fmt clippy check clean-venv gpu-bundle
 
 all: build
 
@@ -45,6 +46,12 @@ bench: build
 	$(BIN) bench synth --out runs/bench/synth.json
 	$(BIN) bench model --out runs/bench/model.json
 	$(BIN) bench train --out runs/bench/train.json
+
+# Everything a GPU machine without Rust needs for scripts/gpu-check.sh (issue 9, ../shared/GPU.md):
+# the stripped release binary, a small prepared synthetic world and the scripts, in .gpu/
+# (git-ignored, < 64 MiB). On the GPU machine: `bash .gpu/gpu-check.sh`.
+gpu-bundle: build
+	scripts/gpu-check.sh --make-bundle .gpu
 
 fmt:
 	$(CARGO) fmt --all
