@@ -353,13 +353,9 @@ impl DepthNet {
         }
         f = self.attend(&f);
         if cfg.head_pre_dropout {
-            f = f.feature_dropout(cfg.dropout, train);
+            f = crate::sync_bn::feature_dropout(&f, cfg.dropout, train);
         }
-        let y = self
-            .head1
-            .forward(&f)
-            .relu()
-            .feature_dropout(cfg.dropout, train);
+        let y = crate::sync_bn::feature_dropout(&self.head1.forward(&f).relu(), cfg.dropout, train);
         let y = self.head2.forward(&y);
         match cfg.head {
             HeadKind::Ordinal => y,

@@ -10,6 +10,9 @@
 //! - **Step**: the loss of each rank is the mean over its slice; after backward the gradients
 //!   are averaged over the ranks in ≈25 MB flat buckets (DDP's default), then every rank takes
 //!   the same SGD step. The logged loss is the mean of the ranks' losses.
+//! - **Dropout**: the head's Dropout2d masks are drawn per sample from (seed, iteration,
+//!   place in the global batch), so they too do not depend on N (a single process without a
+//!   job keeps libtorch's generator, as before).
 //! - **BatchNorm**: without `--sync-bn` each rank normalises with its own slice's statistics
 //!   and the running statistics are broadcast from rank 0 before each forward (DDP's
 //!   `broadcast_buffers`); with `--sync-bn` the statistics are those of the global batch
@@ -31,7 +34,7 @@ use std::time::{Duration, Instant};
 use depthsense_dist::sync_bn::{batch_norm, BnState};
 use depthsense_dist::{broadcast_flat, GradBuckets, ReduceOp};
 use depthsense_metrics::{Aggregate, Metrics, Report};
-use depthsense_model::sync_bn::{set_batch_norm_hook, BatchNormHook};
+use depthsense_model::sync_bn::{set_batch_norm_hook, set_sample_seeds, BatchNormHook};
 use serde::{Deserialize, Serialize};
 use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
 
@@ -39,6 +42,7 @@ pub use depthsense_dist::{
     has_nccl, Backend, DistEnv, DistError, ProcessGroup, DEFAULT_BUCKET_BYTES, DEFAULT_TIMEOUT,
 };
 
+use crate::data::mix64;
 use crate::error::TrainError;
 
 impl From<DistError> for TrainError {
@@ -202,8 +206,20 @@ impl Dist {
         Ok(())
     }
 
-    /// Before a training forward: without SyncBatchNorm, rank 0's BatchNorm statistics.
-    pub(crate) fn before_forward(&self) -> Result<(), TrainError> {
+    /// Before a training forward of `local_batch` samples at `iteration`: dropout seeds per
+    /// sample (from the sample's place in the global batch, not the rank), and without
+    /// SyncBatchNorm rank 0's BatchNorm statistics.
+    pub(crate) fn before_forward(
+        &self,
+        seed: u64,
+        iteration: u64,
+        local_batch: usize,
+    ) -> Result<(), TrainError> {
+        let first = self.rank() * local_batch;
+        let seeds = (first..first + local_batch)
+            .map(|g| mix64(seed ^ mix64(iteration + 1) ^ mix64(g as u64 ^ 0xd20_5eed)))
+            .collect();
+        set_sample_seeds(Some(seeds));
         if !self.opts.sync_bn && !self.buffers.is_empty() {
             broadcast_flat(&self.pg, &self.buffers, 0, self.opts.bucket_bytes)?;
         }
@@ -352,6 +368,7 @@ impl Drop for Dist {
         if self.hook.take().is_some() {
             set_batch_norm_hook(None);
         }
+        set_sample_seeds(None);
     }
 }
 

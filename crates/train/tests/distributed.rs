@@ -235,3 +235,24 @@ fn a_killed_rank_makes_the_others_fail_naming_it() {
     assert!(err.contains("rank 1 has stopped"), "{err}");
     assert!(waited < timeout as f64, "rank 0 took {waited:.1} s to fail");
 }
+
+#[test]
+fn dropout_is_drawn_per_sample_so_one_and_two_ranks_agree() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data);
+    let d = DistOptions {
+        sync_bn: true,
+        ..DistOptions::default()
+    };
+    let run = |world: usize, name: &str| {
+        let mut o = opts(&data, &tmp.path().join(name));
+        o.model.dropout = 0.5;
+        o.stop_after = Some(3);
+        run_ranks(world, &o, &d);
+        losses(&tmp.path().join(name))
+    };
+    let one = run(1, "one");
+    assert_eq!(one.len(), 3);
+    assert_close(&run(2, "two"), &one, "dropout 0.5: 2 ranks vs 1 rank");
+}

@@ -226,7 +226,7 @@ impl<'o> Trainer<'o> {
             Precision::Fp32
         };
         if let Some(d) = &self.dist {
-            d.before_forward()?;
+            d.before_forward(opts.seed, it, batch.size)?;
         }
         let out = with_autocast(precision, || self.net.forward_t(&image, &radar_t, true));
         let loss = self.net.loss(&out.to_kind(Kind::Float), &target);
