@@ -25,6 +25,10 @@ run. This script builds, in plain PyTorch:
     valid target pixels only (`ordinal_loss`: nonzero → four bilinear taps → softplus − y·z).
   - `efficient-dense`: as `efficient` but the dense loss (`ordinal_loss_dense`: z upsampled to
     H×W, BCE with logits everywhere, masked mean).
+* what is timed per phase: `forward` = the network to its head output as `DepthNet::forward_t`
+  returns it (efficient modes: z; `released` mode: their model forward, which ends with the
+  upsampling, plus their ordinal layer, i.e. what their inference runs); `forward_decode` adds
+  the decoding to metres at full resolution; `train_step` as below.
 * timing as crates/cli/src/cmd/bench_model.rs: random inputs with the same densities (image
   N(0,1); radar 3 % of pixels at U(2, 62) m; target 8 % of pixels at U(1.5, 79.5) m), warm-up,
   CUDA synchronise before reading the clock, median of repeats; forward (head output), forward
