@@ -83,6 +83,13 @@ fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
     assert!(meta.counts["lidar_dense_pixels"] > meta.counts["lidar_sparse_pixels"]);
     assert!(meta.counts["radar_in_image"] > 0);
     assert!(meta.counts["lidar_moving_removed"] > 0);
+    // The synthetic LIDAR_TOP carries the ego car's own returns (as the real scan does) and
+    // every one of the 4 other sweeps loses them (devkit remove_close(1.0)).
+    assert!(
+        meta.counts["lidar_dense_near_sensor_removed"] > 4 * 2000,
+        "{:?}",
+        meta.counts
+    );
     // The dense target (±2 sweeps, occlusion-filtered, moving boxes removed) against the
     // truth at the same pixels.
     let dense = read_depth_png(&out.join(&idx.samples[1].dir).join("lidar_dense.png")).unwrap();
