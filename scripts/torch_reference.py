@@ -151,7 +151,10 @@ def load_config(preset, config_json):
 
 
 # --------------------------------------------------------------------------------------------
-# Layers (crates/model/src/layers.rs)
+# Layers (crates/model/src/layers.rs). Module attribute names follow our var-store names, so
+# `state_dict()` keys equal `DepthNet`'s variables (`rgb.layer1.0.conv1.weight`, …; PyTorch's
+# extra `num_batches_tracked` buffers aside) and a depthsense checkpoint loads directly
+# (`--check`, crates/model/tests/torch_reference_params.rs).
 
 def conv(cin, cout, k, stride=1, pad=0, dil=1, bias=True, init="pytorch"):
     """nn.Conv2d with the Rust initialisation rules (`ConvInit`)."""
@@ -169,14 +172,10 @@ def conv(cin, cout, k, stride=1, pad=0, dil=1, bias=True, init="pytorch"):
     return m
 
 
-class ConvBn(nn.Module):
-    def __init__(self, cin, cout, k, stride, pad, dil):
-        super().__init__()
-        self.conv = conv(cin, cout, k, stride, pad, dil, bias=False, init="resnet")
-        self.bn = nn.BatchNorm2d(cout)  # γ = 1, β = 0, eps 1e-5, momentum 0.1 (as tch)
-
-    def forward(self, x):
-        return self.bn(self.conv(x))
+def conv_bn(cin, cout, k, stride, pad, dil):
+    """`ConvBn`: conv (no bias, torchvision init) and BatchNorm (γ = 1, β = 0, eps 1e-5,
+    momentum 0.1, as tch)."""
+    return conv(cin, cout, k, stride, pad, dil, bias=False, init="resnet"), nn.BatchNorm2d(cout)
 
 
 class Block(nn.Module):
@@ -186,23 +185,23 @@ class Block(nn.Module):
         super().__init__()
         exp = 4 if kind == "bottleneck" else 1
         out = planes * exp
-        self.kind = kind
         if kind == "basic":
-            self.c1 = ConvBn(cin, planes, 3, stride, dil, dil)
-            self.c2 = ConvBn(planes, planes, 3, 1, dil, dil)
-            self.c3 = None
+            self.conv1, self.bn1 = conv_bn(cin, planes, 3, stride, dil, dil)
+            self.conv2, self.bn2 = conv_bn(planes, planes, 3, 1, dil, dil)
+            self.conv3 = self.bn3 = None
         else:
-            self.c1 = ConvBn(cin, planes, 1, 1, 0, 1)
-            self.c2 = ConvBn(planes, planes, 3, stride, dil, dil)
-            self.c3 = ConvBn(planes, out, 1, 1, 0, 1)
-        self.down = ConvBn(cin, out, 1, stride, 0, 1) if (stride != 1 or cin != out) else None
+            self.conv1, self.bn1 = conv_bn(cin, planes, 1, 1, 0, 1)
+            self.conv2, self.bn2 = conv_bn(planes, planes, 3, stride, dil, dil)
+            self.conv3, self.bn3 = conv_bn(planes, out, 1, 1, 0, 1)
+        self.downsample = (nn.Sequential(*conv_bn(cin, out, 1, stride, 0, 1))
+                           if (stride != 1 or cin != out) else None)
 
     def forward(self, x):
-        y = F.relu(self.c1(x))
-        y = self.c2(y)
-        if self.c3 is not None:
-            y = self.c3(F.relu(y))
-        s = x if self.down is None else self.down(x)
+        y = F.relu(self.bn1(self.conv1(x)))
+        y = self.bn2(self.conv2(y))
+        if self.conv3 is not None:
+            y = self.bn3(self.conv3(F.relu(y)))
+        s = x if self.downsample is None else self.downsample(x)
         return F.relu(y + s)
 
 
@@ -217,7 +216,8 @@ def standard_spec(depth, in_channels, width, stem):
 
 
 class ResNet(nn.Module):
-    """`layers::ResNet`: stem (torchvision / deep / radar), max-pool, layer1..4 → C1..C4."""
+    """`layers::ResNet`: stem conv1/bn1.. (torchvision / deep / radar), max-pool,
+    layer1..layer4 → C1..C4."""
 
     def __init__(self, s):
         super().__init__()
@@ -235,10 +235,13 @@ class ResNet(nn.Module):
             cin = 2 * w
         else:
             raise ValueError(f"stem {stem}")
-        self.stem = nn.ModuleList(ConvBn(a, b, k, st, p, 1) for a, b, k, st, p in convs)
+        self.n_stem = len(convs)
+        for i, (a, b, k, st, p) in enumerate(convs, 1):
+            c, bn = conv_bn(a, b, k, st, p, 1)
+            setattr(self, f"conv{i}", c)
+            setattr(self, f"bn{i}", bn)
         self.pool = (7, 4, 1) if stem == "radar" else (3, 2, 1)
         exp = 4 if s["block"] == "bottleneck" else 1
-        self.layers = nn.ModuleList()
         self.channels = []
         for li in range(4):
             planes = w << li
@@ -248,16 +251,16 @@ class ResNet(nn.Module):
                 blocks.append(Block(s["block"], cin, planes, stride, s["dilations"][li]))
                 cin = planes * exp
             self.channels.append(cin)
-            self.layers.append(blocks)
+            setattr(self, f"layer{li + 1}", blocks)
 
     def forward(self, x):
-        for c in self.stem:
-            x = F.relu(c(x))
+        for i in range(1, self.n_stem + 1):
+            x = F.relu(getattr(self, f"bn{i}")(getattr(self, f"conv{i}")(x)))
         k, s, p = self.pool
         x = F.max_pool2d(x, k, s, p)
         outs = []
-        for layer in self.layers:
-            for b in layer:
+        for li in range(1, 5):
+            for b in getattr(self, f"layer{li}"):
                 x = b(x)
             outs.append(x)
         return outs
@@ -271,20 +274,37 @@ def resize_to(x, hw, nearest):
     return F.interpolate(x, size=hw, mode="bilinear", align_corners=False)
 
 
+class Fpn(nn.Module):
+    """The released decoder's `fpn`: P3_1..P5_1 laterals, P3_2..P5_2 smoothing."""
+
+    def __init__(self, cin, ch):
+        super().__init__()
+        for i in range(3):
+            setattr(self, f"P{i + 3}_1", conv(cin[i], ch, 1))
+            setattr(self, f"P{i + 3}_2", conv(ch, ch, 3, 1, 1))
+
+
 class Decoder(nn.Module):
-    """`net::Decoder`: top-down (paper) or released (FPN reduced to stride 32)."""
+    """`net::Decoder`: top-down (paper: lateral2..4, smooth2..4) or released (`fpn` reduced to
+    stride 32 by convfeat1..3)."""
 
     def __init__(self, kind, cin, ch):
         super().__init__()
         self.kind = kind
-        self.lateral = nn.ModuleList(conv(cin[i], ch, 1) for i in range(3))
-        self.smooth = nn.ModuleList(conv(ch, ch, 3, 1, 1) for _ in range(3))
-        if kind == "released":
-            self.feat = nn.ModuleList([
-                conv(ch, ch, 7, 4, 2, bias=False),
-                conv(ch, ch, 3, 2, 1, bias=False),
-                conv(ch, ch, 3, 1, 1, bias=False),
-            ])
+        if kind == "topdown":
+            for i in range(3):
+                setattr(self, f"lateral{i + 2}", conv(cin[i], ch, 1))
+            for i in range(3):
+                setattr(self, f"smooth{i + 2}", conv(ch, ch, 3, 1, 1))
+            self.lateral = [getattr(self, f"lateral{i + 2}") for i in range(3)]
+            self.smooth = [getattr(self, f"smooth{i + 2}") for i in range(3)]
+        else:
+            self.fpn = Fpn(cin, ch)
+            self.lateral = [getattr(self.fpn, f"P{i + 3}_1") for i in range(3)]
+            self.smooth = [getattr(self.fpn, f"P{i + 3}_2") for i in range(3)]
+            self.convfeat1 = conv(ch, ch, 7, 4, 2, bias=False)
+            self.convfeat2 = conv(ch, ch, 3, 2, 1, bias=False)
+            self.convfeat3 = conv(ch, ch, 3, 1, 1, bias=False)
         self.out_channels = 3 * ch
 
     def forward(self, c):
@@ -295,38 +315,52 @@ class Decoder(nn.Module):
         if self.kind == "topdown":
             hw = p2.shape[-2:]
             return torch.cat([p2, resize_to(p3, hw, False), resize_to(p4, hw, False)], 1)
-        f3 = F.relu(self.feat[2](p4))
+        f3 = F.relu(self.convfeat3(p4))
         hw = f3.shape[-2:]
-        f1 = resize_to(F.relu(self.feat[0](p2)), hw, False)
-        f2 = resize_to(F.relu(self.feat[1](p3)), hw, False)
+        f1 = resize_to(F.relu(self.convfeat1(p2)), hw, False)
+        f2 = resize_to(F.relu(self.convfeat2(p3)), hw, False)
         return torch.cat([f1, f2, f3], 1)
 
 
-class RadarBranch(nn.Module):
+class RadarBranch(ResNet):
+    """`net::RadarBranch`: a ResNet on the radar channels (basic: ResNet-18, torchvision stem;
+    bottleneck: the released radar stem, strides 1/2/1/1, dilations 1/1/2/4, `conv_radar`)."""
+
     def __init__(self, cfg):
-        super().__init__()
         if cfg["radar_branch"] == "basic":
-            self.resnet = ResNet(standard_spec(18, cfg["radar_channels"], cfg["radar_width"],
-                                               "torchvision"))
-            self.post = None
-            self.out_channels = self.resnet.channels[3]
+            super().__init__(standard_spec(18, cfg["radar_channels"], cfg["radar_width"],
+                                           "torchvision"))
+            self.conv_radar = None
+            self.out_channels = self.channels[3]
         else:
-            self.resnet = ResNet(dict(in_channels=cfg["radar_channels"], width=cfg["radar_width"],
-                                      stem="radar", block="bottleneck", blocks=[2, 2, 2, 2],
-                                      strides=[1, 2, 1, 1], dilations=[1, 1, 2, 4]))
-            c, o = self.resnet.channels[3], cfg["radar_out_channels"]
-            self.post = nn.ModuleList([conv(c, o, 1), conv(o, o, 1)])
+            super().__init__(dict(in_channels=cfg["radar_channels"], width=cfg["radar_width"],
+                                  stem="radar", block="bottleneck", blocks=[2, 2, 2, 2],
+                                  strides=[1, 2, 1, 1], dilations=[1, 1, 2, 4]))
+            c, o = self.channels[3], cfg["radar_out_channels"]
+            self.conv_radar = nn.Sequential(conv(c, o, 1), nn.ReLU(), conv(o, o, 1), nn.ReLU())
             self.out_channels = o
 
     def forward(self, x):
-        y = self.resnet(x)[-1]
-        if self.post is not None:
-            y = F.relu(self.post[1](F.relu(self.post[0](y))))
-        return y
+        y = super().forward(x)[-1]
+        return y if self.conv_radar is None else self.conv_radar(y)
+
+
+class Head(nn.Module):
+    def __init__(self, fused, hidden, out):
+        super().__init__()
+        self.conv1 = conv(fused, hidden, 1)
+        self.conv2 = conv(hidden, out, 1)
+
+
+class Attention(nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.conv = conv(2, 1, 7, 1, 3, init="zero")
 
 
 class DepthNet(nn.Module):
-    """`net::DepthNet`: forward_logits → [B,2K,h,w] (ordinal) or [B,1,h,w] metres."""
+    """`net::DepthNet`: forward → [B,2K,h,w] ordinal logits or [B,1,h,w] metres
+    (`forward_logits_t`)."""
 
     def __init__(self, cfg):
         super().__init__()
@@ -338,10 +372,9 @@ class DepthNet(nn.Module):
         self.decoder = Decoder(cfg["decoder"], ch[1:], cfg["decoder_channels"])
         self.radar = RadarBranch(cfg) if cfg["fusion"] == "late" else None
         fused = self.decoder.out_channels + (self.radar.out_channels if self.radar else 0)
-        self.attention = conv(2, 1, 7, 1, 3, init="zero") if cfg["attention"] else None
+        self.attention = Attention() if cfg["attention"] else None
         out = 2 * cfg["sid"]["bins"] if cfg["head"] == "ordinal" else 1
-        self.head1 = conv(fused, cfg["head_channels"], 1)
-        self.head2 = conv(cfg["head_channels"], out, 1)
+        self.head = Head(fused, cfg["head_channels"], out)
 
     def downscale_inputs(self, image, radar):
         s = self.cfg["input_downscale"]
@@ -367,12 +400,12 @@ class DepthNet(nn.Module):
         if self.attention is not None:
             mean = f.mean(1, keepdim=True)
             mx = f.amax(1, keepdim=True)
-            f = f * (torch.sigmoid(self.attention(torch.cat([mean, mx], 1))) * 2.0)
+            f = f * (torch.sigmoid(self.attention.conv(torch.cat([mean, mx], 1))) * 2.0)
         p = cfg["dropout"]
         if cfg["head_pre_dropout"]:
             f = F.dropout2d(f, p, self.training)
-        y = F.dropout2d(F.relu(self.head1(f)), p, self.training)
-        y = self.head2(y)
+        y = F.dropout2d(F.relu(self.head.conv1(f)), p, self.training)
+        y = self.head.conv2(y)
         if cfg["head"] == "ordinal":
             return y
         return torch.sigmoid(y) * cfg["sid"]["beta_m"]
@@ -786,6 +819,68 @@ def fmt_row(r):
             f"{ms(r['forward_decode']):>10} {ms(r['train_step']):>11} {mem(r['train_step']):>9}")
 
 
+def read_safetensors(path):
+    """A safetensors file (what `VarStore::save` writes) → {name: tensor}, without the package."""
+    import struct
+    with open(path, "rb") as f:
+        data = f.read()
+    n = struct.unpack("<Q", data[:8])[0]
+    header = json.loads(data[8:8 + n])
+    dtypes = {"F32": torch.float32, "F64": torch.float64, "I64": torch.int64,
+              "BF16": torch.bfloat16, "F16": torch.float16}
+    out = {}
+    for k, v in header.items():
+        if k == "__metadata__":
+            continue
+        a, b = v["data_offsets"]
+        buf = bytearray(data[8 + n + a:8 + n + b])
+        t = torch.frombuffer(buf, dtype=dtypes[v["dtype"]]) if buf else \
+            torch.empty(0, dtype=dtypes[v["dtype"]])
+        out[k] = t.reshape(v["shape"])
+    return out
+
+
+def check(d):
+    """`--check DIR`: DIR/config.json (a ModelConfig), DIR/weights.safetensors (a depthsense
+    VarStore), DIR/shape.json {batch, height, width}, DIR/image.f32, DIR/radar.f32 (little-endian
+    f32). Loads the weights under our names (every key and shape must match), runs the head
+    output in eval mode in fp32 on the CPU (`DepthNet::forward_t`) and writes DIR/z.f32."""
+    cfg = load_config(None, os.path.join(d, "config.json"))
+    with open(os.path.join(d, "shape.json")) as f:
+        sh = json.load(f)
+    b, h, w = sh["batch"], sh["height"], sh["width"]
+    net = DepthNet(cfg)
+    ours = read_safetensors(os.path.join(d, "weights.safetensors"))
+    mine = {k: v for k, v in net.state_dict().items() if not k.endswith("num_batches_tracked")}
+    missing = sorted(set(mine) - set(ours))
+    unexpected = sorted(set(ours) - set(mine))
+    shapes = sorted(f"{k}: ours {list(ours[k].shape)} PyTorch {list(mine[k].shape)}"
+                    for k in set(mine) & set(ours) if ours[k].shape != mine[k].shape)
+    rep = {"keys": len(mine), "missing_in_depthsense": missing,
+           "unexpected_from_depthsense": unexpected, "shape_mismatch": shapes}
+    if missing or unexpected or shapes:
+        print(json.dumps(rep))
+        return 1
+    net.load_state_dict(ours, strict=False)
+    net.eval()
+
+    def raw(name, c):
+        with open(os.path.join(d, name), "rb") as f:
+            return torch.frombuffer(bytearray(f.read()), dtype=torch.float32).reshape(b, c, h, w)
+
+    image, radar = raw("image.f32", 3), raw("radar.f32", cfg["radar_channels"])
+    with torch.no_grad():
+        z = Runner(net, "efficient").forward(image, radar).float().contiguous()
+    with open(os.path.join(d, "z.f32"), "wb") as f:
+        try:
+            f.write(z.numpy().tobytes())
+        except (ImportError, RuntimeError):  # torch without numpy
+            f.write(bytes(z.view(-1).view(torch.uint8).tolist()))
+    rep["z_shape"] = list(z.shape)
+    print(json.dumps(rep))
+    return 0
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -811,10 +906,14 @@ def main():
     p.add_argument("--params-only", action="store_true",
                    help="print {params, macs_per_image} (meta device, no allocation) and exit")
     p.add_argument("--out", help="write the JSON here (one object, or {\"runs\": [...]})")
+    p.add_argument("--check", metavar="DIR", help="load a depthsense VarStore and write its head "
+                   "output for given inputs (see check(); used by the Rust test)")
     a = p.parse_args()
     a.cudnn_benchmark = a.cudnn_benchmark == "true"
     if a.threads:
         torch.set_num_threads(a.threads)
+    if a.check:
+        return check(a.check)
     presets = [s.strip() for s in a.preset.split(",") if s.strip()]
     cfgs = [load_config(None, a.config_json)] if a.config_json else \
         [load_config(s, None) for s in presets]

@@ -1,14 +1,16 @@
 //! `scripts/torch_reference.py` (the PyTorch eager reference of issue 9, timed side by side with
 //! `depthsense bench model`) builds the same networks as `DepthNet`: for every preset its
 //! trainable parameters and conv multiply-adds at 350x800 equal ours exactly. The script counts
-//! on PyTorch's meta device (nothing allocated); we build each preset on the CPU. Skips when the
-//! workspace `.venv` (torch) is absent or torch does not import (exit code 77).
+//! on PyTorch's meta device (nothing allocated); we build each preset on the CPU. And with the
+//! same weights it computes the same head output: our VarStore loads into it under our own
+//! variable names (every key and shape equal) and the outputs agree to fp32 rounding. Skips when
+//! the workspace `.venv` (torch) is absent or torch does not import (exit code 77).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use depthsense_model::{report, DepthNet, ModelConfig};
-use tch::{nn, Device};
+use tch::{nn, Device, Kind, Tensor};
 
 fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -100,5 +102,129 @@ fn torch_reference_builds_our_presets_parameter_for_parameter() {
         if preset == "released" {
             assert_eq!(params, 68_399_904, "SPEC §6.1");
         }
+    }
+}
+
+fn write_f32(path: &Path, t: &Tensor) {
+    let v = Vec::<f32>::try_from(t.flatten(0, -1)).unwrap();
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// Random BatchNorm affine parameters and statistics, and a non-zero attention conv, so that
+/// every module changes the output (the attention conv starts at zero: identity gate).
+fn randomise(vs: &nn::VarStore) {
+    tch::no_grad(|| {
+        for (name, mut v) in vs.variables() {
+            let r = Tensor::rand_like(&v);
+            if name.ends_with("running_var") {
+                v.copy_(&(r * 0.7 + 0.8));
+            } else if name.ends_with("running_mean") || name.contains("attention") {
+                v.copy_(&((r - 0.5) * 0.2));
+            } else if v.dim() == 1 && name.contains(".bn") || name.contains("downsample.1") {
+                if name.ends_with("weight") {
+                    v.copy_(&(r * 0.4 + 0.8));
+                } else {
+                    v.copy_(&((r - 0.5) * 0.2));
+                }
+            }
+        }
+    })
+}
+
+/// The same weights give the same head output: our VarStore (saved as safetensors) loads into
+/// the PyTorch reference under our own variable names — every key and shape must match — and
+/// `DepthNet::forward_t` in eval mode equals the reference's forward in fp32 on the CPU, for the
+/// paper layout (tiny), a narrow released layout (deep stem, FPN decoder, bottleneck radar
+/// branch, clamped logits at full resolution) and an early-fusion ResNet-50 with input
+/// downscaling.
+#[test]
+fn torch_reference_computes_what_depthnet_computes() {
+    let Some(py) = python() else {
+        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
+        return;
+    };
+    let (b, h, w) = (2i64, 64i64, 128i64);
+    let narrow = [
+        "width=8",
+        "decoder-channels=16",
+        "head-channels=16",
+        "radar-width=8",
+    ];
+    let mut released = ModelConfig::released().with_options(&narrow).unwrap();
+    released.radar_out_channels = 16;
+    released.out_height = h;
+    released.out_width = w;
+    let early = ModelConfig::paper()
+        .with_options(&narrow)
+        .unwrap()
+        .with_options(&[
+            "backbone=50",
+            "fusion=early",
+            "attention=off",
+            "input-downscale=2",
+        ])
+        .unwrap();
+    for cfg in [ModelConfig::tiny(), released, early] {
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = DepthNet::new(&vs.root(), &cfg).unwrap();
+        randomise(&vs);
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        vs.save(d.join("weights.safetensors")).unwrap();
+        std::fs::write(d.join("config.json"), serde_json::to_string(&cfg).unwrap()).unwrap();
+        std::fs::write(
+            d.join("shape.json"),
+            serde_json::json!({"batch": b, "height": h, "width": w}).to_string(),
+        )
+        .unwrap();
+        let image = Tensor::randn([b, 3, h, w], (Kind::Float, Device::Cpu));
+        let rc = cfg.radar_channels;
+        let mask = Tensor::rand([b, rc, h, w], (Kind::Float, Device::Cpu)).lt(0.05);
+        let radar = (Tensor::rand([b, rc, h, w], (Kind::Float, Device::Cpu)) * 60.0 + 2.0) * mask;
+        write_f32(&d.join("image.f32"), &image);
+        write_f32(&d.join("radar.f32"), &radar);
+        let out = Command::new(&py)
+            .arg(workspace().join("scripts/torch_reference.py"))
+            .args(["--threads", "1", "--check"])
+            .arg(d)
+            .output()
+            .expect("running scripts/torch_reference.py --check");
+        if out.status.code() == Some(77) {
+            eprintln!("SKIP: torch is not importable in .venv");
+            return;
+        }
+        let report = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            out.status.success(),
+            "{}: --check failed: {report} {}",
+            cfg.name,
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let ours = tch::no_grad(|| net.forward_t(&image, &radar, false));
+        let bytes = std::fs::read(d.join("z.f32")).unwrap();
+        let theirs: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        let theirs = Tensor::from_slice(&theirs).view(ours.size().as_slice());
+        let scale = ours.abs().max().double_value(&[]).max(1e-6);
+        let diff = (&ours - &theirs).abs().max().double_value(&[]);
+        eprintln!(
+            "{} ({:?} decoder, {:?} radar, fusion {:?}): z {:?}, max |z| {scale:.3}, max |Δ| {diff:.2e}; {report}",
+            cfg.name,
+            cfg.decoder,
+            cfg.radar_branch,
+            cfg.fusion,
+            ours.size()
+        );
+        assert!(
+            diff <= 1e-4 * scale,
+            "{}: head outputs differ by {diff} (max |z| {scale})",
+            cfg.name
+        );
+        // Not a constant map: the comparison means something.
+        assert!(ours.std(true).double_value(&[]) > 1e-3 * scale);
     }
 }
