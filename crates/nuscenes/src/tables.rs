@@ -1,9 +1,12 @@
 //! nuScenes tables and indexes (SPEC §2).
 //!
-//! Tokens are 32-hex strings; they are stored as `u128` ([`Token`]) so that 2.6 M
-//! `sample_data` rows load in seconds with little memory. Rows are parsed with
-//! `serde_json::from_slice` into borrowing structs and converted one at a time (a streaming
-//! sequence visitor), so the largest intermediate is the file buffer itself.
+//! Tokens are 32-hex strings; they are stored as 128 bits ([`Token`], 16 bytes with a niche,
+//! so that `Option<Token>` is 16 bytes too) so that 2.6 M `sample_data` rows load in seconds
+//! with little memory. The big tables are read in chunks and their rows parsed in parallel
+//! into borrowing structs; the small ones with a streaming sequence visitor, so the largest
+//! intermediate is one chunk. File names are stored compactly ([`FileName`]), and the token
+//! indexes hold only row numbers ([`RowIndex`]): loading generated v1.0-trainval-sized tables
+//! peaks below 1 GB (BENCHMARKS.md).
 //! Tokens that are not 32 hex digits are accepted too (hashed, with the text kept aside).
 //!
 //! Partial version folders are allowed: rows the data does not reference may be absent.
@@ -12,17 +15,32 @@
 
 use std::collections::HashMap;
 use std::fmt;
+use std::num::NonZeroU64;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex, OnceLock};
 
 use serde::de::{Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 
 use crate::error::{NuError, Result};
 
-/// A nuScenes token (32 hex digits packed into 128 bits).
-#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Default)]
-pub struct Token(pub u128);
+/// A nuScenes token (32 hex digits packed into 128 bits). The high half is never zero (a
+/// token whose high 64 bits are zero is stored hashed, like non-hex tokens), which gives
+/// `Option<Token>` a niche: 16 bytes instead of 32 for a `u128`. Alignment is 8.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Token {
+    hi: NonZeroU64,
+    lo: u64,
+}
+
+impl Default for Token {
+    /// The token of the empty string (a placeholder "no token").
+    fn default() -> Self {
+        Token::from_bits(FNV_OFFSET)
+    }
+}
+
+const FNV_OFFSET: u128 = 0x6c62272e07bb014262b821756295c58d;
 
 /// Hex digit values; 0x80 marks a non-digit (upper case is not a nuScenes token).
 static HEX: [u8; 256] = {
@@ -44,6 +62,24 @@ static HAS_EXOTIC: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool
 static EXOTIC: Mutex<Option<HashMap<u128, String>>> = Mutex::new(None);
 
 impl Token {
+    /// The token with these 128 bits, if its high half is not zero.
+    fn from_u128(v: u128) -> Option<Token> {
+        NonZeroU64::new((v >> 64) as u64).map(|hi| Token { hi, lo: v as u64 })
+    }
+
+    /// Like [`Token::from_u128`], with a zero high half replaced by 1 (for hashes).
+    fn from_bits(v: u128) -> Token {
+        Token::from_u128(v).unwrap_or(Token {
+            hi: NonZeroU64::MIN,
+            lo: v as u64,
+        })
+    }
+
+    /// The 128 bits of the token.
+    pub fn as_u128(self) -> u128 {
+        ((self.hi.get() as u128) << 64) | self.lo as u128
+    }
+
     /// Parse a token; `""` and `null` are handled by the callers as "no token".
     pub fn parse(s: &str) -> Token {
         Token::parse_bytes(s.as_bytes())
@@ -60,22 +96,34 @@ impl Token {
                 v = (v << 4) | (d & 0x0f) as u128;
             }
             if bad & 0x80 == 0 {
-                return Token(v);
+                if let Some(t) = Token::from_u128(v) {
+                    return t;
+                }
             }
         }
         // Non-hex token: FNV-1a 128-bit hash, text kept for display.
-        let mut h: u128 = 0x6c62272e07bb014262b821756295c58d;
+        let mut h: u128 = FNV_OFFSET;
         for &b in s {
             h ^= b as u128;
             h = h.wrapping_mul(0x0000000001000000000000000000013B);
         }
+        let t = Token::from_bits(h);
         if let Ok(mut g) = EXOTIC.lock() {
             g.get_or_insert_with(HashMap::new)
-                .entry(h)
+                .entry(t.as_u128())
                 .or_insert_with(|| String::from_utf8_lossy(s).into_owned());
             HAS_EXOTIC.store(true, std::sync::atomic::Ordering::Relaxed);
         }
-        Token(h)
+        t
+    }
+
+    /// A well-mixed 64-bit hash (splitmix64 finaliser): every output bit depends on every
+    /// input bit, so masking the low bits works for sequential and random tokens alike.
+    fn hash64(self) -> u64 {
+        let mut x = self.lo ^ self.hi.get().rotate_left(32);
+        x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        x ^ (x >> 31)
     }
 }
 
@@ -83,12 +131,12 @@ impl fmt::Display for Token {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if HAS_EXOTIC.load(std::sync::atomic::Ordering::Relaxed) {
             if let Ok(g) = EXOTIC.lock() {
-                if let Some(s) = g.as_ref().and_then(|m| m.get(&self.0)) {
+                if let Some(s) = g.as_ref().and_then(|m| m.get(&self.as_u128())) {
                     return f.write_str(s);
                 }
             }
         }
-        write!(f, "{:032x}", self.0)
+        write!(f, "{:032x}", self.as_u128())
     }
 }
 
@@ -112,8 +160,251 @@ impl std::hash::Hasher for TokenHasher {
             self.0 = (self.0.rotate_left(5) ^ *b as u64).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
         }
     }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(29) ^ v).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
     fn write_u128(&mut self, v: u128) {
         self.0 = ((v as u64) ^ ((v >> 64) as u64)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
+
+/// Token → row index of one table, holding only `u32` row numbers (4 bytes a slot instead of
+/// 32 for a `HashMap<Token, u32>` entry): the token is compared against the row itself.
+/// Open addressing, linear probing, load ≤ 0.5–0.75. When two rows share a token, the later
+/// one wins (like repeated `HashMap::insert`).
+#[derive(Default)]
+pub struct RowIndex {
+    slots: Vec<u32>,
+}
+
+const EMPTY_SLOT: u32 = u32::MAX;
+
+impl RowIndex {
+    /// Index `rows` by `tok`.
+    pub fn build<T>(rows: &[T], tok: impl Fn(&T) -> Token) -> RowIndex {
+        let n = rows.len().min(EMPTY_SLOT as usize - 1);
+        let cap = (n + n / 3 + 1).next_power_of_two().max(8);
+        let mut slots = vec![EMPTY_SLOT; cap];
+        let mask = cap - 1;
+        for (i, r) in rows.iter().take(n).enumerate() {
+            let t = tok(r);
+            let mut k = t.hash64() as usize & mask;
+            loop {
+                let s = slots[k];
+                if s == EMPTY_SLOT || tok(&rows[s as usize]) == t {
+                    slots[k] = i as u32;
+                    break;
+                }
+                k = (k + 1) & mask;
+            }
+        }
+        RowIndex { slots }
+    }
+
+    /// Row of `token`, given the same rows and key function as [`RowIndex::build`].
+    pub fn get<T>(&self, rows: &[T], tok: impl Fn(&T) -> Token, token: Token) -> Option<usize> {
+        if self.slots.is_empty() {
+            return None;
+        }
+        let mask = self.slots.len() - 1;
+        let mut k = token.hash64() as usize & mask;
+        loop {
+            let s = *self.slots.get(k)?;
+            if s == EMPTY_SLOT {
+                return None;
+            }
+            let row = rows.get(s as usize)?;
+            if tok(row) == token {
+                return Some(s as usize);
+            }
+            k = (k + 1) & mask;
+        }
+    }
+}
+
+/// The parts shared by many file names: `samples/CAM_FRONT/<log>__CAM_FRONT__` and `.jpg`.
+#[derive(Debug, PartialEq, Eq, Hash)]
+struct NameParts {
+    prefix: Box<str>,
+    suffix: Box<str>,
+}
+
+/// A sample_data file name relative to the dataroot, stored compactly: nuScenes names are
+/// `<folder>/<channel>/<log>__<channel>__<timestamp>.<ext>`, so the prefix and extension are
+/// shared between rows (one `Arc`) and the timestamp kept as a number; the text is built on
+/// first use and cached. 32 bytes a row instead of ~110 for a `Box<str>` and its heap block.
+/// Names of any other shape are kept as text. Derefs to `str`.
+#[allow(clippy::box_collection)]
+pub struct FileName {
+    parts: Option<Arc<NameParts>>,
+    // A thin pointer on purpose: `OnceLock<String>` would make every row 8 bytes larger.
+    number: u64,
+    text: OnceLock<Box<String>>,
+}
+
+thread_local! {
+    /// Recently used name parts of this thread, by hash (bounded; only shares memory
+    /// between rows, so a collision or a clear just costs one more `Arc`).
+    static PARTS: std::cell::RefCell<HashMap<u64, Arc<NameParts>>> =
+        std::cell::RefCell::new(HashMap::new());
+}
+
+impl FileName {
+    /// Store `s` (compactly when it has the nuScenes shape).
+    pub fn new(s: &str) -> FileName {
+        if let Some((prefix, number, suffix)) = Self::split(s) {
+            let key = {
+                use std::hash::{Hash, Hasher};
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                (prefix, suffix).hash(&mut h);
+                h.finish()
+            };
+            let parts = PARTS.with(|c| {
+                let mut c = c.borrow_mut();
+                if let Some(p) = c.get(&key) {
+                    if &*p.prefix == prefix && &*p.suffix == suffix {
+                        return p.clone();
+                    }
+                }
+                if c.len() >= 4096 {
+                    c.clear();
+                }
+                let p = Arc::new(NameParts {
+                    prefix: prefix.into(),
+                    suffix: suffix.into(),
+                });
+                c.insert(key, p.clone());
+                p
+            });
+            return FileName {
+                parts: Some(parts),
+                number,
+                text: OnceLock::new(),
+            };
+        }
+        FileName {
+            parts: None,
+            number: 0,
+            text: OnceLock::from(Box::new(s.to_string())),
+        }
+    }
+
+    /// `(prefix through the last "__", timestamp, rest)` when the digits after the last "__"
+    /// round-trip through a u64 (no sign, no leading zero).
+    fn split(s: &str) -> Option<(&str, u64, &str)> {
+        let at = s.rfind("__")? + 2;
+        let rest = &s[at..];
+        let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+        if digits == 0 || digits > 19 || (digits > 1 && rest.starts_with('0')) {
+            return None;
+        }
+        let number: u64 = rest[..digits].parse().ok()?;
+        Some((&s[..at], number, &rest[digits..]))
+    }
+
+    /// The name as text.
+    pub fn as_str(&self) -> &str {
+        self.text.get_or_init(|| {
+            Box::new(match &self.parts {
+                Some(p) => format!("{}{}{}", p.prefix, self.number, p.suffix),
+                None => String::new(),
+            })
+        })
+    }
+}
+
+impl std::ops::Deref for FileName {
+    type Target = str;
+    fn deref(&self) -> &str {
+        self.as_str()
+    }
+}
+
+impl AsRef<str> for FileName {
+    fn as_ref(&self) -> &str {
+        self.as_str()
+    }
+}
+
+impl AsRef<Path> for FileName {
+    fn as_ref(&self) -> &Path {
+        Path::new(self.as_str())
+    }
+}
+
+impl Clone for FileName {
+    fn clone(&self) -> Self {
+        FileName {
+            parts: self.parts.clone(),
+            number: self.number,
+            text: match (&self.parts, self.text.get()) {
+                (None, Some(t)) => OnceLock::from(t.clone()),
+                _ => OnceLock::new(),
+            },
+        }
+    }
+}
+
+impl PartialEq for FileName {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_str() == other.as_str()
+    }
+}
+
+impl Eq for FileName {}
+
+impl fmt::Display for FileName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl fmt::Debug for FileName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(self.as_str(), f)
+    }
+}
+
+impl From<&str> for FileName {
+    fn from(s: &str) -> Self {
+        FileName::new(s)
+    }
+}
+
+/// A short list of tokens (annotation attributes): none or one inline, more on the heap.
+#[derive(Clone, PartialEq, Eq, Default)]
+pub enum TokenList {
+    #[default]
+    Empty,
+    One(Token),
+    Many(Box<[Token]>),
+}
+
+impl std::ops::Deref for TokenList {
+    type Target = [Token];
+    fn deref(&self) -> &[Token] {
+        match self {
+            TokenList::Empty => &[],
+            TokenList::One(t) => std::slice::from_ref(t),
+            TokenList::Many(v) => v,
+        }
+    }
+}
+
+impl FromIterator<Token> for TokenList {
+    fn from_iter<I: IntoIterator<Item = Token>>(it: I) -> Self {
+        let v: Vec<Token> = it.into_iter().collect();
+        match v.len() {
+            0 => TokenList::Empty,
+            1 => TokenList::One(v[0]),
+            _ => TokenList::Many(v.into_boxed_slice()),
+        }
+    }
+}
+
+impl fmt::Debug for TokenList {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
     }
 }
 
@@ -167,7 +458,7 @@ pub struct SampleData {
     pub width: u32,
     pub height: u32,
     /// Relative to the dataroot.
-    pub filename: Box<str>,
+    pub filename: FileName,
     pub prev: Option<Token>,
     pub next: Option<Token>,
 }
@@ -213,7 +504,7 @@ pub struct SampleAnnotation {
     pub token: Token,
     pub sample_token: Token,
     pub instance_token: Token,
-    pub attribute_tokens: Vec<Token>,
+    pub attribute_tokens: TokenList,
     pub translation: [f64; 3],
     /// width, length, height (devkit order).
     pub size: [f64; 3],
@@ -387,7 +678,7 @@ where
 }
 
 /// Bytes read per chunk by [`parse_table_chunked`].
-const CHUNK_BYTES: usize = 32 << 20;
+pub const TABLE_CHUNK_BYTES: usize = 16 << 20;
 
 /// Parse a big table file (a JSON list of objects) in chunks: each chunk is split into
 /// complete top-level rows by a small scanner (strings and nesting aware), and the rows are
@@ -395,7 +686,7 @@ const CHUNK_BYTES: usize = 32 << 20;
 /// the converted rows; rows keep file order. `Ok(None)` when the file is absent and not
 /// `required`.
 fn parse_table_chunked<T, F>(
-    dir: &Path,
+    src: &Source,
     name: &str,
     required: bool,
     parse: F,
@@ -404,11 +695,80 @@ where
     T: Send,
     F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
 {
-    parse_table_chunked_sized(dir, name, required, parse, CHUNK_BYTES)
+    parse_table_chunked_sized(src, name, required, parse, src.chunk_bytes())
+}
+
+/// Where the tables come from: a version folder, or bytes in memory (fuzzing, tests).
+enum Source<'a> {
+    Dir(PathBuf),
+    Memory {
+        label: PathBuf,
+        tables: &'a [(&'a str, &'a [u8])],
+        chunk_bytes: usize,
+    },
+}
+
+impl Source<'_> {
+    fn path(&self, name: &str) -> PathBuf {
+        match self {
+            Source::Dir(d) => d.join(format!("{name}.json")),
+            Source::Memory { label, .. } => label.join(format!("{name}.json")),
+        }
+    }
+
+    fn chunk_bytes(&self) -> usize {
+        match self {
+            Source::Dir(_) => TABLE_CHUNK_BYTES,
+            Source::Memory { chunk_bytes, .. } => (*chunk_bytes).max(1),
+        }
+    }
+
+    /// A reader over table `name` and its length; `None` when absent.
+    fn open(&self, name: &str) -> Result<Option<(Box<dyn std::io::Read + Send + '_>, u64)>> {
+        match self {
+            Source::Dir(_) => {
+                let path = self.path(name);
+                match std::fs::File::open(&path) {
+                    Ok(f) => {
+                        let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+                        Ok(Some((Box::new(f), len)))
+                    }
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+                    Err(e) => Err(NuError::io(&path, e)),
+                }
+            }
+            Source::Memory { tables, .. } => {
+                Ok(tables.iter().find(|(n, _)| *n == name).map(|(_, b)| {
+                    (
+                        Box::new(*b) as Box<dyn std::io::Read + Send>,
+                        b.len() as u64,
+                    )
+                }))
+            }
+        }
+    }
+
+    /// The whole of table `name`; `None` when absent.
+    fn read(&self, name: &str) -> Result<Option<std::borrow::Cow<'_, [u8]>>> {
+        match self {
+            Source::Dir(_) => {
+                let p = self.path(name);
+                match std::fs::read(&p) {
+                    Ok(b) => Ok(Some(b.into())),
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+                    Err(e) => Err(NuError::io(&p, e)),
+                }
+            }
+            Source::Memory { tables, .. } => Ok(tables
+                .iter()
+                .find(|(n, _)| *n == name)
+                .map(|(_, b)| (*b).into())),
+        }
+    }
 }
 
 fn parse_table_chunked_sized<T, F>(
-    dir: &Path,
+    src: &Source,
     name: &str,
     required: bool,
     parse: F,
@@ -419,26 +779,33 @@ where
     F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
 {
     use rayon::prelude::*;
-    let path = dir.join(format!("{name}.json"));
-    let mut file = match std::fs::File::open(&path) {
-        Ok(f) => f,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound && !required => return Ok(None),
-        Err(e) => return Err(NuError::io(&path, e)),
+    let path = src.path(name);
+    let (mut file, file_len) = match src.open(name)? {
+        Some(f) => f,
+        None if !required => return Ok(None),
+        None => {
+            return Err(NuError::io(
+                &path,
+                std::io::Error::new(std::io::ErrorKind::NotFound, "table file not found"),
+            ))
+        }
     };
     let json_err = |reason: String| NuError::Json {
         path: path.display().to_string(),
         reason,
     };
-    let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
     let mut st = ScanState::default();
     let mut out: Vec<T> = Vec::new();
     let mut cur = fill_and_scan(&mut file, &path, &[], &mut st, chunk_bytes, Vec::new())?;
-    // Reserve the whole table from the first chunk's row density (avoids regrowth copies).
+    // Reserve the whole table from the first chunk's row density (avoids regrowth copies),
+    // never more memory than the file has bytes (a hostile file of tiny rows would
+    // otherwise reserve gigabytes before its first row fails to parse).
     if !cur.spans.is_empty() && cur.keep_from > 0 {
         let est = (file_len as f64 * cur.spans.len() as f64
             / cur.keep_from.min(cur.buf.len()) as f64
-            * 1.02) as usize;
-        out.reserve(est.min(100_000_000));
+            * 1.01) as usize;
+        let by_bytes = file_len as usize / std::mem::size_of::<T>().max(1);
+        out.reserve(est.min(by_bytes).min(100_000_000));
     }
     let mut spare: Vec<u8> = Vec::new();
     loop {
@@ -522,7 +889,7 @@ struct Chunk {
 /// Read up to `chunk_bytes` after `carry` (the previous chunk's incomplete row) and find the
 /// complete top-level rows.
 fn fill_and_scan(
-    file: &mut std::fs::File,
+    file: &mut dyn std::io::Read,
     path: &Path,
     carry: &[u8],
     st: &mut ScanState,
@@ -541,8 +908,7 @@ fn fill_and_scan(
     let mut eof = false;
     // Read without zero-filling: `take` + `read_to_end` appends into spare capacity.
     let want = chunk_bytes as u64;
-    let n = file
-        .by_ref()
+    let n = (&mut *file)
         .take(want)
         .read_to_end(&mut buf)
         .map_err(|e| NuError::io(path, e))?;
@@ -654,21 +1020,56 @@ fn fill_and_scan(
     })
 }
 
-fn read_table(dir: &Path, name: &str, required: bool) -> Result<Option<(PathBuf, Vec<u8>)>> {
-    let p = dir.join(format!("{name}.json"));
-    match std::fs::read(&p) {
-        Ok(b) => Ok(Some((p, b))),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound && !required => Ok(None),
-        Err(e) => Err(NuError::io(&p, e)),
+fn read_table<'s>(
+    src: &'s Source,
+    name: &str,
+    required: bool,
+) -> Result<Option<(PathBuf, std::borrow::Cow<'s, [u8]>)>> {
+    let p = src.path(name);
+    match src.read(name)? {
+        Some(b) => Ok(Some((p, b))),
+        None if !required => Ok(None),
+        None => Err(NuError::io(
+            &p,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "table file not found"),
+        )),
     }
 }
 
-fn index_of<T>(rows: &[T], tok: impl Fn(&T) -> Token) -> TokenMap<u32> {
-    let mut m = TokenMap::with_capacity_and_hasher(rows.len(), Default::default());
-    for (i, r) in rows.iter().enumerate() {
-        m.insert(tok(r), i as u32);
-    }
-    m
+/// Key functions of the indexed tables (one per row type, so that index and lookup agree).
+trait Keyed {
+    fn key(&self) -> Token;
+}
+
+macro_rules! keyed {
+    ($($t:ty),*) => {$(
+        impl Keyed for $t {
+            fn key(&self) -> Token {
+                self.token
+            }
+        }
+    )*};
+}
+keyed!(
+    Scene,
+    Sample,
+    SampleData,
+    CalibratedSensor,
+    EgoPose,
+    Sensor,
+    Log,
+    SampleAnnotation,
+    Instance,
+    Category,
+    Attribute
+);
+
+fn index_of<T: Keyed>(rows: &[T]) -> RowIndex {
+    RowIndex::build(rows, T::key)
+}
+
+fn lookup<'a, T: Keyed>(idx: &RowIndex, rows: &'a [T], token: Token) -> Option<&'a T> {
+    idx.get(rows, T::key, token).and_then(|i| rows.get(i))
 }
 
 /// A loaded nuScenes version folder with its indexes.
@@ -688,19 +1089,19 @@ pub struct NuScenes {
     pub category: Vec<Category>,
     pub attribute: Vec<Attribute>,
 
-    scene_idx: TokenMap<u32>,
-    sample_idx: TokenMap<u32>,
-    sd_idx: TokenMap<u32>,
-    calib_idx: TokenMap<u32>,
-    ego_idx: TokenMap<u32>,
-    sensor_idx: TokenMap<u32>,
-    log_idx: TokenMap<u32>,
-    ann_idx: TokenMap<u32>,
-    instance_idx: TokenMap<u32>,
-    category_idx: TokenMap<u32>,
-    attribute_idx: TokenMap<u32>,
-    /// sample → [(channel, keyframe sample_data index)].
-    sample_keyframes: TokenMap<Vec<(Box<str>, u32)>>,
+    scene_idx: RowIndex,
+    sample_idx: RowIndex,
+    sd_idx: RowIndex,
+    calib_idx: RowIndex,
+    ego_idx: RowIndex,
+    sensor_idx: RowIndex,
+    log_idx: RowIndex,
+    ann_idx: RowIndex,
+    instance_idx: RowIndex,
+    category_idx: RowIndex,
+    attribute_idx: RowIndex,
+    /// sample → [(sensor row, keyframe sample_data row)].
+    sample_keyframes: TokenMap<Vec<(u32, u32)>>,
     /// scene → sample indices ordered by timestamp.
     scene_samples: TokenMap<Vec<u32>>,
     /// sample → annotation indices.
@@ -720,16 +1121,13 @@ macro_rules! getter {
             from: Token,
             field: &'static str,
         ) -> Result<&$ty> {
-            self.$idx
-                .get(&token)
-                .map(|&i| &self.$vec[i as usize])
-                .ok_or_else(|| NuError::MissingToken {
-                    table,
-                    token: from.to_string(),
-                    field,
-                    target: $name,
-                    missing: token.to_string(),
-                })
+            lookup(&self.$idx, &self.$vec, token).ok_or_else(|| NuError::MissingToken {
+                table,
+                token: from.to_string(),
+                field,
+                target: $name,
+                missing: token.to_string(),
+            })
         }
     };
 }
@@ -747,8 +1145,30 @@ impl NuScenes {
                 ),
             });
         }
+        Self::load_from(&Source::Dir(dir), dataroot, version)
+    }
+
+    /// Load tables given as bytes (`("sample_data", bytes)`, … without `.json`), read
+    /// `chunk_bytes` at a time like files ([`TABLE_CHUNK_BYTES`] for the default). Errors
+    /// name `<memory>/<version>/<table>.json`. For fuzzing and tests: every byte of a table
+    /// goes through the same code as [`NuScenes::load`].
+    pub fn from_memory(
+        version: &str,
+        tables: &[(&str, &[u8])],
+        chunk_bytes: usize,
+    ) -> Result<NuScenes> {
+        let label = Path::new("<memory>").join(version);
+        let src = Source::Memory {
+            label: label.clone(),
+            tables,
+            chunk_bytes,
+        };
+        Self::load_from(&src, Path::new("<memory>"), version)
+    }
+
+    fn load_from(src: &Source, dataroot: &Path, version: &str) -> Result<NuScenes> {
         // The big tables are parsed chunk by chunk, rows in parallel.
-        let sample_data = parse_table_chunked(&dir, "sample_data", true, |b| {
+        let sample_data = parse_table_chunked(src, "sample_data", true, |b| {
             let r: RawSampleData = serde_json::from_slice(b)?;
             Ok(SampleData {
                 token: Token::parse_bytes(r.token),
@@ -759,13 +1179,13 @@ impl NuScenes {
                 is_key_frame: r.is_key_frame,
                 width: r.width,
                 height: r.height,
-                filename: r.filename.into(),
+                filename: FileName::new(&r.filename),
                 prev: opt_token_b(r.prev),
                 next: opt_token_b(r.next),
             })
         })?
         .unwrap_or_default();
-        let ego_pose = parse_table_chunked(&dir, "ego_pose", true, |b| {
+        let ego_pose = parse_table_chunked(src, "ego_pose", true, |b| {
             let r: RawEgo = serde_json::from_slice(b)?;
             Ok(EgoPose {
                 token: Token::parse_bytes(r.token),
@@ -775,7 +1195,7 @@ impl NuScenes {
             })
         })?
         .unwrap_or_default();
-        let sample_annotation = parse_table_chunked(&dir, "sample_annotation", false, |b| {
+        let sample_annotation = parse_table_chunked(src, "sample_annotation", false, |b| {
             let r: RawAnn = serde_json::from_slice(b)?;
             Ok(SampleAnnotation {
                 token: Token::parse_bytes(r.token),
@@ -793,7 +1213,7 @@ impl NuScenes {
                 next: opt_token_b(r.next),
             })
         })?;
-        let mut small = Self::load_small(&dir)?;
+        let mut small = Self::load_small(src)?;
         small.sample_annotation = sample_annotation;
         Ok(Self::assemble(
             dataroot,
@@ -804,9 +1224,9 @@ impl NuScenes {
         ))
     }
 
-    fn load_small(dir: &Path) -> Result<Small> {
-        let need = |n: &str| -> Result<(PathBuf, Vec<u8>)> {
-            Ok(read_table(dir, n, true)?.unwrap_or_default())
+    fn load_small(src: &Source) -> Result<Small> {
+        let need = |n: &str| -> Result<(PathBuf, std::borrow::Cow<'_, [u8]>)> {
+            Ok(read_table(src, n, true)?.unwrap_or_default())
         };
         let (p, b) = need("scene")?;
         let scene = parse_rows(&b, &p, |r: RawScene| Scene {
@@ -860,7 +1280,7 @@ impl NuScenes {
             date_captured: r.date_captured.into_owned(),
             location: r.location.into_owned(),
         })?;
-        let instance = match read_table(dir, "instance", false)? {
+        let instance = match read_table(src, "instance", false)? {
             Some((p, b)) => parse_rows(&b, &p, |r: RawInstance| Instance {
                 token: Token::parse(r.token),
                 category_token: Token::parse(r.category_token),
@@ -868,7 +1288,7 @@ impl NuScenes {
             None => Vec::new(),
         };
         let named = |n: &str| -> Result<Vec<(Token, String)>> {
-            match read_table(dir, n, false)? {
+            match read_table(src, n, false)? {
                 Some((p, b)) => parse_rows(&b, &p, |r: RawNamed| {
                     (Token::parse(r.token), r.name.into_owned())
                 }),
@@ -904,43 +1324,26 @@ impl NuScenes {
         ego_pose: Vec<EgoPose>,
     ) -> NuScenes {
         let ((sd_idx, ego_idx), (sample_idx, calib_idx)) = rayon::join(
-            || {
-                rayon::join(
-                    || index_of(&sample_data, |r| r.token),
-                    || index_of(&ego_pose, |r| r.token),
-                )
-            },
-            || {
-                (
-                    index_of(&s.sample, |r| r.token),
-                    index_of(&s.calibrated_sensor, |r| r.token),
-                )
-            },
+            || rayon::join(|| index_of(&sample_data), || index_of(&ego_pose)),
+            || (index_of(&s.sample), index_of(&s.calibrated_sensor)),
         );
-        let sensor_idx = index_of(&s.sensor, |r| r.token);
-        // Channel of each calibrated sensor.
-        let calib_channel: TokenMap<&str> = s
-            .calibrated_sensor
-            .iter()
-            .filter_map(|c| {
-                sensor_idx
-                    .get(&c.sensor_token)
-                    .map(|&i| (c.token, s.sensor[i as usize].channel.as_str()))
-            })
-            .collect();
-        let mut sample_keyframes: TokenMap<Vec<(Box<str>, u32)>> = TokenMap::default();
+        let sensor_idx = index_of(&s.sensor);
+        let mut sample_keyframes: TokenMap<Vec<(u32, u32)>> = TokenMap::default();
         for (i, sd) in sample_data.iter().enumerate() {
             if !sd.is_key_frame {
                 continue;
             }
-            if let (Some(st), Some(ch)) = (
-                sd.sample_token,
-                calib_channel.get(&sd.calibrated_sensor_token),
-            ) {
+            // Sensor row of the keyframe (through its calibrated sensor).
+            let sensor = calib_idx
+                .get(&s.calibrated_sensor, Keyed::key, sd.calibrated_sensor_token)
+                .and_then(|c| {
+                    sensor_idx.get(&s.sensor, Keyed::key, s.calibrated_sensor[c].sensor_token)
+                });
+            if let (Some(st), Some(si)) = (sd.sample_token, sensor) {
                 sample_keyframes
                     .entry(st)
                     .or_default()
-                    .push(((*ch).into(), i as u32));
+                    .push((si as u32, i as u32));
             }
         }
         let mut scene_samples: TokenMap<Vec<u32>> = TokenMap::default();
@@ -962,18 +1365,18 @@ impl NuScenes {
                         .or_default()
                         .push(i as u32);
                 }
-                index_of(a, |r| r.token)
+                index_of(a)
             }
-            None => TokenMap::default(),
+            None => RowIndex::default(),
         };
         NuScenes {
             dataroot: dataroot.to_path_buf(),
             version: version.to_string(),
-            scene_idx: index_of(&s.scene, |r| r.token),
-            log_idx: index_of(&s.log, |r| r.token),
-            instance_idx: index_of(&s.instance, |r| r.token),
-            category_idx: index_of(&s.category, |r| r.token),
-            attribute_idx: index_of(&s.attribute, |r| r.token),
+            scene_idx: index_of(&s.scene),
+            log_idx: index_of(&s.log),
+            instance_idx: index_of(&s.instance),
+            category_idx: index_of(&s.category),
+            attribute_idx: index_of(&s.attribute),
             sample_idx,
             sd_idx,
             calib_idx,
@@ -1028,15 +1431,12 @@ impl NuScenes {
 
     /// Annotation by token (None when absent).
     pub fn annotation(&self, token: Token) -> Option<&SampleAnnotation> {
-        let i = *self.ann_idx.get(&token)?;
-        self.sample_annotation.as_ref().map(|a| &a[i as usize])
+        lookup(&self.ann_idx, self.sample_annotation.as_deref()?, token)
     }
 
     /// Sample-data row by token, if present.
     pub fn sample_data_opt(&self, token: Token) -> Option<&SampleData> {
-        self.sd_idx
-            .get(&token)
-            .map(|&i| &self.sample_data[i as usize])
+        lookup(&self.sd_idx, &self.sample_data, token)
     }
 
     /// The keyframe sample_data of `channel` for `sample`.
@@ -1044,7 +1444,7 @@ impl NuScenes {
         self.sample_keyframes
             .get(&sample)?
             .iter()
-            .find(|(c, _)| &**c == channel)
+            .find(|&&(si, _)| self.sensor[si as usize].channel == channel)
             .map(|&(_, i)| &self.sample_data[i as usize])
     }
 
@@ -1052,7 +1452,11 @@ impl NuScenes {
     pub fn keyframe_channels(&self, sample: Token) -> Vec<&str> {
         self.sample_keyframes
             .get(&sample)
-            .map(|v| v.iter().map(|(c, _)| &**c).collect())
+            .map(|v| {
+                v.iter()
+                    .map(|&(si, _)| self.sensor[si as usize].channel.as_str())
+                    .collect()
+            })
             .unwrap_or_default()
     }
 
@@ -1222,6 +1626,7 @@ pub(crate) mod tests {
         }
         text.push_str("\n]\n");
         std::fs::write(dir.path().join("t.json"), &text).unwrap();
+        let src = Source::Dir(dir.path().to_path_buf());
         #[derive(Deserialize)]
         struct R {
             name: String,
@@ -1233,7 +1638,7 @@ pub(crate) mod tests {
             .collect();
         for chunk in [7, 16, 61, 1000, 1 << 20] {
             let rows = parse_table_chunked_sized(
-                dir.path(),
+                &src,
                 "t",
                 true,
                 |b| serde_json::from_slice::<R>(b).map(|r| r.name),
@@ -1245,28 +1650,19 @@ pub(crate) mod tests {
         }
         // Truncated and malformed files name the file.
         std::fs::write(dir.path().join("t.json"), &text[..text.len() / 2]).unwrap();
-        let err = parse_table_chunked_sized(
-            dir.path(),
-            "t",
-            true,
-            |b| serde_json::from_slice::<R>(b),
-            64,
-        )
-        .err()
-        .unwrap()
-        .to_string();
+        let err =
+            parse_table_chunked_sized(&src, "t", true, |b| serde_json::from_slice::<R>(b), 64)
+                .err()
+                .unwrap()
+                .to_string();
         assert!(err.contains("t.json") && err.contains("truncated"), "{err}");
         std::fs::write(dir.path().join("t.json"), "{}").unwrap();
+        assert!(
+            parse_table_chunked_sized(&src, "t", true, |b| serde_json::from_slice::<R>(b), 64)
+                .is_err()
+        );
         assert!(parse_table_chunked_sized(
-            dir.path(),
-            "t",
-            true,
-            |b| serde_json::from_slice::<R>(b),
-            64
-        )
-        .is_err());
-        assert!(parse_table_chunked_sized(
-            dir.path(),
+            &src,
             "absent",
             false,
             |b| serde_json::from_slice::<R>(b),
@@ -1274,6 +1670,172 @@ pub(crate) mod tests {
         )
         .unwrap()
         .is_none());
+    }
+
+    #[test]
+    fn compact_rows_keep_their_size() {
+        // issue 10: trainval-sized tables must load in ≤ 1 GB.
+        assert_eq!(std::mem::size_of::<Token>(), 16);
+        assert_eq!(std::mem::size_of::<Option<Token>>(), 16);
+        assert_eq!(std::mem::size_of::<FileName>(), 32);
+        assert!(std::mem::size_of::<SampleData>() <= 152);
+        assert!(std::mem::size_of::<SampleAnnotation>() <= 184);
+        assert_eq!(std::mem::size_of::<EgoPose>(), 80);
+    }
+
+    #[test]
+    fn tokens_with_a_zero_high_half_round_trip() {
+        for s in [
+            "0000000000000000ffffffffffffffff",
+            "00000000000000000000000000000000",
+            "00000001000000000000000000000000",
+            "ffffffffffffffffffffffffffffffff",
+        ] {
+            let t = Token::parse(s);
+            assert_eq!(t.to_string(), s);
+            assert_eq!(Some(t), opt_token(Some(s)));
+        }
+        assert_ne!(
+            Token::parse("00000000000000000000000000000000"),
+            Token::parse("00000000000000000000000000000001")
+        );
+        assert_eq!(opt_token(Some("")), None);
+        let _ = Token::default().to_string();
+    }
+
+    #[test]
+    fn file_names_round_trip() {
+        for s in [
+            "samples/CAM_FRONT/n015-2018-07-24-11-22-45+0800__CAM_FRONT__1532402927612460.jpg",
+            "sweeps/LIDAR_TOP/n008-2018-08-01-15-16-36-0400__LIDAR_TOP__1533151603547590.pcd.bin",
+            "sweeps/X/log__X__0.pcd",
+            "sweeps/X/log__X__007.pcd",
+            "sweeps/X/log__X__99999999999999999999.pcd",
+            "sweeps/X/log__X__18446744073709551615",
+            "sweeps/X/log__X__.pcd",
+            "sweeps/X/plain.pcd",
+            "__1",
+            "",
+            "ünï__42__ç",
+        ] {
+            let f = FileName::new(s);
+            assert_eq!(&*f, s);
+            assert_eq!(f.clone().to_string(), s);
+            assert_eq!(format!("{f:?}"), format!("{s:?}"));
+            assert_eq!(f, FileName::from(s));
+        }
+    }
+
+    #[test]
+    fn row_index_finds_every_row_and_nothing_else() {
+        let rows: Vec<Sensor> = (0..1000)
+            .map(|i| Sensor {
+                token: Token::parse(&format!("{:032x}", (i as u128 + 1) << 64 | i as u128)),
+                channel: i.to_string(),
+                modality: String::new(),
+            })
+            .collect();
+        let idx = index_of(&rows);
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(idx.get(&rows, Keyed::key, r.token), Some(i));
+        }
+        assert_eq!(idx.get(&rows, Keyed::key, Token::parse("nope")), None);
+        // duplicates: the later row wins, like HashMap::insert
+        let dup = vec![rows[3].clone(), rows[5].clone(), rows[3].clone()];
+        assert_eq!(index_of(&dup).get(&dup, Keyed::key, rows[3].token), Some(2));
+        let empty: Vec<Sensor> = Vec::new();
+        assert_eq!(
+            index_of(&empty).get(&empty, Keyed::key, rows[0].token),
+            None
+        );
+    }
+
+    #[test]
+    fn memory_tables_load_like_files() {
+        let Some(root) = kf0() else { return };
+        let dir = root.join("v1.0-mini");
+        let names = [
+            "scene",
+            "sample",
+            "sample_data",
+            "calibrated_sensor",
+            "ego_pose",
+            "sensor",
+            "log",
+            "instance",
+            "category",
+            "attribute",
+        ];
+        let bytes: Vec<(&str, Vec<u8>)> = names
+            .iter()
+            .filter_map(|n| Some((*n, std::fs::read(dir.join(format!("{n}.json"))).ok()?)))
+            .collect();
+        let tables: Vec<(&str, &[u8])> = bytes.iter().map(|(n, b)| (*n, &b[..])).collect();
+        let disk = NuScenes::load(&root, "v1.0-mini").unwrap();
+        for chunk in [1, 17, 4096, TABLE_CHUNK_BYTES] {
+            let mem = NuScenes::from_memory("v1.0-mini", &tables, chunk).unwrap();
+            assert_eq!(mem.row_counts(), disk.row_counts());
+            for (a, b) in mem.sample_data.iter().zip(&disk.sample_data) {
+                assert_eq!(
+                    (a.token, &a.filename, a.prev),
+                    (b.token, &b.filename, b.prev)
+                );
+            }
+            let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
+            assert_eq!(
+                mem.keyframe(st, "LIDAR_TOP").map(|s| s.token),
+                disk.keyframe(st, "LIDAR_TOP").map(|s| s.token)
+            );
+        }
+        // a missing required table names it
+        let err = NuScenes::from_memory("v", &tables[..1], 64)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(err.contains("<memory>/v/"), "{err}");
+    }
+
+    #[test]
+    fn hostile_tables_are_errors_without_big_reservations() {
+        // Many tiny rows: the reservation from the first chunk's density is capped by the
+        // file's byte length, and the first row fails to parse.
+        let mut sd = b"[".to_vec();
+        for _ in 0..200_000 {
+            sd.extend_from_slice(b"{},");
+        }
+        sd.extend_from_slice(b"{}]");
+        let tables: [(&str, &[u8]); 7] = [
+            ("sample_data", &sd),
+            ("ego_pose", b"[]"),
+            ("scene", b"[]"),
+            ("sample", b"[]"),
+            ("calibrated_sensor", b"[]"),
+            ("sensor", b"[]"),
+            ("log", b"[]"),
+        ];
+        let err = NuScenes::from_memory("v", &tables, 4096)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            err.contains("sample_data.json") && err.contains("row 0"),
+            "{err}"
+        );
+        // deep nesting, unterminated strings, trailing garbage, wrong types
+        for bad in [
+            &b"[{\"token\": [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[]}]"[..],
+            &b"[{\"token\": \"abc"[..],
+            &b"[] x"[..],
+            &b"[{\"token\": 1e999999}]"[..],
+            &b"[{}}]"[..],
+            &b"]"[..],
+            &b""[..],
+        ] {
+            let mut t = tables;
+            t[0] = ("sample_data", bad);
+            let err = NuScenes::from_memory("v", &t, 8).err().unwrap().to_string();
+            assert!(err.contains("sample_data.json"), "{err}");
+        }
     }
 
     #[test]
