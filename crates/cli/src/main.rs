@@ -38,6 +38,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Experiments of the paper built from training runs (ablation: variants × seeds).
     Experiment(cmd::experiment::Args),
+    /// Grad-CAM++ maps by distance class (SPEC §10.6), with and without radar.
+    Explain(cmd::explain::Args),
     /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader).
     Bench(cmd::bench::Args),
     /// MER (multi-channel enhanced radar): train the radar–pixel association network, apply it
@@ -58,6 +60,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Command::Predict(a) => cmd::predict::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Experiment(a) => cmd::experiment::run(a),
+        Command::Explain(a) => cmd::explain::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::Mer(a) => cmd::mer::run(a),
     }

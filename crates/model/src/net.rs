@@ -331,6 +331,20 @@ impl DepthNet {
     /// logits (channel 2k = a_k, 2k+1 = b_k) or `[B,1,h,w]` depth in metres.
     /// h×w is stride 8 (top-down decoder) or 32 (released decoder).
     pub fn forward_logits_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+        self.forward_logits_tap(image, radar, train, &mut |_, _| {})
+    }
+
+    /// [`DepthNet::forward_logits_t`] that shows `tap` the intermediate features, in graph
+    /// (for Grad-CAM++, `depthsense explain`): `rgb.layer1` … `rgb.layer4` (C1..C4),
+    /// `decoder` (image features at head resolution) and, for late fusion, `radar` (the radar
+    /// branch output before it is resized to the decoder's resolution).
+    pub fn forward_logits_tap(
+        &self,
+        image: &Tensor,
+        radar: &Tensor,
+        train: bool,
+        tap: &mut dyn FnMut(&str, &Tensor),
+    ) -> Tensor {
         let cfg = &self.cfg;
         let (image, radar) = &self.downscale_inputs(image, radar);
         // The network sees radar depth scaled by 1/β (the caller passes metres), or in metres
@@ -346,9 +360,15 @@ impl DepthNet {
             _ => image.shallow_clone(),
         };
         let c = self.rgb.forward_t(&input, train);
+        for (i, t) in c.iter().enumerate() {
+            tap(&format!("rgb.layer{}", i + 1), t);
+        }
         let mut f = self.decoder.forward(&c);
+        tap("decoder", &f);
         if let Some(rb) = &self.radar {
-            let r = resize_to(&rb.forward_t(&radar_scaled(), train), hw_of(&f), false);
+            let rf = rb.forward_t(&radar_scaled(), train);
+            tap("radar", &rf);
+            let r = resize_to(&rf, hw_of(&f), false);
             f = Tensor::cat(&[f, r], 1);
         }
         f = self.attend(&f);

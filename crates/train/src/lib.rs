@@ -20,6 +20,7 @@ pub mod distributed;
 pub mod error;
 pub mod evaluate;
 pub mod experiments;
+pub mod explain;
 pub mod mer;
 pub mod plot;
 pub mod predict;

@@ -6,6 +6,7 @@ pub mod bench_train;
 pub mod demo;
 pub mod eval;
 pub mod experiment;
+pub mod explain;
 pub mod index;
 pub mod inspect;
 pub mod mer;
