@@ -1,0 +1,731 @@
+//! A mutation fuzzer for every reader of untrusted bytes that runs on stable Rust (issue 10).
+//!
+//! Each [`Reader`] gets seeds — the real nuScenes fixtures where they exist, in-memory
+//! encodings made by the project's own writers otherwise — and every execution feeds one
+//! structurally mutated seed (bit flips, byte inserts/deletes, chunk copies, splices with
+//! another seed, interesting integers written over binary fields and over decimal numbers in
+//! text headers). Each execution runs under `catch_unwind` and is timed: a panic is a crash, an
+//! execution longer than the hang limit is a hang; both save the input. An abort (allocation
+//! failure, stack overflow) ends the process, so a finished run also proves there were none.
+
+use std::io::Write;
+use std::panic::AssertUnwindSafe;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use depthsense_model::checkpoint::{parse_safetensors, safetensors_bytes};
+use depthsense_model::pickle::{collect_tensors, parse_pickle, read_torch_bytes};
+use depthsense_nuscenes::depth_png::{decode_png, encode_png, encode_png_fast, DepthMap};
+use depthsense_nuscenes::pcd::{
+    encode_lidar_pcd_bin, encode_pcd_ascii, encode_radar_pcd_binary,
+    encode_radar_pcd_binary_compressed, parse_lidar_pcd_bin, parse_pcd, parse_radar_pcd, PcdField,
+    RadarPoint, RADAR_FIELD_NAMES, RADAR_FIELD_SIZES, RADAR_FIELD_TYPES,
+};
+use depthsense_nuscenes::NuScenes;
+
+/// The readers under test.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reader {
+    /// Radar `.pcd`, `DATA binary` (seeds: the real radar fixtures).
+    PcdBinary,
+    /// `.pcd`, `DATA ascii` (seeds: fixture points re-encoded).
+    PcdAscii,
+    /// `.pcd`, `DATA binary_compressed` with LZF (seeds: fixture points re-encoded).
+    PcdBinaryCompressed,
+    /// LIDAR_TOP `.pcd.bin` (seeds: slices of the real scan).
+    PcdBin,
+    /// The table JSON files through the chunked loader (seeds: the kf0 tables).
+    TableJson,
+    /// `torch.save` files, zip and legacy (seeds: real `torch.save` outputs + the writer).
+    Pth,
+    /// The pickle machine alone (seeds: the pickles inside those files).
+    Pickle,
+    /// Safetensors checkpoints (seeds: the checkpoint writer).
+    Safetensors,
+    /// 16-bit depth PNGs (seeds: the depth-map encoder).
+    DepthPng,
+}
+
+impl Reader {
+    pub const ALL: [Reader; 9] = [
+        Reader::PcdBinary,
+        Reader::PcdAscii,
+        Reader::PcdBinaryCompressed,
+        Reader::PcdBin,
+        Reader::TableJson,
+        Reader::Pth,
+        Reader::Pickle,
+        Reader::Safetensors,
+        Reader::DepthPng,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Reader::PcdBinary => "pcd-binary",
+            Reader::PcdAscii => "pcd-ascii",
+            Reader::PcdBinaryCompressed => "pcd-binary-compressed",
+            Reader::PcdBin => "pcd-bin",
+            Reader::TableJson => "table-json",
+            Reader::Pth => "pth",
+            Reader::Pickle => "pickle",
+            Reader::Safetensors => "safetensors",
+            Reader::DepthPng => "depth-png",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Reader> {
+        Reader::ALL.into_iter().find(|r| r.name() == s)
+    }
+
+    /// Does this reader need the fixtures for its seeds?
+    pub fn needs_fixtures(self) -> bool {
+        matches!(self, Reader::PcdBinary | Reader::PcdBin | Reader::TableJson)
+    }
+
+    /// Text formats get decimal numbers replaced as well.
+    fn is_text(self) -> bool {
+        matches!(
+            self,
+            Reader::PcdBinary
+                | Reader::PcdAscii
+                | Reader::PcdBinaryCompressed
+                | Reader::TableJson
+                | Reader::Safetensors
+        )
+    }
+}
+
+/// A small deterministic RNG (xorshift64*).
+#[derive(Debug, Clone)]
+pub struct Rng(u64);
+
+impl Rng {
+    pub fn new(seed: u64) -> Rng {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        let mut x = self.0;
+        x ^= x >> 12;
+        x ^= x << 25;
+        x ^= x >> 27;
+        self.0 = x;
+        x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    /// Uniform in `0..n` (`n > 0`).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+    fn chance(&mut self, one_in: usize) -> bool {
+        self.below(one_in) == 0
+    }
+}
+
+const INTERESTING: [u64; 16] = [
+    0,
+    1,
+    2,
+    7,
+    8,
+    0x7f,
+    0x80,
+    0xff,
+    0x7fff,
+    0xffff,
+    0x7fff_ffff,
+    0x8000_0000,
+    0xffff_ffff,
+    1 << 32,
+    0x7fff_ffff_ffff_ffff,
+    u64::MAX,
+];
+
+const INTERESTING_TEXT: [&str; 16] = [
+    "0",
+    "1",
+    "-1",
+    "43",
+    "255",
+    "65536",
+    "4294967295",
+    "4294967296",
+    "1000000000000",
+    "9223372036854775807",
+    "18446744073709551615",
+    "18446744073709551616",
+    "99999999999999999999999",
+    "1e999",
+    "nan",
+    "",
+];
+
+const TOKENS: [&str; 14] = [
+    "DATA ascii\n",
+    "DATA binary\n",
+    "DATA binary_compressed\n",
+    "COUNT 1000000000000\n",
+    "SIZE 8\n",
+    "TYPE U\n",
+    "\n",
+    " ",
+    "{",
+    "}",
+    "[",
+    "]",
+    "\"",
+    "\\",
+];
+
+/// Apply 1–8 stacked mutations to `data` (`others` are splice partners).
+pub fn mutate(data: &mut Vec<u8>, others: &[Vec<u8>], text: bool, rng: &mut Rng) {
+    let n = 1 + rng.below(8);
+    for _ in 0..n {
+        let len = data.len();
+        match rng.below(if text { 12 } else { 10 }) {
+            0 if len > 0 => {
+                let i = rng.below(len);
+                data[i] ^= 1 << rng.below(8);
+            }
+            1 if len > 0 => {
+                let i = rng.below(len);
+                data[i] = rng.next_u64() as u8;
+            }
+            2 => {
+                let i = rng.below(len + 1);
+                data.insert(i, rng.next_u64() as u8);
+            }
+            3 if len > 0 => {
+                let i = rng.below(len);
+                let k = 1 + rng.below((len - i).min(64));
+                data.drain(i..i + k);
+            }
+            4 if len > 0 => {
+                // copy a chunk elsewhere (duplicates records, headers, opcodes)
+                let i = rng.below(len);
+                let k = 1 + rng.below((len - i).min(256));
+                let chunk = data[i..i + k].to_vec();
+                let at = rng.below(len + 1);
+                data.splice(at..at, chunk);
+            }
+            5 if !others.is_empty() => {
+                // splice: our head + another seed's tail
+                let o = &others[rng.below(others.len())];
+                let cut = rng.below(len + 1);
+                let from = rng.below(o.len() + 1);
+                data.truncate(cut);
+                data.extend_from_slice(&o[from..]);
+            }
+            6 | 7 if len > 0 => {
+                // an interesting integer over a binary field (1, 2, 4 or 8 bytes, LE or BE)
+                let w = [1usize, 2, 4, 8][rng.below(4)];
+                if len >= w {
+                    let i = rng.below(len - w + 1);
+                    let v = INTERESTING[rng.below(INTERESTING.len())]
+                        .wrapping_add(rng.below(3) as u64)
+                        .wrapping_sub(1);
+                    let b = if rng.chance(2) {
+                        v.to_le_bytes()
+                    } else {
+                        v.to_be_bytes()
+                    };
+                    let src = if rng.chance(2) { &b[..w] } else { &b[8 - w..] };
+                    data[i..i + w].copy_from_slice(src);
+                }
+            }
+            8 if len > 0 => {
+                let i = rng.below(len);
+                data.truncate(i);
+            }
+            9 => {
+                let t = TOKENS[rng.below(TOKENS.len())].as_bytes();
+                let i = rng.below(len + 1);
+                data.splice(i..i, t.iter().copied());
+            }
+            10 | 11 => {
+                // replace a decimal number (header values, JSON numbers) by an interesting one
+                let starts: Vec<usize> = (0..len)
+                    .filter(|&i| {
+                        data[i].is_ascii_digit() && (i == 0 || !data[i - 1].is_ascii_digit())
+                    })
+                    .take(4096)
+                    .collect();
+                if !starts.is_empty() {
+                    let s = starts[rng.below(starts.len())];
+                    let e = s + data[s..].iter().take_while(|b| b.is_ascii_digit()).count();
+                    let v = INTERESTING_TEXT[rng.below(INTERESTING_TEXT.len())];
+                    data.splice(s..e, v.bytes());
+                }
+            }
+            _ => {}
+        }
+    }
+    // Keep inputs small enough for millions of executions.
+    data.truncate(1 << 20);
+}
+
+/// Seeds of one reader; `None` when it needs fixtures that are absent.
+pub fn seeds(reader: Reader, fixtures: &Path) -> Option<Vec<Vec<u8>>> {
+    let radar_files = || -> Vec<Vec<u8>> {
+        let mut out = Vec::new();
+        let mut paths: Vec<PathBuf> = std::fs::read_dir(fixtures.join("radar-front-mini"))
+            .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
+            .unwrap_or_default();
+        paths.sort();
+        if let Ok(rd) = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/RADAR_FRONT")) {
+            paths.extend(rd.filter_map(|e| e.ok().map(|e| e.path())));
+        }
+        for p in paths {
+            if let Ok(b) = std::fs::read(&p) {
+                out.push(b);
+            }
+        }
+        out
+    };
+    let radar_points = |files: &[Vec<u8>]| -> Vec<Vec<RadarPoint>> {
+        let mut v: Vec<Vec<RadarPoint>> = files
+            .iter()
+            .take(16)
+            .filter_map(|b| parse_radar_pcd(b, "seed").ok().map(|s| s.points))
+            .collect();
+        v.push(synthetic_points());
+        v.push(Vec::new());
+        v
+    };
+    let radar_fields: Vec<PcdField> = (0..18)
+        .map(|k| PcdField {
+            name: RADAR_FIELD_NAMES[k].into(),
+            size: RADAR_FIELD_SIZES[k],
+            ty: RADAR_FIELD_TYPES[k],
+            count: 1,
+        })
+        .collect();
+    Some(match reader {
+        Reader::PcdBinary => {
+            let f = radar_files();
+            if f.is_empty() {
+                return None;
+            }
+            f
+        }
+        Reader::PcdAscii => radar_points(&radar_files())
+            .iter()
+            .map(|pts| {
+                let rows: Vec<Vec<f64>> = pts
+                    .iter()
+                    .take(24)
+                    .map(|p| (0..18).map(|k| p.field(k)).collect())
+                    .collect();
+                encode_pcd_ascii(&radar_fields, &rows)
+            })
+            .collect(),
+        Reader::PcdBinaryCompressed => {
+            let mut v: Vec<Vec<u8>> = radar_points(&radar_files())
+                .iter()
+                .map(|pts| encode_radar_pcd_binary_compressed(pts))
+                .collect();
+            // a stream with real back-references: "ab" then copies
+            let pts = vec![RadarPoint::default(); 40];
+            let mut real = encode_radar_pcd_binary_compressed(&pts);
+            if let Some(h) = real
+                .windows(22)
+                .position(|w| w == b"DATA binary_compressed")
+            {
+                let body = h + 23;
+                let raw_len = 43 * 40;
+                let mut comp = vec![0u8, 0u8];
+                let mut left = raw_len - 1;
+                // one literal zero, then back-references of offset 1
+                while left > 0 {
+                    let l = left.min(264);
+                    if l < 3 {
+                        comp.push((l - 1) as u8);
+                        comp.extend(std::iter::repeat_n(0u8, l));
+                    } else if l <= 8 {
+                        comp.push(((l - 2) << 5) as u8);
+                        comp.push(0);
+                    } else {
+                        comp.push(7 << 5);
+                        comp.push((l - 9) as u8);
+                        comp.push(0);
+                    }
+                    left -= l;
+                }
+                real.truncate(body);
+                real.extend_from_slice(&(comp.len() as u32).to_le_bytes());
+                real.extend_from_slice(&(raw_len as u32).to_le_bytes());
+                real.extend_from_slice(&comp);
+                v.push(real);
+            }
+            v.push(encode_radar_pcd_binary(&synthetic_points()));
+            v
+        }
+        Reader::PcdBin => {
+            let p = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/LIDAR_TOP"))
+                .ok()?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .find(|p| p.to_string_lossy().ends_with(".pcd.bin"))?;
+            let full = std::fs::read(p).ok()?;
+            let mut v: Vec<Vec<u8>> = (0..8)
+                .map(|k| {
+                    let a = (k * 4099 * 20) % full.len().max(1);
+                    let a = a - a % 20;
+                    full[a..(a + 20 * 200).min(full.len())].to_vec()
+                })
+                .collect();
+            v.push(encode_lidar_pcd_bin(&[[1.0, f32::NAN, 0.0, 0.0, 0.0]]));
+            v
+        }
+        Reader::TableJson => {
+            let dir = fixtures.join("nuscenes-kf0/v1.0-mini");
+            let mut v = Vec::new();
+            for t in TABLES {
+                v.push(std::fs::read(dir.join(format!("{t}.json"))).ok()?);
+            }
+            // one seed = all tables joined by a NUL separator (mutations may hit any table)
+            vec![v.join(&b'\0')]
+        }
+        Reader::Pth => torch_seeds(),
+        Reader::Pickle => torch_seeds()
+            .iter()
+            .filter_map(|b| inner_pickle(b))
+            .collect(),
+        Reader::Safetensors => {
+            let mut meta = std::collections::BTreeMap::new();
+            meta.insert("config".to_string(), "{\"a\": 1}".to_string());
+            let tensors = vec![
+                (
+                    "w".to_string(),
+                    tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]).reshape([2, 3]),
+                ),
+                ("b".to_string(), tch::Tensor::from_slice(&[7i64, 8])),
+                (
+                    "s".to_string(),
+                    tch::Tensor::from_slice(&[1.5f64]).reshape([] as [i64; 0]),
+                ),
+            ];
+            vec![
+                safetensors_bytes(&tensors, &meta).ok()?,
+                safetensors_bytes(&tensors[..1], &Default::default()).ok()?,
+            ]
+        }
+        Reader::DepthPng => {
+            let mut v = Vec::new();
+            for (w, h) in [(7u32, 5u32), (16, 3), (1, 1), (33, 9)] {
+                let mut m = DepthMap::zeros(w, h);
+                for (i, d) in m.depth_m.iter_mut().enumerate() {
+                    *d = if i % 3 == 0 { 0.0 } else { i as f32 * 0.77 };
+                }
+                v.push(encode_png(&m).ok()?);
+                v.push(encode_png_fast(&m).ok()?);
+            }
+            v
+        }
+    })
+}
+
+const TABLES: [&str; 7] = [
+    "scene",
+    "sample",
+    "sample_data",
+    "calibrated_sensor",
+    "ego_pose",
+    "sensor",
+    "log",
+];
+
+fn synthetic_points() -> Vec<RadarPoint> {
+    (0..9)
+        .map(|i| RadarPoint {
+            x: 10.0 + i as f32,
+            y: -1.5 * i as f32,
+            dyn_prop: (i % 8) as i8,
+            id: i as i16,
+            rcs: 3.5,
+            ambig_state: 3,
+            ..Default::default()
+        })
+        .collect()
+}
+
+/// Real `torch.save` files of the model crate's tests plus one written by the project.
+fn torch_seeds() -> Vec<Vec<u8>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../model/tests/data");
+    let mut v: Vec<Vec<u8>> = std::fs::read_dir(&dir)
+        .map(|rd| {
+            let mut p: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();
+            p.sort();
+            p.iter().filter_map(|p| std::fs::read(p).ok()).collect()
+        })
+        .unwrap_or_default();
+    if let Ok(tmp) = std::env::temp_dir().canonicalize() {
+        let p = tmp.join(format!("depthsense-fuzz-seed-{}.pth", std::process::id()));
+        let t = tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0]).reshape([2, 2]);
+        if depthsense_model::pickle::write_torch_state_dict(&p, &[("a.w".into(), t)]).is_ok() {
+            if let Ok(b) = std::fs::read(&p) {
+                v.push(b);
+            }
+        }
+        let _ = std::fs::remove_file(&p);
+    }
+    v
+}
+
+/// The pickle of a `torch.save` file: `data.pkl` of a zip (stored), or the legacy stream.
+fn inner_pickle(b: &[u8]) -> Option<Vec<u8>> {
+    if b.first() == Some(&0x80) {
+        return Some(b.to_vec());
+    }
+    let at = b.windows(8).position(|w| w == b"data.pkl")? + 8;
+    // local header: the name is followed by the extra field, then the data; find the pickle
+    // by its protocol opcode and take everything up to and including STOP.
+    let start = at + b[at..].iter().position(|&x| x == 0x80)?;
+    // The pickle runs up to the next local header "PK\x03\x04".
+    let next = b[start..]
+        .windows(4)
+        .position(|w| w == b"PK\x03\x04")
+        .map_or(b.len(), |k| start + k);
+    Some(b[start..next].to_vec())
+}
+
+/// Outcome of one execution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outcome {
+    /// The reader accepted the input.
+    Accepted,
+    /// The reader returned an error.
+    Rejected,
+}
+
+/// Run `reader` on `input` (may panic: the caller catches).
+pub fn execute(reader: Reader, input: &[u8], rng_hint: u64) -> Outcome {
+    let ok = match reader {
+        Reader::PcdBinary | Reader::PcdAscii | Reader::PcdBinaryCompressed => {
+            let a = parse_radar_pcd(input, "fuzz.pcd").is_ok();
+            let b = parse_pcd(input, "fuzz.pcd").is_ok();
+            a || b
+        }
+        Reader::PcdBin => parse_lidar_pcd_bin(input, "fuzz.pcd.bin").is_ok(),
+        Reader::TableJson => {
+            let parts: Vec<&[u8]> = input.split(|&b| b == 0).collect();
+            let tables: Vec<(&str, &[u8])> = TABLES
+                .iter()
+                .zip(parts.iter().chain(std::iter::repeat(&&b"[]"[..])))
+                .map(|(n, b)| (*n, *b))
+                .collect();
+            let chunk = [7usize, 64, 1000, 1 << 20][(rng_hint % 4) as usize];
+            match NuScenes::from_memory("v1.0-fuzz", &tables, chunk) {
+                Ok(nu) => {
+                    // walk what prepare walks
+                    for s in &nu.sample {
+                        for ch in nu.keyframe_channels(s.token) {
+                            if let Some(sd) = nu.keyframe(s.token, ch) {
+                                let _ = nu.channel_of(sd);
+                                let _ = nu.sweeps_back(sd, 3);
+                                let _ = depthsense_nuscenes::geometry::ego_from_sensor(&nu, sd);
+                            }
+                        }
+                    }
+                    true
+                }
+                Err(_) => false,
+            }
+        }
+        Reader::Pth => read_torch_bytes(Path::new("fuzz.pth"), input).is_ok(),
+        Reader::Pickle => match parse_pickle(input) {
+            Ok(v) => {
+                let _ = collect_tensors(&v);
+                true
+            }
+            Err(_) => false,
+        },
+        Reader::Safetensors => parse_safetensors(Path::new("fuzz.safetensors"), input).is_ok(),
+        Reader::DepthPng => decode_png(input, "fuzz.png").is_ok(),
+    };
+    if ok {
+        Outcome::Accepted
+    } else {
+        Outcome::Rejected
+    }
+}
+
+/// Settings of a run.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub readers: Vec<Reader>,
+    /// Executions per reader.
+    pub execs: u64,
+    /// Wall-clock budget per reader (whichever of `execs` and this comes first).
+    pub seconds: f64,
+    pub seed: u64,
+    pub fixtures: PathBuf,
+    /// Where crashing and hanging inputs are saved (`None`: not saved).
+    pub crash_dir: Option<PathBuf>,
+    /// An execution longer than this is a hang.
+    pub hang: Duration,
+    /// Print progress to stderr every this many seconds (0: never).
+    pub progress_s: f64,
+}
+
+/// Per-reader result.
+#[derive(Debug, Clone, Default)]
+pub struct ReaderStats {
+    pub reader: &'static str,
+    pub skipped: Option<String>,
+    pub seeds: usize,
+    pub execs: u64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub crashes: u64,
+    pub hangs: u64,
+    pub seconds: f64,
+    pub slowest_exec_ms: f64,
+    pub first_crash: Option<String>,
+    pub saved: Vec<String>,
+}
+
+impl ReaderStats {
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "reader": self.reader,
+            "skipped": self.skipped,
+            "seeds": self.seeds,
+            "execs": self.execs,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+            "crashes": self.crashes,
+            "hangs": self.hangs,
+            "aborts": 0,
+            "seconds": self.seconds,
+            "execs_per_s": if self.seconds > 0.0 { self.execs as f64 / self.seconds } else { 0.0 },
+            "slowest_exec_ms": self.slowest_exec_ms,
+            "first_crash": self.first_crash,
+            "saved_inputs": self.saved,
+        })
+    }
+}
+
+thread_local! {
+    static LAST_PANIC: std::cell::RefCell<Option<String>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Install a panic hook that records the message instead of printing it (crashes are
+/// reported in the JSON and their inputs saved).
+pub fn quiet_panics() {
+    std::panic::set_hook(Box::new(|info| {
+        let msg = format!("{info}");
+        LAST_PANIC.with(|p| *p.borrow_mut() = Some(msg));
+    }));
+}
+
+/// Fuzz one reader.
+pub fn fuzz_reader(reader: Reader, cfg: &Config) -> ReaderStats {
+    let mut st = ReaderStats {
+        reader: reader.name(),
+        ..Default::default()
+    };
+    let Some(seeds) = seeds(reader, &cfg.fixtures) else {
+        st.skipped = Some(format!(
+            "fixtures absent at {} (needed for its seeds)",
+            cfg.fixtures.display()
+        ));
+        return st;
+    };
+    if seeds.is_empty() {
+        st.skipped = Some("no seeds".into());
+        return st;
+    }
+    st.seeds = seeds.len();
+    let mut rng = Rng::new(cfg.seed ^ (reader as u64).wrapping_mul(0x1234_5678_9abc_def1));
+    let t0 = Instant::now();
+    let mut last_progress = t0;
+    let mut input = Vec::new();
+    while st.execs < cfg.execs {
+        if st.execs.is_multiple_of(64) && t0.elapsed().as_secs_f64() >= cfg.seconds {
+            break;
+        }
+        input.clear();
+        input.extend_from_slice(&seeds[rng.below(seeds.len())]);
+        // 1 in 64 executions runs an unmutated seed (keeps the happy path exercised)
+        if !rng.chance(64) {
+            mutate(&mut input, &seeds, reader.is_text(), &mut rng);
+        }
+        let hint = rng.next_u64();
+        let t = Instant::now();
+        let r = std::panic::catch_unwind(AssertUnwindSafe(|| execute(reader, &input, hint)));
+        let dt = t.elapsed();
+        st.execs += 1;
+        st.slowest_exec_ms = st.slowest_exec_ms.max(dt.as_secs_f64() * 1e3);
+        let mut bad = None;
+        match r {
+            Ok(Outcome::Accepted) => st.accepted += 1,
+            Ok(Outcome::Rejected) => st.rejected += 1,
+            Err(_) => {
+                st.crashes += 1;
+                let msg = LAST_PANIC
+                    .with(|p| p.borrow_mut().take())
+                    .unwrap_or_else(|| "panic".into());
+                if st.first_crash.is_none() {
+                    st.first_crash = Some(msg);
+                }
+                bad = Some("crash");
+            }
+        }
+        if dt > cfg.hang {
+            st.hangs += 1;
+            bad = Some("hang");
+        }
+        if let (Some(kind), Some(dir)) = (bad, &cfg.crash_dir) {
+            if st.saved.len() < 100 {
+                let _ = std::fs::create_dir_all(dir);
+                let p = dir.join(format!("{}-{kind}-{:016x}.bin", reader.name(), fnv(&input)));
+                if std::fs::write(&p, &input).is_ok() {
+                    st.saved.push(p.display().to_string());
+                }
+            }
+        }
+        if cfg.progress_s > 0.0 && last_progress.elapsed().as_secs_f64() >= cfg.progress_s {
+            last_progress = Instant::now();
+            let s = t0.elapsed().as_secs_f64();
+            eprintln!(
+                "{}: {} execs ({:.0}/s), {} crashes, {} hangs",
+                reader.name(),
+                st.execs,
+                st.execs as f64 / s,
+                st.crashes,
+                st.hangs
+            );
+            let _ = std::io::stderr().flush();
+        }
+    }
+    st.seconds = t0.elapsed().as_secs_f64();
+    st
+}
+
+fn fnv(b: &[u8]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for &x in b {
+        h = (h ^ x as u64).wrapping_mul(0x100_0000_01b3);
+    }
+    h
+}
+
+/// Fuzz every reader of `cfg`; the JSON report.
+pub fn run(cfg: &Config) -> (Vec<ReaderStats>, serde_json::Value) {
+    quiet_panics();
+    let stats: Vec<ReaderStats> = cfg.readers.iter().map(|&r| fuzz_reader(r, cfg)).collect();
+    let report = serde_json::json!({
+        "seed": cfg.seed,
+        "hang_ms": cfg.hang.as_millis() as u64,
+        "execs_per_reader_limit": cfg.execs,
+        "seconds_per_reader_limit": cfg.seconds,
+        "machine": format!("{} logical cores", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)),
+        "total_crashes": stats.iter().map(|s| s.crashes).sum::<u64>(),
+        "total_hangs": stats.iter().map(|s| s.hangs).sum::<u64>(),
+        "readers": stats.iter().map(ReaderStats::to_json).collect::<Vec<_>>(),
+    });
+    (stats, report)
+}
+
+/// Default location of the shared fixtures (`../shared/fixtures` from the workspace).
+pub fn default_fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures")
+}
