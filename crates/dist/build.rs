@@ -9,8 +9,9 @@
 //! that header mentions. `$GLOO_INCLUDE` points at a real Gloo checkout instead.
 //!
 //! Feature `nccl`: also compile ProcessGroupNCCL (`-DUSE_C10D_NCCL`), with the CUDA runtime and
-//! NCCL headers of the wheel's `nvidia-*` packages (or `$CUDA_INCLUDE` / `$NCCL_INCLUDE`), and
-//! link libtorch_cuda.
+//! NCCL headers of the wheel's `nvidia-*` packages (or `$CUDA_INCLUDE` / `$NCCL_INCLUDE`), libcu++
+//! from `nvidia-cuda-cccl` (or `$CCCL_INCLUDE`) and `crt/` from triton's wheel, and link
+//! libtorch_cuda.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -119,11 +120,35 @@ fn main() {
             let p = nvidia.as_ref()?.join("nccl/include");
             p.join("nccl.h").exists().then_some(p)
         });
+        // The runtime wheel lacks `crt/host_config.h`, which cuda_runtime.h includes; triton's
+        // wheel ships the CUDA headers with it.
+        let crt_inc = torch.site_packages.as_ref().and_then(|s| {
+            let p = s.join("triton/backends/nvidia/include");
+            p.join("crt/host_config.h").exists().then_some(p)
+        });
         match (cuda_inc, nccl_inc) {
             (Some(c), Some(n)) => {
+                let has_crt = c.join("crt/host_config.h").exists();
+                let has_cccl = c.join("nv/target").exists();
+                build.include(c).include(n);
+                // libcu++'s <nv/target> (cuda_fp16.h includes it): the `nvidia-cuda-cccl`
+                // wheel installs it next to the runtime headers, or `$CCCL_INCLUDE`.
+                match env_dir("CCCL_INCLUDE") {
+                    Some(cc) => {
+                        build.include(cc);
+                    }
+                    None if !has_cccl => println!(
+                        "cargo:warning=feature nccl: <nv/target> not found: `pip install \
+                         nvidia-cuda-cccl==13.0.*` into the venv or set CCCL_INCLUDE"
+                    ),
+                    None => {}
+                }
+                if !has_crt {
+                    if let Some(t) = crt_inc {
+                        build.include(t);
+                    }
+                }
                 build
-                    .include(c)
-                    .include(n)
                     .define("USE_C10D_NCCL", None)
                     .define("USE_CUDA", None)
                     .define("DSD_NCCL", None);
