@@ -203,7 +203,10 @@ pub struct PdaNet {
     enc: Vec<[Cbr; 2]>,
     /// Per level below the last: conv-BN-ReLU on [upsampled coarser level, skip].
     dec: Vec<Cbr>,
-    head: Conv,
+    /// The 1x1 head as a matrix `[K, C0]` and bias `[K]` (an `nn.Conv2d(C0, K, 1)` with
+    /// PyTorch's init), applied only at the pixels asked for ([`PdaNet::logits_at`]).
+    head_w: Tensor,
+    head_b: Tensor,
 }
 
 impl std::fmt::Debug for PdaNet {
@@ -237,12 +240,20 @@ impl PdaNet {
             .map(|i| Cbr::new(&root.sub(&format!("dec{i}")), w[i + 1] + w[i], w[i], 1))
             .collect();
         let k = cfg.window.len() as i64;
-        let head = Conv::new(&root.sub("head"), w[0], k, 1, 1, 0, 1, true);
+        let bound = 1.0 / (w[0] as f64).sqrt();
+        let u = nn::Init::Uniform {
+            lo: -bound,
+            up: bound,
+        };
+        let head = p / "head";
+        let head_w = head.var("weight", &[k, w[0]], u);
+        let head_b = head.var("bias", &[k], u);
         Ok(PdaNet {
             cfg: cfg.clone(),
             enc,
             dec,
-            head,
+            head_w,
+            head_b,
         })
     }
 
@@ -252,8 +263,30 @@ impl PdaNet {
 
     /// Image `[B,3,h,w]` (ImageNet-normalised) and radar `[B,1,h,w]` (metres, 0 = none), both
     /// at the MER grid → association logits `[B,K,h,w]`, K = window length (180); channel k is
-    /// the neighbour at `window.offsets()[k]` of the radar return at that pixel.
+    /// the neighbour at `window.offsets()[k]` of the radar return at that pixel. Training and
+    /// `mer apply` only need the radar pixels: [`PdaNet::features_t`] + [`PdaNet::logits_at`].
     pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+        let f = self.features_t(image, radar, train);
+        let (k, c) = (self.head_w.size()[0], self.head_w.size()[1]);
+        f.conv2d(
+            &self.head_w.view([k, c, 1, 1]),
+            Some(&self.head_b),
+            [1, 1],
+            [0, 0],
+            [1, 1],
+            1,
+        )
+    }
+
+    /// Logits `[N,K]` at flat pixel indices `idx` (b·h·w + v·w + u, Int64) of the level-0
+    /// features `[B,C0,h,w]` of [`PdaNet::features_t`]; equal to [`gather_pixels`] of
+    /// [`PdaNet::forward_t`], without computing the head at every other pixel.
+    pub fn logits_at(&self, features: &Tensor, idx: &Tensor) -> Tensor {
+        gather_pixels(features, idx).matmul(&self.head_w.tr()) + &self.head_b
+    }
+
+    /// The U-Net's level-0 features `[B,C0,h,w]` (inputs as [`PdaNet::forward_t`]).
+    pub fn features_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
         let radar = radar.to_kind(image.kind());
         let mask = radar.gt(0.0).to_kind(image.kind());
         let x = Tensor::cat(
@@ -272,7 +305,7 @@ impl PdaNet {
             let up = x.upsample_nearest2d([s[2], s[3]], None, None);
             x = self.dec[i].forward_t(&Tensor::cat(&[up, skip.shallow_clone()], 1), train);
         }
-        self.head.forward(&x)
+        x
     }
 }
 
@@ -404,6 +437,12 @@ mod tests {
         let radar = Tensor::zeros([2, 1, 19, 23], (Kind::Float, Device::Cpu));
         let y = net.forward_t(&img, &radar, false);
         assert_eq!(y.size(), vec![2, 180, 19, 23]);
+        // The head at chosen pixels equals the full map there.
+        let idx = Tensor::from_slice(&[0i64, 5, 19 * 23 + 7, 2 * 19 * 23 - 1]);
+        let at = net.logits_at(&net.features_t(&img, &radar, false), &idx);
+        let full = gather_pixels(&y, &idx);
+        assert_eq!(at.size(), vec![4, 180]);
+        assert!((at - full).abs().max().double_value(&[]) < 1e-5);
         // PyTorch nn.Conv2d bound 1/√fan_in, BN γ = 1.
         let vars = vs.variables();
         let w0 = &vars["enc0.0.conv.weight"];

@@ -176,7 +176,8 @@ pub struct AblationArgs {
     seed_list: Option<Vec<u64>>,
     /// Variants, comma separated: rgb (no radar), early (early fusion), late (late fusion, no
     /// attention), late-sam (late fusion + spatial attention: the paper's model), l1 / l2
-    /// (late-sam with an L1 / L2 depth head instead of the ordinal one).
+    /// (late-sam with an L1 / L2 depth head instead of the ordinal one), late-sam-mer
+    /// (late-sam on raw + 6 MER channels; run `depthsense mer apply` on the data first).
     #[arg(
         long,
         value_delimiter = ',',

@@ -46,8 +46,8 @@ struct TrainArgs {
     /// Batch size.
     #[arg(long, default_value_t = 4)]
     batch_size: usize,
-    /// Initial learning rate (SGD, momentum 0.9, poly decay 0.9 per iteration).
-    #[arg(long, default_value_t = 0.01)]
+    /// Initial learning rate (Adam, poly decay 0.9 per iteration).
+    #[arg(long, default_value_t = 1e-2)]
     lr: f64,
     /// Weight decay.
     #[arg(long, default_value_t = 1e-4)]
@@ -181,9 +181,11 @@ fn run_apply(a: ApplyArgs) -> anyhow::Result<ExitCode> {
     let s = apply(&opts, &pb)?;
     pb.finish_and_clear();
     eprintln!(
-        "MER maps: {} written ({:.2} samples/s), {} already done, {:.1} s → {}",
+        "MER maps: {} written ({:.2} samples/s; network {:.1} ms/image), {} already done, \
+         {:.1} s → {}",
         s.written,
         s.samples_per_s,
+        1e3 * s.network_seconds / s.written.max(1) as f64,
         s.skipped,
         s.seconds,
         opts.data.display()

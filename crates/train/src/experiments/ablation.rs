@@ -58,16 +58,20 @@ pub enum Variant {
     L1,
     /// The paper's model with an L2 depth head (loss ablation).
     L2,
+    /// The paper's model on MER radar (raw + 6 MER channels, SPEC §5; the prepared data needs
+    /// `depthsense mer apply` first).
+    LateSamMer,
 }
 
 impl Variant {
-    pub const ALL: [Variant; 6] = [
+    pub const ALL: [Variant; 7] = [
         Variant::Rgb,
         Variant::Early,
         Variant::Late,
         Variant::LateSam,
         Variant::L1,
         Variant::L2,
+        Variant::LateSamMer,
     ];
 
     pub fn name(self) -> &'static str {
@@ -78,6 +82,7 @@ impl Variant {
             Variant::LateSam => "late-sam",
             Variant::L1 => "l1",
             Variant::L2 => "l2",
+            Variant::LateSamMer => "late-sam-mer",
         }
     }
 
@@ -90,6 +95,7 @@ impl Variant {
             Variant::LateSam => (Fusion::Late, true, HeadKind::Ordinal),
             Variant::L1 => (Fusion::Late, true, HeadKind::L1),
             Variant::L2 => (Fusion::Late, true, HeadKind::L2),
+            Variant::LateSamMer => (Fusion::Late, true, HeadKind::Ordinal),
         }
     }
 
@@ -99,6 +105,10 @@ impl Variant {
         cfg.fusion = fusion;
         cfg.attention = attention;
         cfg.head = head;
+        if self == Variant::LateSamMer {
+            cfg.radar_input = depthsense_model::RadarInput::Mer;
+            cfg.radar_channels = cfg.radar_input.channels() as i64;
+        }
     }
 
     pub fn describe(self) -> &'static str {
@@ -109,6 +119,7 @@ impl Variant {
             Variant::LateSam => "late fusion + spatial attention (paper), ordinal head",
             Variant::L1 => "late-sam with an L1 depth head",
             Variant::L2 => "late-sam with an L2 depth head",
+            Variant::LateSamMer => "late-sam on MER radar (raw + 6 MER channels)",
         }
     }
 }
@@ -122,7 +133,7 @@ impl FromStr for Variant {
             .find(|v| v.name() == s)
             .ok_or_else(|| {
                 TrainError::Config(format!(
-                    "unknown ablation variant {s:?} (rgb, early, late, late-sam, l1, l2)"
+                    "unknown ablation variant {s:?} (rgb, early, late, late-sam, l1, l2, late-sam-mer)"
                 ))
             })
     }

@@ -11,7 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use depthsense_model::pda::{self, gather_pixels, PdaConfig, PdaNet};
+use depthsense_model::pda::{self, PdaConfig, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
@@ -68,6 +68,8 @@ pub struct MerApplySummary {
     pub seconds: f64,
     /// Samples written per second (0 when none was written).
     pub samples_per_s: f64,
+    /// Seconds spent in the network's forward passes (the rest is reading and writing).
+    pub network_seconds: f64,
     pub record: MerRecord,
     pub previews: Vec<PathBuf>,
 }
@@ -142,9 +144,9 @@ pub fn predict_probs(
         let rad = Tensor::from_slice(&radar)
             .view([b, 1, h, w])
             .to_device(device);
-        let out = net.forward_t(&img, &rad, false);
+        let f = net.features_t(&img, &rad, false);
         let i = Tensor::from_slice(&idx).to_device(device);
-        gather_pixels(&out, &i)
+        net.logits_at(&f, &i)
             .sigmoid()
             .to_device(Device::Cpu)
             .contiguous()
@@ -253,6 +255,7 @@ pub fn apply(
         .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
     progress.set_length(todo.len() as u64);
     let t0 = Instant::now();
+    let mut network_seconds = 0.0;
     for chunk in todo.chunks(opts.batch_size.max(1)) {
         let inputs: Vec<PdaInput> = pool.install(|| {
             chunk
@@ -260,7 +263,9 @@ pub fn apply(
                 .map(|e| load_input(&ds.sample_dir(e), &cfg, false))
                 .collect::<Result<_, _>>()
         })?;
+        let tn = Instant::now();
         let probs = predict_probs(&loaded.net, &inputs, device)?;
+        network_seconds += tn.elapsed().as_secs_f64();
         pool.install(|| {
             chunk
                 .par_iter()
@@ -281,6 +286,7 @@ pub fn apply(
         } else {
             todo.len() as f64 / secs.max(1e-9)
         },
+        network_seconds,
         record,
         previews,
     })

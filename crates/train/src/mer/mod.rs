@@ -12,6 +12,7 @@
 //! The 6 MER channels d·[conf > θ], θ ∈ [`THRESHOLDS`], are derived when loading
 //! ([`derive_channels`]); the network's radar input is then raw + 6 MER = 7 channels.
 
+pub mod adam;
 pub mod apply;
 pub mod labels;
 pub mod report;
