@@ -164,7 +164,7 @@ fn deep_nesting_is_refused_without_overflowing_the_stack() {
     marks.extend(std::iter::repeat_n(b't', n));
     let mut lists = vec![0x80, 2];
     for _ in 0..n {
-        lists.extend_from_slice(&[b'(', b']']);
+        lists.extend_from_slice(b"(]");
     }
     lists.extend(std::iter::repeat_n(b'e', n));
     for mut b in [tuple1, marks, lists] {
