@@ -129,11 +129,16 @@ pub fn bench_train(
             let b = b?;
             let t = Instant::now();
             let (img, rad, tgt) = batch_tensors(&b, device);
-            let out = if opts.amp && device.is_cuda() {
-                tch::autocast(true, || net.forward_t(&img, &rad, true))
+            // The same bf16 autocast as `train --amp` (issue 8 item 5: fp16 without
+            // loss scaling underflows the ordinal loss's per-pixel gradients).
+            let precision = if opts.amp {
+                crate::trainer::AMP_PRECISION
             } else {
-                net.forward_t(&img, &rad, true)
+                depthsense_model::precision::Precision::Fp32
             };
+            let out = depthsense_model::precision::with_autocast(precision, || {
+                net.forward_t(&img, &rad, true)
+            });
             let loss = net.loss(&out.to_kind(Kind::Float), &tgt);
             sgd.zero_grad();
             loss.backward();
@@ -160,6 +165,7 @@ pub fn bench_train(
         "batch_size": opts.batch_size,
         "frame": [first.width, first.height],
         "amp": opts.amp && device.is_cuda(),
+        "amp_dtype": "bf16",
         "train_images_per_s": timed_images as f64 / timed_secs.max(1e-9),
         "train_step_seconds": step_secs,
         "loader_images_per_s": loader_ips,

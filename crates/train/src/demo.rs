@@ -183,6 +183,11 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     // 2. Prepare (--split all: synthetic scenes match no shipped split list).
     let t = Instant::now();
     let prepared = out.join("prepared");
+    // The world was just regenerated: samples prepared from an earlier world (or by an older
+    // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
+    if prepared.exists() {
+        std::fs::remove_dir_all(&prepared).map_err(|e| TrainError::io(&prepared, e))?;
+    }
     let popts = depthsense_prep::PrepareOptions {
         dataroot: world.clone(),
         version: scfg.version_name.clone(),
