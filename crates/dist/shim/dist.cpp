@@ -33,10 +33,13 @@ using Ms = std::chrono::milliseconds;
 thread_local std::string g_last_error;
 
 constexpr Ms kHeartbeat{250};
-const char* kHbPrefix = "depthsense/hb/";
-const char* kJoinPrefix = "depthsense/joined/";
+const char* kHbPrefix = "hb/";
+const char* kJoinPrefix = "joined/";
 
 struct Group {
+  // Key namespace in the store ("depthsense/<restart>/"): torchrun's agent store outlives
+  // worker restarts.
+  std::string ns;
   int rank = 0;
   int world = 1;
   std::string host;
@@ -62,8 +65,8 @@ c10::intrusive_ptr<c10d::TCPStore> client(const Group& g, Ms timeout) {
   return c10::make_intrusive<c10d::TCPStore>(g.host, o);
 }
 
-std::string key(const char* prefix, int rank) {
-  return std::string(prefix) + std::to_string(rank);
+std::string key(const Group& g, const char* prefix, int rank) {
+  return g.ns + prefix + std::to_string(rank);
 }
 
 void heartbeat_loop(Group* g) {
@@ -73,7 +76,8 @@ void heartbeat_loop(Group* g) {
     try {
       std::string v = std::to_string(++beat);
       g->hb_store->set(
-          key(kHbPrefix, g->rank), std::vector<uint8_t>(v.begin(), v.end()));
+          key(*g, kHbPrefix, g->rank),
+          std::vector<uint8_t>(v.begin(), v.end()));
     } catch (...) {
       // The store host is gone; a collective will report it.
     }
@@ -81,8 +85,8 @@ void heartbeat_loop(Group* g) {
   }
 }
 
-std::string read_beat(c10d::Store& s, int r) {
-  auto k = key(kHbPrefix, r);
+std::string read_beat(const Group& g, c10d::Store& s, int r) {
+  auto k = key(g, kHbPrefix, r);
   if (!s.check({k})) {
     return "";
   }
@@ -97,11 +101,11 @@ std::string diagnose(Group* g) {
     auto s = client(*g, Ms(3000));
     std::vector<std::string> a(g->world), b(g->world);
     for (int r = 0; r < g->world; ++r) {
-      a[r] = read_beat(*s, r);
+      a[r] = read_beat(*g, *s, r);
     }
     std::this_thread::sleep_for(kHeartbeat * 8);
     for (int r = 0; r < g->world; ++r) {
-      b[r] = read_beat(*s, r);
+      b[r] = read_beat(*g, *s, r);
     }
     std::vector<int> dead;
     for (int r = 0; r < g->world; ++r) {
@@ -234,11 +238,11 @@ int guarded(F f) {
 }
 
 void wait_joined(Group* g) {
-  std::string k = key(kJoinPrefix, g->rank);
+  std::string k = key(*g, kJoinPrefix, g->rank);
   g->store->set(k, std::vector<uint8_t>{'1'});
   std::vector<std::string> keys;
   for (int r = 0; r < g->world; ++r) {
-    keys.push_back(key(kJoinPrefix, r));
+    keys.push_back(key(*g, kJoinPrefix, r));
   }
   auto deadline = std::chrono::steady_clock::now() + g->timeout;
   while (true) {
@@ -289,7 +293,8 @@ int dsd_has_nccl() {
 #endif
 }
 
-// backend: 0 = Gloo, 1 = NCCL. Returns NULL on error.
+// backend: 0 = Gloo, 1 = NCCL. is_server: this rank hosts the TCPStore (rank 0,
+// unless torchrun's agent already does). ns: key namespace. Returns NULL on error.
 void* dsd_init(
     const char* host,
     int port,
@@ -297,8 +302,11 @@ void* dsd_init(
     int world,
     long long timeout_ms,
     int backend,
-    int device) {
+    int device,
+    int is_server,
+    const char* ns) {
   auto* g = new Group();
+  g->ns = ns;
   g->rank = rank;
   g->world = world;
   g->host = host;
@@ -308,7 +316,7 @@ void* dsd_init(
   int rc = guarded([&] {
     c10d::TCPStoreOptions o;
     o.port = static_cast<std::uint16_t>(port);
-    o.isServer = rank == 0;
+    o.isServer = is_server != 0;
     o.numWorkers = world;
     o.waitWorkers = false;
     o.timeout = g->timeout;
@@ -317,12 +325,13 @@ void* dsd_init(
     } catch (const std::exception& e) {
       std::ostringstream msg;
       msg << "rendezvous: rank " << rank << " of WORLD_SIZE=" << world
-          << (rank == 0 ? " cannot host" : " cannot reach")
+          << (is_server ? " cannot host" : " cannot reach")
           << " the TCPStore at MASTER_ADDR=" << g->host
           << " MASTER_PORT=" << port << " within "
           << g->timeout.count() / 1000.0 << " s: " << first_line(e.what());
-      if (rank != 0) {
-        msg << " (is rank 0 running, and MASTER_ADDR/MASTER_PORT right?)";
+      if (!is_server) {
+        msg << " (is rank 0 (or torchrun's agent) running, and MASTER_ADDR/MASTER_PORT "
+               "right?)";
       } else {
         msg << " (is MASTER_PORT free?)";
       }
@@ -332,7 +341,7 @@ void* dsd_init(
     g->hb_store = client(*g, Ms(3000));
     g->hb = std::thread(heartbeat_loop, g);
     auto prefixed =
-        c10::make_intrusive<c10d::PrefixStore>("depthsense/pg", g->store);
+        c10::make_intrusive<c10d::PrefixStore>(g->ns + "pg", g->store);
     if (backend == 1) {
 #ifdef DSD_NCCL
       auto opts = c10d::ProcessGroupNCCL::Options::create();
@@ -396,6 +405,25 @@ void* dsd_init(
     return nullptr;
   }
   return g;
+}
+
+// A bare TCPStore server, as torchrun's agent hosts one (tests, launchers).
+void* dsd_store_host(const char* host, int port, long long timeout_ms) {
+  c10::intrusive_ptr<c10d::TCPStore>* out = nullptr;
+  guarded([&] {
+    c10d::TCPStoreOptions o;
+    o.port = static_cast<std::uint16_t>(port);
+    o.isServer = true;
+    o.waitWorkers = false;
+    o.timeout = Ms(timeout_ms);
+    out = new c10::intrusive_ptr<c10d::TCPStore>(
+        c10::make_intrusive<c10d::TCPStore>(host, o));
+  });
+  return out;
+}
+
+void dsd_store_free(void* p) {
+  delete static_cast<c10::intrusive_ptr<c10d::TCPStore>*>(p);
 }
 
 void dsd_free(void* p) {

@@ -15,6 +15,10 @@ pub struct DistEnv {
     pub master_port: u16,
     /// "torchrun" (RANK / WORLD_SIZE / …) or "slurm" (SLURM_PROCID / SLURM_NTASKS / …).
     pub source: &'static str,
+    /// `TORCHELASTIC_USE_AGENT_STORE=True`: torchrun's agent hosts the TCPStore already.
+    pub agent_store: bool,
+    /// `TORCHELASTIC_RESTART_COUNT` (0 outside torchrun).
+    pub restart_count: u64,
 }
 
 impl DistEnv {
@@ -114,6 +118,11 @@ impl DistEnv {
             master_addr,
             master_port,
             source: if torchrun { "torchrun" } else { "slurm" },
+            agent_store: get("TORCHELASTIC_USE_AGENT_STORE")
+                .is_some_and(|v| v.trim().eq_ignore_ascii_case("true")),
+            restart_count: get("TORCHELASTIC_RESTART_COUNT")
+                .and_then(|v| v.trim().parse().ok())
+                .unwrap_or(0),
         }))
     }
 }
@@ -186,7 +195,19 @@ mod tests {
         );
         assert_eq!(e.master_addr, "10.0.0.2");
         assert_eq!(e.source, "torchrun");
+        assert!(!e.agent_store);
         assert_eq!(env(&[]).unwrap(), None);
+        let e = env(&[
+            ("RANK", "0"),
+            ("WORLD_SIZE", "2"),
+            ("MASTER_ADDR", "h"),
+            ("TORCHELASTIC_USE_AGENT_STORE", "True"),
+            ("TORCHELASTIC_RESTART_COUNT", "2"),
+        ])
+        .unwrap()
+        .unwrap();
+        assert!(e.agent_store);
+        assert_eq!(e.restart_count, 2);
     }
 
     #[test]

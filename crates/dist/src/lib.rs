@@ -50,8 +50,12 @@ mod ffi {
             timeout_ms: i64,
             backend: c_int,
             device: c_int,
+            is_server: c_int,
+            ns: *const c_char,
         ) -> *mut c_void;
         pub fn dsd_free(pg: *mut c_void);
+        pub fn dsd_store_host(host: *const c_char, port: c_int, timeout_ms: i64) -> *mut c_void;
+        pub fn dsd_store_free(store: *mut c_void);
         pub fn dsd_backend_name(pg: *mut c_void) -> *const c_char;
         pub fn dsd_allreduce(pg: *mut c_void, ts: *mut *mut c_void, n: c_int, avg: c_int) -> c_int;
         pub fn dsd_broadcast(pg: *mut c_void, ts: *mut *mut c_void, n: c_int, root: c_int)
@@ -152,7 +156,13 @@ impl ProcessGroup {
             reason: "contains a NUL byte".into(),
         })?;
         let ms = timeout.as_millis().clamp(1, i64::MAX as u128) as i64;
-        // SAFETY: valid C string; the shim copies it.
+        // Under torchrun (TORCHELASTIC_USE_AGENT_STORE=True) its agent already hosts the store at
+        // MASTER_ADDR:MASTER_PORT and outlives worker restarts: every rank is a client, and the
+        // keys carry the restart count.
+        let is_server = env.rank == 0 && !env.agent_store;
+        let ns = CString::new(format!("depthsense/{}/", env.restart_count))
+            .map_err(|e| DistError::Other(e.to_string()))?;
+        // SAFETY: valid C strings; the shim copies them.
         let raw = unsafe {
             ffi::dsd_init(
                 host.as_ptr(),
@@ -165,6 +175,8 @@ impl ProcessGroup {
                     Backend::Nccl => 1,
                 },
                 device_index.map_or(-1, |d| d as c_int),
+                is_server as c_int,
+                ns.as_ptr(),
             )
         };
         let raw = NonNull::new(raw).ok_or_else(|| DistError::Rendezvous(last_error()))?;
@@ -311,6 +323,30 @@ impl Drop for ProcessGroup {
     fn drop(&mut self) {
         // SAFETY: created by dsd_init, freed once.
         unsafe { ffi::dsd_free(self.raw.as_ptr()) }
+    }
+}
+
+/// A TCPStore server alone, as torchrun's elastic agent hosts one at MASTER_ADDR:MASTER_PORT
+/// (`TORCHELASTIC_USE_AGENT_STORE=True`): then every rank, rank 0 included, is a client.
+pub struct StoreHost {
+    raw: NonNull<c_void>,
+}
+
+impl StoreHost {
+    pub fn new(host: &str, port: u16, timeout: Duration) -> Result<Self, DistError> {
+        let h = CString::new(host).map_err(|e| DistError::Other(e.to_string()))?;
+        let ms = timeout.as_millis().clamp(1, i64::MAX as u128) as i64;
+        // SAFETY: valid C string, copied by the shim.
+        let raw = unsafe { ffi::dsd_store_host(h.as_ptr(), port as c_int, ms) };
+        let raw = NonNull::new(raw).ok_or_else(|| DistError::Rendezvous(last_error()))?;
+        Ok(Self { raw })
+    }
+}
+
+impl Drop for StoreHost {
+    fn drop(&mut self) {
+        // SAFETY: created by dsd_store_host, freed once.
+        unsafe { ffi::dsd_store_free(self.raw.as_ptr()) }
     }
 }
 

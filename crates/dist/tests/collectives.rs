@@ -5,7 +5,9 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use depthsense_dist::sync_bn::{batch_norm, BnState};
-use depthsense_dist::{broadcast_flat, Backend, DistEnv, GradBuckets, ProcessGroup, ReduceOp};
+use depthsense_dist::{
+    broadcast_flat, Backend, DistEnv, GradBuckets, ProcessGroup, ReduceOp, StoreHost,
+};
 use tch::{Device, Kind, Tensor};
 
 fn free_port() -> u16 {
@@ -23,7 +25,17 @@ struct Out {
 
 /// Run `world` workers of `mode` (only `ranks` of them started) and collect their results.
 fn launch(mode: &str, world: usize, ranks: &[usize], timeout_s: u64) -> Vec<Out> {
-    let port = free_port();
+    launch_on(free_port(), &[], mode, world, ranks, timeout_s)
+}
+
+fn launch_on(
+    port: u16,
+    extra_env: &[(&str, &str)],
+    mode: &str,
+    world: usize,
+    ranks: &[usize],
+    timeout_s: u64,
+) -> Vec<Out> {
     let exe = std::env::current_exe().unwrap();
     let children: Vec<_> = ranks
         .iter()
@@ -37,6 +49,7 @@ fn launch(mode: &str, world: usize, ranks: &[usize], timeout_s: u64) -> Vec<Out>
                 .env("WORLD_SIZE", world.to_string())
                 .env("MASTER_ADDR", "127.0.0.1")
                 .env("MASTER_PORT", port.to_string())
+                .envs(extra_env.iter().copied())
                 .stdout(Stdio::null())
                 .stderr(Stdio::piped())
                 .spawn()
@@ -271,4 +284,17 @@ fn a_missing_rank_fails_the_rendezvous_naming_it() {
         o.stderr
     );
     assert!(t0.elapsed().as_secs_f64() < 30.0);
+}
+
+#[test]
+fn under_torchrun_the_agent_hosts_the_store_and_rank_zero_is_a_client() {
+    let port = free_port();
+    let _agent = StoreHost::new("127.0.0.1", port, Duration::from_secs(60)).unwrap();
+    let env = [
+        ("TORCHELASTIC_USE_AGENT_STORE", "True"),
+        ("TORCHELASTIC_RESTART_COUNT", "1"),
+    ];
+    for o in launch_on(port, &env, "collectives", 2, &[0, 1], 60) {
+        assert_eq!(o.code, Some(0), "{}", o.stderr);
+    }
 }
