@@ -79,7 +79,43 @@ pub struct Args {
     mer_checkpoint: Option<PathBuf>,
 }
 
+fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
+    use depthsense_train::evaluate::{write_predictions, EvalOptions, PredFormat};
+    let formats = a
+        .format
+        .iter()
+        .map(|f| f.parse::<PredFormat>())
+        .collect::<Result<Vec<_>, _>>()?;
+    let opts = EvalOptions {
+        checkpoint: a.checkpoint.clone(),
+        config: a.config.clone(),
+        set: a.set.clone(),
+        data: data.to_path_buf(),
+        split: a.split.clone(),
+        batch_size: a.batch_size,
+        device: a.device.clone(),
+        ..EvalOptions::default()
+    };
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
+    if let Some(r) = &load_report {
+        eprint!("{}: {r}", a.checkpoint.display());
+    }
+    let pb = super::train::progress_bar("predict");
+    let (_, n) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
+    pb.finish_and_clear();
+    eprintln!(
+        "{n} predictions ({}) written to {}",
+        a.format.join(", "),
+        a.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if let Some(data) = a.data.clone() {
+        return run_dataset(&a, &data);
+    }
     let mut input = if let Some(dir) = &a.sample {
         input_from_prepared(dir)?
     } else if let Some(token) = &a.token {
