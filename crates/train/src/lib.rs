@@ -22,6 +22,7 @@ pub mod evaluate;
 pub mod experiments;
 pub mod explain;
 pub mod mer;
+mod optim_state;
 pub mod plot;
 pub mod predict;
 pub mod sgd;

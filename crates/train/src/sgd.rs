@@ -11,6 +11,7 @@ use std::path::Path;
 use tch::{nn::VarStore, Kind, Tensor};
 
 use crate::error::TrainError;
+use crate::optim_state::{self, bad_state, Trainable};
 
 /// Polynomial learning-rate decay per iteration to 0 at the end (SPEC §8):
 /// lr_i = lr₀ · (1 − i/total)^power.
@@ -24,8 +25,7 @@ pub fn poly_lr(base: f64, iteration: u64, total: u64, power: f64) -> f64 {
 
 /// The optimiser: named trainable variables and one momentum buffer each.
 pub struct Sgd {
-    /// (name, variable), sorted by name.
-    vars: Vec<(String, Tensor)>,
+    vars: Trainable,
     buffers: BTreeMap<String, Tensor>,
     pub momentum: f64,
     pub weight_decay: f64,
@@ -33,14 +33,8 @@ pub struct Sgd {
 
 impl Sgd {
     pub fn new(vs: &VarStore, momentum: f64, weight_decay: f64) -> Self {
-        let mut vars: Vec<(String, Tensor)> = vs
-            .variables()
-            .into_iter()
-            .filter(|(_, t)| t.requires_grad())
-            .collect();
-        vars.sort_by(|a, b| a.0.cmp(&b.0));
         Self {
-            vars,
+            vars: Trainable::new(vs),
             buffers: BTreeMap::new(),
             momentum,
             weight_decay,
@@ -49,23 +43,21 @@ impl Sgd {
 
     /// Number of trainable tensors.
     pub fn len(&self) -> usize {
-        self.vars.len()
+        self.vars.vars.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.vars.is_empty()
+        self.vars.vars.is_empty()
     }
 
     pub fn zero_grad(&mut self) {
-        for (_, v) in self.vars.iter_mut() {
-            v.zero_grad();
-        }
+        self.vars.zero_grad();
     }
 
     /// One update with learning rate `lr`. Variables without a gradient are left alone.
     pub fn step(&mut self, lr: f64) {
         tch::no_grad(|| {
-            for (name, p) in self.vars.iter_mut() {
+            for (name, p) in self.vars.vars.iter_mut() {
                 let g = p.grad();
                 if !g.defined() {
                     continue;
@@ -97,33 +89,20 @@ impl Sgd {
         let mut named: Vec<(String, Tensor)> = self
             .buffers
             .iter()
-            .map(|(k, v)| (format!("momentum.{k}"), v.to_device(tch::Device::Cpu)))
+            .map(|(k, v)| (format!("momentum.{k}"), v.shallow_clone()))
             .collect();
         named.push((
             "__iteration".into(),
             Tensor::from_slice(&[iteration as i64]).to_kind(Kind::Int64),
         ));
-        let tmp = depthsense_nuscenes::fsutil::temp_sibling(path);
-        if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent).map_err(|e| TrainError::io(parent, e))?;
-        }
-        Tensor::write_safetensors(&named, &tmp).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            TrainError::Other(format!("{}: {e}", path.display()))
-        })?;
-        std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+        optim_state::write_atomic(path, named)
     }
 
     /// Restore buffers saved by [`Sgd::save`]; returns the iteration stored with them.
     pub fn load(&mut self, path: &Path) -> Result<u64, TrainError> {
-        let named = Tensor::read_safetensors(path)
-            .map_err(|e| TrainError::Other(format!("{}: {e}", path.display())))?;
-        let device = self
-            .vars
-            .first()
-            .map_or(tch::Device::Cpu, |(_, v)| v.device());
-        let known: BTreeMap<&str, &Tensor> =
-            self.vars.iter().map(|(n, t)| (n.as_str(), t)).collect();
+        let named = optim_state::read(path)?;
+        let device = self.vars.device();
+        let known = self.vars.sizes();
         let mut iteration = None;
         let mut buffers = BTreeMap::new();
         for (name, t) in named {
@@ -132,34 +111,24 @@ impl Sgd {
                 continue;
             }
             let Some(var_name) = name.strip_prefix("momentum.") else {
-                return Err(TrainError::Parse {
-                    path: path.display().to_string(),
-                    reason: format!("unexpected tensor {name}"),
-                });
+                return Err(bad_state(path, format!("unexpected tensor {name}")));
             };
-            let Some(v) = known.get(var_name) else {
-                return Err(TrainError::Parse {
-                    path: path.display().to_string(),
-                    reason: format!("momentum for unknown variable {var_name}"),
-                });
+            let Some(size) = known.get(var_name) else {
+                return Err(bad_state(
+                    path,
+                    format!("momentum for unknown variable {var_name}"),
+                ));
             };
-            if v.size() != t.size() {
-                return Err(TrainError::Parse {
-                    path: path.display().to_string(),
-                    reason: format!(
-                        "momentum {var_name}: network {:?}, file {:?}",
-                        v.size(),
-                        t.size()
-                    ),
-                });
+            if *size != t.size() {
+                return Err(bad_state(
+                    path,
+                    format!("momentum {var_name}: network {size:?}, file {:?}", t.size()),
+                ));
             }
             buffers.insert(var_name.to_string(), t.to_device(device));
         }
         self.buffers = buffers;
-        iteration.ok_or_else(|| TrainError::Parse {
-            path: path.display().to_string(),
-            reason: "no __iteration record".into(),
-        })
+        iteration.ok_or_else(|| bad_state(path, "no __iteration record".into()))
     }
 }
 

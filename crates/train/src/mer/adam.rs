@@ -10,9 +10,10 @@ use std::path::Path;
 use tch::{nn::VarStore, Kind, Tensor};
 
 use crate::error::TrainError;
+use crate::optim_state::{self, bad_state, Trainable};
 
 pub struct Adam {
-    vars: Vec<(String, Tensor)>,
+    vars: Trainable,
     m: BTreeMap<String, Tensor>,
     v: BTreeMap<String, Tensor>,
     steps: i64,
@@ -24,14 +25,8 @@ pub struct Adam {
 
 impl Adam {
     pub fn new(vs: &VarStore, weight_decay: f64) -> Self {
-        let mut vars: Vec<(String, Tensor)> = vs
-            .variables()
-            .into_iter()
-            .filter(|(_, t)| t.requires_grad())
-            .collect();
-        vars.sort_by(|a, b| a.0.cmp(&b.0));
         Self {
-            vars,
+            vars: Trainable::new(vs),
             m: BTreeMap::new(),
             v: BTreeMap::new(),
             steps: 0,
@@ -43,9 +38,7 @@ impl Adam {
     }
 
     pub fn zero_grad(&mut self) {
-        for (_, v) in self.vars.iter_mut() {
-            v.zero_grad();
-        }
+        self.vars.zero_grad();
     }
 
     /// One update with learning rate `lr`.
@@ -55,7 +48,7 @@ impl Adam {
         let c1 = 1.0 - b1.powi(self.steps as i32);
         let c2 = 1.0 - b2.powi(self.steps as i32);
         tch::no_grad(|| {
-            for (name, p) in self.vars.iter_mut() {
+            for (name, p) in self.vars.vars.iter_mut() {
                 let g = p.grad();
                 if !g.defined() {
                     continue;
@@ -73,41 +66,26 @@ impl Adam {
 
     /// Writes the moments and the step count (safetensors, atomically) with `iteration`.
     pub fn save(&self, path: &Path, iteration: u64) -> Result<(), TrainError> {
-        let cpu = tch::Device::Cpu;
         let mut named: Vec<(String, Tensor)> = vec![];
         for (k, t) in &self.m {
-            named.push((format!("m.{k}"), t.to_device(cpu)));
+            named.push((format!("m.{k}"), t.shallow_clone()));
         }
         for (k, t) in &self.v {
-            named.push((format!("v.{k}"), t.to_device(cpu)));
+            named.push((format!("v.{k}"), t.shallow_clone()));
         }
         let meta = [iteration as i64, self.steps];
         named.push((
             "__iteration_steps".into(),
             Tensor::from_slice(&meta).to_kind(Kind::Int64),
         ));
-        let tmp = depthsense_nuscenes::fsutil::temp_sibling(path);
-        Tensor::write_safetensors(&named, &tmp).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            TrainError::Other(format!("{}: {e}", path.display()))
-        })?;
-        std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+        optim_state::write_atomic(path, named)
     }
 
     /// Restores what [`Adam::save`] wrote; returns the iteration stored with it.
     pub fn load(&mut self, path: &Path) -> Result<u64, TrainError> {
-        let bad = |reason: String| TrainError::Parse {
-            path: path.display().to_string(),
-            reason,
-        };
-        let named = Tensor::read_safetensors(path)
-            .map_err(|e| TrainError::Other(format!("{}: {e}", path.display())))?;
-        let device = self
-            .vars
-            .first()
-            .map_or(tch::Device::Cpu, |(_, v)| v.device());
-        let known: BTreeMap<&str, &Tensor> =
-            self.vars.iter().map(|(n, t)| (n.as_str(), t)).collect();
+        let named = optim_state::read(path)?;
+        let device = self.vars.device();
+        let known = self.vars.sizes();
         let mut iteration = None;
         for (name, t) in named {
             if name == "__iteration_steps" {
@@ -118,15 +96,20 @@ impl Adam {
             let (map, var) = match name.split_once('.') {
                 Some(("m", v)) => (&mut self.m, v),
                 Some(("v", v)) => (&mut self.v, v),
-                _ => return Err(bad(format!("unexpected tensor {name}"))),
+                _ => return Err(bad_state(path, format!("unexpected tensor {name}"))),
             };
             match known.get(var) {
-                Some(k) if k.size() == t.size() => {
+                Some(size) if *size == t.size() => {
                     map.insert(var.to_string(), t.to_device(device));
                 }
-                _ => return Err(bad(format!("{name}: no network variable of that shape"))),
+                _ => {
+                    return Err(bad_state(
+                        path,
+                        format!("{name}: no network variable of that shape"),
+                    ))
+                }
             }
         }
-        iteration.ok_or_else(|| bad("no __iteration_steps record".into()))
+        iteration.ok_or_else(|| bad_state(path, "no __iteration_steps record".into()))
     }
 }
