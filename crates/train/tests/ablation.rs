@@ -3,8 +3,11 @@
 //! finished runs, evaluation-only of trained runs, refusal of changed options; and the two
 //! plotting helpers it (and the demo) use.
 
+mod common;
+
 use std::path::Path;
-use std::time::SystemTime;
+
+use common::{hidden, mtime, quick_runs};
 
 use depthsense_train::experiments::ablation::{
     run_ablation, variant_models, AblationOptions, AblationResult, RunStatus, Variant, CSV_FILE,
@@ -13,39 +16,14 @@ use depthsense_train::experiments::ablation::{
 use depthsense_train::experiments::Stat;
 use depthsense_train::plot::{bar_chart_png, colorize_depth, picture_row_png};
 use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
-use indicatif::{MultiProgress, ProgressBar, ProgressDrawTarget};
-
-fn hidden() -> MultiProgress {
-    MultiProgress::with_draw_target(ProgressDrawTarget::hidden())
-}
-
-fn mtime(p: &Path) -> SystemTime {
-    std::fs::metadata(p).unwrap().modified().unwrap()
-}
+use indicatif::ProgressBar;
 
 fn opts(data: &Path, out: &Path) -> AblationOptions {
     AblationOptions {
-        data: data.to_path_buf(),
+        run: quick_runs(data),
         out: out.to_path_buf(),
-        preset: "tiny".into(),
-        set: [
-            "width=8",
-            "decoder-channels=16",
-            "head-channels=16",
-            "radar-width=8",
-            "dropout=0",
-        ]
-        .map(String::from)
-        .to_vec(),
         variants: vec![Variant::Rgb, Variant::LateSam],
         seeds: vec![0, 1],
-        epochs: 1,
-        batch_size: 2,
-        lr: 2e-3,
-        device: "cpu".into(),
-        jobs: 2,
-        max_val_samples: Some(2),
-        max_batches_per_epoch: Some(2),
         ..AblationOptions::default()
     }
 }
@@ -259,20 +237,8 @@ fn ablation_runs_reports_and_resumes() {
     let model = variant_models(&o2).unwrap().remove(0).1;
     let partial = train(
         &TrainOptions {
-            data: data.clone(),
-            out: out2.join("runs/rgb/seed0"),
-            model,
-            epochs: o2.epochs,
-            batch_size: o2.batch_size,
-            lr: o2.lr,
-            seed: 0,
-            device: "cpu".into(),
-            jobs: 2,
-            max_val_samples: o2.max_val_samples,
-            max_batches_per_epoch: o2.max_batches_per_epoch,
-            val_every_scene: o2.val_every_scene,
             stop_after: Some(1),
-            ..TrainOptions::default()
+            ..o2.run.train_options(out2.join("runs/rgb/seed0"), &model, 0)
         },
         &ProgressBar::hidden(),
     )
@@ -298,7 +264,7 @@ fn ablation_runs_reports_and_resumes() {
 
     // Other options in the same directory are refused rather than mixed.
     let mut other = o.clone();
-    other.lr = 1e-2;
+    other.run.lr = 1e-2;
     let err = run_ablation(&other, &hidden()).unwrap_err().to_string();
     assert!(err.contains("other training options"), "{err}");
 }

@@ -2,8 +2,9 @@
 //! (README "Reduced training data"), and `experiment reduced-data` trains, tests and tables
 //! its grid, resumably.
 
+mod common;
+
 use std::collections::BTreeSet;
-use std::path::Path;
 
 use depthsense_train::data::{mix64, partition, Dataset};
 use depthsense_train::experiments::reduced_data::{
@@ -11,7 +12,8 @@ use depthsense_train::experiments::reduced_data::{
     JSON_FILE, MD_FILE, PNG_FILE,
 };
 use depthsense_train::trainer::{TrainOptions, Trainer, CONFIG_FILE};
-use indicatif::{MultiProgress, ProgressDrawTarget};
+
+use common::{hidden, mtime, quick_runs, small_model};
 
 /// The documented order key, written out independently of the library.
 fn key(name: &str) -> (u64, String) {
@@ -21,18 +23,6 @@ fn key(name: &str) -> (u64, String) {
         h = h.wrapping_mul(0x100000001b3);
     }
     (mix64(h), name.to_string())
-}
-
-fn small_model() -> Vec<String> {
-    [
-        "width=8",
-        "decoder-channels=16",
-        "head-channels=16",
-        "radar-width=8",
-        "dropout=0",
-    ]
-    .map(String::from)
-    .to_vec()
 }
 
 #[test]
@@ -114,14 +104,6 @@ fn exclude_withholds_exactly_the_documented_scenes() {
     assert!(plain.get("exclude").is_none());
 }
 
-fn hidden() -> MultiProgress {
-    MultiProgress::with_draw_target(ProgressDrawTarget::hidden())
-}
-
-fn mtime(p: &Path) -> std::time::SystemTime {
-    std::fs::metadata(p).unwrap().modified().unwrap()
-}
-
 #[test]
 fn reduced_data_grid_trains_tables_and_resumes() {
     let tmp = tempfile::tempdir().unwrap();
@@ -129,20 +111,10 @@ fn reduced_data_grid_trains_tables_and_resumes() {
     depthsense_train::data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();
     let out = tmp.path().join("rd");
     let opts = ReducedDataOptions {
-        data: data.clone(),
+        run: quick_runs(&data),
         out: out.clone(),
-        preset: "tiny".into(),
-        set: small_model(),
         grid: parse_grid("full;night=1").unwrap(),
         seeds: vec![0],
-        epochs: 1,
-        batch_size: 2,
-        lr: 2e-3,
-        device: "cpu".into(),
-        jobs: 2,
-        max_val_samples: Some(2),
-        max_batches_per_epoch: Some(2),
-        val_every_scene: 5,
         eval: Default::default(),
         command_line: Some("test".into()),
     };

@@ -9,6 +9,7 @@ use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_train::experiments::ablation::{
     run_ablation, AblationOptions, Variant, MD_FILE, PNG_FILE,
 };
+use depthsense_train::experiments::runner::RunSettings;
 use indicatif::MultiProgress;
 
 #[derive(clap::Args)]
@@ -69,27 +70,21 @@ pub struct CostArgs {
     device: String,
 }
 
+/// The training settings every run of `ablation` and `reduced-data` shares.
 #[derive(clap::Args)]
-pub struct ReducedDataArgs {
-    /// Prepared data directory; it must have test scenes.
+pub struct RunArgs {
+    /// Prepared data directory (output of `depthsense prepare`, holds index.json); it must
+    /// have test scenes.
     #[arg(long)]
     data: PathBuf,
-    /// Output directory: runs/<cell>/seed<k>/ and reduced_data.{md,csv,json,png}.
-    #[arg(long)]
-    out: PathBuf,
-    /// Grid cells separated by `;`, each `full` or CONDITION=FRACTION[,…] (the training
-    /// scenes withheld, see `train --exclude`).
-    #[arg(long, default_value = depthsense_train::experiments::reduced_data::DEFAULT_GRID)]
-    grid: String,
-    /// Model preset (paper, released, tiny, tiny-wide) or a model-config JSON file.
+    /// Model preset: paper, released, tiny, tiny-wide, or a model-config JSON file.
     #[arg(long, default_value = "paper")]
     preset: String,
-    /// Any model-config field as key=value (repeatable).
+    /// Any model-config field as key=value (repeatable), applied to the preset (in `ablation`
+    /// not fusion, attention or head: the variants set those); e.g. `--set width=8 --set
+    /// dropout=0`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
-    /// Number of seeds: 0, 1, …, N−1.
-    #[arg(long, default_value_t = 1)]
-    seeds: u64,
     /// Epochs of each run (paper: 40).
     #[arg(long, default_value_t = 40)]
     epochs: usize,
@@ -99,21 +94,56 @@ pub struct ReducedDataArgs {
     /// Initial learning rate (paper: 1e-3).
     #[arg(long, default_value_t = 1e-3)]
     lr: f64,
-    /// Device: auto, cpu, cuda or cuda:N.
+    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
     device: String,
-    /// Data-loader threads (0 = all cores).
+    /// Data-loader threads (0 = all cores). Runs are trained one after another.
     #[arg(long, default_value_t = 0)]
     jobs: usize,
-    /// Validate on at most this many validation samples.
+    /// Validate (checkpoint selection) on at most this many validation samples.
     #[arg(long)]
     max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
     #[arg(long)]
     max_batches_per_epoch: Option<usize>,
-    /// Only for data without split lists: the trainer's scene partition period.
+    /// Only for data without split lists: the trainer's scene partition period (see
+    /// `depthsense train --help`).
     #[arg(long, default_value_t = 5)]
     val_every_scene: usize,
+}
+
+impl RunArgs {
+    fn settings(self) -> RunSettings {
+        RunSettings {
+            data: self.data,
+            preset: self.preset,
+            set: self.set,
+            epochs: self.epochs,
+            batch_size: self.batch_size,
+            lr: self.lr,
+            device: self.device,
+            jobs: self.jobs,
+            max_val_samples: self.max_val_samples,
+            max_batches_per_epoch: self.max_batches_per_epoch,
+            val_every_scene: self.val_every_scene,
+        }
+    }
+}
+
+#[derive(clap::Args)]
+pub struct ReducedDataArgs {
+    #[command(flatten)]
+    run: RunArgs,
+    /// Output directory: runs/<cell>/seed<k>/ and reduced_data.{md,csv,json,png}.
+    #[arg(long)]
+    out: PathBuf,
+    /// Grid cells separated by `;`, each `full` or CONDITION=FRACTION[,…] (the training
+    /// scenes withheld, see `train --exclude`).
+    #[arg(long, default_value = depthsense_train::experiments::reduced_data::DEFAULT_GRID)]
+    grid: String,
+    /// Number of seeds: 0, 1, …, N−1.
+    #[arg(long, default_value_t = 1)]
+    seeds: u64,
 }
 
 #[derive(clap::Args)]
@@ -157,17 +187,11 @@ pub struct FailureArgs {
 
 #[derive(clap::Args)]
 pub struct AblationArgs {
-    /// Prepared data directory (output of `depthsense prepare`, holds index.json); it must
-    /// have test scenes.
-    #[arg(long)]
-    data: PathBuf,
+    #[command(flatten)]
+    run: RunArgs,
     /// Output directory: runs/<variant>/seed<k>/ and ablation.{md,csv,json,png}.
     #[arg(long)]
     out: PathBuf,
-    /// Model preset the variants start from: paper, released, tiny, tiny-wide, or a
-    /// model-config JSON file.
-    #[arg(long, default_value = "paper")]
-    preset: String,
     /// Number of seeds: 0, 1, …, N−1.
     #[arg(long, default_value_t = 3, conflicts_with = "seed_list")]
     seeds: u64,
@@ -184,35 +208,6 @@ pub struct AblationArgs {
         default_value = "rgb,early,late,late-sam,l1,l2"
     )]
     variants: Vec<String>,
-    /// Any model-config field as key=value (repeatable), applied to the preset before the
-    /// variant's fusion / attention / head; e.g. `--set width=8 --set dropout=0`.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
-    /// Epochs of each run (paper: 40).
-    #[arg(long, default_value_t = 40)]
-    epochs: usize,
-    /// Batch size of training and evaluation (paper: 8).
-    #[arg(long, default_value_t = 8)]
-    batch_size: usize,
-    /// Initial learning rate (paper: 1e-3).
-    #[arg(long, default_value_t = 1e-3)]
-    lr: f64,
-    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    device: String,
-    /// Data-loader threads (0 = all cores). Runs are trained one after another.
-    #[arg(long, default_value_t = 0)]
-    jobs: usize,
-    /// Validate (checkpoint selection) on at most this many validation samples.
-    #[arg(long)]
-    max_val_samples: Option<usize>,
-    /// Train on at most this many batches per epoch (quick runs).
-    #[arg(long)]
-    max_batches_per_epoch: Option<usize>,
-    /// Only for data without split lists: the trainer's scene partition period (see
-    /// `depthsense train --help`).
-    #[arg(long, default_value_t = 5)]
-    val_every_scene: usize,
     /// Test protocol beyond the cap: mask (drop) or clamp (peers').
     #[arg(long, default_value = "mask")]
     protocol: String,
@@ -264,20 +259,10 @@ fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
         parse_grid, run_reduced_data, ReducedDataOptions, MD_FILE,
     };
     let opts = ReducedDataOptions {
-        data: a.data,
+        run: a.run.settings(),
         out: a.out,
-        preset: a.preset,
-        set: a.set,
         grid: parse_grid(&a.grid)?,
         seeds: (0..a.seeds).collect(),
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        device: a.device,
-        jobs: a.jobs,
-        max_val_samples: a.max_val_samples,
-        max_batches_per_epoch: a.max_batches_per_epoch,
-        val_every_scene: a.val_every_scene,
         eval: EvalConfig::default(),
         command_line: command_line(),
     };
@@ -321,26 +306,16 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
         None => (0..a.seeds).collect(),
     };
     let opts = AblationOptions {
-        data: a.data,
+        run: a.run.settings(),
         out: a.out,
-        preset: a.preset,
-        set: a.set,
         variants,
         seeds,
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        device: a.device,
-        jobs: a.jobs,
-        max_val_samples: a.max_val_samples,
-        max_batches_per_epoch: a.max_batches_per_epoch,
-        val_every_scene: a.val_every_scene,
         eval: EvalConfig {
             protocol: a.protocol.parse::<Protocol>()?,
             aggregate: a.aggregate.parse::<Aggregate>()?,
             ..EvalConfig::default()
         },
-        command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        command_line: command_line(),
     };
     let mp = MultiProgress::new();
     let r = run_ablation(&opts, &mp)?;

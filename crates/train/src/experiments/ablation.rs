@@ -26,14 +26,13 @@ use depthsense_nuscenes::fsutil::write_atomic;
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
-use super::runner::{run_bar, train_and_test};
+use super::runner::{run_bar, train_and_test, RunSettings};
 pub use super::runner::{
     summarise, PartitionInfo, RowValues, RunRecord, RunStatus, SummaryRow, RUN_EVAL_FILE,
 };
 use super::{signed, Machine, Stat};
 use crate::data::{partition, Dataset, Partition};
 use crate::error::TrainError;
-use crate::trainer::TrainOptions;
 
 pub const MD_FILE: &str = "ablation.md";
 pub const CSV_FILE: &str = "ablation.csv";
@@ -142,30 +141,14 @@ impl FromStr for Variant {
 /// Everything an ablation is made of.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AblationOptions {
-    /// Prepared data directory.
-    pub data: PathBuf,
+    /// Data, preset, `set` (which may not name fusion, attention or head: those are the
+    /// variant's) and the training settings shared by every run.
+    #[serde(flatten)]
+    pub run: RunSettings,
     /// Output directory (runs/, ablation.{md,csv,json,png}).
     pub out: PathBuf,
-    /// Model preset (`paper`, `released`, `tiny`, `tiny-wide`) or a model-config JSON file.
-    pub preset: String,
-    /// `key=value` model-config overrides applied to the preset before the variant's fields
-    /// (they may not set fusion, attention or head: those are the variant's).
-    pub set: Vec<String>,
     pub variants: Vec<Variant>,
     pub seeds: Vec<u64>,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub lr: f64,
-    /// auto | cpu | cuda | cuda:N
-    pub device: String,
-    /// Loader threads (0 = all cores).
-    pub jobs: usize,
-    /// Validate on at most this many validation samples (None = all).
-    pub max_val_samples: Option<usize>,
-    /// At most this many batches per epoch (None = all).
-    pub max_batches_per_epoch: Option<usize>,
-    /// The trainer's `val_every_scene` (partition of data without split lists).
-    pub val_every_scene: usize,
     /// Test metrics settings (caps, protocol, aggregation).
     pub eval: EvalConfig,
     /// The invocation, recorded in the outputs (informational).
@@ -174,22 +157,11 @@ pub struct AblationOptions {
 
 impl Default for AblationOptions {
     fn default() -> Self {
-        let t = TrainOptions::default();
         Self {
-            data: t.data,
+            run: RunSettings::default(),
             out: PathBuf::from("runs/ablation"),
-            preset: "paper".into(),
-            set: vec![],
             variants: Variant::ALL.to_vec(),
             seeds: vec![0, 1, 2],
-            epochs: t.epochs,
-            batch_size: t.batch_size,
-            lr: t.lr,
-            device: t.device,
-            jobs: t.jobs,
-            max_val_samples: t.max_val_samples,
-            max_batches_per_epoch: t.max_batches_per_epoch,
-            val_every_scene: t.val_every_scene,
             eval: EvalConfig::default(),
             command_line: None,
         }
@@ -235,23 +207,7 @@ fn one_run(
         .join("runs")
         .join(variant.name())
         .join(format!("seed{seed}"));
-    let topts = TrainOptions {
-        data: opts.data.clone(),
-        out: run.clone(),
-        model: model.clone(),
-        epochs: opts.epochs,
-        batch_size: opts.batch_size,
-        lr: opts.lr,
-        seed,
-        device: opts.device.clone(),
-        jobs: opts.jobs,
-        // Continue an interrupted run from its last checkpoint (exact resume).
-        resume: run.join(crate::trainer::LAST_CKPT).exists(),
-        max_val_samples: opts.max_val_samples,
-        max_batches_per_epoch: opts.max_batches_per_epoch,
-        val_every_scene: opts.val_every_scene,
-        ..TrainOptions::default()
-    };
+    let topts = opts.run.train_options(run, model, seed);
     train_and_test(
         variant.name(),
         &topts,
@@ -303,7 +259,7 @@ pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
 
 /// The model config of each variant (preset → `set` → variant fields).
 pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfig)>, TrainError> {
-    for s in &opts.set {
+    for s in &opts.run.set {
         let key = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
         if ["fusion", "attention", "head", "loss"].contains(&key) {
             return Err(TrainError::Config(format!(
@@ -311,7 +267,7 @@ pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfi
             )));
         }
     }
-    let base = base_model(&opts.preset)?.with_options(&opts.set)?;
+    let base = base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
     opts.variants
         .iter()
         .map(|&v| {
@@ -426,15 +382,15 @@ pub fn run_ablation(
     let t0 = Instant::now();
     check_options(opts)?;
     let models = variant_models(opts)?;
-    let device = depthsense_model::device::parse_device(&opts.device)?;
-    let ds = Dataset::open(&opts.data)?;
-    let part = partition(&ds, opts.val_every_scene)?;
+    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let ds = Dataset::open(&opts.run.data)?;
+    let part = partition(&ds, opts.run.val_every_scene)?;
     if part.test.is_empty() {
         return Err(TrainError::Data(format!(
             "{}: no test samples ({}): the ablation reports on the test scenes and never on \
              the validation scenes the checkpoints are selected on; prepare the data with a \
              test split (or without split lists, so that scenes are held out for test)",
-            opts.data.display(),
+            opts.run.data.display(),
             part.method
         )));
     }
@@ -694,18 +650,18 @@ fn markdown(r: &AblationResult) -> String {
         p.test_samples,
         p.val_scenes.join(", "),
         p.test_scenes.join(", "),
-        o.preset,
-        if o.set.is_empty() {
+        o.run.preset,
+        if o.run.set.is_empty() {
             String::new()
         } else {
-            format!(" with `--set {}`", o.set.join(" --set "))
+            format!(" with `--set {}`", o.run.set.join(" --set "))
         },
-        o.epochs,
-        o.batch_size,
-        o.lr,
-        o.max_batches_per_epoch
+        o.run.epochs,
+        o.run.batch_size,
+        o.run.lr,
+        o.run.max_batches_per_epoch
             .map_or("all".to_string(), |m| m.to_string()),
-        o.max_val_samples.map_or("all".to_string(), |m| m.to_string()),
+        o.run.max_val_samples.map_or("all".to_string(), |m| m.to_string()),
         o.eval.caps_m,
         o.eval.protocol,
         o.eval.aggregate,
@@ -749,8 +705,11 @@ mod tests {
             (Fusion::Late, true, HeadKind::L2)
         );
         let opts = AblationOptions {
-            preset: "tiny".into(),
-            set: vec!["head=l1".into()],
+            run: RunSettings {
+                preset: "tiny".into(),
+                set: vec!["head=l1".into()],
+                ..RunSettings::default()
+            },
             ..AblationOptions::default()
         };
         assert!(

@@ -27,11 +27,13 @@ use depthsense_prep::layout::{Condition, IndexEntry};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
-use super::runner::{run_bar, summarise, train_and_test, PartitionInfo, RunRecord, SummaryRow};
+use super::runner::{
+    run_bar, summarise, train_and_test, PartitionInfo, RunRecord, RunSettings, SummaryRow,
+};
 use super::{Machine, Stat};
 use crate::data::{mix64, partition, Dataset, Partition};
 use crate::error::TrainError;
-use crate::trainer::{TrainOptions, LAST_CKPT};
+use crate::trainer::TrainOptions;
 
 pub const MD_FILE: &str = "reduced_data.md";
 pub const CSV_FILE: &str = "reduced_data.csv";
@@ -177,21 +179,13 @@ pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
 /// Everything a reduced-data experiment is made of.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReducedDataOptions {
-    pub data: PathBuf,
+    /// Data, preset (the paper's late fusion + attention by default), `set` and the training
+    /// settings shared by every run.
+    #[serde(flatten)]
+    pub run: RunSettings,
     pub out: PathBuf,
-    /// Model preset or config JSON (the paper's late fusion + attention by default).
-    pub preset: String,
-    pub set: Vec<String>,
     pub grid: Vec<Cell>,
     pub seeds: Vec<u64>,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub lr: f64,
-    pub device: String,
-    pub jobs: usize,
-    pub max_val_samples: Option<usize>,
-    pub max_batches_per_epoch: Option<usize>,
-    pub val_every_scene: usize,
     pub eval: EvalConfig,
     pub command_line: Option<String>,
 }
@@ -244,21 +238,8 @@ fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64)
         .join(cell.name.replace([',', '='], "_"))
         .join(format!("seed{seed}"));
     TrainOptions {
-        data: opts.data.clone(),
-        out: run.clone(),
-        model: model.clone(),
-        epochs: opts.epochs,
-        batch_size: opts.batch_size,
-        lr: opts.lr,
-        seed,
-        device: opts.device.clone(),
-        jobs: opts.jobs,
-        resume: run.join(LAST_CKPT).exists(),
-        max_val_samples: opts.max_val_samples,
-        max_batches_per_epoch: opts.max_batches_per_epoch,
-        val_every_scene: opts.val_every_scene,
         exclude: cell.exclude.clone(),
-        ..TrainOptions::default()
+        ..opts.run.train_options(run, model, seed)
     }
 }
 
@@ -269,14 +250,14 @@ pub fn run_reduced_data(
 ) -> Result<ReducedDataResult, TrainError> {
     let t0 = Instant::now();
     check(opts)?;
-    let model = super::ablation::base_model(&opts.preset)?.with_options(&opts.set)?;
-    let device = depthsense_model::device::parse_device(&opts.device)?;
-    let ds = Dataset::open(&opts.data)?;
-    let part = partition(&ds, opts.val_every_scene)?;
+    let model = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
+    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let ds = Dataset::open(&opts.run.data)?;
+    let part = partition(&ds, opts.run.val_every_scene)?;
     if part.test.is_empty() {
         return Err(TrainError::Data(format!(
             "{}: no test samples ({}): reduced-data reports on the test scenes",
-            opts.data.display(),
+            opts.run.data.display(),
             part.method
         )));
     }
@@ -376,9 +357,9 @@ fn markdown(r: &ReducedDataResult) -> String {
          \"Reduced training data\"), seeds {:?}, {} epoch(s); every run is selected on the \
          same validation scenes and tested on the same **test** scenes ({}). Mean ± std over \
          seeds, full image, cap {} m.\n\n",
-        o.preset,
+        o.run.preset,
         o.seeds,
-        o.epochs,
+        o.run.epochs,
         r.partition.test_scenes.join(", "),
         o.eval.main_cap()
     ));

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
-use depthsense_model::checkpoint;
+use depthsense_model::{checkpoint, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
@@ -21,6 +21,75 @@ use crate::error::TrainError;
 use crate::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
 };
+
+/// How every run of a training experiment (`ablation`, `reduced-data`) is trained: the same
+/// for each variant or grid cell and seed. Serialised flat into the experiment's options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSettings {
+    /// Prepared data directory.
+    pub data: PathBuf,
+    /// Model preset (`paper`, `released`, `tiny`, `tiny-wide`) or a model-config JSON file.
+    pub preset: String,
+    /// `key=value` model-config overrides applied to the preset (an experiment may reserve
+    /// fields for itself: the ablation's variants own fusion, attention and head).
+    pub set: Vec<String>,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    /// auto | cpu | cuda | cuda:N
+    pub device: String,
+    /// Loader threads (0 = all cores).
+    pub jobs: usize,
+    /// Validate on at most this many validation samples (None = all).
+    pub max_val_samples: Option<usize>,
+    /// At most this many batches per epoch (None = all).
+    pub max_batches_per_epoch: Option<usize>,
+    /// The trainer's `val_every_scene` (partition of data without split lists).
+    pub val_every_scene: usize,
+}
+
+impl Default for RunSettings {
+    /// The paper's training settings (SPEC §8) on the `paper` preset.
+    fn default() -> Self {
+        let t = TrainOptions::default();
+        Self {
+            data: t.data,
+            preset: "paper".into(),
+            set: vec![],
+            epochs: t.epochs,
+            batch_size: t.batch_size,
+            lr: t.lr,
+            device: t.device,
+            jobs: t.jobs,
+            max_val_samples: t.max_val_samples,
+            max_batches_per_epoch: t.max_batches_per_epoch,
+            val_every_scene: t.val_every_scene,
+        }
+    }
+}
+
+impl RunSettings {
+    /// The training options of one run stored in `run_dir`: `model` with `seed`, continuing
+    /// from the run's last checkpoint when it has one (exact resume).
+    pub fn train_options(&self, run_dir: PathBuf, model: &ModelConfig, seed: u64) -> TrainOptions {
+        TrainOptions {
+            data: self.data.clone(),
+            resume: run_dir.join(crate::trainer::LAST_CKPT).exists(),
+            out: run_dir,
+            model: model.clone(),
+            epochs: self.epochs,
+            batch_size: self.batch_size,
+            lr: self.lr,
+            seed,
+            device: self.device.clone(),
+            jobs: self.jobs,
+            max_val_samples: self.max_val_samples,
+            max_batches_per_epoch: self.max_batches_per_epoch,
+            val_every_scene: self.val_every_scene,
+            ..TrainOptions::default()
+        }
+    }
+}
 
 /// The per-run evaluation file, written after the run's test evaluation.
 pub const RUN_EVAL_FILE: &str = "eval.json";
