@@ -17,9 +17,9 @@ use depthsense_model::checkpoint::{parse_safetensors, safetensors_bytes};
 use depthsense_model::pickle::{collect_tensors, parse_pickle, read_torch_bytes};
 use depthsense_nuscenes::depth_png::{decode_png, encode_png, encode_png_fast, DepthMap};
 use depthsense_nuscenes::pcd::{
-    encode_lidar_pcd_bin, encode_pcd_ascii, encode_radar_pcd_binary,
-    encode_radar_pcd_binary_compressed, parse_lidar_pcd_bin, parse_pcd, parse_radar_pcd, PcdField,
-    RadarPoint, RADAR_FIELD_NAMES, RADAR_FIELD_SIZES, RADAR_FIELD_TYPES,
+    encode_lidar_pcd_bin, encode_radar_pcd_ascii, encode_radar_pcd_binary,
+    encode_radar_pcd_binary_compressed, parse_lidar_pcd_bin, parse_pcd, parse_radar_pcd,
+    RadarPoint,
 };
 use depthsense_nuscenes::NuScenes;
 
@@ -290,14 +290,6 @@ pub fn seeds(reader: Reader, fixtures: &Path) -> Option<Vec<Vec<u8>>> {
         v.push(Vec::new());
         v
     };
-    let radar_fields: Vec<PcdField> = (0..18)
-        .map(|k| PcdField {
-            name: RADAR_FIELD_NAMES[k].into(),
-            size: RADAR_FIELD_SIZES[k],
-            ty: RADAR_FIELD_TYPES[k],
-            count: 1,
-        })
-        .collect();
     Some(match reader {
         Reader::PcdBinary => {
             let f = radar_files();
@@ -308,14 +300,7 @@ pub fn seeds(reader: Reader, fixtures: &Path) -> Option<Vec<Vec<u8>>> {
         }
         Reader::PcdAscii => radar_points(&radar_files())
             .iter()
-            .map(|pts| {
-                let rows: Vec<Vec<f64>> = pts
-                    .iter()
-                    .take(24)
-                    .map(|p| (0..18).map(|k| p.field(k)).collect())
-                    .collect();
-                encode_pcd_ascii(&radar_fields, &rows)
-            })
+            .map(|pts| encode_radar_pcd_ascii(&pts[..pts.len().min(24)]))
             .collect(),
         Reader::PcdBinaryCompressed => {
             let mut v: Vec<Vec<u8>> = radar_points(&radar_files())

@@ -815,6 +815,27 @@ pub fn encode_pcd_ascii(fields: &[PcdField], rows: &[Vec<f64>]) -> Vec<u8> {
     s.into_bytes()
 }
 
+/// The 18 RADAR_FRONT fields (SPEC §2) as PCD field descriptions.
+pub fn radar_pcd_fields() -> Vec<PcdField> {
+    (0..18)
+        .map(|k| PcdField {
+            name: RADAR_FIELD_NAMES[k].into(),
+            size: RADAR_FIELD_SIZES[k],
+            ty: RADAR_FIELD_TYPES[k],
+            count: 1,
+        })
+        .collect()
+}
+
+/// Encode radar points as PCD `ascii` with the 18 radar fields (tests and tools).
+pub fn encode_radar_pcd_ascii(points: &[RadarPoint]) -> Vec<u8> {
+    let rows: Vec<Vec<f64>> = points
+        .iter()
+        .map(|p| (0..18).map(|k| p.field(k)).collect())
+        .collect();
+    encode_pcd_ascii(&radar_pcd_fields(), &rows)
+}
+
 /// Encode radar points as PCD `binary_compressed` with LZF literal runs only (valid LZF,
 /// no compression); used to test the reader against the structure-of-arrays layout.
 pub fn encode_radar_pcd_binary_compressed(points: &[RadarPoint]) -> Vec<u8> {
@@ -906,19 +927,7 @@ mod tests {
     #[test]
     fn ascii_and_compressed_round_trip() {
         let pts = sample_points();
-        let fields: Vec<PcdField> = (0..18)
-            .map(|k| PcdField {
-                name: RADAR_FIELD_NAMES[k].into(),
-                size: RADAR_FIELD_SIZES[k],
-                ty: RADAR_FIELD_TYPES[k],
-                count: 1,
-            })
-            .collect();
-        let rows: Vec<Vec<f64>> = pts
-            .iter()
-            .map(|p| (0..18).map(|k| p.field(k)).collect())
-            .collect();
-        let ascii = encode_pcd_ascii(&fields, &rows);
+        let ascii = encode_radar_pcd_ascii(&pts);
         assert_eq!(parse_radar_pcd(&ascii, "a").unwrap().points, pts);
         let comp = encode_radar_pcd_binary_compressed(&pts);
         assert_eq!(parse_radar_pcd(&comp, "c").unwrap().points, pts);
@@ -1034,21 +1043,9 @@ mod tests {
     #[test]
     fn truncated_data_of_every_kind_is_an_error() {
         let pts = sample_points();
-        let fields: Vec<PcdField> = (0..18)
-            .map(|k| PcdField {
-                name: RADAR_FIELD_NAMES[k].into(),
-                size: RADAR_FIELD_SIZES[k],
-                ty: RADAR_FIELD_TYPES[k],
-                count: 1,
-            })
-            .collect();
-        let rows: Vec<Vec<f64>> = pts
-            .iter()
-            .map(|p| (0..18).map(|k| p.field(k)).collect())
-            .collect();
         for full in [
             encode_radar_pcd_binary(&pts),
-            encode_pcd_ascii(&fields, &rows),
+            encode_radar_pcd_ascii(&pts),
             encode_radar_pcd_binary_compressed(&pts),
         ] {
             let h = parse_pcd_header(&full, "x").unwrap().data_offset;
