@@ -8,6 +8,7 @@ pub mod layout;
 pub mod maps;
 pub mod motion;
 pub mod pipeline;
+pub mod radar_points;
 pub mod splits;
 
 pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary, Shard};

@@ -18,6 +18,7 @@ use rayon::prelude::*;
 use crate::layout::{self, conditions_of, IndexEntry, PreparedIndex, SampleMeta};
 use crate::maps::{self, Raster};
 use crate::motion::{self, BoxAt, TrackPoint};
+use crate::radar_points::{RadarPoints, RADAR_POINTS_FILE};
 
 pub use crate::splits::split_scene_tokens;
 
@@ -181,6 +182,8 @@ pub struct SampleMaps {
     pub lowheight_mask: Vec<u8>,
     pub radar_raw: DepthMap,
     pub radar_height: DepthMap,
+    /// The radar returns behind the radar maps (SPEC §10.7/§10.8 re-rasterisation).
+    pub radar_points: RadarPoints,
 }
 
 fn io_err(path: &Path, e: std::io::Error) -> PrepError {
@@ -526,6 +529,8 @@ fn dense_lidar(
 struct RadarInputs {
     raw: Raster,
     height: Raster,
+    /// The returns behind `raw` and `height` (written as `radar_points.bin`).
+    points: RadarPoints,
     cam_from_radar: BTreeMap<String, [[f64; 4]; 4]>,
     /// Requested channels without a keyframe in this sample.
     missing: Vec<String>,
@@ -545,6 +550,7 @@ fn radar_inputs(
     let mut out = RadarInputs {
         raw: Raster::default(),
         height: Raster::default(),
+        points: RadarPoints::new(ks.cam),
         cam_from_radar: BTreeMap::new(),
         missing: Vec::new(),
         nan_dropped: 0,
@@ -580,10 +586,17 @@ fn radar_inputs(
             }
             let m = tf.to_f32();
             let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
-            maps::radar_maps(&points_cam, &ks.cam, &mut out.raw, &mut out.height);
+            let origin_cam = tf.t.map(|v| v as f32);
+            out.points.push_sweep(ch, si, origin_cam, &points_cam);
             clock.project_s += t.elapsed().as_secs_f64();
         }
     }
+    // One rasterisation for every channel and sweep: the same function re-rasterises the
+    // stored points (perturbation, partial radar drop), so the maps are reproducible.
+    let t = Instant::now();
+    let maps = out.points.rasterise();
+    (out.raw, out.height) = (maps.raw, maps.height);
+    clock.project_s += t.elapsed().as_secs_f64();
     counts.insert("radar_points".into(), radar_points);
     counts.insert("radar_in_image".into(), out.raw.in_frame);
     counts.insert("radar_raw_pixels".into(), out.raw.valid());
@@ -691,6 +704,7 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
         lowheight_mask: kl.lowheight_mask,
         radar_raw: radar.raw.to_depth_map(),
         radar_height: radar.height.to_depth_map(),
+        radar_points: radar.points,
     })
 }
 
@@ -748,6 +762,7 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
         ),
         (layout::RADAR_RAW_FILE, depth(&maps.radar_raw)?),
         (layout::RADAR_HEIGHT_FILE, depth(&maps.radar_height)?),
+        (RADAR_POINTS_FILE, maps.radar_points.encode()),
         (
             layout::META_FILE,
             serde_json::to_vec_pretty(&maps.meta).map_err(|e| PrepError::Other(e.to_string()))?,
