@@ -25,7 +25,16 @@ fn toy(dir: &Path) {
 }
 
 fn opts(data: &Path, out: &Path) -> TrainOptions {
-    let mut model = ModelConfig::tiny();
+    // `tiny` at reduced widths: the equalities below do not depend on the width, and each
+    // test starts 2–4 processes on CI's two cores.
+    let mut model = ModelConfig::tiny()
+        .with_options(&[
+            "width=8",
+            "decoder-channels=16",
+            "head-channels=16",
+            "radar-width=8",
+        ])
+        .unwrap();
     model.dropout = 0.0;
     TrainOptions {
         data: data.to_path_buf(),
@@ -98,6 +107,8 @@ fn worker() {
     let o: TrainOptions = serde_json::from_str(&o).unwrap();
     let d: DistOptions = serde_json::from_str(&std::env::var("DS_TEST_DIST").unwrap()).unwrap();
     let t: u64 = std::env::var("DS_TEST_TIMEOUT").unwrap().parse().unwrap();
+    // One intra-op thread per rank: the ranks (and the other tests' ranks) share two cores.
+    tch::set_num_threads(1);
     let res = Dist::from_env(d, tch::Device::Cpu, Duration::from_secs(t)).and_then(|dist| {
         let dist = dist.expect("launched with WORLD_SIZE");
         train_distributed(&o, dist, &ProgressBar::hidden())
