@@ -453,6 +453,23 @@ impl DepthNet {
         }
     }
 
+    /// [`DepthNet::loss`] with the target's valid pixels gathered beforehand (`sparse`, of
+    /// `target_m`): the ordinal loss then needs no device→host synchronisation; the regression
+    /// heads use the dense `target_m` as before.
+    pub fn loss_sparse(
+        &self,
+        out: &Tensor,
+        target_m: &Tensor,
+        sparse: &ordinal::SparseTarget,
+    ) -> Tensor {
+        match self.cfg.head {
+            HeadKind::Ordinal => {
+                ordinal::ordinal_loss_at(out, sparse, &self.cfg.sid, self.cfg.align_corners)
+            }
+            HeadKind::L1 | HeadKind::L2 => self.loss(out, target_m),
+        }
+    }
+
     /// Depth `[B,1,out_height,out_width]` in metres from a [`DepthNet::forward_t`] output.
     pub fn decode(&self, out: &Tensor) -> Tensor {
         self.decode_to(out, self.cfg.out_height, self.cfg.out_width)

@@ -5,7 +5,7 @@
 //! upsampled alone (K instead of 2K channels); P_k = σ(z_k), so the DORN loss is binary
 //! cross-entropy with logits on z, and P_k ≥ 0.5 ⇔ z_k ≥ 0.
 
-use tch::{Kind, Tensor};
+use tch::{Device, Kind, Tensor};
 
 use crate::{sid, SidConfig};
 
@@ -65,23 +65,95 @@ pub fn ordinal_loss(
     sid_cfg: &SidConfig,
     align_corners: bool,
 ) -> Tensor {
+    ordinal_loss_at(
+        z,
+        &SparseTarget::from_dense(target_m),
+        sid_cfg,
+        align_corners,
+    )
+}
+
+/// The valid pixels of a `[B,1,H,W]` target: flat indices into B·H·W (ascending, int64) and
+/// their depths in metres, with their count known on the host — so a loss over them needs no
+/// device→host synchronisation ([`SparseTarget::from_host`] gathers them before the upload;
+/// [`SparseTarget::from_dense`] on the device, one `nonzero` sync).
+#[derive(Debug)]
+pub struct SparseTarget {
+    /// `[N]` int64 flat indices into B·H·W, ascending.
+    pub index: Tensor,
+    /// `[N]` depths in metres (> 0), the target's kind.
+    pub depth_m: Tensor,
+    /// N (host).
+    pub count: i64,
+    /// (B, H, W) of the dense target.
+    pub shape: (i64, i64, i64),
+}
+
+impl SparseTarget {
+    /// From a row-major `[B,1,H,W]` host target (0 = invalid; `shape` = (B, H, W)), gathered on
+    /// the host and uploaded to `device` (non-blocking from pinned memory on CUDA).
+    pub fn from_host(target_m: &[f32], shape: (i64, i64, i64), device: Device) -> Self {
+        let (index, depth): (Vec<i64>, Vec<f32>) = target_m
+            .iter()
+            .enumerate()
+            .filter(|(_, &d)| d > 0.0)
+            .map(|(i, &d)| (i as i64, d))
+            .unzip();
+        Self {
+            count: index.len() as i64,
+            index: to_device_async(Tensor::from_slice(&index), device),
+            depth_m: to_device_async(Tensor::from_slice(&depth), device),
+            shape,
+        }
+    }
+
+    /// From a `[B,1,H,W]` target tensor (`nonzero`: one device→host synchronisation on CUDA).
+    pub fn from_dense(target_m: &Tensor) -> Self {
+        let (b, _, h, w) = target_m
+            .size4()
+            .expect("ordinal_loss: target must be [B,1,H,W]");
+        let flat = target_m.reshape([-1]);
+        let index = flat.gt(0.0).nonzero().squeeze_dim(1);
+        let count = index.size()[0];
+        Self {
+            depth_m: flat.index_select(0, &index),
+            index,
+            count,
+            shape: (b, h, w),
+        }
+    }
+}
+
+/// `t` on `device`: a plain copy to the CPU, else through pinned memory without blocking the
+/// host (the copy is ordered on the current stream before any kernel that reads it).
+pub fn to_device_async(t: Tensor, device: Device) -> Tensor {
+    if device == Device::Cpu || t.device() == device {
+        return t.to_device(device);
+    }
+    let kind = t.kind();
+    t.pin_memory(device).to_device_(device, kind, true, false)
+}
+
+/// [`ordinal_loss`] over the valid pixels `target` (no `nonzero`, no host synchronisation).
+pub fn ordinal_loss_at(
+    z: &Tensor,
+    target: &SparseTarget,
+    sid_cfg: &SidConfig,
+    align_corners: bool,
+) -> Tensor {
     let (b, k, h, w) = z.size4().expect("ordinal_loss: z must be [B,K,h,w]");
-    let (tb, _, th, tw) = target_m
-        .size4()
-        .expect("ordinal_loss: target must be [B,1,H,W]");
+    let (tb, th, tw) = target.shape;
     assert_eq!(b, tb, "ordinal_loss: batch of z and target differ");
     let z = if z.kind() == Kind::Double {
         z.shallow_clone()
     } else {
         z.to_kind(Kind::Float)
     };
-    let flat_t = target_m.reshape([-1]);
-    let idx = flat_t.gt(0.0).nonzero().squeeze_dim(1); // [N] flat indices into B·H·W
-    let n = idx.size()[0];
+    let n = target.count;
     if n == 0 {
         return z.sum(z.kind()) * 0.0;
     }
-    let depth = flat_t.index_select(0, &idx);
+    let idx = &target.index;
     let bi = idx.divide_scalar_mode(th * tw, "floor");
     let rem = idx.remainder(th * tw);
     let yi = rem.divide_scalar_mode(tw, "floor");
@@ -99,7 +171,7 @@ pub fn ordinal_loss(
     let top: Tensor = tap(&y0, &x0) * &vx + tap(&y0, &x1) * &wx;
     let bottom: Tensor = tap(&y1, &x0) * &vx + tap(&y1, &x1) * &wx;
     let zp: Tensor = top * vy + bottom * wy; // [N,K]
-    let label = sid::labels(sid_cfg, &depth).unsqueeze(1); // [N,1]
+    let label = sid::labels(sid_cfg, &target.depth_m).unsqueeze(1); // [N,1]
     let ks = Tensor::arange(k, (Kind::Int64, z.device())).unsqueeze(0);
     let y = ks.lt_tensor(&label).to_kind(z.kind()); // [N,K]
     (zp.softplus() - y * &zp).sum(z.kind()) / n as f64
@@ -186,4 +258,57 @@ pub fn regression_loss(
     let diff = (pred - target_m.to_kind(Kind::Float)) * &valid;
     let err = if squared { diff.square() } else { diff.abs() };
     err.sum(Kind::Float) / valid.sum(Kind::Float).clamp_min(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A random `[B,1,H,W]` f32 target with `valid` of its pixels > 0 (the rest 0).
+    fn target(b: i64, h: i64, w: i64, valid: f64) -> Tensor {
+        let opts = (Kind::Float, Device::Cpu);
+        let depth = Tensor::rand([b, 1, h, w], opts) * 85.0 + 0.5;
+        depth * Tensor::rand([b, 1, h, w], opts).lt(valid)
+    }
+
+    #[test]
+    fn ordinal_loss_at_host_indices_equals_nonzero_and_dense_forms() {
+        let s = SidConfig::default();
+        let gen = tch::Tensor::randn([2, 80, 6, 9], (Kind::Float, Device::Cpu)) * 3.0;
+        for (valid, align) in [(0.3, true), (0.05, false), (0.0, false), (1.0, true)] {
+            let t = target(2, 23, 41, valid);
+            let host: Vec<f32> = Vec::try_from(t.reshape([-1])).unwrap();
+            let sparse = SparseTarget::from_host(&host, (2, 23, 41), Device::Cpu);
+            assert_eq!(
+                sparse.count,
+                host.iter().filter(|d| **d > 0.0).count() as i64
+            );
+            let at = ordinal_loss_at(&gen, &sparse, &s, align).double_value(&[]);
+            let nz = ordinal_loss(&gen, &t, &s, align).double_value(&[]);
+            let dense = ordinal_loss_dense(&gen, &t, &s, align).double_value(&[]);
+            // The same indices, depths and operations as the nonzero path: bit for bit.
+            assert_eq!(at.to_bits(), nz.to_bits(), "valid {valid}: {at} vs {nz}");
+            assert!(
+                (at - dense).abs() <= 1e-6 * dense.abs().max(1.0),
+                "{at} vs {dense}"
+            );
+            if valid == 0.0 {
+                assert_eq!(at, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn ordinal_loss_at_gradients_equal_the_nonzero_form() {
+        let s = SidConfig::default();
+        let t = target(2, 17, 30, 0.2);
+        let host: Vec<f32> = Vec::try_from(t.reshape([-1])).unwrap();
+        let sparse = SparseTarget::from_host(&host, (2, 17, 30), Device::Cpu);
+        let z0 = Tensor::randn([2, 80, 5, 8], (Kind::Float, Device::Cpu));
+        let a = z0.detach().set_requires_grad(true);
+        ordinal_loss_at(&a, &sparse, &s, false).backward();
+        let b = z0.detach().set_requires_grad(true);
+        ordinal_loss(&b, &t, &s, false).backward();
+        assert!(a.grad().equal(&b.grad()));
+    }
 }
