@@ -209,6 +209,14 @@ pub struct ModelConfig {
     /// and the metrics are computed. 1 = full resolution (paper); small CPU presets use 2.
     #[serde(default = "one")]
     pub input_downscale: i64,
+    /// The radar map's own downscale factor before the radar branch (late fusion), when it
+    /// differs from `input_downscale` (None = the same). The branch's stride-32 output is
+    /// resized to the decoder's resolution anyway (SPEC §6), so `radar-downscale=1` with an
+    /// image downscaled for the CPU keeps the paper's radar resolution (stride 32 of 800x350)
+    /// instead of doubling the radar's cell size with the image's. Early fusion concatenates
+    /// radar and image, so it needs the image's factor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radar_downscale: Option<i64>,
     /// Full-resolution output height (350, SPEC §3).
     pub out_height: i64,
     /// Full-resolution output width (800, SPEC §3).
@@ -242,6 +250,7 @@ impl ModelConfig {
             sid: SidConfig::default(),
             align_corners: true,
             input_downscale: 1,
+            radar_downscale: None,
             out_height: 350,
             out_width: 800,
         }
@@ -278,6 +287,7 @@ impl ModelConfig {
             },
             align_corners: true,
             input_downscale: 1,
+            radar_downscale: None,
             out_height: 350,
             out_width: 800,
         }
@@ -369,6 +379,18 @@ impl ModelConfig {
                 self.input_downscale
             ));
         }
+        if let Some(r) = self.radar_downscale {
+            if !(1..=8).contains(&r) {
+                return bad(format!("radar_downscale {r} (expected 1..=8)"));
+            }
+            if self.fusion == Fusion::Early && r != self.input_downscale {
+                return bad(format!(
+                    "radar_downscale {r} with early fusion: radar and image are concatenated, \
+                     so it must equal input_downscale {}",
+                    self.input_downscale
+                ));
+            }
+        }
         if self.out_height < 1 || self.out_width < 1 {
             return bad("out_height and out_width must be ≥ 1".into());
         }
@@ -420,6 +442,7 @@ impl ModelConfig {
         "decode-offset (metres)",
         "align-corners (on|off)",
         "input-downscale (1 = full resolution)",
+        "radar-downscale (radar map's own factor; default: input-downscale)",
         "out-height",
         "out-width",
     ];
@@ -489,6 +512,7 @@ impl ModelConfig {
             "decode-offset" | "decode-offset-m" => self.sid.decode_offset_m = parse_num(key, v)?,
             "align-corners" => self.align_corners = parse_bool(key, v)?,
             "input-downscale" => self.input_downscale = parse_num(key, v)?,
+            "radar-downscale" => self.radar_downscale = Some(parse_num(key, v)?),
             "out-height" => self.out_height = parse_num(key, v)?,
             "out-width" => self.out_width = parse_num(key, v)?,
             other => {

@@ -6,6 +6,18 @@ use crate::config::{DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind,
 use crate::layers::{BlockKind, Conv, ConvInit, MacRows, ResNet, ResNetSpec, P};
 use crate::{ordinal, ModelError};
 
+/// Nearest non-zero depth of each `s`×`s` cell of `[B,C,H,W]` depth maps (0 = none):
+/// max-pool of 1/d over the cell (0 stays 0), then back to metres. Identity for s ≤ 1.
+fn nearest_depth_pool(depth_m: &Tensor, s: i64) -> Tensor {
+    if s <= 1 {
+        return depth_m.shallow_clone();
+    }
+    let valid = depth_m.gt(0.0).to_kind(depth_m.kind());
+    let inv = depth_m.clamp_min(1e-6).reciprocal() * valid;
+    let inv_s = inv.max_pool2d([s, s], [s, s], [0, 0], [1, 1], false);
+    inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind())
+}
+
 fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {
     let (_, _, h, w) = x.size4().expect("4-d feature map");
     if (h, w) == hw {
@@ -384,20 +396,19 @@ impl DepthNet {
         }
     }
 
-    /// `input_downscale` = s > 1: image `[B,3,H,W]` → `[B,3,H/s,W/s]` by s×s averaging, radar
-    /// `[B,C,H,W]` → `[B,C,H/s,W/s]` keeping the nearest non-zero depth of each s×s cell (SPEC
-    /// §5: nearest wins). Outputs are still decoded at `out_height`×`out_width`.
+    /// `input_downscale` = s > 1: image `[B,3,H,W]` → `[B,3,H/s,W/s]` by s×s averaging; radar
+    /// `[B,C,H,W]` → `[B,C,H/r,W/r]` keeping the nearest non-zero depth of each r×r cell (SPEC
+    /// §5: nearest wins), r = `radar_downscale` (default s). Outputs are still decoded at
+    /// `out_height`×`out_width`.
     fn downscale_inputs(&self, image: &Tensor, radar: &Tensor) -> (Tensor, Tensor) {
         let s = self.cfg.input_downscale;
-        if s <= 1 {
-            return (image.shallow_clone(), radar.shallow_clone());
-        }
-        let image_s = image.avg_pool2d([s, s], [s, s], [0, 0], false, true, None::<i64>);
-        // Nearest non-zero: max-pool of 1/d over the cell (0 stays 0), then back to metres.
-        let inv = radar.clamp_min(1e-6).reciprocal() * radar.gt(0.0).to_kind(radar.kind());
-        let inv_s = inv.max_pool2d([s, s], [s, s], [0, 0], [1, 1], false);
-        let radar_s = inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind());
-        (image_s, radar_s)
+        let r = self.cfg.radar_downscale.unwrap_or(s);
+        let image_s = if s > 1 {
+            image.avg_pool2d([s, s], [s, s], [0, 0], false, true, None::<i64>)
+        } else {
+            image.shallow_clone()
+        };
+        (image_s, nearest_depth_pool(radar, r))
     }
 
     /// The spatial attention module (SPEC §6, CBAM): `[B,C,h,w]` → `[B,C,h,w]`, the features
@@ -509,5 +520,56 @@ impl DepthNet {
         let o = self.head1.count(hw, &mut rows);
         self.head2.count(o, &mut rows);
         rows
+    }
+}
+
+#[cfg(test)]
+mod downscale_tests {
+    use super::*;
+
+    #[test]
+    fn nearest_depth_pool_keeps_the_nearest_return_of_each_cell() {
+        // 1×1×2×4 map, cells of 2×2: {0, 5, 0, 7} → 5; {3, 0, 0, 0} → 3 (0 = none).
+        let d = Tensor::from_slice(&[0.0f32, 5.0, 3.0, 0.0, 0.0, 7.0, 0.0, 0.0]).view([1, 1, 2, 4]);
+        let p = nearest_depth_pool(&d, 2);
+        assert_eq!(p.size(), [1, 1, 1, 2]);
+        let v: Vec<f32> = Vec::try_from(p.reshape([-1])).unwrap();
+        assert!(
+            (v[0] - 5.0).abs() < 1e-4 && (v[1] - 3.0).abs() < 1e-4,
+            "{v:?}"
+        );
+        assert_eq!(nearest_depth_pool(&d, 1).size(), [1, 1, 2, 4]);
+    }
+
+    #[test]
+    fn radar_downscale_sets_the_radar_branch_resolution_only() {
+        let mut cfg = ModelConfig::tiny();
+        cfg.input_downscale = 2;
+        cfg.out_height = 64;
+        cfg.out_width = 128;
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let img = Tensor::zeros([1, 3, 64, 128], (Kind::Float, tch::Device::Cpu));
+        let radar = Tensor::ones([1, 1, 64, 128], (Kind::Float, tch::Device::Cpu)) * 10.0;
+        let same = DepthNet::new(&vs.root(), &cfg).unwrap();
+        let (i, r) = same.downscale_inputs(&img, &radar);
+        assert_eq!(
+            (i.size(), r.size()),
+            (vec![1, 3, 32, 64], vec![1, 1, 32, 64])
+        );
+        cfg.radar_downscale = Some(1);
+        let vs1 = nn::VarStore::new(tch::Device::Cpu);
+        let full = DepthNet::new(&vs1.root(), &cfg).unwrap();
+        let (i, r) = full.downscale_inputs(&img, &radar);
+        assert_eq!(
+            (i.size(), r.size()),
+            (vec![1, 3, 32, 64], vec![1, 1, 64, 128])
+        );
+        // the head resolution does not change: the radar features are resized to it
+        let a = same.forward_t(&img, &radar, false).size();
+        let b = full.forward_t(&img, &radar, false).size();
+        assert_eq!(a, b);
+        // early fusion concatenates radar and image: the factors must agree
+        cfg.fusion = Fusion::Early;
+        assert!(cfg.validate().is_err());
     }
 }
