@@ -78,7 +78,10 @@ pub struct RadarRasters {
 }
 
 /// Axis of a calibration perturbation, in the camera frame (x right, y down, z forward).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum PerturbAxis {
     /// Rotation about the camera's vertical (y) axis; + moves returns to the right.
     Yaw,
@@ -132,7 +135,7 @@ impl PerturbAxis {
 /// metres of translation along it. For a return p of a sweep whose radar sits at o (camera
 /// frame): p' = o + R·(p − o) + t. Equivalently cam_from_radar' has rotation R·R_cr and
 /// translation t_cr + t: the error sits in the mounting, expressed in camera axes.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Perturbation {
     pub axis: PerturbAxis,
     pub amount: f64,

@@ -529,14 +529,25 @@ pub fn load_sample(
         check_size(&raw, w, h, &raw_path)?;
         let mut height = read_depth(&height_path)?;
         check_size(&height, w, h, &height_path)?;
+        let failure_seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
+        let meta = match opts.failure.is_active() {
+            true => Some(read_meta(&dir)?),
+            false => None,
+        };
+        // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
+        if let Some(meta) = &meta {
+            if let Some((r, hm)) = opts.failure.reraster(&dir, meta, failure_seed)? {
+                check_size(&r, w, h, &raw_path)?;
+                (raw, height) = (r, hm);
+            }
+        }
         if opts.radar_drop > 0.0 {
             let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
             drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
         }
-        if opts.failure.is_active() {
-            let meta = read_meta(&dir)?;
-            let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
-            opts.failure.apply(&mut raw, &mut height, &meta, seed)?;
+        if let Some(meta) = &meta {
+            opts.failure
+                .apply(&mut raw, &mut height, meta, failure_seed)?;
         }
         match opts.radar {
             RadarInput::Height => radar.extend_from_slice(&height.depth_m),

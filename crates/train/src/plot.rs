@@ -479,3 +479,102 @@ pub fn picture_row_png(
     }
     encode_rgb(&canvas)
 }
+
+/// One panel of [`line_charts_png`]: named series of (x, y) points, one colour each.
+pub struct LinePanel<'a> {
+    pub title: &'a str,
+    pub x_label: &'a str,
+    pub y_label: &'a str,
+    pub series: &'a [(&'a str, Vec<(f64, f64)>)],
+}
+
+fn line_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    p: &LinePanel<'_>,
+    text: bool,
+) -> Result<(), TrainError> {
+    let pts = p.series.iter().flat_map(|(_, s)| s.iter());
+    let finite: Vec<(f64, f64)> = pts
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .copied()
+        .collect();
+    let lo_hi = |f: fn(&(f64, f64)) -> f64| {
+        finite
+            .iter()
+            .map(f)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+                (a.min(v), b.max(v))
+            })
+    };
+    let (mut x0, mut x1) = lo_hi(|p| p.0);
+    let (mut y0, mut y1) = lo_hi(|p| p.1);
+    if !x0.is_finite() {
+        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
+    }
+    x1 = x1.max(x0 + 1e-6);
+    y1 = y1.max(y0 + 1e-6);
+    let pad = (y1 - y0) * 0.08;
+    let mut b = ChartBuilder::on(area);
+    b.margin(14);
+    if text {
+        b.caption(p.title, ("sans-serif", 18))
+            .x_label_area_size(36)
+            .y_label_area_size(56);
+    } else {
+        b.x_label_area_size(4).y_label_area_size(4);
+    }
+    let mut chart = b
+        .build_cartesian_2d(x0..x1, (y0 - pad)..(y1 + pad))
+        .map_err(plot_err)?;
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc(p.x_label).y_desc(p.y_label);
+    } else {
+        mesh.x_labels(0).y_labels(0);
+    }
+    mesh.draw().map_err(plot_err)?;
+    for (i, (name, s)) in p.series.iter().enumerate() {
+        let c = COLOURS[i % COLOURS.len()];
+        let data: Vec<(f64, f64)> = s.iter().filter(|(_, y)| y.is_finite()).copied().collect();
+        let line = chart
+            .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
+            .map_err(plot_err)?;
+        if text {
+            line.label(*name)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
+        }
+        chart
+            .draw_series(data.iter().map(|&q| Circle::new(q, 3, c.filled())))
+            .map_err(plot_err)?;
+    }
+    if text {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// Line charts side by side (one per panel, 520 px wide each), PNG bytes.
+pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, TrainError> {
+    let k = panels.len().max(1) as u32;
+    let (w, h) = (520 * k, 420u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    let text = fonts_available();
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot_err)?;
+        let areas = root.split_evenly((1, k as usize));
+        for (a, p) in areas.iter().zip(panels) {
+            line_panel(a, p, text)?;
+        }
+        root.present().map_err(plot_err)?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf)
+        .ok_or_else(|| TrainError::Other("plot buffer has the wrong size".into()))?;
+    encode_rgb(&img)
+}

@@ -54,7 +54,8 @@ pub struct Args {
     radar_drop: f64,
     /// Radars absent (sensor failure): channel names, comma separated (e.g.
     /// RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT), or `all`. Dropping only some of a sample's radars
-    /// needs per-radar points and is refused on prepared maps.
+    /// re-rasterises its radar_points.bin without them (samples prepared before that file
+    /// existed are refused: re-run `depthsense prepare`).
     #[arg(long, value_delimiter = ',')]
     drop_radars: Vec<String>,
     /// Remove every radar return (and its height strip) deeper than this many metres.
@@ -134,6 +135,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             drop_radars: a.drop_radars.clone(),
             drop_beyond_m: a.drop_beyond_m,
             clutter: a.clutter,
+            perturb: None,
         },
         seed: a.seed,
         batch_size: a.batch_size,

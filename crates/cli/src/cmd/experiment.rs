@@ -1,6 +1,7 @@
 //! `depthsense experiment …`: SPEC §10 experiments built from training runs.
 //! `ablation`: fusion variants (SPEC §6) and loss (SPEC §10.4) × seeds, tested on test scenes;
-//! `reduced-data` (SPEC §10.5), `failure` (SPEC §10.8), `cost` (SPEC §10.9).
+//! `reduced-data` (SPEC §10.5), `perturb` (SPEC §10.7), `failure` (SPEC §10.8), `cost`
+//! (SPEC §10.9).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -34,6 +35,12 @@ enum Experiment {
     /// point drop, whole radars absent, returns beyond a range absent, clutter added):
     /// OUT/failure.{md,csv,json,png}.
     Failure(FailureArgs),
+    /// Calibration perturbation (SPEC §10.7): one checkpoint evaluated with the radar→camera
+    /// extrinsic rotated (yaw, pitch, roll about the radar's own position, camera axes) or
+    /// translated (camera x, y, z) by each magnitude, a random sign per sample; radar maps
+    /// are re-rasterised from each sample's radar_points.bin (written by `prepare`):
+    /// OUT/perturb.{md,csv,json,png}.
+    Perturb(PerturbArgs),
     /// Parameters, MACs and inference time (SPEC §10.9) of every preset × variant on this
     /// device, next to the paper's figures: OUT/cost.{md,csv,json}.
     Cost(CostArgs),
@@ -186,6 +193,50 @@ pub struct FailureArgs {
 }
 
 #[derive(clap::Args)]
+pub struct PerturbArgs {
+    /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// Architecture for a .pth: a preset or a model-config JSON.
+    #[arg(long)]
+    config: Option<String>,
+    /// Prepared data directory (prepared with radar_points.bin: a current `prepare`).
+    #[arg(long)]
+    data: PathBuf,
+    /// Output directory for perturb.{md,csv,json,png}.
+    #[arg(long)]
+    out: PathBuf,
+    /// Rotation magnitudes in degrees (yaw, pitch, roll), comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,5")]
+    rotate_deg: Vec<f64>,
+    /// Translation magnitudes in metres (x, y, z), comma separated.
+    #[arg(long, value_delimiter = ',', default_value = "0.1,0.25,0.5")]
+    translate_m: Vec<f64>,
+    /// Axes, comma separated: yaw (camera vertical), pitch (camera x), roll (optical axis),
+    /// x (right), y (down), z (forward).
+    #[arg(long, value_delimiter = ',', default_value = "yaw,pitch,roll,x,y,z")]
+    axes: Vec<String>,
+    /// Samples: held-out (test scenes), all, or a split name.
+    #[arg(long, default_value = "held-out")]
+    split: String,
+    /// Seed of the per-sample sign (+ or − the magnitude).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Batch size of inference.
+    #[arg(long, default_value_t = 4)]
+    batch_size: usize,
+    /// Device: auto, cpu, cuda or cuda:N.
+    #[arg(long, default_value = "auto")]
+    device: String,
+    /// Data-loader threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    jobs: usize,
+    /// Evaluate at most this many samples (evenly spaced).
+    #[arg(long)]
+    max_samples: Option<usize>,
+}
+
+#[derive(clap::Args)]
 pub struct AblationArgs {
     #[command(flatten)]
     run: RunArgs,
@@ -221,6 +272,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         Experiment::Ablation(a) => ablation(a),
         Experiment::ReducedData(a) => reduced_data(a),
         Experiment::Failure(a) => failure(a),
+        Experiment::Perturb(a) => perturb(a),
         Experiment::Cost(a) => cost(a),
     }
 }
@@ -291,6 +343,35 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
     let sc = parse_scenarios(&a.scenarios)?;
     run_failure(&base, &sc, &a.out, command_line(), &MultiProgress::new())?;
     println!("{}", std::fs::read_to_string(a.out.join(FAILURE_MD))?);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
+    use depthsense_train::evaluate::EvalOptions;
+    use depthsense_train::experiments::perturb::{
+        parse_axes, run_perturb, PerturbOptions, PERTURB_MD,
+    };
+    let base = EvalOptions {
+        checkpoint: a.checkpoint,
+        config: a.config,
+        data: a.data,
+        split: a.split,
+        seed: a.seed,
+        batch_size: a.batch_size,
+        device: a.device,
+        jobs: a.jobs,
+        max_samples: a.max_samples,
+        ..EvalOptions::default()
+    };
+    let opts = PerturbOptions {
+        rotate_deg: a.rotate_deg,
+        translate_m: a.translate_m,
+        axes: parse_axes(&a.axes)?,
+    };
+    let t = std::time::Instant::now();
+    run_perturb(&base, &opts, &a.out, command_line(), &MultiProgress::new())?;
+    println!("{}", std::fs::read_to_string(a.out.join(PERTURB_MD))?);
+    eprintln!("{:.1} s", t.elapsed().as_secs_f64());
     Ok(ExitCode::SUCCESS)
 }
 

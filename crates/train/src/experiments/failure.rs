@@ -7,8 +7,19 @@
 //! - `drop_radars`: channel names (`RADAR_FRONT`, …, or `all`). A sample's channels are the
 //!   keys of its `meta.json` `cam_from_radar` (a sample that lists none has one unnamed
 //!   radar set that only `all` drops). When every channel of the sample is dropped, both
-//!   radar maps become empty — exactly `--radar-drop 1.0`. Dropping a strict subset needs the
-//!   per-channel points, which the prepared maps do not keep: that is refused with a message.
+//!   radar maps become empty — exactly `--radar-drop 1.0`. Dropping a strict subset
+//!   re-rasterises the sample's `radar_points.bin` (written by `prepare`, see
+//!   [`depthsense_prep::radar_points`]) without those channels; samples prepared before that
+//!   file existed are refused with a message asking to re-run `prepare`.
+//! - `perturb` (calibration perturbation, SPEC §10.7): the radar returns are moved by a
+//!   perturbed radar→camera extrinsic ([`Perturbation`]: rotation about the radar's own
+//!   position with camera axes, or translation in camera axes) and re-rasterised with the
+//!   function `prepare` uses. The sign of the amount is drawn per sample from
+//!   `(seed, sample token)` (±1 with equal odds; the same sign for every axis and magnitude
+//!   of that sample), so an evaluation averages both directions.
+//!
+//! Order in the loader: re-rasterisation ([`RadarFailure::reraster`]) first, then the random
+//! point drop (`--radar-drop`), then [`RadarFailure::apply`] (all radars, range, clutter).
 //! - `drop_beyond_m` R: every raw pixel with depth > R and every height-strip pixel with
 //!   depth > R is cleared (strips carry their point's depth, so this is exact).
 //! - `clutter` N: N ghost points per sample, drawn from `(seed, sample token)`: column u
@@ -18,9 +29,12 @@
 //!   v − 1.5·f_y/d … v + 0.25·f_y/d (training-frame intrinsics) are drawn nearest-wins.
 
 use std::collections::BTreeSet;
+use std::path::Path;
 
 use depthsense_nuscenes::depth_png::{decode_value, encode_value, DepthMap};
 use depthsense_prep::layout::SampleMeta;
+use depthsense_prep::maps::Raster;
+use depthsense_prep::radar_points::{Perturbation, RadarPoints};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{mix64, Rng};
@@ -48,11 +62,69 @@ pub struct RadarFailure {
     /// Ghost points added per sample.
     #[serde(default)]
     pub clutter: usize,
+    /// Calibration perturbation (SPEC §10.7); the sign is drawn per sample (module docs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturb: Option<Perturbation>,
 }
 
 impl RadarFailure {
     pub fn is_active(&self) -> bool {
-        !self.drop_radars.is_empty() || self.drop_beyond_m.is_some() || self.clutter > 0
+        !self.drop_radars.is_empty()
+            || self.drop_beyond_m.is_some()
+            || self.clutter > 0
+            || self.perturb.is_some()
+    }
+
+    /// Dropping every radar of the sample (`all`, or every channel it lists).
+    fn drops_all(&self, meta: &SampleMeta) -> bool {
+        let present: BTreeSet<&str> = meta.cam_from_radar.keys().map(String::as_str).collect();
+        let dropped: BTreeSet<&str> = self.drop_radars.iter().map(String::as_str).collect();
+        dropped.contains("all") || (!present.is_empty() && present.is_subset(&dropped))
+    }
+
+    /// Whether this sample's maps must be rebuilt from its radar points: a perturbation, or
+    /// a strict subset of its radars dropped.
+    pub fn needs_points(&self, meta: &SampleMeta) -> bool {
+        let subset = !self.drops_all(meta)
+            && meta
+                .cam_from_radar
+                .keys()
+                .any(|c| self.drop_radars.contains(c));
+        self.perturb.is_some() || subset
+    }
+
+    /// The sample's raw and height maps rebuilt from `dir`/radar_points.bin without the
+    /// dropped channels and with the perturbation (sign from `seed`), quantised exactly like
+    /// the stored PNGs (1/256 m); `None` when [`Self::needs_points`] is false.
+    pub fn reraster(
+        &self,
+        dir: &Path,
+        meta: &SampleMeta,
+        seed: u64,
+    ) -> Result<Option<(DepthMap, DepthMap)>, TrainError> {
+        if !self.needs_points(meta) {
+            return Ok(None);
+        }
+        let points = RadarPoints::read_from_sample(dir)
+            .map_err(|e| TrainError::Data(format!("sample {}: {e}", meta.sample_token)))?;
+        let mut points = if self.drops_all(meta) {
+            points.without_channels(|_| true)
+        } else {
+            points.without_channels(|c| self.drop_radars.iter().any(|d| d == c))
+        };
+        if let Some(p) = self.perturb {
+            let sign = if mix64(seed ^ 0x5167) & 1 == 0 {
+                1.0
+            } else {
+                -1.0
+            };
+            points = points.perturbed(&Perturbation {
+                amount: sign * p.amount,
+                ..p
+            });
+        }
+        let maps = points.rasterise();
+        Ok(Some((quantised(&maps.raw), quantised(&maps.height))))
     }
 
     /// Short label, e.g. "drop RADAR_FRONT", "beyond 30 m", "clutter 20", "none".
@@ -66,6 +138,10 @@ impl RadarFailure {
         }
         if self.clutter > 0 {
             parts.push(format!("clutter {}", self.clutter));
+        }
+        if let Some(p) = self.perturb {
+            let unit = if p.axis.is_rotation() { "°" } else { " m" };
+            parts.push(format!("{} ±{}{unit}", p.axis.name(), p.amount));
         }
         if parts.is_empty() {
             "none".into()
@@ -82,11 +158,21 @@ impl RadarFailure {
                 )));
             }
         }
+        if let Some(p) = self.perturb {
+            if !(p.amount.is_finite() && p.amount >= 0.0) {
+                return Err(TrainError::Config(format!(
+                    "perturbation magnitude must be a non-negative number, got {}",
+                    p.amount
+                )));
+            }
+        }
         Ok(())
     }
 
-    /// Apply to one sample's raw and height-extended maps (training frame). `seed` is the
-    /// sample's draw (the loader mixes the run seed with the sample token).
+    /// Apply to one sample's raw and height-extended maps (training frame): every radar
+    /// dropped, the range cut, clutter. A strict subset of radars and the perturbation are
+    /// [`Self::reraster`]'s (the loader calls it first). `seed` is the sample's draw (the
+    /// loader mixes the run seed with the sample token).
     pub fn apply(
         &self,
         raw: &mut DepthMap,
@@ -94,21 +180,9 @@ impl RadarFailure {
         meta: &SampleMeta,
         seed: u64,
     ) -> Result<(), TrainError> {
-        if !self.drop_radars.is_empty() {
-            let present: BTreeSet<&str> = meta.cam_from_radar.keys().map(String::as_str).collect();
-            let dropped: BTreeSet<&str> = self.drop_radars.iter().map(String::as_str).collect();
-            let all =
-                dropped.contains("all") || (!present.is_empty() && present.is_subset(&dropped));
-            if all {
-                raw.depth_m.iter_mut().for_each(|d| *d = 0.0);
-                height.depth_m.iter_mut().for_each(|d| *d = 0.0);
-            } else if present.iter().any(|c| dropped.contains(c)) {
-                return Err(TrainError::Config(format!(
-                    "sample {}: dropping {:?} of its radars {:?} needs per-radar points, which \
-                     the prepared maps do not keep; drop all of them (or `all`)",
-                    meta.sample_token, self.drop_radars, present
-                )));
-            }
+        if !self.drop_radars.is_empty() && self.drops_all(meta) {
+            raw.depth_m.iter_mut().for_each(|d| *d = 0.0);
+            height.depth_m.iter_mut().for_each(|d| *d = 0.0);
         }
         if let Some(r) = self.drop_beyond_m {
             for m in [&mut *raw, &mut *height] {
@@ -123,6 +197,15 @@ impl RadarFailure {
         }
         Ok(())
     }
+}
+
+/// A raster as the loader reads its PNG: depth rounded to 1/256 m (SPEC §3 storage).
+fn quantised(r: &Raster) -> DepthMap {
+    let mut m = r.to_depth_map();
+    for d in &mut m.depth_m {
+        *d = decode_value(encode_value(*d));
+    }
+    m
 }
 
 fn put_nearest(m: &mut DepthMap, u: usize, v: usize, d: f32) {
@@ -213,7 +296,7 @@ mod tests {
     }
 
     #[test]
-    fn dropping_every_channel_empties_the_maps_and_a_subset_is_refused() {
+    fn dropping_every_channel_empties_the_maps_and_a_subset_needs_points() {
         let m = meta(&["RADAR_FRONT", "RADAR_FRONT_LEFT"]);
         let (mut raw, mut height) = maps();
         let f = RadarFailure {
@@ -227,8 +310,11 @@ mod tests {
             drop_radars: vec!["RADAR_FRONT".into()],
             ..Default::default()
         };
-        let e = sub.apply(&mut raw, &mut height, &m, 0).unwrap_err();
-        assert!(e.to_string().contains("per-radar points"), "{e}");
+        // a strict subset needs the sample's radar points: absent here
+        assert!(sub.needs_points(&m) && !f.needs_points(&m));
+        let tmp = std::env::temp_dir().join(format!("ds-failure-{}", std::process::id()));
+        let e = sub.reraster(&tmp, &m, 0).unwrap_err();
+        assert!(e.to_string().contains("re-run depthsense prepare"), "{e}");
         // a channel the sample does not have changes nothing
         let other = RadarFailure {
             drop_radars: vec!["RADAR_BACK_LEFT".into()],
