@@ -45,6 +45,9 @@ enum Command {
     /// MER (multi-channel enhanced radar): train the radar–pixel association network, apply it
     /// to prepared data, report coverage and error.
     Mer(cmd::mer::Args),
+    /// Gather every experiment output under some run folders into one self-contained HTML
+    /// page (tables, plots, figure grids, the commands that made them), plus Markdown and JSON.
+    Report(cmd::report::Args),
 }
 
 fn run() -> anyhow::Result<ExitCode> {
@@ -63,6 +66,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Command::Explain(a) => cmd::explain::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::Mer(a) => cmd::mer::run(a),
+        Command::Report(a) => cmd::report::run(a),
     }
 }
 

@@ -10,6 +10,7 @@
 //! - [`demo`]: synth → prepare → train RGB-only and fusion → eval → report;
 //! - [`experiments`]: SPEC §10 experiments from training runs (`ablation`: variants × seeds);
 //! - [`mer`]: MER (SPEC §5): association labels, the PDA network's training, `mer apply`;
+//! - [`report`]: one self-contained HTML page (+ Markdown, JSON) of every experiment output;
 //! - [`bench`]: training and loader throughput;
 //! - [`plot`]: curves and depth pictures.
 
@@ -25,6 +26,7 @@ pub mod mer;
 mod optim_state;
 pub mod plot;
 pub mod predict;
+pub mod report;
 pub mod sgd;
 pub mod trainer;
 

@@ -197,7 +197,8 @@ fn run_apply(a: ApplyArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_report(a: ReportArgs) -> anyhow::Result<ExitCode> {
-    let r = mer_report(&a.data, &a.split, a.cap)?;
+    let mut r = mer_report(&a.data, &a.split, a.cap)?;
+    r.command_line = Some(std::env::args().collect::<Vec<_>>().join(" "));
     print!("{}", report_markdown(&r));
     if let Some(p) = &a.json {
         write_atomic(p, serde_json::to_string_pretty(&r)?.as_bytes())?;

@@ -13,5 +13,6 @@ pub mod mer;
 pub mod model_info;
 pub mod predict;
 pub mod prepare;
+pub mod report;
 pub mod synth;
 pub mod train;

@@ -38,6 +38,9 @@ pub struct MerReport {
     pub images: usize,
     pub cap_m: f64,
     pub rows: Vec<CoverageRow>,
+    /// The invocation that wrote the report's JSON (`mer report --json`), when recorded.
+    #[serde(default)]
+    pub command_line: Option<String>,
 }
 
 /// Per map of one sample: (name, pixels with depth, relative errors at covered GT pixels).
@@ -144,6 +147,7 @@ pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, Tra
         images: per.len(),
         cap_m,
         rows,
+        command_line: None,
     })
 }
 

@@ -1,0 +1,62 @@
+//! `depthsense report`: every experiment output found under some run folders, gathered into
+//! one self-contained HTML page (plus Markdown and JSON).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use depthsense_train::report::{build_report, ReportOptions};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Folders searched, recursively, for experiment outputs: ablation.json, reduced_data.json,
+    /// failure.json, perturb.json, cost.json, explain.json, tables.json (eval) and MER
+    /// reports (`mer report --json`), each with its .md/.csv/.png beside it.
+    #[arg(long, required = true, num_args = 1.., value_name = "DIR")]
+    runs: Vec<PathBuf>,
+    /// Output folder: report.html (self-contained), report.md with img/, report.json.
+    /// Replaced as a whole when it exists.
+    #[arg(long, value_name = "REPORT")]
+    out: PathBuf,
+    /// Title of the page.
+    #[arg(long, default_value = "depthsense report")]
+    title: String,
+    /// How many folder levels below each --runs DIR are searched.
+    #[arg(long, default_value_t = 4)]
+    max_depth: usize,
+    /// Plots and grids wider than this many pixels are downscaled before embedding.
+    #[arg(long, default_value_t = 1600)]
+    max_width: u32,
+    /// Width in pixels of each tile of a figure grid (explain overlays).
+    #[arg(long, default_value_t = 400)]
+    tile_width: u32,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let opts = ReportOptions {
+        runs: a.runs,
+        out: a.out,
+        title: a.title,
+        max_depth: a.max_depth,
+        max_width: a.max_width.max(16),
+        tile_width: a.tile_width.max(16),
+        command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+    };
+    let s = build_report(&opts).with_context(|| format!("report → {}", opts.out.display()))?;
+    for sec in &s.sections {
+        eprintln!(
+            "{:<13} {} ({} images)",
+            serde_json::to_value(sec.kind)?.as_str().unwrap_or("?"),
+            sec.source_dir.display(),
+            sec.images.len()
+        );
+    }
+    eprintln!(
+        "{} sections, {} files skipped (listed in the report); report.html {:.1} MB → {}",
+        s.sections.len(),
+        s.skipped.len(),
+        s.html_bytes as f64 / 1e6,
+        opts.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
