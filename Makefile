@@ -3,6 +3,7 @@
 #
 #   make demo   synthetic world → prepare → train → eval → runs/demo/report/
 #   make test   the whole test suite (Rust + the nuScenes devkit check of the synthetic world)
+#   make test-browser  `depthsense report`'s page in headless Chromium (installs Debian's chromium)
 #   make gpu-bundle  .gpu/: stripped binary + small prepared world + scripts for scripts/gpu-check.sh
 
 SHELL := /bin/bash
@@ -18,7 +19,7 @@ export LIBTORCH_USE_PYTORCH := 1
 CARGO ?= cargo
 BIN := target/release/depthsense
 
-.PHONY: all setup build demo test bench fmt clippy check clean-venv gpu-bundle
+.PHONY: all setup build demo test test-browser bench fmt clippy check clean-venv gpu-bundle
 
 all: build
 
@@ -40,6 +41,12 @@ demo: build
 
 test: setup
 	DEPTHSENSE_REQUIRE_DEVKIT=1 $(CARGO) test --workspace
+
+# `depthsense report`'s page in headless Chromium (Debian's package; installed with apt-get when
+# missing, as root). `make test` skips that test when chromium is absent; here it must run.
+test-browser: setup
+	command -v chromium >/dev/null || apt-get install -y chromium
+	DEPTHSENSE_REQUIRE_BROWSER=1 $(CARGO) test -p depthsense-train --test report
 
 bench: build
 	$(BIN) bench data --out runs/bench/data.json
