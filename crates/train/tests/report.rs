@@ -40,7 +40,7 @@ fn experiment(dir: &Path, stem: &str, cmd: &str, in_options: bool) {
     let v = if in_options {
         json!({"options": {"data": "runs/p", "out": dir, "command_line": cmd}, "summary": []})
     } else {
-        json!({"eval": {}, "results": [], "command_line": cmd})
+        json!({"eval": {"data": "runs/q", "split": "held-out"}, "results": [], "command_line": cmd})
     };
     write(&dir.join(format!("{stem}.json")), &v.to_string());
     let md = format!(
@@ -251,6 +251,10 @@ fn every_section_and_image_is_in_the_page() {
     assert!(html.contains("<pre>depthsense experiment failure --checkpoint c.safetensors</pre>"));
     assert!(html.contains("<dt>checkpoint</dt><dd><code>c.safetensors</code></dd>"));
     assert!(html.contains("<dt>data</dt><dd><code>runs/p</code></dd>"));
+    assert!(
+        html.contains("<dt>data</dt><dd><code>runs/q</code></dd>"),
+        "failure's eval.data"
+    );
     // Skipped, with reasons.
     let reason = |end: &str| {
         s.skipped

@@ -225,11 +225,13 @@ pub fn flag_value(cmd: &str, flag: &str) -> Option<String> {
     None
 }
 
-/// Data, checkpoint, predictions and output folders: from the options, else the command line.
+/// Data, checkpoint, predictions and output folders: from the options (`options`, `eval`: the
+/// evaluation options of failure / perturb, or the top level), else the command line.
 fn inputs(v: &Value, cmd: Option<&str>) -> Vec<(String, String)> {
     let mut out = vec![];
     for key in ["data", "checkpoint", "predictions", "out"] {
         let val = string_at(v, &["options", key])
+            .or_else(|| string_at(v, &["eval", key]))
             .or_else(|| string_at(v, &[key]))
             .or_else(|| cmd.and_then(|c| flag_value(c, &format!("--{key}"))));
         if let Some(x) = val {
