@@ -42,3 +42,12 @@ pub fn describe(device: Device) -> String {
         other => format!("{other:?}").to_ascii_lowercase(),
     }
 }
+
+/// Turns cuDNN autotuning (`cudnn.benchmark`) on for a CUDA `device`: training, evaluation and
+/// prediction run one fixed input size, so the per-shape algorithm search of the first
+/// iteration pays back on every later one. Nothing on the CPU.
+pub fn autotune_fixed_size(device: Device) {
+    if device.is_cuda() {
+        Cuda::cudnn_set_benchmark(true);
+    }
+}

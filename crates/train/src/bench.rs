@@ -11,7 +11,7 @@ use tch::{nn::VarStore, Kind};
 use crate::data::{Dataset, EpochPlan, LoadOptions, Loader};
 use crate::error::TrainError;
 use crate::sgd::Sgd;
-use crate::trainer::{batch_tensors, radar_input_for};
+use crate::trainer::{radar_input_for, upload_batch};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BenchTrainOptions {
@@ -55,6 +55,7 @@ pub fn bench_train(
     progress: &indicatif::ProgressBar,
 ) -> Result<serde_json::Value, TrainError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
+    depthsense_model::device::autotune_fixed_size(device);
     let tmp;
     let root = match &opts.data {
         Some(p) => p.clone(),
@@ -128,7 +129,7 @@ pub fn bench_train(
         for b in Loader::start(&ds, &load, &plan(epoch))? {
             let b = b?;
             let t = Instant::now();
-            let (img, rad, tgt) = batch_tensors(&b, device);
+            let bt = upload_batch(&b, device);
             // The same bf16 autocast as `train --amp` (issue 8 item 5: fp16 without
             // loss scaling underflows the ordinal loss's per-pixel gradients).
             let precision = if opts.amp {
@@ -137,9 +138,9 @@ pub fn bench_train(
                 depthsense_model::precision::Precision::Fp32
             };
             let out = depthsense_model::precision::with_autocast(precision, || {
-                net.forward_t(&img, &rad, true)
+                net.forward_t(&bt.image, &bt.radar, true)
             });
-            let loss = net.loss(&out.to_kind(Kind::Float), &tgt);
+            let loss = net.loss_sparse(&out.to_kind(Kind::Float), &bt.target_m, &bt.sparse);
             sgd.zero_grad();
             loss.backward();
             sgd.step(1e-3);

@@ -185,6 +185,7 @@ pub fn predict(
     radar: Option<RadarInput>,
     device: Device,
 ) -> Result<DepthMap, TrainError> {
+    depthsense_model::device::autotune_fixed_size(device);
     let (w, h) = input.image.dimensions();
     let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
         .view([1, 3, h as i64, w as i64])

@@ -14,6 +14,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
+use depthsense_model::ordinal::SparseTarget;
 use depthsense_model::{checkpoint, DepthNet, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
@@ -88,6 +89,18 @@ pub struct TrainOptions {
     /// `experiments::reduced_data`). Absent from the JSON when empty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub exclude: Vec<crate::experiments::reduced_data::Exclusion>,
+    /// Read the training losses to the host every N iterations (one synchronisation per N on
+    /// CUDA; always before a checkpoint, a stop and the epoch end). 0 = automatic: 1 on the CPU
+    /// and in data-parallel jobs, [`CUDA_LOSS_READ_EVERY`] on CUDA. Absent from the JSON when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub loss_read_every: u64,
+}
+
+/// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
+pub const CUDA_LOSS_READ_EVERY: u64 = 25;
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 impl Default for TrainOptions {
@@ -119,6 +132,7 @@ impl Default for TrainOptions {
             stop_after: None,
             eval: EvalConfig::default(),
             exclude: Vec::new(),
+            loss_read_every: 0,
         }
     }
 }
@@ -212,21 +226,69 @@ pub fn radar_input_for(
 /// Tensors of a batch on `device`: (image [B,3,H,W], radar [B,C,H,W] (C ≥ 1; zeros when the
 /// batch has no radar), target [B,1,H,W]).
 pub fn batch_tensors(b: &Batch, device: Device) -> (Tensor, Tensor, Tensor) {
+    let t = upload_batch(b, device);
+    (t.image, t.radar, t.target_m)
+}
+
+/// A batch on the training device, with the target's valid pixels gathered on the host.
+pub struct BatchTensors {
+    /// [B,3,H,W]
+    pub image: Tensor,
+    /// [B,C,H,W], C ≥ 1 (zeros when the batch has no radar).
+    pub radar: Tensor,
+    /// [B,1,H,W] metres, 0 = invalid.
+    pub target_m: Tensor,
+    /// The valid pixels of `target_m` (the ordinal loss then needs no host synchronisation).
+    pub sparse: SparseTarget,
+}
+
+/// [`batch_tensors`] plus the sparse target. One host copy per buffer: on the CPU into the
+/// tensor; on CUDA into pinned memory, then a non-blocking host→device copy that the host
+/// does not wait for (it overlaps the previous step's kernels still in the queue).
+pub fn upload_batch(b: &Batch, device: Device) -> BatchTensors {
     let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
-    let image = Tensor::from_slice(&b.image)
-        .view([n, 3, h, w])
-        .to_device(device);
+    let (image, radar) = upload_inputs(b, device);
+    BatchTensors {
+        image,
+        radar,
+        target_m: host_to_device(&b.target_m, &[n, 1, h, w], device),
+        sparse: SparseTarget::from_host(&b.target_m, (n, h, w), device),
+    }
+}
+
+/// The network inputs of a batch (image, radar) on `device`, as in [`upload_batch`].
+pub fn upload_inputs(b: &Batch, device: Device) -> (Tensor, Tensor) {
+    let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
+    let image = host_to_device(&b.image, &[n, 3, h, w], device);
     let radar = if b.radar_channels == 0 {
         Tensor::zeros([n, 1, h, w], (Kind::Float, device))
     } else {
-        Tensor::from_slice(&b.radar)
-            .view([n, b.radar_channels as i64, h, w])
-            .to_device(device)
+        host_to_device(&b.radar, &[n, b.radar_channels as i64, h, w], device)
     };
-    let target = Tensor::from_slice(&b.target_m)
-        .view([n, 1, h, w])
-        .to_device(device);
-    (image, radar, target)
+    (image, radar)
+}
+
+/// `data` as a `shape` f32 tensor on `device` with one host copy (see [`upload_batch`]).
+fn host_to_device(data: &[f32], shape: &[i64], device: Device) -> Tensor {
+    if !device.is_cuda() {
+        return Tensor::from_slice(data).view(shape).to_device(device);
+    }
+    // SAFETY: the view borrows `data` (len × 4 bytes, f32-aligned, contiguous) only until
+    // `pin_memory` has copied it into a freshly allocated pinned buffer; it is dropped at the
+    // end of this statement while `data` is still borrowed.
+    let pinned = unsafe {
+        Tensor::from_blob(
+            data.as_ptr().cast::<u8>(),
+            shape,
+            &[],
+            Kind::Float,
+            Device::Cpu,
+        )
+    }
+    .pin_memory(device);
+    // Non-blocking from pinned memory: the host returns at once. The caching host allocator
+    // keeps the pinned block alive until the copy on the stream has finished.
+    pinned.to_device_(device, Kind::Float, true, false)
 }
 
 /// Evenly spaced subset of at most `max` entries (deterministic).
@@ -269,9 +331,10 @@ pub fn evaluate_net(
         jobs,
         prefetch: 2,
     };
+    depthsense_model::device::autotune_fixed_size(device);
     for batch in Loader::start(ds, &load, &plan)? {
         let batch = batch?;
-        let (image, radar, _) = batch_tensors(&batch, device);
+        let (image, radar) = upload_inputs(&batch, device);
         let pred = tch::no_grad(|| {
             let out = net.forward_t(&image, &radar, false);
             net.decode(&out)
@@ -393,4 +456,71 @@ pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), TrainError> {
     let val_pts: Vec<(u64, f64)> = val.iter().map(|v| (v.iteration, v.rmse)).collect();
     let bytes = crate::plot::curves_png(&[("train loss", &losses)], &[("val RMSE (m)", &val_pts)])?;
     write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The tensors of the loader's batches as `batch_tensors` built them before issue 9
+    /// item 3: `from_slice` of each stacked buffer.
+    fn old_path(b: &Batch) -> (Tensor, Tensor, Tensor) {
+        let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
+        let radar = if b.radar_channels == 0 {
+            Tensor::zeros([n, 1, h, w], (Kind::Float, Device::Cpu))
+        } else {
+            Tensor::from_slice(&b.radar).view([n, b.radar_channels as i64, h, w])
+        };
+        (
+            Tensor::from_slice(&b.image).view([n, 3, h, w]),
+            radar,
+            Tensor::from_slice(&b.target_m).view([n, 1, h, w]),
+        )
+    }
+
+    #[test]
+    fn upload_batch_delivers_the_old_tensors_and_the_nonzero_sparse_target() {
+        let tmp = tempfile::tempdir().unwrap();
+        crate::data::write_toy_dataset(tmp.path(), 2, 3, 64, 32, 7).unwrap();
+        let ds = Dataset::open(tmp.path()).unwrap();
+        for (no_radar, target) in [(false, TargetKind::Sparse), (true, TargetKind::Dense)] {
+            let load = LoadOptions {
+                no_radar,
+                target,
+                augment: true,
+                seed: 3,
+                ..LoadOptions::default()
+            };
+            let plan = EpochPlan {
+                entries: ds.split("all"),
+                batch_size: 4,
+                epoch: 0,
+                shuffle: true,
+                drop_last: false,
+                skip_batches: 0,
+                jobs: 1,
+                prefetch: 1,
+            };
+            let mut seen = 0;
+            for b in Loader::start(&ds, &load, &plan).unwrap() {
+                let b = b.unwrap();
+                let new = upload_batch(&b, Device::Cpu);
+                let (image, radar, target_m) = old_path(&b);
+                // `equal`: same shape, dtype and every bit.
+                assert!(new.image.equal(&image));
+                assert!(new.radar.equal(&radar));
+                assert!(new.target_m.equal(&target_m));
+                let nz = SparseTarget::from_dense(&target_m);
+                assert_eq!(new.sparse.count, nz.count);
+                assert!(new.sparse.count > 0);
+                assert!(new.sparse.index.equal(&nz.index));
+                assert!(new.sparse.depth_m.equal(&nz.depth_m));
+                assert_eq!(new.sparse.shape, nz.shape);
+                let (i2, r2, t2) = batch_tensors(&b, Device::Cpu);
+                assert!(i2.equal(&image) && r2.equal(&radar) && t2.equal(&target_m));
+                seen += 1;
+            }
+            assert_eq!(seen, 2);
+        }
+    }
 }

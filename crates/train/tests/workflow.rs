@@ -469,3 +469,91 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
         assert!(it < iteration, "checkpoint at {it}, failure at {iteration}");
     }
 }
+
+/// Deferred loss reads (issue 9 item 3): with `loss_read_every` = 4 the losses are read every
+/// fourth iteration, yet the first non-finite one is reported with its own iteration, before
+/// any checkpoint can be written, and the metrics logged before it are those of a run that
+/// reads every loss.
+#[test]
+fn deferred_loss_read_reports_the_first_non_finite_iteration() {
+    let _rng = torch_rng();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data, 5, 4);
+    let run_with = |every: u64, checkpoint_every: u64| {
+        let run = tmp.path().join(format!("run{every}-{checkpoint_every}"));
+        let mut o = opts(&data, &run, Fusion::None);
+        o.epochs = 50;
+        o.lr = 1e30; // diverges within a few steps
+        o.max_val_samples = Some(1);
+        o.loss_read_every = every;
+        o.checkpoint_every = checkpoint_every;
+        let err = train(&o, &ProgressBar::hidden()).expect_err("must stop");
+        let TrainError::NonFiniteLoss { iteration, .. } = err else {
+            panic!("expected a non-finite-loss error, got {err}");
+        };
+        (iteration, run)
+    };
+    let (k, every1) = run_with(1, 0);
+    assert!(
+        k >= 2,
+        "diverged at iteration {k}: too early to test the deferral"
+    );
+    let (k4, every4) = run_with(4, 0);
+    assert_eq!(k4, k, "deferred read: the first non-finite iteration");
+    let logged = |run: &Path| read_metrics(&run.join("metrics.jsonl")).unwrap();
+    assert_eq!(logged(&every4), logged(&every1));
+    assert!(logged(&every4)
+        .0
+        .iter()
+        .all(|(it, l)| *it < k && l.is_finite()));
+    // A checkpoint due at or after the non-finite step is never written: the losses are read
+    // (and checked) first, so the error names iteration k, not the checkpoint's.
+    let (kc, ckpt) = run_with(4, k);
+    assert_eq!(kc, k);
+    assert!(
+        !ckpt.join(LAST_CKPT).exists() || {
+            let l = checkpoint::load(&ckpt.join(LAST_CKPT), tch::Device::Cpu).unwrap();
+            l.extra["train_state"]["iteration"].as_u64().unwrap() < k
+        }
+    );
+}
+
+/// A finite run reads its losses every 3 iterations and trains exactly as one that reads them
+/// every iteration: the same logged losses and the same weights.
+#[test]
+fn deferred_loss_read_trains_identically() {
+    let _rng = torch_rng();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data, 5, 4);
+    let run_with = |every: u64| {
+        let run = tmp.path().join(format!("run{every}"));
+        let mut o = opts(&data, &run, Fusion::Late);
+        o.epochs = 2;
+        o.max_val_samples = Some(2);
+        o.loss_read_every = every;
+        let s = train(&o, &ProgressBar::hidden()).unwrap();
+        let l = checkpoint::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
+        let mut w: Vec<(String, Vec<f32>)> =
+            l.vs.variables()
+                .into_iter()
+                .map(|(n, t)| {
+                    (
+                        n,
+                        Vec::<f32>::try_from(t.to_kind(tch::Kind::Float).flatten(0, -1)).unwrap(),
+                    )
+                })
+                .collect();
+        w.sort_by(|a, b| a.0.cmp(&b.0));
+        (
+            s.losses,
+            read_metrics(&run.join("metrics.jsonl")).unwrap().0,
+            w,
+        )
+    };
+    let a = run_with(1);
+    let b = run_with(3);
+    assert!(a.0.len() >= 4, "{} iterations", a.0.len());
+    assert_eq!(a, b);
+}

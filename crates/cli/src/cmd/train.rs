@@ -110,6 +110,10 @@ pub struct Args {
     /// Also write OUT/last.safetensors every N iterations (0 = only at epoch ends).
     #[arg(long, default_value_t = 0)]
     checkpoint_every: u64,
+    /// Read the training loss to the host every N iterations (one GPU synchronisation per N;
+    /// always before checkpoints and at epoch ends). 0 = 1 on the CPU, 25 on CUDA.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    loss_read_every: u64,
     /// Stop after this global iteration (checkpointed; continue with --resume).
     #[arg(long)]
     stop_after: Option<u64>,
@@ -258,6 +262,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_val_samples: a.max_val_samples,
         max_batches_per_epoch: a.max_batches_per_epoch,
         checkpoint_every: a.checkpoint_every,
+        loss_read_every: a.loss_read_every,
         stop_after: a.stop_after,
         eval: EvalConfig {
             protocol: a.protocol.parse::<Protocol>()?,

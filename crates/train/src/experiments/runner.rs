@@ -209,6 +209,7 @@ pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
             "resume",
             "stop_after",
             "checkpoint_every",
+            "loss_read_every",
         ] {
             m.remove(k);
         }

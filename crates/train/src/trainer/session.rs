@@ -12,9 +12,9 @@ use indicatif::ProgressBar;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, batch_tensors, evaluate_net, radar_input_for, save_ckpt, subsample,
-    truncate_metrics, write_curves, State, TrainOptions, TrainSummary, ValRecord, AMP_PRECISION,
-    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    all_finite, append_jsonl, evaluate_net, radar_input_for, save_ckpt, subsample,
+    truncate_metrics, upload_batch, write_curves, State, TrainOptions, TrainSummary, ValRecord,
+    AMP_PRECISION, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
 use crate::data::{
     mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
@@ -47,10 +47,24 @@ pub struct Trainer<'o> {
     dist: Option<Dist>,
 }
 
-/// Loss and learning rate of one optimiser step.
-struct StepResult {
-    loss: f64,
+/// One optimiser step whose loss has not been read yet.
+struct PendingLoss {
+    /// Global iteration after the step.
+    iteration: u64,
+    /// The loss: a 0-d tensor on the training device (deferred read) or on the CPU (read).
+    loss: tch::Tensor,
     lr: f64,
+    images: usize,
+    /// Wall time since the previous step ended (loading included).
+    seconds: f64,
+}
+
+/// The losses of an epoch: those not read yet and the running sum of those read.
+#[derive(Default)]
+struct EpochLosses {
+    pending: Vec<PendingLoss>,
+    sum: f64,
+    n: usize,
 }
 
 impl<'o> Trainer<'o> {
@@ -78,6 +92,7 @@ impl<'o> Trainer<'o> {
             )));
         }
         let device = depthsense_model::device::parse_device(&opts.device)?;
+        depthsense_model::device::autotune_fixed_size(device);
         let ds = Dataset::open(&opts.data)?;
         let mut part = partition(&ds, opts.val_every_scene)?;
         crate::experiments::reduced_data::apply_exclusions(&mut part, &opts.exclude);
@@ -210,10 +225,36 @@ impl<'o> Trainer<'o> {
         Ok(ValRecord::from_report(epoch, self.state.iteration, &r))
     }
 
-    /// One SGD step on `batch`; errors on a non-finite loss (nothing is overwritten).
-    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<StepResult, TrainError> {
+    /// Iterations between two reads of the losses (see [`TrainOptions::loss_read_every`]).
+    fn loss_read_every(&self) -> usize {
+        match self.opts.loss_read_every {
+            _ if self.dist.is_some() => 1,
+            0 if self.device.is_cuda() => super::CUDA_LOSS_READ_EVERY as usize,
+            0 => 1,
+            n => n as usize,
+        }
+    }
+
+    /// The error for a non-finite loss at `iteration` (nothing is overwritten).
+    fn non_finite(&self, loss: f64, epoch: u64, iteration: u64) -> TrainError {
+        let last = self.path(LAST_CKPT);
+        TrainError::NonFiniteLoss {
+            loss,
+            epoch,
+            iteration,
+            kept: if last.exists() {
+                last.display().to_string()
+            } else {
+                "(none: no checkpoint had been written yet)".into()
+            },
+        }
+    }
+
+    /// One SGD step on `batch`. Its loss stays on the device unless losses are read every
+    /// iteration: then it is read here and a non-finite one stops before the update.
+    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, TrainError> {
         let opts = self.opts;
-        let (image, radar_t, target) = batch_tensors(batch, self.device);
+        let bt = upload_batch(batch, self.device);
         let it = self.state.iteration;
         let lr = poly_lr(opts.lr, it, self.total, opts.lr_power);
         // Dropout draws depend only on (seed, iteration): exact resume.
@@ -228,26 +269,23 @@ impl<'o> Trainer<'o> {
         if let Some(d) = &self.dist {
             d.before_forward(opts.seed, it, batch.size)?;
         }
-        let out = with_autocast(precision, || self.net.forward_t(&image, &radar_t, true));
-        let loss = self.net.loss(&out.to_kind(Kind::Float), &target);
-        let mut lv = loss.double_value(&[]);
-        if let Some(d) = &self.dist {
-            d.after_forward()?;
-            lv = d.mean_loss(lv)?;
-        }
-        if !lv.is_finite() {
-            let last = self.path(LAST_CKPT);
-            return Err(TrainError::NonFiniteLoss {
-                loss: lv,
-                epoch,
-                iteration: it + 1,
-                kept: if last.exists() {
-                    last.display().to_string()
-                } else {
-                    "(none: no checkpoint had been written yet)".into()
-                },
-            });
-        }
+        let out = with_autocast(precision, || self.net.forward_t(&bt.image, &bt.radar, true));
+        let loss = self
+            .net
+            .loss_sparse(&out.to_kind(Kind::Float), &bt.target_m, &bt.sparse);
+        let value = if self.loss_read_every() == 1 {
+            let mut lv = loss.double_value(&[]);
+            if let Some(d) = &self.dist {
+                d.after_forward()?;
+                lv = d.mean_loss(lv)?;
+            }
+            if !lv.is_finite() {
+                return Err(self.non_finite(lv, epoch, it + 1));
+            }
+            tch::Tensor::from(lv)
+        } else {
+            loss.detach()
+        };
         self.sgd.zero_grad();
         match self.dist.as_mut() {
             None => loss.backward(),
@@ -261,7 +299,56 @@ impl<'o> Trainer<'o> {
         if let Some(d) = &self.dist {
             d.check_replicas(self.state.iteration)?;
         }
-        Ok(StepResult { loss: lv, lr })
+        Ok(PendingLoss {
+            iteration: self.state.iteration,
+            loss: value,
+            lr,
+            images: batch.size,
+            seconds: 0.0,
+        })
+    }
+
+    /// Reads the pending losses (one device→host copy) and logs them in order; the first
+    /// non-finite one stops training with its own iteration.
+    fn read_losses(
+        &mut self,
+        epoch: u64,
+        acc: &mut EpochLosses,
+        summary: &mut TrainSummary,
+        progress: &ProgressBar,
+    ) -> Result<(), TrainError> {
+        if acc.pending.is_empty() {
+            return Ok(());
+        }
+        let pending = std::mem::take(&mut acc.pending);
+        let stacked: Vec<&tch::Tensor> = pending.iter().map(|p| &p.loss).collect();
+        let values = tch::Tensor::stack(&stacked, 0)
+            .to_kind(Kind::Double)
+            .to_device(Device::Cpu);
+        let values = Vec::<f64>::try_from(&values)?;
+        for (p, lv) in pending.iter().zip(values) {
+            if !lv.is_finite() {
+                return Err(self.non_finite(lv, epoch, p.iteration));
+            }
+            acc.sum += lv;
+            acc.n += 1;
+            summary.losses.push((p.iteration, lv));
+            if self.is_main() {
+                append_jsonl(
+                    &self.path(METRICS_FILE),
+                    &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": p.iteration,
+                                        "loss": lv, "lr": p.lr}),
+                )?;
+            }
+            progress.set_message(format!(
+                "epoch {}/{} loss {lv:.4} lr {:.2e} {:.1} img/s",
+                epoch + 1,
+                self.opts.epochs,
+                p.lr,
+                p.images as f64 / p.seconds.max(1e-9)
+            ));
+        }
+        Ok(())
     }
 
     /// Writes RUN/last.safetensors and its optimiser state (refusing non-finite weights).
@@ -352,36 +439,26 @@ impl<'o> Trainer<'o> {
             .as_ref()
             .map_or((0, 1), |d| (d.rank(), d.world_size()));
         let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
-        let (mut epoch_loss, mut epoch_n) = (0.0, 0usize);
+        let mut acc = EpochLosses::default();
+        let every = self.loss_read_every();
         let mut t_iter = Instant::now();
         for batch in loader.take((self.bpe as usize).saturating_sub(skip)) {
             let batch = batch?;
-            let StepResult { loss: lv, lr } = self.step(&batch, epoch)?;
-            let it = self.state.iteration;
-            let dt = t_iter.elapsed().as_secs_f64();
+            let mut p = self.step(&batch, epoch)?;
+            p.seconds = t_iter.elapsed().as_secs_f64();
             t_iter = Instant::now();
-            self.train_secs += dt;
+            let it = p.iteration;
+            self.train_secs += p.seconds;
             self.images += batch.size * world;
-            epoch_loss += lv;
-            epoch_n += 1;
-            summary.losses.push((it, lv));
-            if self.is_main() {
-                append_jsonl(
-                    &self.path(METRICS_FILE),
-                    &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
-                                        "loss": lv, "lr": lr}),
-                )?;
-            }
+            acc.pending.push(p);
             progress.set_position(it);
-            progress.set_message(format!(
-                "epoch {}/{} loss {lv:.4} lr {lr:.2e} {:.1} img/s",
-                epoch + 1,
-                opts.epochs,
-                batch.size as f64 / dt.max(1e-9)
-            ));
             let epoch_end = it.is_multiple_of(self.bpe);
             let stop_here = opts.stop_after == Some(it);
             let periodic = opts.checkpoint_every > 0 && it.is_multiple_of(opts.checkpoint_every);
+            // Losses are read (and checked) before anything is written.
+            if acc.pending.len() >= every || epoch_end || stop_here || periodic {
+                self.read_losses(epoch, &mut acc, summary, progress)?;
+            }
             if !epoch_end && (stop_here || periodic) {
                 self.state.epoch = epoch;
                 self.checkpoint()?;
@@ -390,8 +467,9 @@ impl<'o> Trainer<'o> {
                 }
             }
         }
+        self.read_losses(epoch, &mut acc, summary, progress)?;
         progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
-        let v = self.end_epoch(epoch, epoch_loss, epoch_n)?;
+        let v = self.end_epoch(epoch, acc.sum, acc.n)?;
         summary.val.push(v);
         Ok(opts.stop_after == Some(self.state.iteration))
     }
