@@ -535,6 +535,13 @@ pub fn load_sample(
             false => None,
         };
         // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
+        if opts.radar == RadarInput::Mer && opts.failure.perturb.is_some() {
+            return Err(TrainError::Config(
+                "a calibration perturbation of MER inputs would need `mer apply` on the \
+                 perturbed maps: not supported (use a raw / height-extended model)"
+                    .into(),
+            ));
+        }
         if let Some(meta) = &meta {
             if let Some((r, hm)) = opts.failure.reraster(&dir, meta, failure_seed)? {
                 check_size(&r, w, h, &raw_path)?;
