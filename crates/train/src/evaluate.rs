@@ -465,12 +465,26 @@ pub fn write_predictions(
 /// Write `tables.md`, `tables.csv` and `tables.json` (every row of every report plus the
 /// three rendered tables) into `dir`.
 pub fn write_tables(dir: &Path, models: &[(&str, &Report)]) -> Result<(), TrainError> {
+    write_tables_with_command(dir, models, None)
+}
+
+/// [`write_tables`], recording the invocation as `command_line` in tables.json and as a last
+/// "Command:" line of tables.md (`depthsense report` shows it).
+pub fn write_tables_with_command(
+    dir: &Path,
+    models: &[(&str, &Report)],
+    command_line: Option<&str>,
+) -> Result<(), TrainError> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-    let md = tables::markdown_report(models);
+    let mut md = tables::markdown_report(models);
+    if let Some(c) = command_line {
+        md.push_str(&format!("\nCommand: `{c}`\n"));
+    }
     let csv = tables::csv_report(models);
     let json = serde_json::json!({
         "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),
         "tables": tables::all_tables(models),
+        "command_line": command_line,
     });
     let w = |name: &str, bytes: &[u8]| {
         let p = dir.join(name);

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use depthsense_metrics::{evaluate, EvalConfig, EvalImage};
-use depthsense_train::evaluate::write_tables;
+use depthsense_train::evaluate::write_tables_with_command;
 use depthsense_train::mer::report::{CoverageRow, MerReport};
 use depthsense_train::report::markdown::to_html;
 use depthsense_train::report::{build_report, Kind, ReportOptions, ReportSummary};
@@ -75,7 +75,7 @@ fn explain(dir: &Path) {
     );
 }
 
-/// Eval tables through the real writer (two tiny images).
+/// Eval tables through the real writer (one tiny image), with its command line.
 fn eval_tables(dir: &Path) {
     let gt = [10.0f32, 20.0, 0.0, 60.0];
     let pred = [11.0f32, 18.0, 5.0, 55.0];
@@ -86,7 +86,8 @@ fn eval_tables(dir: &Path) {
         conditions: &["day"],
     }];
     let r = evaluate(&imgs, &EvalConfig::default()).unwrap();
-    write_tables(dir, &[("model", &r)]).unwrap();
+    let cmd = "depthsense eval --checkpoint m.safetensors --data runs/e";
+    write_tables_with_command(dir, &[("model", &r)], Some(cmd)).unwrap();
 }
 
 fn mer(p: &Path) {
@@ -242,6 +243,7 @@ fn every_section_and_image_is_in_the_page() {
     assert!(sizes.iter().all(|&(w, _)| w <= 1600));
     // Distance-cap table of eval, MER table, the explain grid's labels.
     assert!(html.contains("Distance table (SPEC §10.3)"));
+    assert!(html.contains("<pre>depthsense eval --checkpoint m.safetensors --data runs/e</pre>"));
     assert!(html.contains("MER θ = 0.5"));
     assert!(
         html.contains("<pre>depthsense mer report --data runs/abl/prepared --json r.json</pre>")

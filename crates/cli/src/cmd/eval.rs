@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_train::evaluate::{
-    load_model, run_eval_loaded, run_eval_predictions, write_tables, EvalOptions,
+    load_model, run_eval_loaded, run_eval_predictions, write_tables_with_command, EvalOptions,
     PredictionsOptions,
 };
 use depthsense_train::experiments::failure::RadarFailure;
@@ -155,7 +155,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let report = run_eval_loaded(&opts, &loaded, &pb)?;
     pb.finish_and_clear();
     let models = [(a.name.as_str(), &report)];
-    write_tables(&out, &models)?;
+    write_tables_with_command(&out, &models, Some(&command_line()))?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
         "{} images evaluated (radar drop {}, failure: {}); tables written to {}/tables.{{md,csv,json}}",
@@ -182,7 +182,7 @@ fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
     let (report, sum) = run_eval_predictions(&opts, &pb)?;
     pb.finish_and_clear();
     let models = [(a.name.as_str(), &report)];
-    write_tables(&out, &models)?;
+    write_tables_with_command(&out, &models, Some(&command_line()))?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
         "{} predictions scored ({} png, {} npy), {} samples without a file; tables written to \
@@ -194,4 +194,9 @@ fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
         out.display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The invocation, recorded in tables.json / tables.md.
+fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
 }
