@@ -2,6 +2,7 @@
 //! synthetic world: radar maps re-rasterised from `radar_points.bin`.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::depth_png::{decode_value, encode_value};
@@ -40,30 +41,57 @@ fn tiny_checkpoint(dir: &Path) -> PathBuf {
     p
 }
 
-/// A synthetic world of 1 scene × 2 keyframes, prepared; a random tiny network.
+/// A synthetic world of 1 scene × 2 keyframes, prepared once for every test; a random tiny
+/// network.
+fn prepared_once() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
+    static ONCE: OnceLock<(tempfile::TempDir, PathBuf, PathBuf)> = OnceLock::new();
+    ONCE.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("world");
+        let cfg = SynthConfig {
+            scenes: 1,
+            keyframes_per_scene: 2,
+            conditions: vec![(Weather::Day, 1.0)],
+            ..SynthConfig::default()
+        };
+        generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+        let data = tmp.path().join("prepared");
+        let opts = PrepareOptions {
+            dataroot: root,
+            version: cfg.version_name.clone(),
+            out: data.clone(),
+            lidar_sweeps: 0,
+            jobs: 2,
+            ..Default::default()
+        };
+        let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        assert_eq!((s.prepared, s.failed.len()), (2, 0), "{:?}", s.failed);
+        let ck = tiny_checkpoint(tmp.path());
+        (tmp, data, ck)
+    })
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dst = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &dst);
+        } else {
+            std::fs::copy(e.path(), dst).unwrap();
+        }
+    }
+}
+
+/// This test's own copy of the prepared world and the evaluation options on it.
 fn setup() -> (tempfile::TempDir, PathBuf, EvalOptions) {
+    let (_, prepared, ck) = prepared_once();
     let tmp = tempfile::tempdir().unwrap();
-    let root = tmp.path().join("world");
-    let cfg = SynthConfig {
-        scenes: 1,
-        keyframes_per_scene: 2,
-        conditions: vec![(Weather::Day, 1.0)],
-        ..SynthConfig::default()
-    };
-    generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
     let data = tmp.path().join("prepared");
-    let opts = PrepareOptions {
-        dataroot: root,
-        version: cfg.version_name.clone(),
-        out: data.clone(),
-        lidar_sweeps: 0,
-        jobs: 2,
-        ..Default::default()
-    };
-    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
-    assert_eq!((s.prepared, s.failed.len()), (2, 0), "{:?}", s.failed);
+    copy_dir(prepared, &data);
     let eo = EvalOptions {
-        checkpoint: tiny_checkpoint(tmp.path()),
+        checkpoint: ck.clone(),
         data: data.clone(),
         split: "all".into(),
         device: "cpu".into(),
