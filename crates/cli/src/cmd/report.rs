@@ -7,6 +7,9 @@ use std::process::ExitCode;
 use anyhow::Context;
 use depthsense_train::report::{build_report, ReportOptions};
 
+/// A page larger than this gets a warning (browsers and mail handle it, but slowly).
+const LARGE_PAGE_BYTES: usize = 20_000_000;
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Folders searched, recursively, for experiment outputs: ablation.json, reduced_data.json,
@@ -58,5 +61,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         s.html_bytes as f64 / 1e6,
         opts.out.display()
     );
+    if s.html_bytes > LARGE_PAGE_BYTES {
+        eprintln!(
+            "warning: report.html is over {} MB; --max-width / --tile-width make it smaller",
+            LARGE_PAGE_BYTES / 1_000_000
+        );
+    }
     Ok(ExitCode::SUCCESS)
 }
