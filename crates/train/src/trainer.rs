@@ -248,11 +248,19 @@ pub struct BatchTensors {
 pub fn upload_batch(b: &Batch, device: Device) -> BatchTensors {
     let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
     let (image, radar) = upload_inputs(b, device);
+    let target_m = host_to_device(&b.target_m, &[n, 1, h, w], device);
+    // Gathered on the host for CUDA (no `nonzero` sync); on the CPU `nonzero` costs no sync
+    // and is faster than the host gather (BENCHMARKS.md, issue 9 item 3). Equal either way.
+    let sparse = if device.is_cuda() {
+        SparseTarget::from_host(&b.target_m, (n, h, w), device)
+    } else {
+        SparseTarget::from_dense(&target_m)
+    };
     BatchTensors {
         image,
         radar,
-        target_m: host_to_device(&b.target_m, &[n, 1, h, w], device),
-        sparse: SparseTarget::from_host(&b.target_m, (n, h, w), device),
+        target_m,
+        sparse,
     }
 }
 
@@ -510,12 +518,17 @@ mod tests {
                 assert!(new.image.equal(&image));
                 assert!(new.radar.equal(&radar));
                 assert!(new.target_m.equal(&target_m));
+                // The host gather (used on CUDA) equals `nonzero` on the device (used on the CPU).
+                let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
+                let host = SparseTarget::from_host(&b.target_m, (n, h, w), Device::Cpu);
                 let nz = SparseTarget::from_dense(&target_m);
-                assert_eq!(new.sparse.count, nz.count);
-                assert!(new.sparse.count > 0);
-                assert!(new.sparse.index.equal(&nz.index));
-                assert!(new.sparse.depth_m.equal(&nz.depth_m));
-                assert_eq!(new.sparse.shape, nz.shape);
+                for s in [&new.sparse, &host] {
+                    assert_eq!(s.count, nz.count);
+                    assert!(s.count > 0);
+                    assert!(s.index.equal(&nz.index));
+                    assert!(s.depth_m.equal(&nz.depth_m));
+                    assert_eq!(s.shape, nz.shape);
+                }
                 let (i2, r2, t2) = batch_tensors(&b, Device::Cpu);
                 assert!(i2.equal(&image) && r2.equal(&radar) && t2.equal(&target_m));
                 seen += 1;
