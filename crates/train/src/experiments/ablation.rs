@@ -22,7 +22,6 @@ use std::time::Instant;
 
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -436,16 +435,12 @@ pub fn run_ablation(
     Ok(result)
 }
 
-fn save(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
-    write_atomic(path, bytes).map_err(|e| TrainError::io(path, e))
-}
-
 fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), TrainError> {
     let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
-    save(&dir.join(JSON_FILE), json.as_bytes())?;
-    save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
-    save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
-    save(&dir.join(PNG_FILE), &chart(r)?)?;
+    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
+    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
+    super::save(&dir.join(PNG_FILE), &chart(r)?)?;
     Ok(())
 }
 

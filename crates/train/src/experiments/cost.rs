@@ -13,7 +13,6 @@ use std::path::Path;
 use std::time::Instant;
 
 use depthsense_model::{report::model_report, DepthNet, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
@@ -131,10 +130,7 @@ pub fn run_cost(
         rows,
     };
     std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
-    let save = |name: &str, b: &[u8]| {
-        let p = out.join(name);
-        write_atomic(&p, b).map_err(|e| TrainError::io(&p, e))
-    };
+    let save = |name: &str, b: &[u8]| super::save(&out.join(name), b);
     let json = serde_json::to_string_pretty(&r).map_err(|e| TrainError::Other(e.to_string()))?;
     save(JSON_FILE, json.as_bytes())?;
     save(MD_FILE, markdown(&r).as_bytes())?;

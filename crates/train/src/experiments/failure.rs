@@ -479,15 +479,11 @@ pub fn run_failure(
     Ok(r)
 }
 
-fn save(path: std::path::PathBuf, bytes: &[u8]) -> Result<(), TrainError> {
-    depthsense_nuscenes::fsutil::write_atomic(&path, bytes).map_err(|e| TrainError::io(&path, e))
-}
-
 fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), TrainError> {
     let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
-    save(out.join(FAILURE_JSON), json.as_bytes())?;
-    save(out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
-    save(out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;
+    super::save(&out.join(FAILURE_JSON), json.as_bytes())?;
+    super::save(&out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
+    super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;
     let names: Vec<&str> = r.results.iter().map(|x| x.scenario.name.as_str()).collect();
     let metric = |f: fn(&super::runner::RowValues) -> f64| -> Vec<f64> {
         r.results
@@ -513,7 +509,7 @@ fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), TrainEr
             y_label: "δ1",
         },
     ])?;
-    save(out.join(FAILURE_PNG), &png)
+    super::save(&out.join(FAILURE_PNG), &png)
 }
 
 fn fmt_opt(x: Option<f64>, prec: usize) -> String {

@@ -94,6 +94,12 @@ impl Machine {
 }
 
 /// A signed number with a true minus sign ("−1.2", "+0.3").
+/// Writes one experiment output file atomically; an error names the file.
+pub(crate) fn save(path: &std::path::Path, bytes: &[u8]) -> Result<(), crate::error::TrainError> {
+    depthsense_nuscenes::fsutil::write_atomic(path, bytes)
+        .map_err(|e| crate::error::TrainError::io(path, e))
+}
+
 pub(crate) fn signed(x: f64, prec: usize) -> String {
     if x < 0.0 {
         format!("−{:.prec$}", -x)

@@ -185,16 +185,12 @@ pub fn run_perturb(
     Ok(r)
 }
 
-fn save(path: std::path::PathBuf, bytes: &[u8]) -> Result<(), TrainError> {
-    depthsense_nuscenes::fsutil::write_atomic(&path, bytes).map_err(|e| TrainError::io(&path, e))
-}
-
 fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), TrainError> {
     let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
-    save(out.join(PERTURB_JSON), json.as_bytes())?;
-    save(out.join(PERTURB_MD), perturb_markdown(r).as_bytes())?;
-    save(out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;
-    save(out.join(PERTURB_PNG), &perturb_png(r)?)
+    super::save(&out.join(PERTURB_JSON), json.as_bytes())?;
+    super::save(&out.join(PERTURB_MD), perturb_markdown(r).as_bytes())?;
+    super::save(&out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;
+    super::save(&out.join(PERTURB_PNG), &perturb_png(r)?)
 }
 
 /// RMSE against magnitude, one line per axis (from the baseline at 0): rotations left,

@@ -22,7 +22,6 @@ use std::time::Instant;
 
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{Condition, IndexEntry};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
@@ -296,17 +295,13 @@ pub fn run_reduced_data(
     Ok(result)
 }
 
-fn save(path: PathBuf, bytes: &[u8]) -> Result<(), TrainError> {
-    write_atomic(&path, bytes).map_err(|e| TrainError::io(&path, e))
-}
-
 fn write_outputs(r: &ReducedDataResult) -> Result<(), TrainError> {
     let dir = &r.options.out;
     let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
-    save(dir.join(JSON_FILE), json.as_bytes())?;
-    save(dir.join(CSV_FILE), csv(r).as_bytes())?;
-    save(dir.join(MD_FILE), markdown(r).as_bytes())?;
-    save(dir.join(PNG_FILE), &chart(r)?)
+    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
+    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
+    super::save(&dir.join(PNG_FILE), &chart(r)?)
 }
 
 fn stat_of(
