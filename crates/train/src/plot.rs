@@ -351,8 +351,22 @@ fn bar_panel(
 
 /// Several bar charts side by side (one per panel), PNG bytes (500 px wide per panel).
 pub fn bar_charts_png(panels: &[BarPanel<'_>]) -> Result<Vec<u8>, TrainError> {
+    panels_png(panels, 500, bar_panel)
+}
+
+/// `panels` side by side, `panel_w` px wide each and 420 px high, each drawn by `draw` (told
+/// whether fonts are available), on white; PNG bytes.
+fn panels_png<P>(
+    panels: &[P],
+    panel_w: u32,
+    draw: impl Fn(
+        &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+        &P,
+        bool,
+    ) -> Result<(), TrainError>,
+) -> Result<Vec<u8>, TrainError> {
     let k = panels.len().max(1) as u32;
-    let (w, h) = (500 * k, 420u32);
+    let (w, h) = (panel_w * k, 420u32);
     let mut buf = vec![0u8; (w * h * 3) as usize];
     let text = fonts_available();
     {
@@ -360,7 +374,7 @@ pub fn bar_charts_png(panels: &[BarPanel<'_>]) -> Result<Vec<u8>, TrainError> {
         root.fill(&WHITE).map_err(plot_err)?;
         let areas = root.split_evenly((1, k as usize));
         for (a, p) in areas.iter().zip(panels) {
-            bar_panel(a, p, text)?;
+            draw(a, p, text)?;
         }
         root.present().map_err(plot_err)?;
     }
@@ -561,20 +575,5 @@ fn line_panel(
 
 /// Line charts side by side (one per panel, 520 px wide each), PNG bytes.
 pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, TrainError> {
-    let k = panels.len().max(1) as u32;
-    let (w, h) = (520 * k, 420u32);
-    let mut buf = vec![0u8; (w * h * 3) as usize];
-    let text = fonts_available();
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        let areas = root.split_evenly((1, k as usize));
-        for (a, p) in areas.iter().zip(panels) {
-            line_panel(a, p, text)?;
-        }
-        root.present().map_err(plot_err)?;
-    }
-    let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| TrainError::Other("plot buffer has the wrong size".into()))?;
-    encode_rgb(&img)
+    panels_png(panels, 520, line_panel)
 }
