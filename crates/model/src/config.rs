@@ -61,6 +61,21 @@ pub enum RadarBranchKind {
     Bottleneck,
 }
 
+/// The spatial attention module's gate on its logit s (SPEC §6, CBAM; the 7x7 conv starts at
+/// zero, so s = 0 at initialisation and both gates start as the identity).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum AttentionGate {
+    /// f·2σ(s), range (0, 2): CBAM's σ(s) times 2 (the head's linear 1x1 conv absorbs the
+    /// constant). Can close to 0 everywhere: measured, with MER input the module learns to
+    /// close and the network collapses to the label marginal (README, MER).
+    #[default]
+    Double,
+    /// f·(½ + σ(s)), range (½, 3⁄2): the same monotone gate shifted so that it can re-weight
+    /// positions by up to 3× but never switch the features (and their gradients) off.
+    Bounded,
+}
+
 /// Which prepared radar map(s) feed the radar channels (SPEC §5). Stored with the model so that
 /// `eval` and `predict` feed a network the input it was trained on.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -171,6 +186,9 @@ pub struct ModelConfig {
     pub fusion: Fusion,
     /// CBAM spatial attention on the fused features (SPEC §6 "Fusion (paper)").
     pub attention: bool,
+    /// The attention module's gate (default: `double`; absent from the JSON when default).
+    #[serde(default, skip_serializing_if = "is_default_gate")]
+    pub attention_gate: AttentionGate,
     /// Output head.
     pub head: HeadKind,
     /// Hidden channels of the head's first 1x1 conv.
@@ -217,6 +235,15 @@ pub struct ModelConfig {
     /// radar and image, so it needs the image's factor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radar_downscale: Option<i64>,
+    /// Late fusion only (ignored otherwise): channels of a high-resolution radar path (0 =
+    /// none, the paper). The
+    /// radar map is reduced to the head's resolution keeping the nearest return per cell (SPEC
+    /// §5) and passed through two 3x3 convs + ReLU; the result is concatenated with the image
+    /// and radar-branch features before the attention module. The paper's radar branch ends
+    /// at stride 32, where one cell of the branch spans 32 columns and several depths; this
+    /// path hands the head the radar depth at its own resolution (stride 8).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub radar_skip_channels: i64,
     /// Full-resolution output height (350, SPEC §3).
     pub out_height: i64,
     /// Full-resolution output width (800, SPEC §3).
@@ -236,6 +263,7 @@ impl ModelConfig {
             decoder_channels: 256,
             fusion: Fusion::Late,
             attention: true,
+            attention_gate: AttentionGate::Double,
             head: HeadKind::Ordinal,
             head_channels: 512,
             head_pre_dropout: false,
@@ -251,6 +279,7 @@ impl ModelConfig {
             align_corners: true,
             input_downscale: 1,
             radar_downscale: None,
+            radar_skip_channels: 0,
             out_height: 350,
             out_width: 800,
         }
@@ -268,6 +297,7 @@ impl ModelConfig {
             decoder_channels: 256,
             fusion: Fusion::Late,
             attention: false,
+            attention_gate: AttentionGate::Double,
             head: HeadKind::Ordinal,
             head_channels: 2048,
             head_pre_dropout: true,
@@ -288,6 +318,7 @@ impl ModelConfig {
             align_corners: true,
             input_downscale: 1,
             radar_downscale: None,
+            radar_skip_channels: 0,
             out_height: 350,
             out_width: 800,
         }
@@ -391,6 +422,12 @@ impl ModelConfig {
                 ));
             }
         }
+        if !(0..=256).contains(&self.radar_skip_channels) {
+            return bad(format!(
+                "radar_skip_channels {} (expected 0..=256)",
+                self.radar_skip_channels
+            ));
+        }
         if self.out_height < 1 || self.out_width < 1 {
             return bad("out_height and out_width must be ≥ 1".into());
         }
@@ -400,6 +437,14 @@ impl ModelConfig {
 
 fn one() -> i64 {
     1
+}
+
+fn is_default_gate(g: &AttentionGate) -> bool {
+    *g == AttentionGate::Double
+}
+
+fn is_zero(v: &i64) -> bool {
+    *v == 0
 }
 
 fn parse_bool(key: &str, v: &str) -> Result<bool, ModelError> {
@@ -424,6 +469,7 @@ impl ModelConfig {
         "width (RGB base width)",
         "fusion (late|early|none)",
         "attention (on|off)",
+        "attention-gate (double|bounded)",
         "head (ordinal|l1|l2)",
         "radar-channels (1|7)",
         "radar-input (height|raw|raw-height|mer)",
@@ -443,6 +489,7 @@ impl ModelConfig {
         "align-corners (on|off)",
         "input-downscale (1 = full resolution)",
         "radar-downscale (radar map's own factor; default: input-downscale)",
+        "radar-skip (channels of the high-resolution radar path; 0 = none, the paper)",
         "out-height",
         "out-width",
     ];
@@ -464,6 +511,13 @@ impl ModelConfig {
                 }
             }
             "attention" => self.attention = parse_bool(key, v)?,
+            "attention-gate" => {
+                self.attention_gate = match lower.as_str() {
+                    "double" => AttentionGate::Double,
+                    "bounded" => AttentionGate::Bounded,
+                    _ => return Err(enum_err(key)),
+                }
+            }
             "head" | "loss" => {
                 self.head = match lower.as_str() {
                     "ordinal" => HeadKind::Ordinal,
@@ -513,6 +567,7 @@ impl ModelConfig {
             "align-corners" => self.align_corners = parse_bool(key, v)?,
             "input-downscale" => self.input_downscale = parse_num(key, v)?,
             "radar-downscale" => self.radar_downscale = Some(parse_num(key, v)?),
+            "radar-skip" | "radar-skip-channels" => self.radar_skip_channels = parse_num(key, v)?,
             "out-height" => self.out_height = parse_num(key, v)?,
             "out-width" => self.out_width = parse_num(key, v)?,
             other => {

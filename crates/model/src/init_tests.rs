@@ -89,3 +89,35 @@ fn attention_is_the_identity_at_initialisation() {
         "attention output differs from its input by {diff}"
     );
 }
+
+#[test]
+fn bounded_gate_starts_as_the_identity_and_never_closes() {
+    use crate::AttentionGate;
+    let mut cfg = ModelConfig::tiny();
+    cfg.attention_gate = AttentionGate::Bounded;
+    let vs = VarStore::new(Device::Cpu);
+    let net = DepthNet::new(&vs.root(), &cfg).unwrap();
+    let f = Tensor::randn([2, 24, 5, 7], (Kind::Float, Device::Cpu)).abs() + 0.1;
+    assert_eq!((net.attend(&f) - &f).abs().max().double_value(&[]), 0.0);
+    // a conv that drives s → −∞ (as the collapsed MER runs learned): the bounded gate keeps
+    // half of every feature, the double gate would switch them off
+    tch::no_grad(|| {
+        let _ = vs.variables()["attention.conv.weight"]
+            .shallow_clone()
+            .fill_(-50.0);
+    });
+    let ratio = (net.attend(&f) / &f).min().double_value(&[]);
+    assert!((ratio - 0.5).abs() < 1e-4, "{ratio}");
+    cfg.attention_gate = AttentionGate::Double;
+    let vs2 = VarStore::new(Device::Cpu);
+    let double = DepthNet::new(&vs2.root(), &cfg).unwrap();
+    tch::no_grad(|| {
+        let _ = vs2.variables()["attention.conv.weight"]
+            .shallow_clone()
+            .fill_(-50.0);
+    });
+    assert!(double.attend(&f).abs().max().double_value(&[]) < 1e-6);
+    // the default gate is not written into configs (older checkpoints read back unchanged)
+    let js = serde_json::to_string(&ModelConfig::tiny()).unwrap();
+    assert!(!js.contains("attention_gate"));
+}

@@ -27,7 +27,8 @@ pub mod sync_bn;
 pub mod weights;
 
 pub use config::{
-    DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, RadarInput, SidConfig, StemKind,
+    AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, RadarInput,
+    SidConfig, StemKind,
 };
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;

@@ -2,7 +2,9 @@
 
 use tch::{nn, Kind, Tensor};
 
-use crate::config::{DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, StemKind};
+use crate::config::{
+    AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, StemKind,
+};
 use crate::layers::{BlockKind, Conv, ConvInit, MacRows, ResNet, ResNetSpec, P};
 use crate::{ordinal, ModelError};
 
@@ -16,6 +18,18 @@ fn nearest_depth_pool(depth_m: &Tensor, s: i64) -> Tensor {
     let inv = depth_m.clamp_min(1e-6).reciprocal() * valid;
     let inv_s = inv.max_pool2d([s, s], [s, s], [0, 0], [1, 1], false);
     inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind())
+}
+
+/// [`nearest_depth_pool`] to exactly `hw`: cells of ⌈H/h⌉×⌈W/w⌉ (ceil mode), then a nearest
+/// resize if the conv arithmetic of the decoder rounded differently.
+fn nearest_depth_pool_to(depth_m: &Tensor, hw: (i64, i64)) -> Tensor {
+    let (hi, wi) = hw_of(depth_m);
+    let (kh, kw) = ((hi + hw.0 - 1) / hw.0.max(1), (wi + hw.1 - 1) / hw.1.max(1));
+    let valid = depth_m.gt(0.0).to_kind(depth_m.kind());
+    let inv = depth_m.clamp_min(1e-6).reciprocal() * valid;
+    let inv_s = inv.max_pool2d([kh, kw], [kh, kw], [0, 0], [1, 1], true);
+    let d = inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind());
+    resize_to(&d, hw, true)
 }
 
 fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {
@@ -259,13 +273,45 @@ impl RadarBranch {
     }
 }
 
+/// The high-resolution radar path (`radar_skip_channels` > 0, see [`ModelConfig`]): the radar
+/// map at the head's resolution (nearest return per cell) → 3x3 conv + ReLU → 3x3 conv + ReLU.
+struct RadarSkip {
+    convs: [Conv; 2],
+}
+
+impl RadarSkip {
+    fn new(p: &P, cin: i64, ch: i64) -> RadarSkip {
+        let s = p.sub("radar_skip");
+        RadarSkip {
+            convs: [
+                Conv::new(&s.sub("conv1"), cin, ch, 3, 1, 1, 1, true),
+                Conv::new(&s.sub("conv2"), ch, ch, 3, 1, 1, 1, true),
+            ],
+        }
+    }
+
+    /// `[B,C,H,W]` scaled radar (any resolution) → `[B,ch,h,w]` at `hw`.
+    fn forward(&self, radar: &Tensor, hw: (i64, i64)) -> Tensor {
+        let r = nearest_depth_pool_to(radar, hw);
+        self.convs[1]
+            .forward(&self.convs[0].forward(&r).relu())
+            .relu()
+    }
+
+    fn count(&self, hw: (i64, i64), rows: &mut MacRows) {
+        let o = self.convs[0].count(hw, rows);
+        self.convs[1].count(o, rows);
+    }
+}
+
 /// The DepthSense network. Build with [`DepthNet::new`]; variables live in the caller's
-/// VarStore under `rgb.`, `decoder.`, `radar.`, `attention.`, `head.`.
+/// VarStore under `rgb.`, `decoder.`, `radar.`, `radar_skip.`, `attention.`, `head.`.
 pub struct DepthNet {
     cfg: ModelConfig,
     rgb: ResNet,
     decoder: Decoder,
     radar: Option<RadarBranch>,
+    radar_skip: Option<RadarSkip>,
     attention: Option<Conv>,
     head1: Conv,
     head2: Conv,
@@ -299,7 +345,12 @@ impl DepthNet {
             cfg.decoder_channels,
         );
         let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(&root, cfg));
-        let fused = decoder.out_channels() + radar.as_ref().map_or(0, |r| r.out_channels);
+        let skip_ch = cfg.radar_skip_channels;
+        let radar_skip = (cfg.fusion == Fusion::Late && skip_ch > 0)
+            .then(|| RadarSkip::new(&root, cfg.radar_channels, skip_ch));
+        let fused = decoder.out_channels()
+            + radar.as_ref().map_or(0, |r| r.out_channels)
+            + radar_skip.as_ref().map_or(0, |_| skip_ch);
         // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → gate. The conv
         // starts at zero so that the gate 2σ(s) starts as the identity (see `forward_logits_t`).
         let attention = cfg.attention.then(|| {
@@ -327,6 +378,7 @@ impl DepthNet {
             rgb,
             decoder,
             radar,
+            radar_skip,
             attention,
             head1,
             head2,
@@ -383,6 +435,11 @@ impl DepthNet {
             let r = resize_to(&rf, hw_of(&f), false);
             f = Tensor::cat(&[f, r], 1);
         }
+        if let Some(skip) = &self.radar_skip {
+            let s = skip.forward(&radar_scaled(), hw_of(&f));
+            tap("radar_skip", &s);
+            f = Tensor::cat(&[f, s], 1);
+        }
         f = self.attend(&f);
         if cfg.head_pre_dropout {
             f = crate::sync_bn::feature_dropout(&f, cfg.dropout, train);
@@ -417,13 +474,17 @@ impl DepthNet {
     /// Gate 2σ(s) instead of the paper's σ(s): the same function class (the head's first layer
     /// is a linear 1x1 conv, which absorbs the constant 2), but with the conv starting at zero
     /// the module starts as the identity instead of halving (σ(0) = ½) or, with a random conv,
-    /// saturating the features.
+    /// saturating the features. [`AttentionGate::Bounded`]: ½ + σ(s) (see there).
     pub(crate) fn attend(&self, f: &Tensor) -> Tensor {
         match &self.attention {
             Some(att) => {
                 let mean = f.mean_dim(1, true, f.kind());
                 let (max, _) = f.max_dim(1, true);
-                f * (att.forward(&Tensor::cat(&[mean, max], 1)).sigmoid() * 2.0)
+                let s = att.forward(&Tensor::cat(&[mean, max], 1));
+                match self.cfg.attention_gate {
+                    AttentionGate::Double => f * (s.sigmoid() * 2.0),
+                    AttentionGate::Bounded => f * (s.sigmoid() + 0.5),
+                }
             }
             None => f.shallow_clone(),
         }
@@ -514,6 +575,9 @@ impl DepthNet {
         if let Some(r) = &self.radar {
             r.count((height, width), &mut rows);
         }
+        if let Some(s) = &self.radar_skip {
+            s.count(hw, &mut rows);
+        }
         if let Some(a) = &self.attention {
             a.count(hw, &mut rows);
         }
@@ -571,5 +635,82 @@ mod downscale_tests {
         // early fusion concatenates radar and image: the factors must agree
         cfg.fusion = Fusion::Early;
         assert!(cfg.validate().is_err());
+    }
+
+    #[test]
+    fn nearest_depth_pool_to_reaches_the_decoder_size_with_ceil_cells() {
+        // 5×9 map to 2×3: cells of 3×3 (ceil), the last row/column cells partial.
+        let mut v = vec![0.0f32; 45];
+        v[4 * 9 + 8] = 20.0; // bottom-right corner, in the partial cell (1, 2)
+        v[0] = 9.0;
+        v[1] = 4.0; // cell (0, 0): nearest = 4
+        let d = Tensor::from_slice(&v).view([1, 1, 5, 9]);
+        let p = nearest_depth_pool_to(&d, (2, 3));
+        let got: Vec<f32> = Vec::try_from(p.reshape([-1])).unwrap();
+        let want = [4.0, 0.0, 0.0, 0.0, 0.0, 20.0];
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-3, "{got:?}");
+        }
+    }
+
+    #[test]
+    fn radar_skip_adds_a_path_at_head_resolution_that_sees_one_return() {
+        let mut cfg = ModelConfig::tiny();
+        cfg.input_downscale = 2;
+        cfg.out_height = 64;
+        cfg.out_width = 128;
+        cfg.radar_skip_channels = 8;
+        cfg.attention = false;
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(tch::Device::Cpu);
+        let net = DepthNet::new(&vs.root(), &cfg).unwrap();
+        let names: Vec<String> = vs.variables().into_keys().collect();
+        assert!(
+            names.iter().any(|n| n == "radar_skip.conv2.weight"),
+            "{names:?}"
+        );
+        // silence the stride-32 radar branch so that only the skip path sees the radar
+        tch::no_grad(|| {
+            for (n, mut t) in vs.variables() {
+                if n.starts_with("radar.") {
+                    let _ = t.zero_();
+                }
+            }
+        });
+        let img = Tensor::zeros([1, 3, 64, 128], (Kind::Float, tch::Device::Cpu));
+        let none = Tensor::zeros([1, 1, 64, 128], (Kind::Float, tch::Device::Cpu));
+        let one = none.copy();
+        let _ = one.narrow(2, 40, 1).narrow(3, 100, 1).fill_(12.0);
+        let a = net.forward_logits_t(&img, &none, false);
+        let b = net.forward_logits_t(&img, &one, false);
+        let diff = (a - b).abs().sum_dim_intlist(1, false, Kind::Float);
+        let (_, h, w) = diff.size3().unwrap();
+        let flat: Vec<f32> = Vec::try_from(diff.reshape([-1])).unwrap();
+        // return at (40, 100) → (20, 50) at the input's 1/2 → head cell (2, 6) at stride 8
+        // (cells of 8×8); two 3x3 convs and a 1x1 head reach ±2 cells, no further.
+        let (mut near, mut far) = (0.0f32, 0.0f32);
+        for y in 0..h {
+            for x in 0..w {
+                let v = flat[(y * w + x) as usize];
+                if (y - 2).abs() <= 2 && (x - 6).abs() <= 2 {
+                    near += v;
+                } else {
+                    far += v;
+                }
+            }
+        }
+        assert!(near > 0.0 && far == 0.0, "near {near} far {far}");
+        let skip_macs: u64 = net
+            .mac_rows(64, 128)
+            .iter()
+            .filter(|r| r.0.starts_with("radar_skip"))
+            .map(|r| r.1)
+            .sum();
+        // mac_rows takes the encoder's input size: 64×128 → head 8×16; two 3x3 convs there
+        assert_eq!(skip_macs, (8 * 9 + 8 * 8 * 9) * 8 * 16);
+        // without the field the config serialises as before (old checkpoints read back)
+        cfg.radar_skip_channels = 0;
+        let js = serde_json::to_string(&cfg).unwrap();
+        assert!(!js.contains("radar_skip"));
     }
 }

@@ -58,6 +58,16 @@ pub struct LoadOptions {
     /// Whole radars absent, returns beyond a range absent, clutter added (SPEC §10.8).
     #[serde(default)]
     pub failure: crate::experiments::failure::RadarFailure,
+    /// Training augmentation (not in the paper): each sample loses a fraction U(0, p) of its
+    /// radar returns (with their height-extended strips), drawn from the sample's random
+    /// stream, so that a network cannot read "no return here" as a depth cue. 0 = off (no
+    /// draw is made: runs without it are unchanged).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub train_radar_drop: f64,
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for LoadOptions {
@@ -71,6 +81,7 @@ impl Default for LoadOptions {
             radar_drop: 0.0,
             seed: 0,
             failure: Default::default(),
+            train_radar_drop: 0.0,
         }
     }
 }
@@ -504,6 +515,9 @@ pub fn load_sample(
     } else {
         Augment::NONE
     };
+    // Drawn after the SPEC §8 augmentation so that its draws are those of runs without it.
+    let train_drop = (opts.train_radar_drop > 0.0 && !opts.no_radar)
+        .then(|| (rng.range(0.0, opts.train_radar_drop), rng.next_u64()));
 
     let mut image = normalise_image(&rgb, &aug);
     let plane = w * h;
@@ -551,6 +565,9 @@ pub fn load_sample(
         if opts.radar_drop > 0.0 {
             let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
             drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
+        }
+        if let Some((fraction, seed)) = train_drop {
+            drop_radar(&mut raw, Some(&mut height), fraction, seed);
         }
         if let Some(meta) = &meta {
             opts.failure

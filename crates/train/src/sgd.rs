@@ -23,6 +23,17 @@ pub fn poly_lr(base: f64, iteration: u64, total: u64, power: f64) -> f64 {
     base * frac.powf(power)
 }
 
+/// [`poly_lr`] times a linear warmup over the first `warmup` iterations: iteration i
+/// (0-based) uses (i + 1)/warmup of the poly rate while i < warmup. `warmup` = 0: no warmup.
+pub fn warmup_poly_lr(base: f64, iteration: u64, total: u64, power: f64, warmup: u64) -> f64 {
+    let ramp = if warmup > 0 {
+        ((iteration + 1) as f64 / warmup as f64).min(1.0)
+    } else {
+        1.0
+    };
+    poly_lr(base, iteration, total, power) * ramp
+}
+
 /// The optimiser: named trainable variables and one momentum buffer each.
 pub struct Sgd {
     vars: Trainable,

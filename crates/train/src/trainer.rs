@@ -94,6 +94,19 @@ pub struct TrainOptions {
     /// and in data-parallel jobs, [`CUDA_LOSS_READ_EVERY`] on CUDA. Absent from the JSON when 0.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub loss_read_every: u64,
+    /// Training-time radar dropout: each training sample loses a fraction U(0, p) of its
+    /// radar returns ([`crate::data::LoadOptions::train_radar_drop`]). 0 = off (the paper).
+    /// Absent from the JSON when 0.
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub train_radar_drop: f64,
+    /// Linear learning-rate warmup over the first N iterations before the poly decay (0 = none,
+    /// the paper). Absent from the JSON when 0.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub warmup_iters: u64,
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
@@ -133,6 +146,8 @@ impl Default for TrainOptions {
             eval: EvalConfig::default(),
             exclude: Vec::new(),
             loss_read_every: 0,
+            train_radar_drop: 0.0,
+            warmup_iters: 0,
         }
     }
 }

@@ -205,6 +205,48 @@ fn radar_drop_removes_points_with_their_strips() {
 }
 
 #[test]
+fn train_radar_drop_removes_a_random_subset_and_leaves_the_augmentation_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = toy(tmp.path(), 1, 2);
+    let e = &ds.split("all")[0];
+    let aug = LoadOptions {
+        augment: true,
+        ..LoadOptions::default()
+    };
+    let dropping = LoadOptions {
+        train_radar_drop: 0.9,
+        ..aug.clone()
+    };
+    let mut counts = std::collections::BTreeSet::new();
+    for seed in 0..8u64 {
+        let plain = load_sample(&ds, e, &aug, &mut Rng::new(seed)).unwrap();
+        let dropped = load_sample(&ds, e, &dropping, &mut Rng::new(seed)).unwrap();
+        // the SPEC §8 draws come first: image, target and flip are those of a run without it
+        assert_eq!(dropped.image, plain.image);
+        assert_eq!(dropped.target_m, plain.target_m);
+        assert_eq!(dropped.flipped, plain.flipped);
+        // radar: a subset of the returns (a kept pixel keeps its exact depth)
+        for (d, p) in dropped.radar.iter().zip(&plain.radar) {
+            assert!(*d == 0.0 || d == p);
+        }
+        let n = dropped.radar.iter().filter(|d| **d > 0.0).count();
+        assert!(n <= plain.radar.iter().filter(|d| **d > 0.0).count());
+        counts.insert(n);
+    }
+    assert!(
+        counts.len() > 1,
+        "the fraction is drawn per sample: {counts:?}"
+    );
+    // it takes exactly two draws (fraction, seed) after the augmentation's; off, none
+    let (mut a, mut b) = (Rng::new(3), Rng::new(3));
+    load_sample(&ds, e, &aug, &mut a).unwrap();
+    load_sample(&ds, e, &dropping, &mut b).unwrap();
+    a.next_u64();
+    a.next_u64();
+    assert_eq!(a.next_u64(), b.next_u64());
+}
+
+#[test]
 fn scene_modulo_partition_is_deterministic() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 10, 1);

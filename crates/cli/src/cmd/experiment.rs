@@ -117,6 +117,13 @@ pub struct RunArgs {
     /// `depthsense train --help`).
     #[arg(long, default_value_t = 5)]
     val_every_scene: usize,
+    /// Training-time radar dropout: each training sample loses a fraction U(0, P) of its radar
+    /// returns (0 = off, the paper). See `depthsense train --help`.
+    #[arg(long, default_value_t = 0.0)]
+    train_radar_drop: f64,
+    /// Linear learning-rate warmup over the first N iterations (0 = none, the paper).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    warmup: u64,
 }
 
 impl RunArgs {
@@ -133,6 +140,8 @@ impl RunArgs {
             max_val_samples: self.max_val_samples,
             max_batches_per_epoch: self.max_batches_per_epoch,
             val_every_scene: self.val_every_scene,
+            train_radar_drop: self.train_radar_drop,
+            warmup_iters: self.warmup,
         }
     }
 }

@@ -90,6 +90,15 @@ pub struct Args {
     /// Disable flip and brightness/colour/gamma jitter.
     #[arg(long)]
     no_augment: bool,
+    /// Training-time radar dropout (not in the paper): each training sample loses a fraction
+    /// U(0, P) of its radar returns with their height-extended strips, so that the network
+    /// cannot read "no return here" as a depth cue. 0 = off. README, "What the demo shows".
+    #[arg(long, default_value_t = 0.0, value_name = "P")]
+    train_radar_drop: f64,
+    /// Linear learning-rate warmup over the first N iterations, then the poly decay (0 = none,
+    /// the paper).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    warmup: u64,
     /// Only for data prepared without validation lists: every N-th training scene (sorted by
     /// name) is held out for validation (and, without any split lists, every N-th scene is
     /// test and the one before it validation). Never selects on test scenes.
@@ -263,6 +272,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_batches_per_epoch: a.max_batches_per_epoch,
         checkpoint_every: a.checkpoint_every,
         loss_read_every: a.loss_read_every,
+        train_radar_drop: a.train_radar_drop,
+        warmup_iters: a.warmup,
         stop_after: a.stop_after,
         eval: EvalConfig {
             protocol: a.protocol.parse::<Protocol>()?,

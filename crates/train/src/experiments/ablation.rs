@@ -107,6 +107,15 @@ impl Variant {
             cfg.radar_input = depthsense_model::RadarInput::Mer;
             cfg.radar_channels = cfg.radar_input.channels() as i64;
         }
+        // Options of parts the variant does not have are reset to their defaults, so that a
+        // `--set attention-gate=…` or `radar-skip=…` leaves e.g. the rgb runs' configs (and
+        // the finished runs an `--out` already holds) unchanged.
+        if !attention {
+            cfg.attention_gate = Default::default();
+        }
+        if fusion != depthsense_model::Fusion::Late {
+            cfg.radar_skip_channels = 0;
+        }
     }
 
     pub fn describe(self) -> &'static str {
@@ -710,6 +719,35 @@ mod tests {
         assert!(
             variant_models(&opts).is_err(),
             "--set head is the variant's"
+        );
+    }
+
+    #[test]
+    fn options_of_absent_parts_leave_the_other_variants_unchanged() {
+        let with = |set: Vec<String>| {
+            let opts = AblationOptions {
+                run: RunSettings {
+                    preset: "tiny".into(),
+                    set,
+                    ..RunSettings::default()
+                },
+                variants: vec![Variant::Rgb, Variant::Late, Variant::LateSam],
+                ..AblationOptions::default()
+            };
+            variant_models(&opts).unwrap()
+        };
+        let plain = with(vec![]);
+        let gated = with(vec!["attention-gate=bounded".into(), "radar-skip=8".into()]);
+        assert_eq!(plain[0].1, gated[0].1, "rgb");
+        assert_eq!(
+            gated[1].1.attention_gate,
+            Default::default(),
+            "late has no attention"
+        );
+        assert_eq!(gated[1].1.radar_skip_channels, 8);
+        assert_eq!(
+            gated[2].1.attention_gate,
+            depthsense_model::AttentionGate::Bounded
         );
     }
 

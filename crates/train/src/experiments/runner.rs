@@ -46,6 +46,20 @@ pub struct RunSettings {
     pub max_batches_per_epoch: Option<usize>,
     /// The trainer's `val_every_scene` (partition of data without split lists).
     pub val_every_scene: usize,
+    /// The trainer's training-time radar dropout (0 = off; absent from the JSON when 0).
+    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    pub train_radar_drop: f64,
+    /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
+    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    pub warmup_iters: u64,
+}
+
+fn is_zero_u64(v: &u64) -> bool {
+    *v == 0
+}
+
+fn is_zero_f64(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for RunSettings {
@@ -64,6 +78,8 @@ impl Default for RunSettings {
             max_val_samples: t.max_val_samples,
             max_batches_per_epoch: t.max_batches_per_epoch,
             val_every_scene: t.val_every_scene,
+            train_radar_drop: t.train_radar_drop,
+            warmup_iters: t.warmup_iters,
         }
     }
 }
@@ -86,6 +102,8 @@ impl RunSettings {
             max_val_samples: self.max_val_samples,
             max_batches_per_epoch: self.max_batches_per_epoch,
             val_every_scene: self.val_every_scene,
+            train_radar_drop: self.train_radar_drop,
+            warmup_iters: self.warmup_iters,
             ..TrainOptions::default()
         }
     }

@@ -21,7 +21,7 @@ use crate::data::{
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
-use crate::sgd::{poly_lr, Sgd};
+use crate::sgd::{warmup_poly_lr, Sgd};
 
 /// A training run in progress.
 pub struct Trainer<'o> {
@@ -82,6 +82,12 @@ impl<'o> Trainer<'o> {
                 "batch size and epochs must be at least 1".into(),
             ));
         }
+        if !(0.0..=1.0).contains(&opts.train_radar_drop) {
+            return Err(TrainError::Config(format!(
+                "train radar drop {} is not a fraction in [0, 1]",
+                opts.train_radar_drop
+            )));
+        }
         let (main, world) = dist
             .as_ref()
             .map_or((true, 1), |d| (d.is_main(), d.world_size()));
@@ -134,6 +140,7 @@ impl<'o> Trainer<'o> {
             radar_drop: 0.0,
             seed: opts.seed,
             failure: Default::default(),
+            train_radar_drop: opts.train_radar_drop,
         };
         let full_batches = part.train.len() / opts.batch_size;
         let natural = if full_batches > 0 { full_batches } else { 1 };
@@ -250,13 +257,19 @@ impl<'o> Trainer<'o> {
         }
     }
 
+    /// The learning rate of iteration `it`: poly decay (SPEC §8) after the optional warmup.
+    fn lr_at(&self, it: u64) -> f64 {
+        let o = self.opts;
+        warmup_poly_lr(o.lr, it, self.total, o.lr_power, o.warmup_iters)
+    }
+
     /// One SGD step on `batch`. Its loss stays on the device unless losses are read every
     /// iteration: then it is read here and a non-finite one stops before the update.
     fn step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, TrainError> {
         let opts = self.opts;
         let bt = upload_batch(batch, self.device);
         let it = self.state.iteration;
-        let lr = poly_lr(opts.lr, it, self.total, opts.lr_power);
+        let lr = self.lr_at(it);
         // Dropout draws depend only on (seed, iteration): exact resume.
         tch::manual_seed((mix64(opts.seed ^ mix64(it + 1)) >> 1) as i64);
         // `--amp`: bf16 autocast (CUDA only). Not fp16: fp16 without loss scaling underflows the
@@ -407,7 +420,7 @@ impl<'o> Trainer<'o> {
             &self.path(METRICS_FILE),
             &serde_json::json!({"kind": "epoch", "epoch": epoch + 1, "iteration": it,
                                 "train_loss": epoch_loss / epoch_n.max(1) as f64,
-                                "lr": poly_lr(self.opts.lr, it, self.total, self.opts.lr_power),
+                                "lr": self.lr_at(it),
                                 "images_per_s": self.images as f64 / self.train_secs.max(1e-9),
                                 "seconds": self.started.elapsed().as_secs_f64(), "val": v}),
         )?;
