@@ -87,6 +87,14 @@ pub struct PdaConfig {
     pub rel_threshold: f64,
     /// The network sees radar depth / `radar_scale_m` and a radar-present mask.
     pub radar_scale_m: f64,
+    /// Channels E of the appearance-affinity term (0 = none: RC-PDA's plain 1x1 head). With
+    /// E > 0 the logit of neighbour n of radar pixel p is the 1x1 head at p plus
+    /// ⟨W_q f(p), W_k f(n)⟩ / √E, f = the U-Net's level-0 features: the head keeps the
+    /// per-offset prior, the dot product says whether n looks like p's surroundings — the
+    /// "same object" question that the plain head has to answer through 180 fixed channels.
+    /// Not in RC-PDA and off in every preset: measured no better (README, MER).
+    #[serde(default)]
+    pub affinity_channels: i64,
 }
 
 impl PdaConfig {
@@ -101,6 +109,7 @@ impl PdaConfig {
             abs_threshold_m: 1.0,
             rel_threshold: 0.05,
             radar_scale_m: 80.0,
+            affinity_channels: 0,
         }
     }
 
@@ -155,6 +164,12 @@ impl PdaConfig {
         if w.left < 0 || w.right < 0 || w.up < 0 || w.down < 0 {
             return bad(format!("window {w:?} has a negative side"));
         }
+        if !(0..=256).contains(&self.affinity_channels) {
+            return bad(format!(
+                "affinity_channels {} (0..=256)",
+                self.affinity_channels
+            ));
+        }
         if !(1..=8).contains(&self.grid_scale) {
             return bad(format!("grid_scale {} (1..=8)", self.grid_scale));
         }
@@ -207,6 +222,10 @@ pub struct PdaNet {
     /// PyTorch's init), applied only at the pixels asked for ([`PdaNet::logits_at`]).
     head_w: Tensor,
     head_b: Tensor,
+    /// Affinity projections W_q, W_k `[E, C0]` (`affinity_channels` > 0).
+    affinity: Option<(Tensor, Tensor)>,
+    /// Window offsets (dx, dy) as Int64 `[K]` tensors, channel order.
+    offsets: (Tensor, Tensor),
 }
 
 impl std::fmt::Debug for PdaNet {
@@ -248,12 +267,25 @@ impl PdaNet {
         let head = p / "head";
         let head_w = head.var("weight", &[k, w[0]], u);
         let head_b = head.var("bias", &[k], u);
+        let e = cfg.affinity_channels;
+        let affinity = (e > 0).then(|| {
+            let a = p / "affinity";
+            // two bias-free 1x1 convs C0 → E, PyTorch's bound 1/√C0
+            (a.var("query", &[e, w[0]], u), a.var("key", &[e, w[0]], u))
+        });
+        let (dx, dy): (Vec<i64>, Vec<i64>) = cfg.window.offsets().into_iter().unzip();
+        let offsets = (
+            Tensor::from_slice(&dx).to_device(p.device()),
+            Tensor::from_slice(&dy).to_device(p.device()),
+        );
         Ok(PdaNet {
             cfg: cfg.clone(),
             enc,
             dec,
             head_w,
             head_b,
+            affinity,
+            offsets,
         })
     }
 
@@ -265,9 +297,20 @@ impl PdaNet {
     /// at the MER grid → association logits `[B,K,h,w]`, K = window length (180); channel k is
     /// the neighbour at `window.offsets()[k]` of the radar return at that pixel. Training and
     /// `mer apply` only need the radar pixels: [`PdaNet::features_t`] + [`PdaNet::logits_at`].
+    ///
+    /// With the affinity term this evaluates every pixel's 180 neighbours (B·h·w·K·E floats):
+    /// meant for tests and small images.
     pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
         let f = self.features_t(image, radar, train);
         let (k, c) = (self.head_w.size()[0], self.head_w.size()[1]);
+        if self.affinity.is_some() {
+            let (b, _, h, w) = f.size4().expect("4-d features");
+            let idx = Tensor::arange(b * h * w, (Kind::Int64, f.device()));
+            return self
+                .logits_at(&f, &idx)
+                .view([b, h, w, k])
+                .permute([0, 3, 1, 2]);
+        }
         f.conv2d(
             &self.head_w.view([k, c, 1, 1]),
             Some(&self.head_b),
@@ -282,7 +325,21 @@ impl PdaNet {
     /// features `[B,C0,h,w]` of [`PdaNet::features_t`]; equal to [`gather_pixels`] of
     /// [`PdaNet::forward_t`], without computing the head at every other pixel.
     pub fn logits_at(&self, features: &Tensor, idx: &Tensor) -> Tensor {
-        gather_pixels(features, idx).matmul(&self.head_w.tr()) + &self.head_b
+        let head = gather_pixels(features, idx).matmul(&self.head_w.tr()) + &self.head_b;
+        let Some((wq, wk)) = &self.affinity else {
+            return head;
+        };
+        let (_, c, h, w) = features.size4().expect("4-d features");
+        let e = wq.size()[0];
+        let flat = features.permute([0, 2, 3, 1]).reshape([-1, c]);
+        let q = flat.index_select(0, idx).matmul(&wq.tr()); // [N,E]
+        let keys = flat.matmul(&wk.tr()); // [B·h·w,E]
+        let nidx = neighbour_indices(idx, h, w, &self.offsets); // [N,K]
+        let (n, k) = (nidx.size()[0], nidx.size()[1]);
+        let kn = keys.index_select(0, &nidx.reshape([-1])).view([n, k, e]);
+        let kind = kn.kind();
+        let dot = (kn * q.unsqueeze(1)).sum_dim_intlist(-1, false, kind);
+        head + dot / (e as f64).sqrt()
     }
 
     /// The U-Net's level-0 features `[B,C0,h,w]` (inputs as [`PdaNet::forward_t`]).
@@ -344,6 +401,20 @@ pub fn gather_pixels(logits: &Tensor, idx: &Tensor) -> Tensor {
         .permute([0, 2, 3, 1])
         .reshape([-1, k])
         .index_select(0, idx)
+}
+
+/// Flat indices `[N,K]` of the K window neighbours of the pixels `idx` (b·h·w + v·w + u) of
+/// `[B,·,h,w]` maps; neighbours outside the image are clamped to its border (their pairs are
+/// unlabelled in training and ignored by `mer apply`).
+fn neighbour_indices(idx: &Tensor, h: i64, w: i64, offsets: &(Tensor, Tensor)) -> Tensor {
+    let hw = h * w;
+    let b = idx.floor_divide_scalar(hw);
+    let rem = idx - &b * hw;
+    let v = rem.floor_divide_scalar(w);
+    let u = &rem - &v * w;
+    let nv = (v.unsqueeze(1) + offsets.1.unsqueeze(0)).clamp(0, h - 1);
+    let nu = (u.unsqueeze(1) + offsets.0.unsqueeze(0)).clamp(0, w - 1);
+    b.unsqueeze(1) * hw + nv * w + nu
 }
 
 /// Trainable parameters of a var store.
@@ -452,6 +523,52 @@ mod tests {
         assert_eq!(vars["enc0.0.bn.weight"].min().double_value(&[]), 1.0);
         let hb = &vars["head.bias"];
         assert!(hb.abs().max().double_value(&[]) <= 1.0 / 2.0 + 1e-7); // fan_in = 4
+    }
+
+    #[test]
+    fn affinity_head_matches_the_full_map_and_compares_the_right_neighbours() {
+        let cfg = PdaConfig {
+            affinity_channels: 6,
+            ..PdaConfig::test()
+        };
+        tch::manual_seed(5);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = PdaNet::new(&vs.root(), &cfg).unwrap();
+        let img = Tensor::randn([2, 3, 19, 23], (Kind::Float, Device::Cpu));
+        let radar = Tensor::zeros([2, 1, 19, 23], (Kind::Float, Device::Cpu));
+        let f = net.features_t(&img, &radar, false);
+        let y = net.forward_t(&img, &radar, false);
+        assert_eq!(y.size(), vec![2, 180, 19, 23]);
+        let idx = Tensor::from_slice(&[0i64, 5, 19 * 23 + 7, 2 * 19 * 23 - 1]);
+        let at = net.logits_at(&f, &idx);
+        assert!(
+            (&at - gather_pixels(&y, &idx))
+                .abs()
+                .max()
+                .double_value(&[])
+                < 1e-5
+        );
+        // By hand for pixel (b = 1, v = 10, u = 4) and offset (dx, dy) = (2, −3).
+        let (v, u) = (10i64, 4i64);
+        let k = cfg
+            .window
+            .offsets()
+            .iter()
+            .position(|&o| o == (2, -3))
+            .unwrap();
+        let p = Tensor::from_slice(&[19 * 23 + v * 23 + u]);
+        let fp = f.get(1).select(1, v).select(1, u); // [C0]
+        let fnb = f.get(1).select(1, v - 3).select(1, u + 2);
+        let (wq, wk) = net.affinity.as_ref().unwrap();
+        let dot = wq.mv(&fp).dot(&wk.mv(&fnb)).double_value(&[]) / 6f64.sqrt();
+        let head = (net.head_w.get(k as i64).dot(&fp) + net.head_b.get(k as i64)).double_value(&[]);
+        let got = net.logits_at(&f, &p).double_value(&[0, k as i64]);
+        assert!((got - (head + dot)).abs() < 1e-5, "{got} vs {}", head + dot);
+        // a config without the field (older checkpoints) reads back with no affinity
+        let mut js = serde_json::to_value(PdaConfig::tiny()).unwrap();
+        js.as_object_mut().unwrap().remove("affinity_channels");
+        let old: PdaConfig = serde_json::from_value(js).unwrap();
+        assert_eq!(old.affinity_channels, 0);
     }
 
     #[test]

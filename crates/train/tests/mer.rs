@@ -310,6 +310,16 @@ fn train_apply_twice_and_the_seven_channel_input() {
     train(&topts, &ProgressBar::hidden()).unwrap();
     let (cfg, _) = depthsense_model::checkpoint::read_config(&topts.out.join(BEST_CKPT)).unwrap();
     assert_eq!((cfg.radar_input, cfg.radar_channels), (RadarInput::Mer, 7));
+
+    // A corrupt input stops the pipelined `mer apply` with an error naming the file, and the
+    // sample has no depth map (so a rerun would redo it).
+    let bad = ds.sample_dir(&ds.index.samples[9]);
+    std::fs::write(bad.join("image.png"), b"not a png").unwrap();
+    let err = apply(&forced, &ProgressBar::hidden())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("image.png"), "{err}");
+    assert!(!bad.join("radar_mer_depth.png").exists());
 }
 
 #[test]

@@ -40,6 +40,10 @@ struct TrainArgs {
     /// PDA preset: paper (32/64/128/256 channels), tiny (8/16/32/64), test, or a JSON file.
     #[arg(long, default_value = "paper")]
     config: String,
+    /// Channels of the appearance-affinity term added to the head (0 = RC-PDA's plain head;
+    /// default: the preset's). See README, MER.
+    #[arg(long)]
+    affinity: Option<i64>,
     /// Epochs.
     #[arg(long, default_value_t = 20)]
     epochs: usize,
@@ -131,7 +135,14 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let opts = MerTrainOptions {
         data: a.data,
         out: a.out,
-        pda: PdaConfig::resolve(&a.config)?,
+        pda: {
+            let mut c = PdaConfig::resolve(&a.config)?;
+            if let Some(e) = a.affinity {
+                c.affinity_channels = e;
+                c.validate()?;
+            }
+            c
+        },
         epochs: a.epochs,
         batch_size: a.batch_size,
         lr: a.lr,

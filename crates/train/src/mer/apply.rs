@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_model::pda::{self, PdaConfig, PdaNet};
-use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::depth_png::{encode_png_fast, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use indicatif::ProgressBar;
@@ -179,7 +179,7 @@ fn write_sample(
         height: fh,
         depth_m: g.to_frame(&depth),
     };
-    let depth_png = encode_png(&depth_map).map_err(|e| TrainError::Data(e.to_string()))?;
+    let depth_png = encode_png_fast(&depth_map).map_err(|e| TrainError::Data(e.to_string()))?;
     for (name, bytes) in [(MER_CONF_FILE, conf_png), (MER_DEPTH_FILE, depth_png)] {
         let p = dir.join(name);
         write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
@@ -255,26 +255,7 @@ pub fn apply(
         .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
     progress.set_length(todo.len() as u64);
     let t0 = Instant::now();
-    let mut network_seconds = 0.0;
-    for chunk in todo.chunks(opts.batch_size.max(1)) {
-        let inputs: Vec<PdaInput> = pool.install(|| {
-            chunk
-                .par_iter()
-                .map(|e| load_input(&ds.sample_dir(e), &cfg, false))
-                .collect::<Result<_, _>>()
-        })?;
-        let tn = Instant::now();
-        let probs = predict_probs(&loaded.net, &inputs, device)?;
-        network_seconds += tn.elapsed().as_secs_f64();
-        pool.install(|| {
-            chunk
-                .par_iter()
-                .zip(&inputs)
-                .zip(&probs)
-                .try_for_each(|((e, i), p)| write_sample(&ds.sample_dir(e), i, p, &cfg))
-        })?;
-        progress.inc(chunk.len() as u64);
-    }
+    let network_seconds = run_pipeline(&ds, &todo, &loaded.net, opts, &pool, device, progress)?;
     let secs = t0.elapsed().as_secs_f64();
     let previews = write_previews(&ds, opts)?;
     Ok(MerApplySummary {
@@ -289,6 +270,82 @@ pub fn apply(
         network_seconds,
         record,
         previews,
+    })
+}
+
+/// The three stages of `mer apply` overlap: a loader thread decodes the next batch while the
+/// network runs on this one and a writer thread encodes the previous one (the network keeps
+/// libtorch's threads busy only part of the time on a CPU). Returns the network's seconds.
+/// The first error of any stage stops the others and is returned.
+fn run_pipeline(
+    ds: &Dataset,
+    todo: &[&IndexEntry],
+    net: &PdaNet,
+    opts: &MerApplyOptions,
+    pool: &rayon::ThreadPool,
+    device: Device,
+    progress: &ProgressBar,
+) -> Result<f64, TrainError> {
+    use std::sync::mpsc::sync_channel;
+    type Loaded<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, TrainError>);
+    type Predicted<'a> = (&'a [&'a IndexEntry], Vec<PdaInput>, Vec<Vec<f32>>);
+    let cfg = net.config();
+    std::thread::scope(|s| {
+        let (load_tx, load_rx) = sync_channel::<Loaded>(1);
+        let (write_tx, write_rx) = sync_channel::<Predicted>(1);
+        s.spawn(move || {
+            for chunk in todo.chunks(opts.batch_size.max(1)) {
+                let inputs = pool.install(|| {
+                    chunk
+                        .par_iter()
+                        .map(|e| load_input(&ds.sample_dir(e), cfg, false))
+                        .collect::<Result<Vec<_>, _>>()
+                });
+                let failed = inputs.is_err();
+                if load_tx.send((chunk, inputs)).is_err() || failed {
+                    break;
+                }
+            }
+        });
+        let writer = s.spawn(move || -> Result<(), TrainError> {
+            for (chunk, inputs, probs) in write_rx {
+                pool.install(|| {
+                    chunk
+                        .par_iter()
+                        .zip(&inputs)
+                        .zip(&probs)
+                        .try_for_each(|((e, i), p)| write_sample(&ds.sample_dir(e), i, p, cfg))
+                })?;
+                progress.inc(chunk.len() as u64);
+            }
+            Ok(())
+        });
+        let mut network_seconds = 0.0;
+        let mut result = Ok(());
+        for (chunk, inputs) in load_rx {
+            let step = inputs.and_then(|inputs| {
+                let tn = Instant::now();
+                let probs = predict_probs(net, &inputs, device)?;
+                network_seconds += tn.elapsed().as_secs_f64();
+                Ok((inputs, probs))
+            });
+            match step {
+                Ok((inputs, probs)) => {
+                    if write_tx.send((chunk, inputs, probs)).is_err() {
+                        break; // the writer failed: its error is reported below
+                    }
+                }
+                Err(e) => {
+                    result = Err(e);
+                    break;
+                }
+            }
+        }
+        drop(write_tx);
+        let written = writer
+            .join()
+            .unwrap_or_else(|_| Err(TrainError::Other("the MER writer thread panicked".into())));
+        result.and(written).map(|()| network_seconds)
     })
 }
 

@@ -20,7 +20,7 @@ pub mod train;
 
 use std::path::Path;
 
-use depthsense_nuscenes::depth_png::{decode_png, encode_png, DepthMap};
+use depthsense_nuscenes::depth_png::{decode_png, encode_png_fast, DepthMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::TrainError;
@@ -69,7 +69,7 @@ pub fn encode_conf_png(conf: &[f32], w: u32, h: u32) -> Result<Vec<u8>, TrainErr
             .map(|&c| conf_to_u16(c) as f32 / 256.0)
             .collect(),
     };
-    encode_png(&map).map_err(|e| TrainError::Data(e.to_string()))
+    encode_png_fast(&map).map_err(|e| TrainError::Data(e.to_string()))
 }
 
 /// Reads a confidence map written by [`encode_conf_png`] → (width, height, conf in [0, 1]).
