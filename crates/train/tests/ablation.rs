@@ -149,6 +149,41 @@ fn ablation_runs_reports_and_resumes() {
         v.larger_than_spread,
         Some((a.mean - b.mean).abs() > a.std.unwrap().max(b.std.unwrap()))
     );
+    // The paper's MER table appears with the late-sam-mer variant only; its cells are the
+    // mean ± std over seeds of each run's full report (checked for δ2, which no other table has).
+    assert!(depthsense_train::experiments::ablation::mer_table(&r, 80.0).is_empty());
+    let mut m = r.clone();
+    for x in m.runs.iter_mut().filter(|x| x.variant == "late-sam") {
+        x.variant = "late-sam-mer".into();
+    }
+    for (name, _) in m.models.iter_mut().filter(|(n, _)| n == "late-sam") {
+        *name = "late-sam-mer".into();
+    }
+    let table = depthsense_train::experiments::ablation::mer_table(&m, 80.0);
+    let d2: Vec<f64> = m
+        .runs
+        .iter()
+        .filter(|x| x.variant == "late-sam-mer")
+        .map(|x| {
+            x.report
+                .row("combined", "full", 80.0)
+                .unwrap()
+                .metrics
+                .delta2
+        })
+        .collect();
+    let stat = depthsense_train::experiments::Stat::of(&d2).unwrap();
+    let line = table
+        .lines()
+        .find(|l| l.starts_with("| late-sam-mer | full | 2 |"))
+        .unwrap_or_else(|| panic!("{table}"));
+    assert_eq!(
+        line.split(" | ").nth(4),
+        Some(stat.fmt(3).as_str()),
+        "{line}"
+    );
+    assert!(table.contains("| rgb | lowheight | 2 |"), "{table}");
+
     let csv = std::fs::read_to_string(out.join(CSV_FILE)).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
     assert!(lines[0].starts_with("kind,variant,seed,condition,region"));

@@ -545,6 +545,58 @@ fn csv(r: &AblationResult) -> String {
     s
 }
 
+/// The paper's MER table (SPEC §5 / §10): every variant, full image and low-height, combined
+/// conditions at `cap_m`, δ1–3, RMSE, AbsRel and RMSE_log (mean ± std over seeds, from each
+/// run's full test report). Written only when the ablation has the `late-sam-mer` variant.
+pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
+    if !r
+        .runs
+        .iter()
+        .any(|x| x.variant == Variant::LateSamMer.name())
+    {
+        return String::new();
+    }
+    type Get = fn(&depthsense_metrics::Metrics) -> f64;
+    let cols: [Get; 6] = [
+        |m| m.delta1,
+        |m| m.delta2,
+        |m| m.delta3,
+        |m| m.rmse,
+        |m| m.abs_rel,
+        |m| m.rmse_log,
+    ];
+    let mut md = format!(
+        "## MER table: full image and low-height, cap {cap_m:.0} m (test scenes)\n\n\
+         | variant | region | n | δ1 | δ2 | δ3 | RMSE (m) | AbsRel | RMSE_log |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for (name, _) in &r.models {
+        for region in ["full", "lowheight"] {
+            let rows: Vec<&depthsense_metrics::Row> = r
+                .runs
+                .iter()
+                .filter(|x| &x.variant == name)
+                .filter_map(|x| x.report.row("combined", region, cap_m))
+                .collect();
+            let cells: Vec<String> = cols
+                .iter()
+                .map(|g| {
+                    md_stat(&Stat::of(
+                        &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),
+                    ))
+                })
+                .collect();
+            md.push_str(&format!(
+                "| {name} | {region} | {} | {} |\n",
+                rows.len(),
+                cells.join(" | ")
+            ));
+        }
+    }
+    md.push('\n');
+    md
+}
+
 fn md_stat(s: &Option<Stat>) -> String {
     s.map_or("–".into(), |s| s.fmt(3))
 }
@@ -610,6 +662,8 @@ fn markdown(r: &AblationResult) -> String {
         }
         md.push('\n');
     }
+
+    md.push_str(&mer_table(r, cap));
 
     md.push_str(
         "## Per run (combined, full image)\n\n\
