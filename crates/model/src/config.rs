@@ -62,7 +62,8 @@ pub enum RadarBranchKind {
 }
 
 /// The spatial attention module's gate on its logit s (SPEC §6, CBAM; the 7x7 conv starts at
-/// zero, so s = 0 at initialisation and both gates start as the identity).
+/// zero, so s = 0 at initialisation and both gates start as the identity). The presets use
+/// `Bounded`; a config without the field (checkpoints written before it existed) is `Double`.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum AttentionGate {
@@ -186,7 +187,8 @@ pub struct ModelConfig {
     pub fusion: Fusion,
     /// CBAM spatial attention on the fused features (SPEC §6 "Fusion (paper)").
     pub attention: bool,
-    /// The attention module's gate (default: `double`; absent from the JSON when default).
+    /// The attention module's gate (presets: `bounded`; absent from the JSON when `double`,
+    /// which configs written before the field existed therefore read back as).
     #[serde(default, skip_serializing_if = "is_default_gate")]
     pub attention_gate: AttentionGate,
     /// Output head.
@@ -263,7 +265,7 @@ impl ModelConfig {
             decoder_channels: 256,
             fusion: Fusion::Late,
             attention: true,
-            attention_gate: AttentionGate::Double,
+            attention_gate: AttentionGate::Bounded,
             head: HeadKind::Ordinal,
             head_channels: 512,
             head_pre_dropout: false,

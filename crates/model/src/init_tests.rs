@@ -117,7 +117,12 @@ fn bounded_gate_starts_as_the_identity_and_never_closes() {
             .fill_(-50.0);
     });
     assert!(double.attend(&f).abs().max().double_value(&[]) < 1e-6);
-    // the default gate is not written into configs (older checkpoints read back unchanged)
-    let js = serde_json::to_string(&ModelConfig::tiny()).unwrap();
-    assert!(!js.contains("attention_gate"));
+    // the presets use the bounded gate; a config without the field (a checkpoint written
+    // before it existed) reads back with the gate it was trained with
+    assert_eq!(ModelConfig::tiny().attention_gate, AttentionGate::Bounded);
+    let mut js = serde_json::to_value(ModelConfig::tiny()).unwrap();
+    assert_eq!(js["attention_gate"], "bounded");
+    js.as_object_mut().unwrap().remove("attention_gate");
+    let old: ModelConfig = serde_json::from_value(js).unwrap();
+    assert_eq!(old.attention_gate, AttentionGate::Double);
 }
