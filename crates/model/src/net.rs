@@ -14,22 +14,23 @@ fn nearest_depth_pool(depth_m: &Tensor, s: i64) -> Tensor {
     if s <= 1 {
         return depth_m.shallow_clone();
     }
-    let valid = depth_m.gt(0.0).to_kind(depth_m.kind());
-    let inv = depth_m.clamp_min(1e-6).reciprocal() * valid;
-    let inv_s = inv.max_pool2d([s, s], [s, s], [0, 0], [1, 1], false);
-    inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind())
+    pool_nearest(depth_m, [s, s], false)
 }
 
 /// [`nearest_depth_pool`] to exactly `hw`: cells of ⌈H/h⌉×⌈W/w⌉ (ceil mode), then a nearest
 /// resize if the conv arithmetic of the decoder rounded differently.
 fn nearest_depth_pool_to(depth_m: &Tensor, hw: (i64, i64)) -> Tensor {
     let (hi, wi) = hw_of(depth_m);
-    let (kh, kw) = ((hi + hw.0 - 1) / hw.0.max(1), (wi + hw.1 - 1) / hw.1.max(1));
+    let k = [(hi + hw.0 - 1) / hw.0.max(1), (wi + hw.1 - 1) / hw.1.max(1)];
+    resize_to(&pool_nearest(depth_m, k, true), hw, true)
+}
+
+/// The nearest non-zero depth of each `k` cell (stride = k): max-pool of 1/d.
+fn pool_nearest(depth_m: &Tensor, k: [i64; 2], ceil_mode: bool) -> Tensor {
     let valid = depth_m.gt(0.0).to_kind(depth_m.kind());
     let inv = depth_m.clamp_min(1e-6).reciprocal() * valid;
-    let inv_s = inv.max_pool2d([kh, kw], [kh, kw], [0, 0], [1, 1], true);
-    let d = inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind());
-    resize_to(&d, hw, true)
+    let inv_s = inv.max_pool2d(k, k, [0, 0], [1, 1], ceil_mode);
+    inv_s.clamp_min(1e-12).reciprocal() * inv_s.gt(0.0).to_kind(inv_s.kind())
 }
 
 fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {
