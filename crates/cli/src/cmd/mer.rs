@@ -99,7 +99,8 @@ struct ApplyArgs {
     /// Recompute every sample; needed to replace maps written by another PDA model.
     #[arg(long)]
     force: bool,
-    /// Write preview pictures (raw, height-extended, MER at θ = 0.5 and 0.9) for N samples.
+    /// Write preview pictures (raw, height-extended, MER at θ = 0.5 and 0.9) for N samples
+    /// (evenly spaced over the test samples, or over all when the index has none).
     #[arg(long, default_value_t = 0)]
     preview: usize,
     /// Folder of the preview pictures (default DATA/mer_preview).

@@ -39,7 +39,8 @@ pub struct MerApplyOptions {
     pub batch_size: usize,
     /// Recompute every sample (and replace maps of another model).
     pub force: bool,
-    /// Write preview pictures for this many samples (evenly spaced over the index).
+    /// Write preview pictures for this many samples (evenly spaced over the test samples, or
+    /// over the index when it has none).
     pub preview: usize,
     /// Where previews go (default `<data>/mer_preview`).
     pub preview_dir: Option<PathBuf>,
@@ -360,7 +361,14 @@ fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, 
         .clone()
         .unwrap_or_else(|| ds.root.join("mer_preview"));
     std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
-    let entries = crate::trainer::subsample(&ds.index.samples, Some(opts.preview));
+    // Test samples when the index has them (what a user evaluates on), else any.
+    let test = ds.split("test");
+    let pool = if test.is_empty() {
+        ds.index.samples.clone()
+    } else {
+        test
+    };
+    let entries = crate::trainer::subsample(&pool, Some(opts.preview));
     let mut out = vec![];
     for e in &entries {
         let p = dir.join(format!("{}.png", e.sample_token));
