@@ -81,6 +81,7 @@ def paper():
         "decoder_channels": 256,
         "fusion": "late",
         "attention": True,
+        "attention_gate": "bounded",
         "head": "ordinal",
         "head_channels": 512,
         "head_pre_dropout": False,
@@ -144,6 +145,9 @@ def load_config(preset, config_json):
             c = json.load(f)
         if "config" in c and isinstance(c["config"], dict):  # `model-info --json` report
             c = c["config"]
+        # A ModelConfig written without the field has the 2σ(s) gate (serde's default), not
+        # the presets' bounded one.
+        c.setdefault("attention_gate", "double")
         base = paper()
         base.update(c)
         return base
@@ -358,6 +362,29 @@ class Attention(nn.Module):
         self.conv = conv(2, 1, 7, 1, 3, init="zero")
 
 
+def pool_nearest(d, k, ceil_mode):
+    """`net::pool_nearest`: the nearest non-zero depth of each k cell (max-pool of 1/d)."""
+    inv = d.clamp_min(1e-6).reciprocal() * (d > 0).to(d.dtype)
+    inv = F.max_pool2d(inv, k, k, 0, ceil_mode=ceil_mode)
+    return inv.clamp_min(1e-12).reciprocal() * (inv > 0).to(inv.dtype)
+
+
+class RadarSkip(nn.Module):
+    """`net::RadarSkip`: the radar map at the head's resolution (nearest return per cell, ceil
+    mode) → 3x3 conv + ReLU → 3x3 conv + ReLU."""
+
+    def __init__(self, cin, ch):
+        super().__init__()
+        self.conv1 = conv(cin, ch, 3, 1, 1)
+        self.conv2 = conv(ch, ch, 3, 1, 1)
+
+    def forward(self, radar, hw):
+        h, w = radar.shape[-2:]
+        k = (-(-h // hw[0]), -(-w // hw[1]))
+        r = resize_to(pool_nearest(radar, k, True), hw, True)
+        return F.relu(self.conv2(F.relu(self.conv1(r))))
+
+
 class DepthNet(nn.Module):
     """`net::DepthNet`: forward → [B,2K,h,w] ordinal logits or [B,1,h,w] metres
     (`forward_logits_t`)."""
@@ -372,18 +399,21 @@ class DepthNet(nn.Module):
         self.decoder = Decoder(cfg["decoder"], ch[1:], cfg["decoder_channels"])
         self.radar = RadarBranch(cfg) if cfg["fusion"] == "late" else None
         fused = self.decoder.out_channels + (self.radar.out_channels if self.radar else 0)
+        skip = cfg.get("radar_skip_channels", 0) if cfg["fusion"] == "late" else 0
+        self.radar_skip = RadarSkip(cfg["radar_channels"], skip) if skip > 0 else None
+        fused += skip
         self.attention = Attention() if cfg["attention"] else None
         out = 2 * cfg["sid"]["bins"] if cfg["head"] == "ordinal" else 1
         self.head = Head(fused, cfg["head_channels"], out)
 
     def downscale_inputs(self, image, radar):
         s = self.cfg["input_downscale"]
-        if s <= 1:
-            return image, radar
-        image = F.avg_pool2d(image, s, s, 0, False, True)
-        inv = radar.clamp_min(1e-6).reciprocal() * (radar > 0).to(radar.dtype)
-        inv = F.max_pool2d(inv, s, s, 0)
-        return image, inv.clamp_min(1e-12).reciprocal() * (inv > 0).to(inv.dtype)
+        r = self.cfg.get("radar_downscale") or s
+        if s > 1:
+            image = F.avg_pool2d(image, s, s, 0, False, True)
+        if r > 1:
+            radar = pool_nearest(radar, r, False)
+        return image, radar
 
     def forward(self, image, radar):
         cfg = self.cfg
@@ -397,10 +427,17 @@ class DepthNet(nn.Module):
         if self.radar is not None:
             r = self.radar(radar.to(image.dtype) * scale)
             f = torch.cat([f, resize_to(r, f.shape[-2:], False)], 1)
+        if self.radar_skip is not None:
+            f = torch.cat([f, self.radar_skip(radar.to(image.dtype) * scale, f.shape[-2:])], 1)
         if self.attention is not None:
             mean = f.mean(1, keepdim=True)
             mx = f.amax(1, keepdim=True)
-            f = f * (torch.sigmoid(self.attention.conv(torch.cat([mean, mx], 1))) * 2.0)
+            gate = torch.sigmoid(self.attention.conv(torch.cat([mean, mx], 1)))
+            # `AttentionGate`: a config without the field is the 2σ(s) gate
+            if cfg.get("attention_gate", "double") == "bounded":
+                f = f * (gate + 0.5)
+            else:
+                f = f * (gate * 2.0)
         p = cfg["dropout"]
         if cfg["head_pre_dropout"]:
             f = F.dropout2d(f, p, self.training)

@@ -165,7 +165,20 @@ fn torch_reference_computes_what_depthnet_computes() {
             "input-downscale=2",
         ])
         .unwrap();
-    for cfg in [ModelConfig::tiny(), released, early] {
+    // The presets' bounded attention gate with both radar options; and the 2σ(s) gate.
+    let tiny_radar = ModelConfig::tiny()
+        .with_options(&["input-downscale=2", "radar-downscale=1", "radar-skip=8"])
+        .unwrap();
+    let tiny_double = ModelConfig::tiny()
+        .with_options(&["attention-gate=double"])
+        .unwrap();
+    for cfg in [
+        ModelConfig::tiny(),
+        tiny_radar,
+        tiny_double,
+        released,
+        early,
+    ] {
         tch::manual_seed(3);
         let vs = nn::VarStore::new(Device::Cpu);
         let net = DepthNet::new(&vs.root(), &cfg).unwrap();
