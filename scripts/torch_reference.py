@@ -139,15 +139,30 @@ def tiny():
 PRESETS = {"paper": paper, "released": released, "tiny": tiny}
 
 
+# `ModelConfig` fields with `#[serde(default …)]` (crates/model/src/config.rs): their value when
+# a config JSON does not hold them (checkpoints written before the field existed, or the field at
+# its default and skipped when serialising).
+SERDE_DEFAULTS = {
+    "radar_input": "height",
+    "radar_in_metres": False,
+    "clamp_logits": False,
+    "attention_gate": "double",
+    "input_downscale": 1,
+    "radar_downscale": None,
+    "radar_skip_channels": 0,
+}
+
+
 def load_config(preset, config_json):
     if config_json:
         with open(config_json) as f:
             c = json.load(f)
         if "config" in c and isinstance(c["config"], dict):  # `model-info --json` report
             c = c["config"]
-        # A ModelConfig written without the field has the 2σ(s) gate (serde's default), not
-        # the presets' bounded one.
-        c.setdefault("attention_gate", "double")
+        # A field a ModelConfig JSON leaves out takes serde's default (what the Rust side reads),
+        # not the paper preset's value.
+        for k, v in SERDE_DEFAULTS.items():
+            c.setdefault(k, v)
         base = paper()
         base.update(c)
         return base

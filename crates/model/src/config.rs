@@ -189,7 +189,7 @@ pub struct ModelConfig {
     pub attention: bool,
     /// The attention module's gate (presets: `bounded`; absent from the JSON when `double`,
     /// which configs written before the field existed therefore read back as).
-    #[serde(default, skip_serializing_if = "is_default_gate")]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub attention_gate: AttentionGate,
     /// Output head.
     pub head: HeadKind,
@@ -238,13 +238,12 @@ pub struct ModelConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radar_downscale: Option<i64>,
     /// Late fusion only (ignored otherwise): channels of a high-resolution radar path (0 =
-    /// none, the paper). The
-    /// radar map is reduced to the head's resolution keeping the nearest return per cell (SPEC
-    /// §5) and passed through two 3x3 convs + ReLU; the result is concatenated with the image
-    /// and radar-branch features before the attention module. The paper's radar branch ends
+    /// none, the paper). The radar map is reduced to the head's resolution keeping the nearest
+    /// return per cell (SPEC §5) and passed through two 3x3 convs + ReLU; the result is
+    /// concatenated with the image and radar-branch features before the attention module. The paper's radar branch ends
     /// at stride 32, where one cell of the branch spans 32 columns and several depths; this
     /// path hands the head the radar depth at its own resolution (stride 8).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub radar_skip_channels: i64,
     /// Full-resolution output height (350, SPEC §3).
     pub out_height: i64,
@@ -441,12 +440,10 @@ fn one() -> i64 {
     1
 }
 
-fn is_default_gate(g: &AttentionGate) -> bool {
-    *g == AttentionGate::Double
-}
-
-fn is_zero(v: &i64) -> bool {
-    *v == 0
+/// serde `skip_serializing_if` for options at their default (configs written before the
+/// option existed read back unchanged, and new configs that do not use it look the same).
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
 }
 
 fn parse_bool(key: &str, v: &str) -> Result<bool, ModelError> {

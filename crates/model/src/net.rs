@@ -353,7 +353,7 @@ impl DepthNet {
             + radar.as_ref().map_or(0, |r| r.out_channels)
             + radar_skip.as_ref().map_or(0, |_| skip_ch);
         // SPEC §6: CBAM spatial attention, [mean, max] over channels → 7x7 conv → gate. The conv
-        // starts at zero so that the gate 2σ(s) starts as the identity (see `forward_logits_t`).
+        // starts at zero so that either gate starts as the identity (see `attend`).
         let attention = cfg.attention.then(|| {
             Conv::with_init(
                 &root.sub("attention").sub("conv"),
@@ -472,10 +472,10 @@ impl DepthNet {
     /// The spatial attention module (SPEC §6, CBAM): `[B,C,h,w]` → `[B,C,h,w]`, the features
     /// times a per-pixel gate from [mean, max] over channels → 7x7 conv. Identity without it.
     ///
-    /// Gate 2σ(s) instead of the paper's σ(s): the same function class (the head's first layer
-    /// is a linear 1x1 conv, which absorbs the constant 2), but with the conv starting at zero
-    /// the module starts as the identity instead of halving (σ(0) = ½) or, with a random conv,
-    /// saturating the features. [`AttentionGate::Bounded`]: ½ + σ(s) (see there).
+    /// The gate is [`ModelConfig::attention_gate`]: ½ + σ(s) in the presets (cannot switch the
+    /// features off), or 2σ(s) (the paper's σ(s) times 2, which the linear 1x1 head absorbs).
+    /// With the conv starting at zero both start as the identity instead of halving (σ(0) = ½)
+    /// or, with a random conv, saturating the features.
     pub(crate) fn attend(&self, f: &Tensor) -> Tensor {
         match &self.attention {
             Some(att) => {
@@ -606,12 +606,18 @@ mod downscale_tests {
         assert_eq!(nearest_depth_pool(&d, 1).size(), [1, 1, 2, 4]);
     }
 
-    #[test]
-    fn radar_downscale_sets_the_radar_branch_resolution_only() {
+    /// `tiny` seeing its 64x128 input at 1/2.
+    fn tiny_half_64x128() -> ModelConfig {
         let mut cfg = ModelConfig::tiny();
         cfg.input_downscale = 2;
         cfg.out_height = 64;
         cfg.out_width = 128;
+        cfg
+    }
+
+    #[test]
+    fn radar_downscale_sets_the_radar_branch_resolution_only() {
+        let mut cfg = tiny_half_64x128();
         let vs = nn::VarStore::new(tch::Device::Cpu);
         let img = Tensor::zeros([1, 3, 64, 128], (Kind::Float, tch::Device::Cpu));
         let radar = Tensor::ones([1, 1, 64, 128], (Kind::Float, tch::Device::Cpu)) * 10.0;
@@ -656,10 +662,7 @@ mod downscale_tests {
 
     #[test]
     fn radar_skip_adds_a_path_at_head_resolution_that_sees_one_return() {
-        let mut cfg = ModelConfig::tiny();
-        cfg.input_downscale = 2;
-        cfg.out_height = 64;
-        cfg.out_width = 128;
+        let mut cfg = tiny_half_64x128();
         cfg.radar_skip_channels = 8;
         cfg.attention = false;
         tch::manual_seed(3);

@@ -62,12 +62,8 @@ pub struct LoadOptions {
     /// radar returns (with their height-extended strips), drawn from the sample's random
     /// stream, so that a network cannot read "no return here" as a depth cue. 0 = off (no
     /// draw is made: runs without it are unchanged).
-    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub train_radar_drop: f64,
-}
-
-fn is_zero_f64(v: &f64) -> bool {
-    *v == 0.0
 }
 
 impl Default for LoadOptions {

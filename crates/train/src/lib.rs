@@ -31,3 +31,9 @@ pub mod sgd;
 pub mod trainer;
 
 pub use error::TrainError;
+
+/// serde `skip_serializing_if` for optional settings that are off at their default (0, false,
+/// empty): the JSON of runs that do not use them stays as it was before they existed.
+pub(crate) fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}

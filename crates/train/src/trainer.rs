@@ -92,29 +92,21 @@ pub struct TrainOptions {
     /// Read the training losses to the host every N iterations (one synchronisation per N on
     /// CUDA; always before a checkpoint, a stop and the epoch end). 0 = automatic: 1 on the CPU
     /// and in data-parallel jobs, [`CUDA_LOSS_READ_EVERY`] on CUDA. Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub loss_read_every: u64,
     /// Training-time radar dropout: each training sample loses a fraction U(0, p) of its
     /// radar returns ([`crate::data::LoadOptions::train_radar_drop`]). 0 = off (the paper).
     /// Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations before the poly decay (0 = none,
     /// the paper). Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub warmup_iters: u64,
-}
-
-fn is_zero_f64(v: &f64) -> bool {
-    *v == 0.0
 }
 
 /// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
 pub const CUDA_LOSS_READ_EVERY: u64 = 25;
-
-fn is_zero(n: &u64) -> bool {
-    *n == 0
-}
 
 impl Default for TrainOptions {
     fn default() -> Self {

@@ -113,7 +113,7 @@ impl Variant {
         if !attention {
             cfg.attention_gate = Default::default();
         }
-        if fusion != depthsense_model::Fusion::Late {
+        if fusion != Fusion::Late {
             cfg.radar_skip_channels = 0;
         }
     }

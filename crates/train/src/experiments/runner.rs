@@ -47,19 +47,11 @@ pub struct RunSettings {
     /// The trainer's `val_every_scene` (partition of data without split lists).
     pub val_every_scene: usize,
     /// The trainer's training-time radar dropout (0 = off; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "is_zero_f64")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub train_radar_drop: f64,
     /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "is_zero_u64")]
+    #[serde(default, skip_serializing_if = "crate::is_default")]
     pub warmup_iters: u64,
-}
-
-fn is_zero_u64(v: &u64) -> bool {
-    *v == 0
-}
-
-fn is_zero_f64(v: &f64) -> bool {
-    *v == 0.0
 }
 
 impl Default for RunSettings {
