@@ -39,8 +39,15 @@ build: setup
 demo: build
 	$(BIN) demo --out runs/demo
 
+# The test binaries run with the memory settings `depthsense` makes at start (tune_memory in
+# crates/cli/src/main.rs): glibc keeps freed memory and libtorch puts large tensors on huge
+# pages, or libtorch's per-layer tensors page-fault in anew every step. Built first without
+# them, so that the compiler runs with glibc's defaults.
+TEST_MALLOC := glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824
+
 test: setup
-	DEPTHSENSE_REQUIRE_DEVKIT=1 $(CARGO) test --workspace
+	$(CARGO) test --workspace --no-run
+	GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 DEPTHSENSE_REQUIRE_DEVKIT=1 $(CARGO) test --workspace
 
 # `depthsense report`'s page in headless Chromium (Debian's package; installed with apt-get when
 # missing, as root). `make test` skips that test when chromium is absent; here it must run.

@@ -70,7 +70,32 @@ fn run() -> anyhow::Result<ExitCode> {
     }
 }
 
+/// libtorch allocates and frees several-MB tensors in every layer; by default glibc hands each
+/// one back to the kernel (mmap above a threshold, heap trimming), so every forward and
+/// backward pass page-faults its memory in again, 4 kB at a time. Measured on 2 cores
+/// (BENCHMARKS.md, "Allocator"): 22 % of `mer apply`'s CPU time was the kernel faulting in
+/// zeroed pages, and a third of a demo training epoch's. Two settings, before any tensor
+/// exists:
+/// - glibc keeps freed memory in the process: allocations up to 32 MB (glibc's ceiling for
+///   this setting) come from the heap, which is trimmed only above 1 GB free;
+/// - libtorch's CPU allocator aligns tensors of 2 MB and more to 2 MB and asks for transparent
+///   huge pages (its own `THP_MEM_ALLOC_ENABLE`; a user's setting is kept), so the larger
+///   tensors, which glibc always maps afresh, fault in 2 MB at a time.
+fn tune_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator parameters; called before any other thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
+    if std::env::var_os("THP_MEM_ALLOC_ENABLE").is_none() {
+        // Still single-threaded here; libtorch reads it at its first large allocation.
+        std::env::set_var("THP_MEM_ALLOC_ENABLE", "1");
+    }
+}
+
 fn main() -> ExitCode {
+    tune_memory();
     match run() {
         Ok(code) => code,
         Err(err) => {

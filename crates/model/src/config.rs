@@ -436,8 +436,12 @@ impl ModelConfig {
     }
 }
 
-fn one() -> i64 {
+pub(crate) fn one() -> i64 {
     1
+}
+
+pub(crate) fn is_one(v: &i64) -> bool {
+    *v == 1
 }
 
 /// serde `skip_serializing_if` for options at their default (configs written before the

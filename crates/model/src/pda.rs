@@ -74,8 +74,20 @@ impl MerWindow {
 pub struct PdaConfig {
     /// Preset name (informational).
     pub name: String,
-    /// Channels of each U-Net level; level 0 runs at the grid resolution, level i at 1/2^i.
+    /// Channels of each U-Net level; level 0 runs at 1/`input_stride` of the grid, level i at
+    /// 1/(`input_stride`·2^i).
     pub widths: Vec<i64>,
+    /// 1: level 0 runs at the grid resolution (RC-PDA). s = 2 or 4: the 5 input channels are
+    /// folded s×s into 5·s² channels (space to depth, the grid zero-padded to a
+    /// multiple of s), every level runs s times coarser, and the head predicts the K logits
+    /// for each of the s² positions inside a cell — the inverse fold (pixel shuffle), computed
+    /// only at the radar pixels. The labels, the window and the grid are those of SPEC §5
+    /// either way; only the network's cost changes (the `fast` preset, README "MER").
+    #[serde(
+        default = "crate::config::one",
+        skip_serializing_if = "crate::config::is_one"
+    )]
+    pub input_stride: i64,
     pub window: MerWindow,
     /// MER grid = training frame / `grid_scale` (2: 400x175, RC-PDA's 1/4 of the 1600x900
     /// camera image, so that the window spans what SPEC §5's "1/4 resolution" window spans).
@@ -110,6 +122,7 @@ impl PdaConfig {
             rel_threshold: 0.05,
             radar_scale_m: 80.0,
             affinity_channels: 0,
+            input_stride: 1,
         }
     }
 
@@ -119,6 +132,16 @@ impl PdaConfig {
             name: "tiny".into(),
             widths: vec![8, 16, 32, 64],
             ..Self::paper()
+        }
+    }
+
+    /// `tiny`'s levels on the grid folded 2x2 (`input_stride` 2): level 0 at 200x88. For CPUs
+    /// and `mer apply` at `prepare`'s rate (BENCHMARKS.md, MER).
+    pub fn fast() -> Self {
+        PdaConfig {
+            name: "fast".into(),
+            input_stride: 2,
+            ..Self::tiny()
         }
     }
 
@@ -136,13 +159,14 @@ impl PdaConfig {
         match spec.trim().to_ascii_lowercase().as_str() {
             "paper" => return Ok(Self::paper()),
             "tiny" => return Ok(Self::tiny()),
+            "fast" => return Ok(Self::fast()),
             "test" => return Ok(Self::test()),
             _ => {}
         }
         let path = Path::new(spec);
         if !path.is_file() {
             return Err(ModelError::InvalidConfig(format!(
-                "unknown PDA preset `{spec}` (paper, tiny, test, or a PDA config JSON file)"
+                "unknown PDA preset `{spec}` (paper, tiny, fast, test, or a PDA config JSON file)"
             )));
         }
         let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
@@ -169,6 +193,9 @@ impl PdaConfig {
                 "affinity_channels {} (0..=256)",
                 self.affinity_channels
             ));
+        }
+        if ![1, 2, 4].contains(&self.input_stride) {
+            return bad(format!("input_stride {} (1, 2 or 4)", self.input_stride));
         }
         if !(1..=8).contains(&self.grid_scale) {
             return bad(format!("grid_scale {} (1..=8)", self.grid_scale));
@@ -218,8 +245,10 @@ pub struct PdaNet {
     enc: Vec<[Cbr; 2]>,
     /// Per level below the last: conv-BN-ReLU on [upsampled coarser level, skip].
     dec: Vec<Cbr>,
-    /// The 1x1 head as a matrix `[K, C0]` and bias `[K]` (an `nn.Conv2d(C0, K, 1)` with
-    /// PyTorch's init), applied only at the pixels asked for ([`PdaNet::logits_at`]).
+    /// The 1x1 head as a matrix `[K·s², C0]` and bias `[K·s²]` (an `nn.Conv2d(C0, K·s², 1)`
+    /// with PyTorch's init; s = `input_stride`, row k·s² + (dv·s + du) is neighbour k of the
+    /// pixel at (du, dv) inside its s×s cell), applied only at the pixels asked for
+    /// ([`PdaNet::logits_at`]).
     head_w: Tensor,
     head_b: Tensor,
     /// Affinity projections W_q, W_k `[E, C0]` (`affinity_channels` > 0).
@@ -246,7 +275,7 @@ impl PdaNet {
         for (i, &c) in w.iter().enumerate() {
             let pi = root.sub(&format!("enc{i}"));
             let (cin, stride) = if i == 0 {
-                (INPUT_CHANNELS, 1)
+                (INPUT_CHANNELS * cfg.input_stride * cfg.input_stride, 1)
             } else {
                 (w[i - 1], 2)
             };
@@ -258,7 +287,8 @@ impl PdaNet {
         let dec = (0..w.len() - 1)
             .map(|i| Cbr::new(&root.sub(&format!("dec{i}")), w[i + 1] + w[i], w[i], 1))
             .collect();
-        let k = cfg.window.len() as i64;
+        // K logits for each of the s² positions of a cell (s = input_stride)
+        let k = cfg.window.len() as i64 * cfg.input_stride * cfg.input_stride;
         let bound = 1.0 / (w[0] as f64).sqrt();
         let u = nn::Init::Uniform {
             lo: -bound,
@@ -302,36 +332,67 @@ impl PdaNet {
     /// meant for tests and small images.
     pub fn forward_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
         let f = self.features_t(image, radar, train);
-        let (k, c) = (self.head_w.size()[0], self.head_w.size()[1]);
+        let (h, w) = f.grid_hw;
+        let k = self.cfg.window.len() as i64;
         if self.affinity.is_some() {
-            let (b, _, h, w) = f.size4().expect("4-d features");
-            let idx = Tensor::arange(b * h * w, (Kind::Int64, f.device()));
+            let b = f.map.size()[0];
+            let idx = Tensor::arange(b * h * w, (Kind::Int64, f.map.device()));
             return self
                 .logits_at(&f, &idx)
                 .view([b, h, w, k])
                 .permute([0, 3, 1, 2]);
         }
-        f.conv2d(
-            &self.head_w.view([k, c, 1, 1]),
-            Some(&self.head_b),
-            [1, 1],
-            [0, 0],
-            [1, 1],
-            1,
-        )
+        let (ks, c) = (self.head_w.size()[0], self.head_w.size()[1]);
+        let s = self.cfg.input_stride;
+        f.map
+            .conv2d(
+                &self.head_w.view([ks, c, 1, 1]),
+                Some(&self.head_b),
+                [1, 1],
+                [0, 0],
+                [1, 1],
+                1,
+            )
+            .pixel_shuffle(s)
+            .narrow(2, 0, h)
+            .narrow(3, 0, w)
     }
 
-    /// Logits `[N,K]` at flat pixel indices `idx` (b·h·w + v·w + u, Int64) of the level-0
-    /// features `[B,C0,h,w]` of [`PdaNet::features_t`]; equal to [`gather_pixels`] of
-    /// [`PdaNet::forward_t`], without computing the head at every other pixel.
-    pub fn logits_at(&self, features: &Tensor, idx: &Tensor) -> Tensor {
-        let head = gather_pixels(features, idx).matmul(&self.head_w.tr()) + &self.head_b;
+    /// Logits `[N,K]` at flat grid indices `idx` (b·h·w + v·w + u, Int64) of the features of
+    /// [`PdaNet::features_t`]; equal to [`gather_pixels`] of [`PdaNet::forward_t`], without
+    /// computing the head at every other pixel.
+    pub fn logits_at(&self, f: &PdaFeatures, idx: &Tensor) -> Tensor {
+        let s = self.cfg.input_stride;
+        let (h, w) = f.grid_hw;
+        let head = if s == 1 {
+            gather_pixels(&f.map, idx).matmul(&self.head_w.tr()) + &self.head_b
+        } else {
+            let (hc, wc) = (f.map.size()[2], f.map.size()[3]);
+            let (b, v, u) = split_index(idx, h, w);
+            let cell = &b * (hc * wc) + v.floor_divide_scalar(s) * wc + u.floor_divide_scalar(s);
+            let phase = v.remainder(s) * s + u.remainder(s); // [N]
+            let all = gather_pixels(&f.map, &cell).matmul(&self.head_w.tr()) + &self.head_b;
+            let n = all.size()[0];
+            let k = self.cfg.window.len() as i64;
+            let pick = phase.view([n, 1, 1]).expand([n, k, 1], false);
+            all.view([n, k, s * s]).gather(2, &pick, false).view([n, k])
+        };
         let Some((wq, wk)) = &self.affinity else {
             return head;
         };
-        let (_, c, h, w) = features.size4().expect("4-d features");
+        let c = f.map.size()[1];
         let e = wq.size()[0];
-        let flat = features.permute([0, 2, 3, 1]).reshape([-1, c]);
+        // features at every grid pixel (a coarse cell's vector for each of its s² pixels)
+        let full = if s == 1 {
+            f.map.shallow_clone()
+        } else {
+            let (hc, wc) = (f.map.size()[2], f.map.size()[3]);
+            f.map
+                .upsample_nearest2d([hc * s, wc * s], None, None)
+                .narrow(2, 0, h)
+                .narrow(3, 0, w)
+        };
+        let flat = full.permute([0, 2, 3, 1]).reshape([-1, c]);
         let q = flat.index_select(0, idx).matmul(&wq.tr()); // [N,E]
         let keys = flat.matmul(&wk.tr()); // [B·h·w,E]
         let nidx = neighbour_indices(idx, h, w, &self.offsets); // [N,K]
@@ -342,28 +403,63 @@ impl PdaNet {
         head + dot / (e as f64).sqrt()
     }
 
-    /// The U-Net's level-0 features `[B,C0,h,w]` (inputs as [`PdaNet::forward_t`]).
-    pub fn features_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> Tensor {
+    /// The U-Net's level-0 features (inputs as [`PdaNet::forward_t`]).
+    pub fn features_t(&self, image: &Tensor, radar: &Tensor, train: bool) -> PdaFeatures {
+        let grid_hw = (image.size()[2], image.size()[3]);
         let radar = radar.to_kind(image.kind());
         let mask = radar.gt(0.0).to_kind(image.kind());
-        let x = Tensor::cat(
+        let mut x = Tensor::cat(
             &[image.shallow_clone(), &radar / self.cfg.radar_scale_m, mask],
             1,
         );
+        let s = self.cfg.input_stride;
+        if s > 1 {
+            let pad = |n: i64| (s - n % s) % s;
+            let (ph, pw) = (pad(grid_hw.0), pad(grid_hw.1));
+            if ph + pw > 0 {
+                x = x.constant_pad_nd([0, pw, 0, ph]);
+            }
+            x = space_to_depth(&x, s);
+        }
         let mut skips = Vec::with_capacity(self.enc.len());
-        let mut x = x;
         for [a, b] in &self.enc {
             x = b.forward_t(&a.forward_t(&x, train), train);
             skips.push(x.shallow_clone());
         }
         for i in (0..self.dec.len()).rev() {
             let skip = &skips[i];
-            let s = skip.size();
-            let up = x.upsample_nearest2d([s[2], s[3]], None, None);
+            let sz = skip.size();
+            let up = x.upsample_nearest2d([sz[2], sz[3]], None, None);
             x = self.dec[i].forward_t(&Tensor::cat(&[up, skip.shallow_clone()], 1), train);
         }
-        x
+        PdaFeatures { map: x, grid_hw }
     }
+}
+
+/// The U-Net's level-0 features and the grid they describe.
+pub struct PdaFeatures {
+    /// `[B, C0, ⌈h/s⌉, ⌈w/s⌉]`, s = `input_stride`.
+    pub map: Tensor,
+    /// `(h, w)` of the grid the inputs were given at.
+    pub grid_hw: (i64, i64),
+}
+
+/// `[B,C,H,W]` → `[B,C·s²,H/s,W/s]`, channel c·s² + i·s + j = pixel (s·y + i, s·x + j) of
+/// channel c: `pixel_unshuffle`, as a view and one copy (about twice as fast on a CPU).
+fn space_to_depth(x: &Tensor, s: i64) -> Tensor {
+    let (b, c, h, w) = x.size4().expect("4-d input");
+    x.view([b, c, h / s, s, w / s, s])
+        .permute([0, 1, 3, 5, 2, 4])
+        .reshape([b, c * s * s, h / s, w / s])
+}
+
+/// (b, v, u) of flat indices b·h·w + v·w + u.
+fn split_index(idx: &Tensor, h: i64, w: i64) -> (Tensor, Tensor, Tensor) {
+    let b = idx.floor_divide_scalar(h * w);
+    let rem = idx - &b * (h * w);
+    let v = rem.floor_divide_scalar(w);
+    let u = &rem - &v * w;
+    (b, v, u)
 }
 
 /// Weights of the two classes so that positives and negatives weigh half each (class-balanced
@@ -408,10 +504,7 @@ pub fn gather_pixels(logits: &Tensor, idx: &Tensor) -> Tensor {
 /// unlabelled in training and ignored by `mer apply`).
 fn neighbour_indices(idx: &Tensor, h: i64, w: i64, offsets: &(Tensor, Tensor)) -> Tensor {
     let hw = h * w;
-    let b = idx.floor_divide_scalar(hw);
-    let rem = idx - &b * hw;
-    let v = rem.floor_divide_scalar(w);
-    let u = &rem - &v * w;
+    let (b, v, u) = split_index(idx, h, w);
     let nv = (v.unsqueeze(1) + offsets.1.unsqueeze(0)).clamp(0, h - 1);
     let nu = (u.unsqueeze(1) + offsets.0.unsqueeze(0)).clamp(0, w - 1);
     b.unsqueeze(1) * hw + nv * w + nu
@@ -557,8 +650,8 @@ mod tests {
             .position(|&o| o == (2, -3))
             .unwrap();
         let p = Tensor::from_slice(&[19 * 23 + v * 23 + u]);
-        let fp = f.get(1).select(1, v).select(1, u); // [C0]
-        let fnb = f.get(1).select(1, v - 3).select(1, u + 2);
+        let fp = f.map.get(1).select(1, v).select(1, u); // [C0]
+        let fnb = f.map.get(1).select(1, v - 3).select(1, u + 2);
         let (wq, wk) = net.affinity.as_ref().unwrap();
         let dot = wq.mv(&fp).dot(&wk.mv(&fnb)).double_value(&[]) / 6f64.sqrt();
         let head = (net.head_w.get(k as i64).dot(&fp) + net.head_b.get(k as i64)).double_value(&[]);
@@ -569,6 +662,59 @@ mod tests {
         js.as_object_mut().unwrap().remove("affinity_channels");
         let old: PdaConfig = serde_json::from_value(js).unwrap();
         assert_eq!(old.affinity_channels, 0);
+    }
+
+    #[test]
+    fn input_stride_2_head_picks_the_cell_position_and_matches_the_full_map() {
+        let cfg = PdaConfig {
+            input_stride: 2,
+            ..PdaConfig::test()
+        };
+        tch::manual_seed(3);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = PdaNet::new(&vs.root(), &cfg).unwrap();
+        let vars = vs.variables();
+        assert_eq!(vars["enc0.0.conv.weight"].size(), vec![4, 20, 3, 3]);
+        assert_eq!(vars["head.weight"].size(), vec![4 * 180, 4]);
+        // odd grid: padded to 20x24, folded to 10x12
+        let img = Tensor::randn([2, 3, 19, 23], (Kind::Float, Device::Cpu));
+        let radar = Tensor::rand([2, 1, 19, 23], (Kind::Float, Device::Cpu)) * 30.0;
+        let f = net.features_t(&img, &radar, false);
+        assert_eq!(f.map.size(), vec![2, 4, 10, 12]);
+        assert_eq!(f.grid_hw, (19, 23));
+        let y = net.forward_t(&img, &radar, false);
+        assert_eq!(y.size(), vec![2, 180, 19, 23]);
+        // every pixel, all four cell positions and the padded border included
+        let idx = Tensor::arange(2 * 19 * 23, (Kind::Int64, Device::Cpu));
+        let diff = (net.logits_at(&f, &idx) - gather_pixels(&y, &idx))
+            .abs()
+            .max();
+        assert!(diff.double_value(&[]) < 1e-5);
+        // by hand: pixel (b = 1, v = 7, u = 4) lies at (dv, du) = (1, 0) of cell (3, 2)
+        let (v, u, k) = (7i64, 4i64, 37i64);
+        let fp = f.map.get(1).select(1, 3).select(1, 2);
+        let row = k * 4 + 2;
+        let want = (net.head_w.get(row).dot(&fp) + net.head_b.get(row)).double_value(&[]);
+        let p = Tensor::from_slice(&[19 * 23 + v * 23 + u]);
+        let got = net.logits_at(&f, &p).double_value(&[0, k]);
+        assert!((got - want).abs() < 1e-5, "{got} vs {want}");
+        // older configs read back with stride 1, and stride 1 is not written
+        let js = serde_json::to_value(PdaConfig::tiny()).unwrap();
+        assert!(js.get("input_stride").is_none());
+        assert_eq!(
+            serde_json::from_value::<PdaConfig>(js)
+                .unwrap()
+                .input_stride,
+            1
+        );
+        let x = Tensor::randn([2, 5, 8, 12], (Kind::Float, Device::Cpu));
+        assert!(space_to_depth(&x, 2).equal(&x.pixel_unshuffle(2)));
+        assert!(space_to_depth(&x, 4).equal(&x.pixel_unshuffle(4)));
+        let bad = PdaConfig {
+            input_stride: 3,
+            ..PdaConfig::test()
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]

@@ -91,7 +91,6 @@ fn encode_with(
     map: &DepthMap,
     compression: image::codecs::png::CompressionType,
 ) -> Result<Vec<u8>, DepthPngError> {
-    use image::ImageEncoder;
     let want = map.width as usize * map.height as usize;
     if map.depth_m.len() != want {
         return Err(DepthPngError::Size {
@@ -101,18 +100,50 @@ fn encode_with(
             want,
         });
     }
-    // `image` takes 16-bit samples in native byte order and writes them big-endian.
-    let mut raw = Vec::with_capacity(want * 2);
-    for d in &map.depth_m {
-        raw.extend_from_slice(&encode_value(*d).to_ne_bytes());
+    let values: Vec<u16> = map.depth_m.iter().map(|&d| encode_value(d)).collect();
+    encode_u16(map.width, map.height, &values, compression)
+}
+
+/// A 16-bit grey PNG of stored values (row-major `width × height`, e.g. [`encode_value`]s),
+/// written as [`encode_png_fast`] writes a map: for callers that already hold stored values.
+pub fn encode_png16_fast(
+    width: u32,
+    height: u32,
+    values: &[u16],
+) -> Result<Vec<u8>, DepthPngError> {
+    let want = width as usize * height as usize;
+    if values.len() != want {
+        return Err(DepthPngError::Size {
+            width,
+            height,
+            got: values.len(),
+            want,
+        });
     }
-    let mut out = Vec::with_capacity(want);
+    encode_u16(
+        width,
+        height,
+        values,
+        image::codecs::png::CompressionType::Fast,
+    )
+}
+
+fn encode_u16(
+    width: u32,
+    height: u32,
+    values: &[u16],
+    compression: image::codecs::png::CompressionType,
+) -> Result<Vec<u8>, DepthPngError> {
+    use image::ImageEncoder;
+    // `image` takes 16-bit samples in native byte order and writes them big-endian.
+    let raw: Vec<u8> = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    let mut out = Vec::with_capacity(values.len());
     image::codecs::png::PngEncoder::new_with_quality(
         &mut out,
         compression,
         image::codecs::png::FilterType::Adaptive,
     )
-    .write_image(&raw, map.width, map.height, image::ExtendedColorType::L16)
+    .write_image(&raw, width, height, image::ExtendedColorType::L16)
     .map_err(|e| DepthPngError::Decode {
         path: "<memory>".into(),
         reason: e.to_string(),

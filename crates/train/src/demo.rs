@@ -39,6 +39,11 @@ pub struct DemoOptions {
     pub seed: u64,
     /// Override the number of epochs of each training run.
     pub epochs: Option<usize>,
+    /// Override the world's size: scenes, and keyframes per scene.
+    #[serde(default)]
+    pub scenes: Option<usize>,
+    #[serde(default)]
+    pub keyframes_per_scene: Option<usize>,
     /// Loader / prepare threads (0 = all cores).
     pub jobs: usize,
     /// Test samples drawn in the report.
@@ -53,6 +58,8 @@ impl Default for DemoOptions {
             quick: false,
             seed: 7,
             epochs: None,
+            scenes: None,
+            keyframes_per_scene: None,
             jobs: 0,
             pictures: 4,
         }
@@ -139,6 +146,12 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
     }
     if let Some(e) = opts.epochs {
         p.epochs = e.max(1);
+    }
+    if let Some(n) = opts.scenes {
+        p.scenes = n.max(1);
+    }
+    if let Some(n) = opts.keyframes_per_scene {
+        p.keyframes_per_scene = n.max(1);
     }
     p
 }

@@ -90,4 +90,15 @@ fn demo_plans_fit_the_device() {
         false,
     );
     assert!(quick.scenes * quick.keyframes_per_scene <= 20);
+    // --scenes / --keyframes-per-scene override the plan (also a quick one)
+    let sized = plan(
+        &DemoOptions {
+            quick: true,
+            scenes: Some(20),
+            keyframes_per_scene: Some(12),
+            ..DemoOptions::default()
+        },
+        false,
+    );
+    assert_eq!((sized.scenes, sized.keyframes_per_scene), (20, 12));
 }

@@ -235,14 +235,21 @@ fn train_apply_twice_and_the_seven_channel_input() {
         "recomputing gives byte-identical maps"
     );
 
-    // Another model's maps are not mixed in without --force.
+    // Another model's maps are not mixed in without --force (that model on the grid folded
+    // 2x2, `input_stride` 2, which its checkpoint keeps).
     let run2 = tmp.path().join("pda2");
     let o2 = MerTrainOptions {
         epochs: 1,
         seed: 3,
+        pda: PdaConfig {
+            input_stride: 2,
+            ..PdaConfig::test()
+        },
         ..train_opts(&data, &run2)
     };
     train_pda(&o2, &ProgressBar::hidden()).unwrap();
+    let loaded2 = depthsense_model::pda::load(&run2.join(BEST_CKPT), tch::Device::Cpu).unwrap();
+    assert_eq!(loaded2.config.input_stride, 2);
     let other = MerApplyOptions {
         checkpoint: run2.join(BEST_CKPT),
         ..opts.clone()
@@ -258,6 +265,18 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let stored = input.mer.take().unwrap();
     let pda = depthsense_model::pda::load(&ck, tch::Device::Cpu).unwrap();
     attach_mer(&mut input, &pda.net, tch::Device::Cpu).unwrap();
+    assert_eq!(input.mer.as_ref().unwrap(), &stored);
+    // ... and so for the 2x2-folded model, applied with --force on one network thread.
+    let forced2 = MerApplyOptions {
+        force: true,
+        preview: 0,
+        network_threads: 1,
+        ..other
+    };
+    assert_eq!(apply(&forced2, &ProgressBar::hidden()).unwrap().written, 10);
+    let mut input = depthsense_train::predict::input_from_prepared(&dir).unwrap();
+    let stored = input.mer.take().unwrap();
+    attach_mer(&mut input, &loaded2.net, tch::Device::Cpu).unwrap();
     assert_eq!(input.mer.as_ref().unwrap(), &stored);
 
     // The 7-channel radar input: raw, then d·[conf > θ] from the stored maps.
@@ -409,4 +428,13 @@ fn missing_or_corrupt_lidar_dense_is_a_clear_error() {
     std::fs::write(&mp, serde_json::to_vec(&meta).unwrap()).unwrap();
     let err = load_labelled(&other, &cfg, false).unwrap_err().to_string();
     assert!(err.contains("--lidar-sweeps"), "{err}");
+}
+
+#[test]
+fn network_threads_leave_a_core_to_io_only_for_folded_networks() {
+    use depthsense_train::mer::apply::network_threads;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    assert_eq!(network_threads(3, &PdaConfig::fast()), 3, "asked for");
+    assert_eq!(network_threads(0, &PdaConfig::tiny()), cores);
+    assert_eq!(network_threads(0, &PdaConfig::fast()), (cores - 1).max(1));
 }

@@ -24,6 +24,12 @@ pub struct Args {
     /// Override the number of training epochs of each model.
     #[arg(long)]
     epochs: Option<usize>,
+    /// Override the number of scenes of the synthetic world (default 16 on a CPU).
+    #[arg(long)]
+    scenes: Option<usize>,
+    /// Override the keyframes per scene of the synthetic world (default 10).
+    #[arg(long)]
+    keyframes_per_scene: Option<usize>,
     /// Worker threads of synth / prepare / loader (0 = all cores).
     #[arg(long, default_value_t = 0)]
     jobs: usize,
@@ -39,6 +45,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         quick: a.quick,
         seed: a.seed,
         epochs: a.epochs,
+        scenes: a.scenes,
+        keyframes_per_scene: a.keyframes_per_scene,
         jobs: a.jobs,
         pictures: a.pictures,
     };

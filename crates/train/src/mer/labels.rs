@@ -18,7 +18,7 @@ use std::path::Path;
 use depthsense_model::pda::PdaConfig;
 use depthsense_prep::layout::{IMAGE_FILE, LIDAR_DENSE_FILE, META_FILE, RADAR_RAW_FILE};
 
-use crate::data::{decode_rgb, normalise_image, read_depth, Augment};
+use crate::data::{decode_rgb, read_depth, IMAGENET_MEAN, IMAGENET_STD};
 use crate::error::TrainError;
 
 /// Label of a neighbour without lidar, outside the image, or beyond the depth limit.
@@ -56,18 +56,28 @@ impl Grid {
         self.len() == 0
     }
 
-    /// Grid cell of each frame pixel, row-major over the frame.
-    fn cell(&self, u: usize, v: usize) -> usize {
-        (v / self.scale) * self.w + u / self.scale
+    /// Grid column of each frame column (rows go the same way: v / scale).
+    fn cell_columns(&self) -> Vec<usize> {
+        (0..self.frame_w).map(|u| u / self.scale).collect()
+    }
+
+    /// Rows of a frame map with the grid row each one falls in.
+    fn frame_rows<'a>(&'a self, frame: &'a [f32]) -> impl Iterator<Item = (usize, &'a [f32])> {
+        frame
+            .chunks_exact(self.frame_w)
+            .take(self.frame_h)
+            .enumerate()
+            .map(move |(v, row)| (v / self.scale, row))
     }
 
     /// Nearest non-zero depth of each cell (0 = none).
     pub fn nearest_depth(&self, frame: &[f32]) -> Vec<f32> {
+        let cols = self.cell_columns();
         let mut out = vec![0f32; self.len()];
-        for v in 0..self.frame_h {
-            for u in 0..self.frame_w {
-                let d = frame[v * self.frame_w + u];
-                let c = &mut out[self.cell(u, v)];
+        for (gv, row) in self.frame_rows(frame) {
+            let dst = &mut out[gv * self.w..(gv + 1) * self.w];
+            for (&d, &gu) in row.iter().zip(&cols) {
+                let c = &mut dst[gu];
                 if d > 0.0 && (*c == 0.0 || d < *c) {
                     *c = d;
                 }
@@ -76,37 +86,41 @@ impl Grid {
         out
     }
 
-    /// Mean of each cell of `planes` channel-major `[C, frame_h, frame_w]` → `[C, h, w]`.
-    pub fn mean_planes(&self, planes: &[f32], channels: usize) -> Vec<f32> {
-        let fplane = self.frame_w * self.frame_h;
-        let mut out = vec![0f32; channels * self.len()];
-        let mut count = vec![0f32; self.len()];
-        for v in 0..self.frame_h {
-            for u in 0..self.frame_w {
-                count[self.cell(u, v)] += 1.0;
-            }
-        }
-        for c in 0..channels {
-            let src = &planes[c * fplane..(c + 1) * fplane];
-            let dst = &mut out[c * self.len()..(c + 1) * self.len()];
-            for v in 0..self.frame_h {
-                for u in 0..self.frame_w {
-                    dst[self.cell(u, v)] += src[v * self.frame_w + u];
+    /// The ImageNet-normalised image averaged over each cell → `[3, h, w]` channel-major:
+    /// the mean of [`crate::data::normalise_image`] over the cell, computed as the normalised
+    /// mean of the 8-bit values (normalisation is affine: the two agree to float rounding).
+    pub fn mean_image(&self, rgb: &image::RgbImage) -> Vec<f32> {
+        let cols = self.cell_columns();
+        let mut sum = vec![0u32; 3 * self.len()];
+        for (v, row) in rgb.rows().enumerate().take(self.frame_h) {
+            let base = (v / self.scale) * self.w;
+            for (px, &gu) in row.zip(&cols) {
+                let cell = base + gu;
+                for c in 0..3 {
+                    sum[c * self.len() + cell] += u32::from(px.0[c]);
                 }
             }
-            for (d, n) in dst.iter_mut().zip(&count) {
-                *d /= n.max(1.0);
-            }
         }
-        out
+        // frame pixels per cell: (columns in the cell) × (rows in the cell)
+        let n = |g: usize, len: usize| (len.min((g + 1) * self.scale) - g * self.scale) as f32;
+        sum.iter()
+            .enumerate()
+            .map(|(i, &s)| {
+                let (c, cell) = (i / self.len(), i % self.len());
+                let count = n(cell % self.w, self.frame_w) * n(cell / self.w, self.frame_h);
+                (s as f32 / (255.0 * count) - IMAGENET_MEAN[c]) / IMAGENET_STD[c]
+            })
+            .collect()
     }
 
     /// A grid map back on the frame: every frame pixel takes its cell's value.
-    pub fn to_frame(&self, grid: &[f32]) -> Vec<f32> {
-        let mut out = vec![0f32; self.frame_w * self.frame_h];
-        for v in 0..self.frame_h {
-            for u in 0..self.frame_w {
-                out[v * self.frame_w + u] = grid[self.cell(u, v)];
+    pub fn to_frame<T: Copy + Default>(&self, grid: &[T]) -> Vec<T> {
+        let cols = self.cell_columns();
+        let mut out = vec![T::default(); self.frame_w * self.frame_h];
+        for (v, row) in out.chunks_exact_mut(self.frame_w).enumerate() {
+            let src = &grid[(v / self.scale) * self.w..(v / self.scale + 1) * self.w];
+            for (o, &gu) in row.iter_mut().zip(&cols) {
+                *o = src[gu];
             }
         }
         out
@@ -194,7 +208,7 @@ pub fn pda_input(
 ) -> PdaInput {
     let (fw, fh) = (rgb.width() as usize, rgb.height() as usize);
     let g = Grid::new(fw, fh, cfg.grid_scale as usize);
-    let mut image = g.mean_planes(&normalise_image(rgb, &Augment::NONE), 3);
+    let mut image = g.mean_image(rgb);
     let mut radar = g.nearest_depth(radar_raw);
     if flip {
         for c in 0..3 {
@@ -289,4 +303,64 @@ pub fn load_labelled(
     }
     let l = labels(&input.pixels, &lidar, &g, cfg);
     Ok((input, l))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The per-pixel definitions, for frames whose size is not a multiple of the scale.
+    #[test]
+    fn grid_maps_match_their_per_pixel_definition() {
+        let (fw, fh, s) = (11usize, 7usize, 3usize);
+        let g = Grid::new(fw, fh, s);
+        assert_eq!((g.w, g.h), (4, 3));
+        let frame: Vec<f32> = (0..fw * fh)
+            .map(|i| ((i * 37 % 17) as f32 - 6.0).max(0.0) * 1.5)
+            .collect();
+        let rgb = image::RgbImage::from_fn(fw as u32, fh as u32, |u, v| {
+            image::Rgb([
+                (u * 23 + v * 7) as u8,
+                (u * v * 31) as u8,
+                (255 - u * 9) as u8,
+            ])
+        });
+        let planes = crate::data::normalise_image(&rgb, &crate::data::Augment::NONE);
+        let cell = |u: usize, v: usize| (v / s) * g.w + u / s;
+        let (mut sum, mut n, mut near) = (
+            vec![0f32; 3 * g.len()],
+            vec![0f32; g.len()],
+            vec![0f32; g.len()],
+        );
+        for v in 0..fh {
+            for u in 0..fw {
+                let c = cell(u, v);
+                n[c] += 1.0;
+                for ch in 0..3 {
+                    sum[ch * g.len() + c] += planes[ch * fw * fh + v * fw + u];
+                }
+                let d = frame[v * fw + u];
+                if d > 0.0 && (near[c] == 0.0 || d < near[c]) {
+                    near[c] = d;
+                }
+            }
+        }
+        let mean: Vec<f32> = sum
+            .iter()
+            .enumerate()
+            .map(|(i, x)| x / n[i % g.len()])
+            .collect();
+        let got = g.mean_image(&rgb);
+        assert!(
+            got.iter().zip(&mean).all(|(a, b)| (a - b).abs() < 1e-5),
+            "{got:?} vs {mean:?}"
+        );
+        assert_eq!(g.nearest_depth(&frame), near);
+        let back = g.to_frame(&near);
+        for v in 0..fh {
+            for u in 0..fw {
+                assert_eq!(back[v * fw + u], near[cell(u, v)]);
+            }
+        }
+    }
 }

@@ -20,7 +20,7 @@ pub mod train;
 
 use std::path::Path;
 
-use depthsense_nuscenes::depth_png::{decode_png, encode_png_fast, DepthMap};
+use depthsense_nuscenes::depth_png::{decode_png, encode_png16_fast, DepthMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::TrainError;
@@ -58,18 +58,11 @@ pub fn quantise_conf(c: f32) -> f32 {
     conf_to_u16(c) as f32 / 65535.0
 }
 
-/// PNG bytes of a confidence map (16-bit, conf × 65535). The depth-PNG encoder is reused: a
-/// stored value q is the "depth" q/256, which it writes back as exactly q.
+/// PNG bytes of a confidence map (16-bit, conf × 65535, [`conf_to_u16`]), written as the
+/// depth maps are ([`encode_png16_fast`]).
 pub fn encode_conf_png(conf: &[f32], w: u32, h: u32) -> Result<Vec<u8>, TrainError> {
-    let map = DepthMap {
-        width: w,
-        height: h,
-        depth_m: conf
-            .iter()
-            .map(|&c| conf_to_u16(c) as f32 / 256.0)
-            .collect(),
-    };
-    encode_png_fast(&map).map_err(|e| TrainError::Data(e.to_string()))
+    let values: Vec<u16> = conf.iter().map(|&c| conf_to_u16(c)).collect();
+    encode_png16_fast(w, h, &values).map_err(|e| TrainError::Data(e.to_string()))
 }
 
 /// Reads a confidence map written by [`encode_conf_png`] → (width, height, conf in [0, 1]).
