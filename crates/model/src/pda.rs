@@ -364,19 +364,16 @@ impl PdaNet {
     pub fn logits_at(&self, f: &PdaFeatures, idx: &Tensor) -> Tensor {
         let s = self.cfg.input_stride;
         let (h, w) = f.grid_hw;
-        let head = if s == 1 {
-            gather_pixels(&f.map, idx).matmul(&self.head_w.tr()) + &self.head_b
-        } else {
-            let (hc, wc) = (f.map.size()[2], f.map.size()[3]);
-            let (b, v, u) = split_index(idx, h, w);
-            let cell = &b * (hc * wc) + v.floor_divide_scalar(s) * wc + u.floor_divide_scalar(s);
-            let phase = v.remainder(s) * s + u.remainder(s); // [N]
-            let all = gather_pixels(&f.map, &cell).matmul(&self.head_w.tr()) + &self.head_b;
-            let n = all.size()[0];
-            let k = self.cfg.window.len() as i64;
-            let pick = phase.view([n, 1, 1]).expand([n, k, 1], false);
-            all.view([n, k, s * s]).gather(2, &pick, false).view([n, k])
-        };
+        // each pixel's cell of the feature map, and its position inside the cell (0 when s = 1)
+        let (hc, wc) = (f.map.size()[2], f.map.size()[3]);
+        let (b, v, u) = split_index(idx, h, w);
+        let cell = &b * (hc * wc) + v.floor_divide_scalar(s) * wc + u.floor_divide_scalar(s);
+        let phase = v.remainder(s) * s + u.remainder(s); // [N]
+        let all = gather_pixels(&f.map, &cell).matmul(&self.head_w.tr()) + &self.head_b;
+        let n = all.size()[0];
+        let k = self.cfg.window.len() as i64;
+        let pick = phase.view([n, 1, 1]).expand([n, k, 1], false);
+        let head = all.view([n, k, s * s]).gather(2, &pick, false).view([n, k]);
         let Some((wq, wk)) = &self.affinity else {
             return head;
         };

@@ -91,15 +91,6 @@ fn encode_with(
     map: &DepthMap,
     compression: image::codecs::png::CompressionType,
 ) -> Result<Vec<u8>, DepthPngError> {
-    let want = map.width as usize * map.height as usize;
-    if map.depth_m.len() != want {
-        return Err(DepthPngError::Size {
-            width: map.width,
-            height: map.height,
-            got: map.depth_m.len(),
-            want,
-        });
-    }
     let values: Vec<u16> = map.depth_m.iter().map(|&d| encode_value(d)).collect();
     encode_u16(map.width, map.height, &values, compression)
 }
@@ -111,15 +102,6 @@ pub fn encode_png16_fast(
     height: u32,
     values: &[u16],
 ) -> Result<Vec<u8>, DepthPngError> {
-    let want = width as usize * height as usize;
-    if values.len() != want {
-        return Err(DepthPngError::Size {
-            width,
-            height,
-            got: values.len(),
-            want,
-        });
-    }
     encode_u16(
         width,
         height,
@@ -135,6 +117,15 @@ fn encode_u16(
     compression: image::codecs::png::CompressionType,
 ) -> Result<Vec<u8>, DepthPngError> {
     use image::ImageEncoder;
+    let want = width as usize * height as usize;
+    if values.len() != want {
+        return Err(DepthPngError::Size {
+            width,
+            height,
+            got: values.len(),
+            want,
+        });
+    }
     // `image` takes 16-bit samples in native byte order and writes them big-endian.
     let raw: Vec<u8> = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
     let mut out = Vec::with_capacity(values.len());

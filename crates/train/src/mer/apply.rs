@@ -236,10 +236,6 @@ pub fn apply(
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
     let loaded = pda::load(&opts.checkpoint, device)?;
-    if device == Device::Cpu {
-        let n = network_threads(opts.network_threads, &loaded.config);
-        tch::set_num_threads(n as i32);
-    }
     let cfg = loaded.config.clone();
     let record = MerRecord {
         checkpoint: opts.checkpoint.display().to_string(),
@@ -263,7 +259,15 @@ pub fn apply(
         .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
     progress.set_length(todo.len() as u64);
     let t0 = Instant::now();
-    let network_seconds = run_pipeline(&ds, &todo, &loaded.net, opts, &pool, device, progress)?;
+    // libtorch's thread count is process-wide: set for the pipeline, then put back.
+    let torch_threads = tch::get_num_threads();
+    if device == Device::Cpu {
+        let n = network_threads(opts.network_threads, &loaded.config);
+        tch::set_num_threads(n as i32);
+    }
+    let ran = run_pipeline(&ds, &todo, &loaded.net, opts, &pool, device, progress);
+    tch::set_num_threads(torch_threads);
+    let network_seconds = ran?;
     let secs = t0.elapsed().as_secs_f64();
     let previews = write_previews(&ds, opts)?;
     Ok(MerApplySummary {
@@ -456,12 +460,8 @@ pub fn attach_mer(
     let g = &pi.grid;
     let (depth, conf) = mer_maps(&pi.pixels, &probs[0], g, cfg);
     let (w, h) = (g.frame_w as u32, g.frame_h as u32);
-    // As `mer apply` stores them: confidence quantised to 16 bits.
-    let conf: Vec<f32> = g
-        .to_frame(&conf)
-        .iter()
-        .map(|c| super::quantise_conf(*c))
-        .collect();
+    // As `mer apply` stores them: confidence quantised to 16 bits (on the grid, then spread).
+    let conf_q: Vec<f32> = conf.iter().map(|&c| super::quantise_conf(c)).collect();
     input.mer = Some((
         DepthMap {
             width: w,
@@ -471,7 +471,7 @@ pub fn attach_mer(
         DepthMap {
             width: w,
             height: h,
-            depth_m: conf,
+            depth_m: g.to_frame(&conf_q),
         },
     ));
     Ok(())

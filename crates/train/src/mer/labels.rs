@@ -61,20 +61,16 @@ impl Grid {
         (0..self.frame_w).map(|u| u / self.scale).collect()
     }
 
-    /// Rows of a frame map with the grid row each one falls in.
-    fn frame_rows<'a>(&'a self, frame: &'a [f32]) -> impl Iterator<Item = (usize, &'a [f32])> {
-        frame
-            .chunks_exact(self.frame_w)
-            .take(self.frame_h)
-            .enumerate()
-            .map(move |(v, row)| (v / self.scale, row))
-    }
-
     /// Nearest non-zero depth of each cell (0 = none).
     pub fn nearest_depth(&self, frame: &[f32]) -> Vec<f32> {
         let cols = self.cell_columns();
         let mut out = vec![0f32; self.len()];
-        for (gv, row) in self.frame_rows(frame) {
+        for (v, row) in frame
+            .chunks_exact(self.frame_w)
+            .take(self.frame_h)
+            .enumerate()
+        {
+            let gv = v / self.scale;
             let dst = &mut out[gv * self.w..(gv + 1) * self.w];
             for (&d, &gu) in row.iter().zip(&cols) {
                 let c = &mut dst[gu];
