@@ -24,7 +24,7 @@ pub enum HeadKind {
     Ordinal,
     /// One channel, depth in metres, L1 loss.
     L1,
-    /// One channel, depth in metres, L2 loss.
+    /// One channel, depth in metres, L2 loss (scaled as e²/(2β): [`crate::ordinal::RegressionLoss`]).
     L2,
 }
 

@@ -6,7 +6,8 @@ use crate::config::{
     AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, StemKind,
 };
 use crate::layers::{BlockKind, Conv, ConvInit, MacRows, ResNet, ResNetSpec, P};
-use crate::{ordinal, ModelError};
+use crate::ordinal::{self, RegressionLoss};
+use crate::ModelError;
 
 /// Nearest non-zero depth of each `s`×`s` cell of `[B,C,H,W]` depth maps (0 = none):
 /// max-pool of 1/d over the cell (0 stays 0), then back to metres. Identity for s ≤ 1.
@@ -521,8 +522,13 @@ impl DepthNet {
         let ac = self.cfg.align_corners;
         match self.cfg.head {
             HeadKind::Ordinal => ordinal::ordinal_loss(out, target_m, &self.cfg.sid, ac),
-            HeadKind::L1 => ordinal::regression_loss(out, target_m, false, ac),
-            HeadKind::L2 => ordinal::regression_loss(out, target_m, true, ac),
+            HeadKind::L1 => ordinal::regression_loss(out, target_m, RegressionLoss::L1, ac),
+            HeadKind::L2 => {
+                let kind = RegressionLoss::L2 {
+                    scale_m: self.cfg.sid.beta_m,
+                };
+                ordinal::regression_loss(out, target_m, kind, ac)
+            }
         }
     }
 

@@ -242,12 +242,29 @@ pub fn ordinal_decode(
     sid::levels_to_depth(sid_cfg, &ordinal_levels(z, height, width, align_corners))
 }
 
-/// L1 (`squared = false`) or L2 regression loss over valid pixels; `pred_m` `[B,1,h,w]` is
-/// upsampled to the target's size.
+/// The error term of a regression head's loss (SPEC §7 alternatives), per valid pixel with
+/// error e = prediction − target in metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RegressionLoss {
+    /// |e|.
+    L1,
+    /// e² / (2c): the quadratic part of a Huber loss with threshold c (the depth range β), so
+    /// that its gradient e/c never exceeds L1's ±1. Plain e² in metres gives gradients up to
+    /// 2β = 160 per pixel; through the head's sigmoid·β output that saturates the sigmoid in
+    /// the first steps and the network never moves again (measured: loss ≈ 660 m² flat,
+    /// a constant depth map).
+    L2 {
+        /// The scale c in metres.
+        scale_m: f64,
+    },
+}
+
+/// Regression loss over valid pixels (mean of [`RegressionLoss`]'s term); `pred_m`
+/// `[B,1,h,w]` is upsampled to the target's size.
 pub fn regression_loss(
     pred_m: &Tensor,
     target_m: &Tensor,
-    squared: bool,
+    kind: RegressionLoss,
     align_corners: bool,
 ) -> Tensor {
     let (_, _, th, tw) = target_m
@@ -256,7 +273,10 @@ pub fn regression_loss(
     let pred = upsample(pred_m, th, tw, align_corners).to_kind(Kind::Float);
     let valid = target_m.gt(0.0).to_kind(Kind::Float);
     let diff = (pred - target_m.to_kind(Kind::Float)) * &valid;
-    let err = if squared { diff.square() } else { diff.abs() };
+    let err = match kind {
+        RegressionLoss::L1 => diff.abs(),
+        RegressionLoss::L2 { scale_m } => diff.square() / (2.0 * scale_m),
+    };
     err.sum(Kind::Float) / valid.sum(Kind::Float).clamp_min(1.0)
 }
 
@@ -269,6 +289,24 @@ mod tests {
         let opts = (Kind::Float, Device::Cpu);
         let depth = Tensor::rand([b, 1, h, w], opts) * 85.0 + 0.5;
         depth * Tensor::rand([b, 1, h, w], opts).lt(valid)
+    }
+
+    #[test]
+    fn regression_loss_terms_by_hand() {
+        let opts = (Kind::Float, Device::Cpu);
+        // prediction 10, 50, 30, 70 m; target 20, 0 (invalid), 30, 30 m
+        let pred = Tensor::from_slice(&[10.0f32, 50.0, 30.0, 70.0]).view([1, 1, 2, 2]);
+        let target = Tensor::from_slice(&[20.0f32, 0.0, 30.0, 30.0])
+            .view([1, 1, 2, 2])
+            .to_kind(opts.0);
+        let l1 = regression_loss(&pred, &target, RegressionLoss::L1, true).double_value(&[]);
+        assert!((l1 - (10.0 + 0.0 + 40.0) / 3.0).abs() < 1e-5, "{l1}");
+        let l2 = RegressionLoss::L2 { scale_m: 80.0 };
+        let l2 = regression_loss(&pred, &target, l2, true).double_value(&[]);
+        assert!(
+            (l2 - (100.0 + 0.0 + 1600.0) / 160.0 / 3.0).abs() < 1e-5,
+            "{l2}"
+        );
     }
 
     #[test]
