@@ -187,7 +187,13 @@ pub struct TrainSummary {
     /// True when `stop_after` interrupted the run.
     pub interrupted: bool,
     pub best_val_rmse: f64,
+    /// Images per second of the training steps alone (`images / train_seconds`).
     pub train_images_per_s: f64,
+    /// Seconds in training steps, loader waits included (this invocation).
+    pub train_seconds: f64,
+    /// Seconds in validation (this invocation).
+    pub val_seconds: f64,
+    /// Wall seconds from opening the data to the end, so also set-up and checkpoints.
     pub seconds: f64,
     pub partition: Partition,
 }

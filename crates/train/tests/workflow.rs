@@ -331,6 +331,17 @@ fn train_resume_mismatch_eval_predict() {
     assert!(!full.interrupted);
     let (first, last) = (full.val[0].rmse, full.val.last().unwrap().rmse);
     assert_eq!(full.val.len(), 11, "initial + 10 epochs");
+    // The wall time splits into training steps, validation passes and the rest.
+    assert!(full.train_seconds > 0.0 && full.val_seconds > 0.0);
+    assert!(
+        full.train_seconds + full.val_seconds <= full.seconds,
+        "{} + {} > {}",
+        full.train_seconds,
+        full.val_seconds,
+        full.seconds
+    );
+    let rate = 40.0 * 4.0 / full.train_seconds;
+    assert!((full.train_images_per_s - rate).abs() <= 1e-9 * rate);
     // A short run lowers both the training loss and the validation RMSE.
     assert!(last < first, "validation RMSE {first} → {last}");
     let (l0, l1) = (full.losses[0].1, full.losses.last().unwrap().1);

@@ -324,12 +324,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let first = history.first().map_or(f64::NAN, |v| v.rmse);
     let last = history.last().map_or(f64::NAN, |v| v.rmse);
     eprintln!(
-        "{} iterations of {} in {:.1} s ({:.2} img/s); validation RMSE {first:.3} m → {last:.3} m \
+        "{} iterations of {} in {:.1} s (training {:.1} s at {:.2} img/s, validation {:.1} s, \
+         the rest set-up and checkpoints); validation RMSE {first:.3} m → {last:.3} m \
          (best {}) on {} validation samples ({})",
         s.iterations_done,
         s.total_iterations,
         s.seconds,
+        s.train_seconds,
         s.train_images_per_s,
+        s.val_seconds,
         if s.best_val_rmse.is_finite() {
             format!("{:.3} m", s.best_val_rmse)
         } else {

@@ -42,7 +42,9 @@ pub struct Trainer<'o> {
     total: u64,
     started: Instant,
     images: usize,
+    /// Seconds in training steps (loader waits included) and in validation, this invocation.
     train_secs: f64,
+    val_secs: f64,
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
 }
@@ -165,6 +167,7 @@ impl<'o> Trainer<'o> {
             started,
             images: 0,
             train_secs: 0.0,
+            val_secs: 0.0,
             dist,
         };
         if main {
@@ -230,6 +233,14 @@ impl<'o> Trainer<'o> {
             None => r,
         };
         Ok(ValRecord::from_report(epoch, self.state.iteration, &r))
+    }
+
+    /// [`Trainer::validate`], its time added to the validation seconds of the summary.
+    fn validate_timed(&mut self, epoch: u64) -> Result<ValRecord, TrainError> {
+        let t = Instant::now();
+        let v = self.validate(epoch);
+        self.val_secs += t.elapsed().as_secs_f64();
+        v
     }
 
     /// Iterations between two reads of the losses (see [`TrainOptions::loss_read_every`]).
@@ -395,7 +406,7 @@ impl<'o> Trainer<'o> {
         epoch_loss: f64,
         epoch_n: usize,
     ) -> Result<ValRecord, TrainError> {
-        let v = self.validate(epoch + 1)?;
+        let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
         let improved = v.rmse < self.state.best_val_rmse.unwrap_or(f64::INFINITY);
@@ -422,6 +433,7 @@ impl<'o> Trainer<'o> {
                                 "train_loss": epoch_loss / epoch_n.max(1) as f64,
                                 "lr": self.lr_at(it),
                                 "images_per_s": self.images as f64 / self.train_secs.max(1e-9),
+                                "train_seconds": self.train_secs, "val_seconds": self.val_secs,
                                 "seconds": self.started.elapsed().as_secs_f64(), "val": v}),
         )?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
@@ -500,12 +512,14 @@ impl<'o> Trainer<'o> {
             interrupted: false,
             best_val_rmse: self.state.best_val_rmse.unwrap_or(f64::INFINITY),
             train_images_per_s: 0.0,
+            train_seconds: 0.0,
+            val_seconds: 0.0,
             seconds: 0.0,
             partition: self.part.clone(),
         };
         if self.state.iteration == 0 {
             progress.set_message("validating the initial network");
-            let v = self.validate(0)?;
+            let v = self.validate_timed(0)?;
             if self.is_main() {
                 append_jsonl(
                     &self.path(METRICS_FILE),
@@ -528,6 +542,8 @@ impl<'o> Trainer<'o> {
         summary.iterations_done = self.state.iteration;
         summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
         summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
+        summary.train_seconds = self.train_secs;
+        summary.val_seconds = self.val_secs;
         summary.seconds = self.started.elapsed().as_secs_f64();
         let metrics = self.path(METRICS_FILE);
         if self.is_main() && metrics.exists() {
