@@ -58,7 +58,8 @@ def main():
         if not os.path.exists(fus_path):
             sys.exit(f"{fus_path}: missing (both folders must hold the same samples)")
         gt = depth_png(os.path.join(a.prepared, t, "lidar_sparse.png"))
-        strip = depth_png(os.path.join(a.prepared, t, "radar_height.png")) > 0
+        radar_m = depth_png(os.path.join(a.prepared, t, "radar_height.png"))
+        strip = radar_m > 0
         rgb = np.load(os.path.join(a.pred_rgb, t + ".npy")).squeeze().astype(np.float64)
         fus = np.load(fus_path).squeeze().astype(np.float64)
         if rgb.shape != gt.shape or fus.shape != gt.shape:
@@ -67,18 +68,17 @@ def main():
         if not valid.any():
             continue
         sq_rgb = (rgb - gt) ** 2
+        sq_fus = (fus - gt) ** 2
         rows["rgb"].append(rmse(sq_rgb, valid))
-        rows["fusion"].append(rmse((fus - gt) ** 2, valid))
+        rows["fusion"].append(rmse(sq_fus, valid))
         covered.append((strip & valid).sum() / valid.sum())
         for k in dilations:
             m = binary_dilation(strip, iterations=k) if k > 0 else strip
             rows[f"oracle rgb, strip+{k} px"].append(rmse(np.where(m, 0.0, sq_rgb), valid))
         dist_px = distance_transform_edt(~strip)
-        sq_fus = (fus - gt) ** 2
         for i in range(len(ring_edges) - 1):
             m = valid & (dist_px >= ring_edges[i]) & (dist_px < ring_edges[i + 1])
             rings[i] += [m.sum(), sq_rgb[m].sum(), sq_fus[m].sum()]
-        radar_m = depth_png(os.path.join(a.prepared, t, "radar_height.png"))
         m = valid & strip
         err = np.abs(radar_m - gt)[m]
         radar_self += [m.sum(), (err**2).sum(), (err < 0.1 * gt[m]).sum()]
