@@ -160,8 +160,9 @@ pub use crate::motion::{BOX_MARGIN_M, MAX_TIME_DIFF_S, MOVING_SPEED_MPS};
 /// other rules is not mixed with this run's samples. `keyframe-surface-1`: near-sensor points
 /// removed from every sweep (devkit `remove_close(1.0)`), other sweeps judged against the
 /// keyframe surface (keyframe pixels always kept), moving boxes interpolated to each sweep's
-/// time with a 0.2 m margin.
-pub const DENSE_RULES: &str = "keyframe-surface-1";
+/// time with a 0.2 m margin. `keyframe-surface-2`: the same, and the ego car's body box
+/// ([`maps::EGO_BOX`], in each sweep's ego frame) removed from the other sweeps too.
+pub const DENSE_RULES: &str = "keyframe-surface-2";
 
 /// Time spent per stage, summed over samples (seconds).
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -431,7 +432,8 @@ fn moving_tracks(
 
 /// Dense target (SPEC §4, README "Dense target"): the keyframe's own pixels, plus the points
 /// of ±K sweeps moved through their own ego poses that survive, in this order,
-/// 1. near-sensor removal (the ego car's own returns, devkit `remove_close(1.0)`),
+/// 1. near-sensor removal (the ego car's own returns, devkit `remove_close(1.0)`), then the
+///    ego car's body box in each sweep's ego frame ([`maps::EGO_BOX`]),
 /// 2. moving boxes interpolated to the sweep's time ([`crate::motion`]),
 /// 3. the keyframe-surface test ([`maps::KeyframeSurface`]): hidden and free-space points go.
 ///
@@ -452,6 +454,7 @@ fn dense_lidar(
     };
     let mut nan_dropped = 0u64;
     let mut near_removed = 0u64;
+    let mut ego_body_removed = 0u64;
     let mut moving_removed = 0u64;
     let mut judged = maps::SweepCounts::default();
     let mut sweeps_used = 1u64;
@@ -480,7 +483,9 @@ fn dense_lidar(
             nan_dropped += s.nan_dropped as u64;
             let (points_sensor, near) = maps::remove_close(&s.points, maps::NEAR_SENSOR_M);
             near_removed += near;
-            let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_sensor(nu, sw)?);
+            let ego_from_lidar = ego_from_sensor(nu, sw)?;
+            let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_lidar);
+            let e = ego_from_lidar.to_f32();
             let g = global_from_sensor.to_f32();
             let boxes: Vec<BoxAt> = tracks
                 .iter()
@@ -488,6 +493,11 @@ fn dense_lidar(
                 .collect();
             let mut points_global: Vec<[f32; 3]> = Vec::with_capacity(points_sensor.len());
             for q in &points_sensor {
+                let p_ego = apply_f32(&e, *q);
+                if maps::EGO_BOX.contains(p_ego) {
+                    ego_body_removed += 1;
+                    continue;
+                }
                 let pg = apply_f32(&g, *q);
                 if boxes.iter().any(|b| b.contains(pg)) {
                     moving_removed += 1;
@@ -515,6 +525,7 @@ fn dense_lidar(
     counts.insert("lidar_dense_sweeps".into(), sweeps_used);
     counts.insert("lidar_dense_pixels".into(), dense.valid());
     counts.insert("lidar_dense_near_sensor_removed".into(), near_removed);
+    counts.insert("lidar_dense_ego_body_removed".into(), ego_body_removed);
     counts.insert("lidar_dense_occluded_removed".into(), judged.hidden);
     counts.insert("lidar_dense_free_space_removed".into(), judged.free_space);
     counts.insert(
@@ -625,6 +636,7 @@ fn sample_settings(
         "lidar_sweeps_k": opts.lidar_sweeps,
         "dense_rules": DENSE_RULES,
         "near_sensor_removal": format!("every sweep: devkit remove_close({}), |x| < {0} m and |y| < {0} m in the sensor frame", maps::NEAR_SENSOR_M),
+        "ego_body_removal": format!("non-keyframe sweeps: points of the ego box {} < x < {} m, |y| < {} m, z < {} m in the sweep's ego frame", maps::EGO_BOX.x_min_m, maps::EGO_BOX.x_max_m, maps::EGO_BOX.y_half_m, maps::EGO_BOX.z_max_m),
         "occlusion_filter": {"against": "keyframe surface (keyframe pixels always kept)", "rx": maps::OCC_RX, "max_gap_rows": maps::OCC_MAX_GAP_ROWS, "rel": maps::OCC_REL, "abs_m": maps::OCC_ABS_M},
         "moving_objects": if annotations_present {
             format!("removed from non-keyframe sweeps: boxes of instances moving faster than {MOVING_SPEED_MPS} m/s or with a moving attribute, interpolated to the sweep time (linear centre, slerp rotation, max_time_diff {MAX_TIME_DIFF_S} s), +{BOX_MARGIN_M} m margin")

@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use depthsense_nuscenes::geometry::Rigid;
 use depthsense_nuscenes::pcd::{encode_lidar_pcd_bin, read_lidar_pcd_bin};
 use depthsense_nuscenes::tables::{NuScenes, Token};
+use depthsense_prep::maps::EGO_BOX;
 use depthsense_prep::pipeline::{compute_sample, PrepareOptions};
 use serde_json::Value;
 
@@ -56,6 +57,18 @@ fn arr<const N: usize>(v: &Value) -> [f64; N] {
     a.try_into().unwrap()
 }
 
+/// Whether a return of the real scan is the car's own body: every return within 3 m
+/// (horizontally) of the lidar that is not ground (> 0.3 m above it in the ego frame). Measured
+/// on the fixture: the nearest world return is ground 3.03 m away; above the ground everything
+/// nearer is roof (x −0.19…1.57 m, z 1.35…1.84 m in the ego frame), the no-return points at the
+/// sensor, and the bonnet (x 2.25…2.73 m, z 0.88…1.02 m, |y| ≤ 0.64 m). This criterion is the
+/// test's own, independent of the box `prepare` removes.
+fn moves_with_the_car(ego_from_lidar: &Rigid, p: &[f32; 5]) -> bool {
+    let q = ego_from_lidar.apply([p[0] as f64, p[1] as f64, p[2] as f64]);
+    let horizontal = (p[0] as f64).hypot(p[1] as f64);
+    horizontal < 3.0 && q[2] > 0.3
+}
+
 /// The fixture plus a LIDAR_TOP sweep `ahead_m` further along the ego's heading, 0.33 s later.
 fn world_with_forward_sweep(root: &Path, data: &Path, ahead_m: f64) {
     copy_dir(root, data);
@@ -89,7 +102,7 @@ fn world_with_forward_sweep(root: &Path, data: &Path, ahead_m: f64) {
         .points
         .iter()
         .map(|p| {
-            if p[0].abs() < 1.0 && p[1].abs() < 1.0 {
+            if moves_with_the_car(&ego_from_lidar, p) {
                 // The car's own return moves with the car.
                 *p
             } else {
@@ -166,11 +179,15 @@ fn forward_sweep_adds_no_ghosts_and_keeps_the_keyframe() {
     );
     let ghosts = dense
         .iter()
-        .filter(|d| **d > 0.0 && **d < nearest_kf - 1e-3)
+        .filter(|d| **d > 0.0 && **d < nearest_kf - 0.3)
         .count();
     assert_eq!(
         ghosts, 0,
         "dense pixels nearer than the nearest keyframe return"
+    );
+    assert!(
+        c["lidar_dense_ego_body_removed"] > 0,
+        "the bonnet returns beyond the 1 m square are removed by the ego box"
     );
     let kf_pixels = sparse.iter().filter(|d| **d > 0.0).count();
     let kept = sparse
@@ -182,4 +199,37 @@ fn forward_sweep_adds_no_ghosts_and_keeps_the_keyframe() {
         kept as f64 >= 0.99 * kf_pixels as f64,
         "kept {kept} of {kf_pixels} keyframe pixels"
     );
+}
+
+#[test]
+fn ego_box_holds_the_cars_returns_and_no_world_return() {
+    let Some(root) = kf0() else { return };
+    let v = root.join("v1.0-mini");
+    let kf = read_rows(&v.join("sample_data.json"))
+        .into_iter()
+        .find(|r| r["token"] == LIDAR_KF)
+        .unwrap();
+    let cs = read_rows(&v.join("calibrated_sensor.json"))
+        .into_iter()
+        .find(|r| r["token"] == kf["calibrated_sensor_token"])
+        .unwrap();
+    let ego_from_lidar =
+        Rigid::from_record(arr(&cs["rotation"]), arr(&cs["translation"]), "cs").unwrap();
+    let scan = read_lidar_pcd_bin(&root.join(kf["filename"].as_str().unwrap())).unwrap();
+    let (mut body, mut body_in_box, mut world_in_box) = (0, 0, 0);
+    for p in &scan.points {
+        let q = ego_from_lidar.apply([p[0] as f64, p[1] as f64, p[2] as f64]);
+        let inside = EGO_BOX.contains([q[0] as f32, q[1] as f32, q[2] as f32]);
+        let at_sensor = (p[0] as f64).hypot(p[1] as f64) < 0.01; // no-return points
+        if moves_with_the_car(&ego_from_lidar, p) && !at_sensor {
+            body += 1;
+            body_in_box += inside as usize;
+        } else if !at_sensor {
+            world_in_box += inside as usize;
+        }
+    }
+    eprintln!("body returns {body}, in the box {body_in_box}; world returns in the box {world_in_box}");
+    assert!(body > 8000, "{body}");
+    assert_eq!(body_in_box, body, "every body return is in the ego box");
+    assert_eq!(world_in_box, 0, "no world return is in the ego box");
 }
