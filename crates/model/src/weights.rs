@@ -339,9 +339,17 @@ pub fn load_torchvision_resnet(vs: &mut VarStore, path: &Path) -> Result<LoadRep
     )
 }
 
-/// Maps a key of the authors' released checkpoint (SPEC §6.1) to our variable name.
+/// Maps a key of the authors' released checkpoint (SPEC §6.1) to our variable name. The names
+/// are those of their public `RVMDE` module (MI-Hussain/RVMDE `model/rvmde.py`,
+/// `model/radar_retinanet.py`): `retinanet.backbone.*` (image path, FPN and `convfeat*`),
+/// `resnet_radar.backbone.*` (radar ResNet), `conv_radar.{0,2}.*` — the two 1x1 radar convs are
+/// an attribute of the top-level network, not of the radar backbone (a nested
+/// `resnet_radar.backbone.conv_radar.*` is accepted too) — and `concat_process.{1,4}.*`.
 pub fn released_key(key: &str) -> Option<String> {
     let k = strip_wrappers(key);
+    if let Some(r) = k.strip_prefix("conv_radar.") {
+        return Some(format!("radar.conv_radar.{r}"));
+    }
     if let Some(r) = k.strip_prefix("retinanet.backbone.") {
         if r.starts_with("fpn.") || r.starts_with("convfeat") {
             return Some(format!("decoder.{r}"));

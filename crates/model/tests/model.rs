@@ -575,6 +575,9 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
             format!("retinanet.backbone.{r}")
         } else if let Some(r) = k.strip_prefix("decoder.") {
             format!("retinanet.backbone.{r}")
+        } else if let Some(r) = k.strip_prefix("radar.conv_radar.") {
+            // their RVMDE holds conv_radar on the top level (model/rvmde.py)
+            format!("conv_radar.{r}")
         } else if let Some(r) = k.strip_prefix("radar.") {
             format!("resnet_radar.backbone.{r}")
         } else {
@@ -592,6 +595,12 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
         let ours = weights::released_key(k).unwrap();
         assert_eq!(to_theirs(&ours), *k);
     }
+    assert!(sd.iter().any(|(k, _)| k == "module.conv_radar.2.bias"));
+    // the nested placement (an earlier transcription of their layout) still maps
+    assert_eq!(
+        weights::released_key("resnet_radar.backbone.conv_radar.0.weight").as_deref(),
+        Some("radar.conv_radar.0.weight")
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("released.pth");
     pickle::write_torch_state_dict(&path, &sd).unwrap();

@@ -22,12 +22,23 @@ torch.manual_seed(cfg["seed"])
 torch.set_num_threads(1)
 
 
+# The module tree carries the attribute names of the authors' public code (MI-Hussain/RVMDE,
+# model/rvmde.py and model/radar_retinanet.py, read for names and semantics only): the state-dict
+# keys are therefore the ones `torch.save(RVMDE().state_dict())` writes, e.g.
+# `retinanet.backbone.fpn.P3_1.weight`, `resnet_radar.backbone.conv4.weight` and
+# `conv_radar.0.weight` — the 1x1 radar convolutions sit on the top-level network, not inside
+# the radar backbone. Widths are parameters so that the test can run a narrow copy.
+
+
 class Bottleneck(nn.Module):
-    def __init__(self, cin, planes, stride, dil):
+    """ResNet v1.5 bottleneck (stride and dilation on the 3x3), `conv1..3`, `bn1..3`,
+    optional `downsample` = Sequential(1x1 conv, BN)."""
+
+    def __init__(self, cin, planes, stride=1, dilation=1):
         super().__init__()
         self.conv1 = nn.Conv2d(cin, planes, 1, bias=False)
         self.bn1 = nn.BatchNorm2d(planes)
-        self.conv2 = nn.Conv2d(planes, planes, 3, stride, dil, dil, bias=False)
+        self.conv2 = nn.Conv2d(planes, planes, 3, stride, dilation, dilation, bias=False)
         self.bn2 = nn.BatchNorm2d(planes)
         self.conv3 = nn.Conv2d(planes, planes * 4, 1, bias=False)
         self.bn3 = nn.BatchNorm2d(planes * 4)
@@ -46,13 +57,15 @@ class Bottleneck(nn.Module):
         return self.relu(y + r)
 
 
-def layer(cin, planes, n, stride, dil):
-    blocks = [Bottleneck(cin, planes, stride, dil)]
-    blocks += [Bottleneck(planes * 4, planes, 1, dil) for _ in range(n - 1)]
+def make_layer(cin, planes, n, stride, dilation):
+    blocks = [Bottleneck(cin, planes, stride, dilation)]
+    blocks += [Bottleneck(planes * 4, planes, 1, dilation) for _ in range(n - 1)]
     return nn.Sequential(*blocks), planes * 4
 
 
 class PyramidFeatures(nn.Module):
+    """`P5_1`, `P5_2`, `P4_1`, `P4_2`, `P3_1`, `P3_2` (1x1 and 3x3 convs with bias)."""
+
     def __init__(self, c3, c4, c5, ch):
         super().__init__()
         self.P5_1 = nn.Conv2d(c5, ch, 1)
@@ -69,7 +82,9 @@ class PyramidFeatures(nn.Module):
         return self.P3_2(t3), self.P4_2(t4), self.P5_2(t5)
 
 
-class ImageBackbone(nn.Module):
+class RetinaNet(nn.Module):
+    """Image path (`retinanet.backbone`): deep stem, ResNet-101 body, FPN, `convfeat1..3`."""
+
     def __init__(self, w, blocks, ch):
         super().__init__()
         self.conv1 = nn.Conv2d(3, w, 3, 2, 1, bias=False)
@@ -80,15 +95,15 @@ class ImageBackbone(nn.Module):
         self.bn3 = nn.BatchNorm2d(2 * w)
         self.relu = nn.ReLU()
         self.maxpool = nn.MaxPool2d(3, 2, 1)
-        c = 2 * w
-        self.layer1, c1 = layer(c, w, blocks[0], 1, 1)
-        self.layer2, c2 = layer(c1, 2 * w, blocks[1], 2, 1)
-        self.layer3, c3 = layer(c2, 4 * w, blocks[2], 2, 1)
-        self.layer4, c4 = layer(c3, 8 * w, blocks[3], 2, 1)
-        self.fpn = PyramidFeatures(c2, c3, c4, ch)
         self.convfeat1 = nn.Conv2d(ch, ch, 7, 4, 2, bias=False)
         self.convfeat2 = nn.Conv2d(ch, ch, 3, 2, 1, bias=False)
         self.convfeat3 = nn.Conv2d(ch, ch, 3, 1, 1, bias=False)
+        c = 2 * w
+        self.layer1, c1 = make_layer(c, w, blocks[0], 1, 1)
+        self.layer2, c2 = make_layer(c1, 2 * w, blocks[1], 2, 1)
+        self.layer3, c3 = make_layer(c2, 4 * w, blocks[2], 2, 1)
+        self.layer4, c4 = make_layer(c3, 8 * w, blocks[3], 2, 1)
+        self.fpn = PyramidFeatures(c2, c3, c4, ch)
 
     def forward(self, x):
         x = self.relu(self.bn1(self.conv1(x)))
@@ -106,8 +121,11 @@ class ImageBackbone(nn.Module):
         return torch.cat([f1, f2, f3], 1)
 
 
-class RadarBackbone(nn.Module):
-    def __init__(self, w, cin, out):
+class ResNet(nn.Module):
+    """Radar path (`resnet_radar.backbone`): stem `conv1..4` / `bn1..4`, 7x7/4 max-pool,
+    four layers of 2 bottlenecks (strides 1/2/1/1, dilations 1/1/2/4)."""
+
+    def __init__(self, w, cin):
         super().__init__()
         self.conv1 = nn.Conv2d(cin, w, 3, 2, 1, bias=False)
         self.bn1 = nn.BatchNorm2d(w)
@@ -120,37 +138,46 @@ class RadarBackbone(nn.Module):
         self.relu = nn.ReLU()
         self.maxpool = nn.MaxPool2d(7, 4, 1)
         c = 2 * w
-        self.layer1, c = layer(c, w, 2, 1, 1)
-        self.layer2, c = layer(c, 2 * w, 2, 2, 1)
-        self.layer3, c = layer(c, 4 * w, 2, 1, 2)
-        self.layer4, c = layer(c, 8 * w, 2, 1, 4)
-        self.conv_radar = nn.Sequential(
-            nn.Conv2d(c, out, 1), nn.ReLU(), nn.Conv2d(out, out, 1), nn.ReLU()
-        )
+        self.layer1, c = make_layer(c, w, 2, 1, 1)
+        self.layer2, c = make_layer(c, 2 * w, 2, 2, 1)
+        self.layer3, c = make_layer(c, 4 * w, 2, 1, 2)
+        self.layer4, c = make_layer(c, 8 * w, 2, 1, 4)
+        self.out_channels = c
 
     def forward(self, x):
         for conv, bn in [(self.conv1, self.bn1), (self.conv2, self.bn2),
                          (self.conv3, self.bn3), (self.conv4, self.bn4)]:
             x = self.relu(bn(conv(x)))
         x = self.maxpool(x)
-        x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
-        return self.conv_radar(x)
+        return self.layer4(self.layer3(self.layer2(self.layer1(x))))
 
 
-class Holder(nn.Module):
-    def __init__(self, backbone):
-        super().__init__()
-        self.backbone = backbone
-
-
-class Released(nn.Module):
+class ResNet102(nn.Module):
     def __init__(self, c):
         super().__init__()
-        self.retinanet = Holder(ImageBackbone(c["width"], c["blocks"], c["decoder_channels"]))
-        self.resnet_radar = Holder(
-            RadarBackbone(c["radar_width"], c["radar_channels"], c["radar_out_channels"])
+        self.backbone = RetinaNet(c["width"], c["blocks"], c["decoder_channels"])
+
+
+class ResNet_radar(nn.Module):
+    def __init__(self, c):
+        super().__init__()
+        self.backbone = ResNet(c["radar_width"], c["radar_channels"])
+
+
+class RVMDE(nn.Module):
+    """The released network: `retinanet`, `resnet_radar`, `conv_radar` (1x1 + ReLU twice, on
+    the top level), `concat_process` (Dropout2d, 1x1, ReLU, Dropout2d, 1x1 to 2K)."""
+
+    def __init__(self, c):
+        super().__init__()
+        self.retinanet = ResNet102(c)
+        self.resnet_radar = ResNet_radar(c)
+        r = c["radar_out_channels"]
+        self.conv_radar = nn.Sequential(
+            nn.Conv2d(self.resnet_radar.backbone.out_channels, r, 1), nn.ReLU(),
+            nn.Conv2d(r, r, 1), nn.ReLU(),
         )
-        fused = 3 * c["decoder_channels"] + c["radar_out_channels"]
+        fused = 3 * c["decoder_channels"] + r
         self.concat_process = nn.Sequential(
             nn.Dropout2d(0.5),
             nn.Conv2d(fused, c["head_channels"], 1),
@@ -161,8 +188,9 @@ class Released(nn.Module):
         self.size = (c["height"], c["width_px"])
 
     def forward(self, image, radar):
-        f = torch.cat([self.retinanet.backbone(image), self.resnet_radar.backbone(radar)], 1)
-        y = self.concat_process(f)
+        img = self.retinanet.backbone(image)
+        rad = self.conv_radar(self.resnet_radar.backbone(radar))
+        y = self.concat_process(torch.cat([img, rad], 1))
         return F.interpolate(y, size=self.size, mode="bilinear", align_corners=True)
 
 
@@ -177,7 +205,7 @@ def ordinal(y):
     return torch.sum(p1 >= 0.5, dim=1)  # [N,H,W] levels
 
 
-model = Released(cfg)
+model = RVMDE(cfg)
 g = cfg["bn_spread"]
 for m in model.modules():
     if isinstance(m, nn.BatchNorm2d):
@@ -194,18 +222,25 @@ model.eval()
 torch.save(model.state_dict(), f"{out}/weights.pth")
 
 h, w = cfg["height"], cfg["width_px"]
-rgb = torch.randint(0, 256, (1, 3, h, w)).float() / 255.0
-# Smooth the image a little so that the features have spatial structure.
-rgb = F.avg_pool2d(rgb, 5, 1, 2)
+if "rgb_file" in cfg:
+    # A real sample: RGB in [0, 1] and the radar maps in metres, as depthsense feeds them.
+    rgb = torch.from_numpy(np.fromfile(cfg["rgb_file"], dtype="<f4").reshape(1, 3, h, w))
+    radar = torch.from_numpy(
+        np.fromfile(cfg["radar_file"], dtype="<f4").reshape(1, cfg["radar_channels"], h, w))
+else:
+    rgb = torch.randint(0, 256, (1, 3, h, w)).float() / 255.0
+    # Smooth the image a little so that the features have spatial structure.
+    rgb = F.avg_pool2d(rgb, 5, 1, 2)
+    radar = torch.zeros(1, cfg["radar_channels"], h, w)
+    for _ in range(cfg["radar_strips"]):  # height-extended-like vertical strips, metres
+        u = int(torch.randint(0, w, ()))
+        v0 = int(torch.randint(0, h - 8, ()))
+        ln = int(torch.randint(3, h // 2, ()))
+        radar[:, :, v0:v0 + ln, u] = float(torch.rand(()) * 55 + 5)
+# The authors' loader normalises with the ImageNet statistics; radar stays in metres.
 mean = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
 std = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
 image = (rgb - mean) / std
-radar = torch.zeros(1, cfg["radar_channels"], h, w)
-for _ in range(cfg["radar_strips"]):  # height-extended-like vertical strips, metres
-    u = int(torch.randint(0, w, ()))
-    v0 = int(torch.randint(0, h - 8, ()))
-    ln = int(torch.randint(3, h // 2, ()))
-    radar[:, :, v0:v0 + ln, u] = float(torch.rand(()) * 55 + 5)
 
 with torch.no_grad():
     levels = ordinal(model(image, radar))
@@ -218,5 +253,7 @@ image.numpy().astype("<f4").tofile(f"{out}/image.f32")
 radar.numpy().astype("<f4").tofile(f"{out}/radar.f32")
 levels.numpy().astype("<i8").tofile(f"{out}/levels.i64")
 depth.numpy().astype("<f4").tofile(f"{out}/depth.f32")
+with open(f"{out}/keys.json", "w") as f:
+    json.dump({k: list(v.shape) for k, v in model.state_dict().items()}, f)
 print(json.dumps({"distinct_levels": int(levels.unique().numel()),
                   "keys": len(model.state_dict()), "torch": torch.__version__}))

@@ -529,6 +529,8 @@ mod tests {
         let theirs = |k: &str| -> String {
             if let Some(r) = k.strip_prefix("rgb.").or(k.strip_prefix("decoder.")) {
                 format!("retinanet.backbone.{r}")
+            } else if let Some(r) = k.strip_prefix("radar.conv_radar.") {
+                format!("conv_radar.{r}")
             } else if let Some(r) = k.strip_prefix("radar.") {
                 format!("resnet_radar.backbone.{r}")
             } else {
