@@ -8,14 +8,17 @@
 //! - start-up removes only the temporary folders of processes that are no longer running
 //!   (`/proc/<pid>` absent; where there is no `/proc`, none);
 //! - `index.json` and `index.shard-I-of-N.json` are read, checked and rewritten while holding
-//!   `.index.lock` (created exclusively, holding the pid; a lock of a dead process is taken
-//!   over), and written by atomic rename.
+//!   `.index.lock` (an advisory `flock`, released by the kernel when its holder dies), and
+//!   written by atomic rename;
+//! - every `prepare` holds a shared lock of the folder (`.depthsense.lock`) and `index merge` an
+//!   exclusive one, so neither runs beside `mer apply` or a merge.
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
 
 use crate::layout::{self, IndexEntry, PreparedIndex};
 use crate::pipeline::PrepError;
@@ -43,62 +46,18 @@ pub fn pid_alive(pid: u32) -> bool {
     proc_dir.join(pid.to_string()).exists()
 }
 
-/// The held index lock; released (file removed) on drop.
-#[derive(Debug)]
-pub struct IndexLock {
-    path: PathBuf,
-}
+/// The held index lock (an advisory `flock` on `out/.index.lock`, released on drop or when the
+/// process ends; [`depthsense_nuscenes::lock`]).
+pub type IndexLock = OutputLock;
 
-impl Drop for IndexLock {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
-    }
-}
-
-/// Take `out/.index.lock`, waiting up to [`LOCK_WAIT`] for a running holder; a lock left by a
-/// dead process is taken over.
+/// Take `out/.index.lock`, waiting up to [`LOCK_WAIT`] for the running holder (the lock of a
+/// process that died is released by the kernel).
 pub fn lock_index(out: &Path) -> Result<IndexLock, PrepError> {
-    use std::io::Write;
-    let path = out.join(layout::INDEX_LOCK_FILE);
-    let start = Instant::now();
-    loop {
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&path)
-        {
-            Ok(mut f) => {
-                f.write_all(std::process::id().to_string().as_bytes())
-                    .map_err(|e| io_err(&path, e))?;
-                return Ok(IndexLock { path });
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                let holder = std::fs::read_to_string(&path)
-                    .ok()
-                    .and_then(|s| s.trim().parse::<u32>().ok());
-                match holder {
-                    Some(pid) if !pid_alive(pid) => {
-                        // Left by a process that died: take it over.
-                        let _ = std::fs::remove_file(&path);
-                        continue;
-                    }
-                    _ => {}
-                }
-                if start.elapsed() > LOCK_WAIT {
-                    return Err(PrepError::Output {
-                        path: path.display().to_string(),
-                        reason: format!(
-                            "held by process {} for more than {} s; if no other prepare runs on this folder, remove the file",
-                            holder.map(|p| p.to_string()).unwrap_or_else(|| "?".into()),
-                            LOCK_WAIT.as_secs()
-                        ),
-                    });
-                }
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            Err(e) => return Err(io_err(&path, e)),
-        }
-    }
+    Ok(OutputLock::wait_exclusive(
+        &out.join(layout::INDEX_LOCK_FILE),
+        "depthsense prepare (index update)",
+        LOCK_WAIT,
+    )?)
 }
 
 /// Read an index file: `None` when it does not exist, an error naming the file when it cannot
@@ -261,6 +220,11 @@ pub struct MergeSummary {
 /// lists are interleaved (scene j came from shard j mod N).
 pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
+    // Nobody else writes the folders while samples move and the index is rewritten.
+    let mut _writing = vec![OutputLock::exclusive(out, "depthsense index merge")?];
+    for o in others {
+        _writing.push(OutputLock::exclusive(o, "depthsense index merge")?);
+    }
     let _lock = lock_index(out)?;
     let target = out.join(layout::INDEX_FILE);
     let mut merged = read_index(&target)?.unwrap_or_default();
@@ -451,14 +415,18 @@ mod tests {
     }
 
     #[test]
-    fn lock_is_exclusive_and_a_dead_holder_is_taken_over() {
+    fn index_lock_is_exclusive_and_a_stale_record_does_not_block() {
         let d = tempfile::tempdir().unwrap();
+        // The record of a process that died holding it: no flock, so no obstacle.
+        std::fs::write(d.path().join(layout::INDEX_LOCK_FILE), "pid=4000000000\n").unwrap();
         let l = lock_index(d.path()).unwrap();
-        assert!(d.path().join(layout::INDEX_LOCK_FILE).is_file());
+        let other = OutputLock::wait_exclusive(
+            &d.path().join(layout::INDEX_LOCK_FILE),
+            "test",
+            std::time::Duration::from_millis(50),
+        );
+        assert!(other.is_err(), "the index lock is exclusive");
         drop(l);
-        assert!(!d.path().join(layout::INDEX_LOCK_FILE).exists());
-        // A lock file of a process that does not exist.
-        std::fs::write(d.path().join(layout::INDEX_LOCK_FILE), "4000000000").unwrap();
         let _l = lock_index(d.path()).unwrap();
     }
 

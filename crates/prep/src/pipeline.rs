@@ -125,6 +125,8 @@ pub enum PrepError {
     },
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
+    #[error(transparent)]
+    Lock(#[from] depthsense_nuscenes::lock::LockError),
     #[error("{path} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it")]
     SettingsMismatch {
         path: String,
@@ -937,6 +939,9 @@ pub fn prepare_timed(
         None => format!("{} split {}", opts.version, opts.split),
     });
     std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
+    // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
+    // may not write it meanwhile (README "Reliability").
+    let _writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
     // Temporary folders of interrupted runs (never those of a running process).
     crate::index::remove_stale_temp_dirs(&opts.out);
     // One version and one set of map settings per output folder: every index there must

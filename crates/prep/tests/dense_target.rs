@@ -228,7 +228,9 @@ fn ego_box_holds_the_cars_returns_and_no_world_return() {
             world_in_box += inside as usize;
         }
     }
-    eprintln!("body returns {body}, in the box {body_in_box}; world returns in the box {world_in_box}");
+    eprintln!(
+        "body returns {body}, in the box {body_in_box}; world returns in the box {world_in_box}"
+    );
     assert!(body > 8000, "{body}");
     assert_eq!(body_in_box, body, "every body return is in the ego box");
     assert_eq!(world_in_box, 0, "no world return is in the ego box");

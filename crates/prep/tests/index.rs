@@ -152,7 +152,13 @@ fn temp_folders_of_running_processes_are_left_alone() {
         "another process's work in progress was deleted"
     );
     assert!(!dead.exists());
-    assert!(!out.join(layout::INDEX_LOCK_FILE).exists());
+    // The index lock is released: another process could take it at once.
+    let _l = depthsense_nuscenes::lock::OutputLock::wait_exclusive(
+        &out.join(layout::INDEX_LOCK_FILE),
+        "test",
+        std::time::Duration::ZERO,
+    )
+    .unwrap();
 }
 
 #[test]

@@ -18,6 +18,7 @@ use std::time::Instant;
 use depthsense_metrics::Report;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
@@ -48,6 +49,13 @@ pub struct DemoOptions {
     pub jobs: usize,
     /// Test samples drawn in the report.
     pub pictures: usize,
+    /// Replace a demo already in `out` (its world, prepared data, runs and report);
+    /// without it such a folder is refused ([`crate::outputs`]).
+    #[serde(default)]
+    pub force: bool,
+    /// The invocation, recorded in `report/summary.json` and shown on the report page.
+    #[serde(default)]
+    pub command_line: Option<String>,
 }
 
 impl Default for DemoOptions {
@@ -62,6 +70,8 @@ impl Default for DemoOptions {
             keyframes_per_scene: None,
             jobs: 0,
             pictures: 4,
+            force: false,
+            command_line: None,
         }
     }
 }
@@ -82,6 +92,8 @@ pub struct DemoSummary {
     pub val_scenes: Vec<String>,
     pub test_scenes: Vec<String>,
     pub split_method: String,
+    /// The stages as separate depthsense commands with the demo's settings.
+    pub commands: Vec<String>,
 }
 
 /// The plan of a demo: sizes chosen to fit the time budget on the device.
@@ -176,7 +188,28 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     let cuda = device.is_cuda();
     let plan = plan(opts, cuda);
     let out = &opts.out;
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    // One demo per folder at a time, and an earlier one is replaced only when asked.
+    let _writing = OutputLock::exclusive(out, "depthsense demo")?;
+    if let Some(what) = demo_in(out) {
+        if !opts.force {
+            return Err(TrainError::OutputExists {
+                dir: out.display().to_string(),
+                what,
+                advice:
+                    "replace it with `depthsense demo --force` (`make demo DEMO_ARGS=--force`) \
+                         or choose another --out"
+                        .into(),
+            });
+        }
+        eprintln!(
+            "--force: replacing {what} in {} (world/, prepared/, rgb/, fusion/, report/)",
+            out.display()
+        );
+        let report = out.join("report");
+        if report.exists() {
+            std::fs::remove_dir_all(&report).map_err(|e| TrainError::io(&report, e))?;
+        }
+    }
     let mut stages: Vec<(String, f64)> = vec![];
 
     // 1. Synthesise.
@@ -252,6 +285,7 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
             max_batches_per_epoch: plan.max_batches_per_epoch,
             max_val_samples: plan.max_val_samples,
             val_every_scene: plan.val_every_scene,
+            force: opts.force,
             ..TrainOptions::default()
         };
         let pb = stage_bar(mp, &format!("train {name}"));
@@ -381,9 +415,94 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
         val_scenes: part.val_scenes.clone(),
         test_scenes: part.test_scenes.clone(),
         split_method: part.method.clone(),
+        commands: stage_commands(opts, &plan, &scfg.version_name),
     };
-    write_readme(&report_dir, &summary, &plan, &models, &test, &ds)?;
+    write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
+    write_page(&report_dir, opts)?;
     Ok(summary)
+}
+
+/// What `out` holds of an earlier demo, if anything.
+fn demo_in(out: &Path) -> Option<String> {
+    let summary = out.join("report").join(crate::report::DEMO_SUMMARY);
+    if let Ok(text) = std::fs::read_to_string(&summary) {
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+        let rmse = |k: &str| v["summary"][k].as_f64().unwrap_or(f64::NAN);
+        return Some(format!(
+            "a finished demo (test RMSE: RGB only {:.3} m, fusion {:.3} m)",
+            rmse("rgb_rmse"),
+            rmse("fusion_rmse")
+        ));
+    }
+    let parts: Vec<&str> = ["world", "prepared", "rgb", "fusion", "report"]
+        .into_iter()
+        .filter(|d| out.join(d).exists())
+        .collect();
+    (!parts.is_empty()).then(|| format!("an unfinished demo ({}/)", parts.join("/, ")))
+}
+
+/// The demo's stages as separate commands with its settings (README "Demo").
+fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<String> {
+    let out = opts.out.display();
+    let mut v = vec![
+        format!(
+            "depthsense synth --out {out}/world --scenes {} --keyframes-per-scene {} --seed {}",
+            plan.scenes, plan.keyframes_per_scene, opts.seed
+        ),
+        format!(
+            "depthsense prepare --dataroot {out}/world --version {version} --split all \
+             --lidar-sweeps {} --out {out}/prepared",
+            plan.lidar_sweeps
+        ),
+    ];
+    let mut extra = String::new();
+    if let Some(m) = plan.max_batches_per_epoch {
+        extra.push_str(&format!(" --max-batches-per-epoch {m}"));
+    }
+    if let Some(m) = plan.max_val_samples {
+        extra.push_str(&format!(" --max-val-samples {m}"));
+    }
+    for (name, fusion) in [("rgb", "none"), ("fusion", "late")] {
+        v.push(format!(
+            "depthsense train --data {out}/prepared --config {} --fusion {fusion} --dropout {} \
+             --set input-downscale={} --epochs {} --batch-size {} --lr {} --seed {} \
+             --val-every-scene {} --device {}{extra} --out {out}/{name}",
+            plan.preset,
+            plan.dropout,
+            plan.input_downscale,
+            plan.epochs,
+            plan.batch_size,
+            plan.lr,
+            opts.seed,
+            plan.val_every_scene,
+            opts.device
+        ));
+    }
+    for name in ["rgb", "fusion"] {
+        v.push(format!(
+            "depthsense eval --checkpoint {out}/{name}/best.safetensors --data {out}/prepared \
+             --val-every-scene {} --out {out}/eval-{name}",
+            plan.val_every_scene
+        ));
+    }
+    v
+}
+
+/// `report/report.html`: the demo's one self-contained page (README, tables, curves, every
+/// sample row with its colour bar, the commands), built by `depthsense report`'s renderer.
+fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
+    let ropts = crate::report::ReportOptions {
+        runs: vec![report_dir.to_path_buf()],
+        out: report_dir.join("page-unused"),
+        title: "depthsense demo".into(),
+        max_depth: 0,
+        command_line: opts.command_line.clone(),
+        ..crate::report::ReportOptions::default()
+    };
+    let (_, page) =
+        crate::report::render(&ropts).map_err(|e| TrainError::Other(format!("report: {e}")))?;
+    let p = report_dir.join("report.html");
+    write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
 }
 
 /// The demo's network: a model preset, or `tiny-wide` (tiny with ResNet-34 and doubled widths).
@@ -475,7 +594,7 @@ fn write_readme(
     plan: &DemoPlan,
     models: &[(&str, &Report)],
     test: &[depthsense_prep::layout::IndexEntry],
-    _ds: &Dataset,
+    opts: &DemoOptions,
 ) -> Result<(), TrainError> {
     let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
     scenes.dedup();
@@ -508,6 +627,12 @@ fn write_readme(
         md.push_str(&format!("| {n} | {t:.1} |\n"));
     }
     md.push_str(&format!("| total | {:.1} |\n\n", s.total_seconds));
+    md.push_str("The same stages as separate commands (same settings):\n\n```\n");
+    for c in &s.commands {
+        md.push_str(c);
+        md.push('\n');
+    }
+    md.push_str("```\n\n");
     md.push_str(&depthsense_metrics::tables::markdown_report(models));
     md.push_str(
         "\nPictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
@@ -519,9 +644,13 @@ fn write_readme(
     let p = dir.join("summary.json");
     write_atomic(
         &p,
-        serde_json::to_string_pretty(&serde_json::json!({"summary": s, "plan": plan}))
-            .map_err(|e| TrainError::Other(e.to_string()))?
-            .as_bytes(),
+        serde_json::to_string_pretty(&serde_json::json!({
+            "summary": s,
+            "plan": plan,
+            "command_line": opts.command_line,
+        }))
+        .map_err(|e| TrainError::Other(e.to_string()))?
+        .as_bytes(),
     )
     .map_err(|e| TrainError::io(&p, e))
 }

@@ -32,6 +32,14 @@ pub enum TrainError {
         iteration: u64,
         kept: String,
     },
+    #[error("{dir} already holds {what}; nothing was changed: {advice}")]
+    OutputExists {
+        dir: String,
+        what: String,
+        advice: String,
+    },
+    #[error(transparent)]
+    Lock(#[from] depthsense_nuscenes::lock::LockError),
     #[error("{0}")]
     Other(String),
 }

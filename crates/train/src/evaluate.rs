@@ -462,6 +462,14 @@ pub fn write_predictions(
     Ok((report, n))
 }
 
+/// The files [`write_tables`] writes.
+pub const TABLE_FILES: [&str; 3] = ["tables.md", "tables.csv", "tables.json"];
+
+/// [`TABLE_FILES`] in `dir`.
+pub fn table_paths(dir: &Path) -> Vec<PathBuf> {
+    TABLE_FILES.iter().map(|f| dir.join(f)).collect()
+}
+
 /// Write `tables.md`, `tables.csv` and `tables.json` (every row of every report plus the
 /// three rendered tables) into `dir`.
 pub fn write_tables(dir: &Path, models: &[(&str, &Report)]) -> Result<(), TrainError> {

@@ -24,6 +24,7 @@ pub mod experiments;
 pub mod explain;
 pub mod mer;
 mod optim_state;
+pub mod outputs;
 pub mod plot;
 pub mod predict;
 pub mod report;

@@ -239,6 +239,14 @@ pub fn predict(
     })
 }
 
+/// The files [`write_outputs`] writes.
+pub const OUTPUT_FILES: [&str; 4] = [
+    "depth.png",
+    "depth_color.png",
+    "radar_overlay.png",
+    "image.png",
+];
+
 /// Write depth.png, depth_color.png, radar_overlay.png and image.png into `out`.
 pub fn write_outputs(
     out: &Path,

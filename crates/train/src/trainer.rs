@@ -103,6 +103,11 @@ pub struct TrainOptions {
     /// the paper). Absent from the JSON when 0.
     #[serde(default, skip_serializing_if = "crate::is_default")]
     pub warmup_iters: u64,
+    /// Start over in a folder that holds a run (its run files are removed first); without it
+    /// such a folder is refused unless `resume` ([`crate::outputs`]). Absent from the JSON
+    /// when false.
+    #[serde(default, skip_serializing_if = "crate::is_default")]
+    pub force: bool,
 }
 
 /// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
@@ -140,6 +145,7 @@ impl Default for TrainOptions {
             loss_read_every: 0,
             train_radar_drop: 0.0,
             warmup_iters: 0,
+            force: false,
         }
     }
 }

@@ -137,7 +137,7 @@ fn ablation_runs_reports_and_resumes() {
     // Verdicts vs rgb in the Markdown; the CSV holds per-run and mean rows.
     let md = std::fs::read_to_string(out.join(MD_FILE)).unwrap();
     assert!(md.contains("late-sam vs rgb: RMSE "), "{md}");
-    assert!(md.contains("max(std(variant), std(rgb))"));
+    assert!(md.contains("two-sided paired t-test at 5 %"));
     assert!(md.contains(&r.partition.test_scenes[0]));
     let v = r.verdicts.iter().find(|v| v.metric == "rmse").unwrap();
     let (a, b) = (
@@ -145,10 +145,29 @@ fn ablation_runs_reports_and_resumes() {
         r.row("rgb", "combined", "full").unwrap().rmse.unwrap(),
     );
     assert_eq!(v.difference, a.mean - b.mean);
-    assert_eq!(
-        v.larger_than_spread,
-        Some((a.mean - b.mean).abs() > a.std.unwrap().max(b.std.unwrap()))
-    );
+    // The paired test, recomputed from the per-run records: seed by seed differences.
+    let d: Vec<f64> = [0u64, 1]
+        .iter()
+        .map(|s| {
+            let get = |name: &str| {
+                headline(
+                    runs.iter()
+                        .find(|x| x["variant"] == name && x["seed"] == *s)
+                        .unwrap(),
+                    "rmse",
+                )
+            };
+            get("late-sam") - get("rgb")
+        })
+        .collect();
+    let p = v.paired.clone().unwrap();
+    assert_eq!(v.paired_seeds, vec![0, 1]);
+    let mean = (d[0] + d[1]) / 2.0;
+    let se = (d[0] - d[1]).abs() / 2.0; // sd/√2 with sd = |d0 − d1|/√2
+    assert!((p.mean_difference - mean).abs() < 1e-12);
+    assert!((p.standard_error.unwrap() - se).abs() < 1e-9);
+    assert_eq!(p.t_critical, Some(12.706));
+    assert_eq!(p.significant, Some((mean / se).abs() > 12.706));
     // The paper's MER table appears with the late-sam-mer variant only; its cells are the
     // mean ± std over seeds of each run's full report (checked for δ2, which no other table has).
     assert!(depthsense_train::experiments::ablation::mer_table(&r, 80.0).is_empty());

@@ -62,6 +62,42 @@ fn quick_demo_writes_the_report() {
     ] {
         assert!(dir.join(f).exists(), "{f} missing");
     }
+    // One self-contained page: the demo's README (headline, commands, tables), the curves
+    // and every sample row, with the invocation.
+    let html = std::fs::read_to_string(r.join("report.html")).unwrap();
+    assert!(
+        html.contains("Demo: RGB-only vs radar fusion"),
+        "no demo section"
+    );
+    assert!(
+        html.contains("depthsense train --data"),
+        "stage commands missing"
+    );
+    assert!(
+        html.contains("| model |") || html.contains("<table"),
+        "tables missing"
+    );
+    let images = html.matches("<img src=\"data:image/png;base64,").count();
+    assert_eq!(images, 3 + 1, "val_rmse, two curves and one sample row");
+    assert!(!html.contains("src=\"http") && !html.contains("src=\"img/"));
+    // The page's section comes from the same discovery `depthsense report` uses.
+    let page = depthsense_train::report::render(&depthsense_train::report::ReportOptions {
+        runs: vec![tmp.path().join("demo")],
+        out: tmp.path().join("page"),
+        ..Default::default()
+    })
+    .unwrap();
+    let kinds: Vec<_> = page.0.sections.iter().map(|s| s.kind).collect();
+    assert_eq!(kinds, [depthsense_train::report::Kind::Demo]);
+
+    // A second demo into the same folder is refused and changes nothing.
+    let before = std::fs::read(r.join("summary.json")).unwrap();
+    let e = run_demo(&opts, &mp).unwrap_err().to_string();
+    assert!(
+        e.contains("already holds a finished demo") && e.contains("--force"),
+        "{e}"
+    );
+    assert_eq!(std::fs::read(r.join("summary.json")).unwrap(), before);
 }
 
 #[test]

@@ -58,7 +58,12 @@ fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
             rgb[c * hw + i] = p[c] as f32 / 255.0;
         }
     }
-    let strips = input.radar_height.depth_m.iter().filter(|d| **d > 0.0).count();
+    let strips = input
+        .radar_height
+        .depth_m
+        .iter()
+        .filter(|d| **d > 0.0)
+        .count();
     assert!(strips > 1000, "the keyframe's radar strips: {strips} px");
     f32_file(&dir.path().join("rgb.f32"), &rgb);
     f32_file(&dir.path().join("radar.f32"), &input.radar_height.depth_m);
@@ -131,8 +136,7 @@ fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
         .all(|k| !k.contains("backbone.conv_radar")));
 
     let pth = dir.path().join("weights.pth");
-    let (loaded, report) =
-        load_model(&pth, Some("released"), &narrow, tch::Device::Cpu).unwrap();
+    let (loaded, report) = load_model(&pth, Some("released"), &narrow, tch::Device::Cpu).unwrap();
     let report = report.expect("a .pth gives an import report");
     assert!(report.left_random.is_empty(), "{report}");
     assert!(report.unused.is_empty(), "{:?}", report.unused);

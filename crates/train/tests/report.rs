@@ -339,23 +339,52 @@ fn markdown_table_renders_to_the_expected_html() {
 }
 
 #[test]
-fn rewriting_replaces_the_folder_and_leaves_no_temp() {
+fn an_existing_report_is_refused_and_force_replaces_only_its_own_files() {
     let dir = tempfile::tempdir().unwrap();
     let (_, _, out) = report(dir.path());
-    std::fs::write(out.join("stale.txt"), "old").unwrap();
+    std::fs::write(out.join("notes.txt"), "mine").unwrap();
+    std::fs::write(out.join("img").join("stale.png"), "old").unwrap();
+    let before = std::fs::read(out.join("report.html")).unwrap();
     let opts = ReportOptions {
         runs: vec![dir.path().join("mer")],
         out: out.clone(),
         ..ReportOptions::default()
     };
-    let s = build_report(&opts).unwrap();
+    let e = build_report(&opts).unwrap_err().to_string();
+    assert!(
+        e.contains("already holds a report") && e.contains("--force") && e.contains("report.html"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read(out.join("report.html")).unwrap(),
+        before,
+        "refusal changes nothing"
+    );
+    let s = build_report(&ReportOptions {
+        force: true,
+        ..opts
+    })
+    .unwrap();
     assert_eq!(s.sections.len(), 1);
-    assert!(!out.join("stale.txt").exists());
+    assert_ne!(std::fs::read(out.join("report.html")).unwrap(), before);
+    assert!(
+        !out.join("img").join("stale.png").exists(),
+        "img/ is the report's own"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+        "mine"
+    );
     let names: Vec<String> = std::fs::read_dir(out.parent().unwrap())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
-    assert_eq!(names, ["report"]);
+    assert!(names.iter().all(|n| !n.starts_with('.')), "{names:?}");
+    let inside: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(inside.iter().all(|n| !n.starts_with('.')), "{inside:?}");
 }
 
 #[test]

@@ -36,6 +36,10 @@ pub struct Args {
     /// Number of test samples drawn in the report.
     #[arg(long, default_value_t = 4)]
     pictures: usize,
+    /// Replace a demo already in --out (its world, prepared data, runs and report); without
+    /// it such a folder is refused.
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -49,6 +53,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         keyframes_per_scene: a.keyframes_per_scene,
         jobs: a.jobs,
         pictures: a.pictures,
+        force: a.force,
+        command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
     };
     let mp = MultiProgress::new();
     let s = run_demo(&opts, &mp)?;
@@ -57,11 +63,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         std::fs::read_to_string(s.report_dir.join("README.md"))?
     );
     eprintln!(
-        "demo finished in {:.1} s: RGB-only RMSE {:.3} m, radar fusion RMSE {:.3} m; report in {}",
+        "demo finished in {:.1} s: RGB-only RMSE {:.3} m, radar fusion RMSE {:.3} m; report in {} \
+         (one page: {})",
         s.total_seconds,
         s.rgb_rmse,
         s.fusion_rmse,
-        s.report_dir.display()
+        s.report_dir.display(),
+        s.report_dir.join("report.html").display()
     );
     Ok(ExitCode::SUCCESS)
 }

@@ -6,10 +6,11 @@ use std::process::ExitCode;
 
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_train::evaluate::{
-    load_model, run_eval_loaded, run_eval_predictions, write_tables_with_command, EvalOptions,
-    PredictionsOptions,
+    load_model, run_eval_loaded, run_eval_predictions, table_paths, write_tables_with_command,
+    EvalOptions, PredictionsOptions,
 };
 use depthsense_train::experiments::failure::RadarFailure;
+use depthsense_train::outputs::refuse_existing;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["checkpoint", "predictions"])))]
@@ -97,6 +98,10 @@ pub struct Args {
     /// Model name in the tables.
     #[arg(long, default_value = "model")]
     name: String,
+    /// Replace tables an earlier `eval` wrote in the output folder (only tables.md, tables.csv
+    /// and tables.json); without it they are refused before anything is computed.
+    #[arg(long)]
+    force: bool,
 }
 
 fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
@@ -122,6 +127,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .map(|p| p.join("eval"))
             .unwrap_or_else(|| PathBuf::from("eval"))
     });
+    refuse_existing(&table_paths(&out), a.force, "eval")?;
     let opts = EvalOptions {
         checkpoint,
         config: a.config.clone(),
@@ -169,6 +175,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 
 fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
     let out = a.out.clone().unwrap_or_else(|| dir.join("eval"));
+    refuse_existing(&table_paths(&out), a.force, "eval")?;
     let opts = PredictionsOptions {
         dir,
         data: a.data.clone(),

@@ -51,6 +51,10 @@ pub struct CostArgs {
     /// Output directory for cost.{md,csv,json}.
     #[arg(long)]
     out: PathBuf,
+    /// Replace results an earlier run of this experiment wrote in --out (only its own
+    /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
+    #[arg(long)]
+    force: bool,
     /// Presets (paper, released, tiny, tiny-wide) or model-config JSON files, comma separated.
     #[arg(long, value_delimiter = ',', default_value = "paper,released,tiny")]
     presets: Vec<String>,
@@ -176,6 +180,10 @@ pub struct FailureArgs {
     /// Output directory for failure.{md,csv,json,png}.
     #[arg(long)]
     out: PathBuf,
+    /// Replace results an earlier run of this experiment wrote in --out (only its own
+    /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
+    #[arg(long)]
+    force: bool,
     /// Scenarios separated by `;`; each `none` or settings joined by `,`: radar-drop=F
     /// (fraction of points), drop-radars=A+B (channel names or all), beyond=M (metres),
     /// clutter=N (ghost points per sample).
@@ -215,6 +223,10 @@ pub struct PerturbArgs {
     /// Output directory for perturb.{md,csv,json,png}.
     #[arg(long)]
     out: PathBuf,
+    /// Replace results an earlier run of this experiment wrote in --out (only its own
+    /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
+    #[arg(long)]
+    force: bool,
     /// Rotation magnitudes in degrees (yaw, pitch, roll), comma separated.
     #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,5")]
     rotate_deg: Vec<f64>,
@@ -252,8 +264,9 @@ pub struct AblationArgs {
     /// Output directory: runs/<variant>/seed<k>/ and ablation.{md,csv,json,png}.
     #[arg(long)]
     out: PathBuf,
-    /// Number of seeds: 0, 1, …, N−1.
-    #[arg(long, default_value_t = 3, conflicts_with = "seed_list")]
+    /// Number of seeds: 0, 1, …, N−1. Each seed trains every variant; the verdicts are a
+    /// paired test over the seeds (README "The paper's ablation, with seeds").
+    #[arg(long, default_value_t = 5, conflicts_with = "seed_list")]
     seeds: u64,
     /// Explicit seeds instead of --seeds, comma separated (e.g. 0,7,11).
     #[arg(long, value_delimiter = ',')]
@@ -304,11 +317,31 @@ fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
         device: a.device,
         command_line: command_line(),
     };
+    let _writing = claim_results(&a.out, "cost", a.force)?;
     let pb = super::train::progress_bar("cost");
     run_cost(&o, &a.out, &pb)?;
     pb.finish_and_clear();
     println!("{}", std::fs::read_to_string(a.out.join(MD_FILE))?);
     Ok(ExitCode::SUCCESS)
+}
+
+/// The results-folder rule for `experiment NAME` (README "Reliability"): the folder's lock,
+/// and OUT/NAME.{md,csv,json,png} refused when present unless --force.
+fn claim_results(
+    out: &std::path::Path,
+    name: &str,
+    force: bool,
+) -> anyhow::Result<depthsense_nuscenes::lock::OutputLock> {
+    let lock = depthsense_nuscenes::lock::OutputLock::exclusive(
+        out,
+        &format!("depthsense experiment {name}"),
+    )?;
+    let files: Vec<PathBuf> = ["md", "csv", "json", "png"]
+        .iter()
+        .map(|e| out.join(format!("{name}.{e}")))
+        .collect();
+    depthsense_train::outputs::refuse_existing(&files, force, &format!("experiment {name}"))?;
+    Ok(lock)
 }
 
 fn command_line() -> Option<String> {
@@ -350,6 +383,7 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
         ..EvalOptions::default()
     };
     let sc = parse_scenarios(&a.scenarios)?;
+    let _writing = claim_results(&a.out, "failure", a.force)?;
     run_failure(&base, &sc, &a.out, command_line(), &MultiProgress::new())?;
     println!("{}", std::fs::read_to_string(a.out.join(FAILURE_MD))?);
     Ok(ExitCode::SUCCESS)
@@ -377,6 +411,7 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
         translate_m: a.translate_m,
         axes: parse_axes(&a.axes)?,
     };
+    let _writing = claim_results(&a.out, "perturb", a.force)?;
     let t = std::time::Instant::now();
     run_perturb(&base, &opts, &a.out, command_line(), &MultiProgress::new())?;
     println!("{}", std::fs::read_to_string(a.out.join(PERTURB_MD))?);
@@ -426,7 +461,7 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
             f(row.and_then(|x| x.abs_rel)),
         );
     }
-    for v in r.verdicts.iter().filter(|v| v.metric == "rmse") {
+    for v in &r.verdicts {
         println!("{}", v.text);
     }
     eprintln!(

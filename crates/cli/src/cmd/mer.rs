@@ -66,6 +66,10 @@ struct TrainArgs {
     /// Continue from OUT/last.safetensors (same options required).
     #[arg(long)]
     resume: bool,
+    /// Start over in an --out that holds a PDA run (its run files are removed first); without
+    /// --resume or --force such a folder is refused.
+    #[arg(long, conflicts_with = "resume")]
+    force: bool,
     /// Loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     jobs: usize,
@@ -156,6 +160,7 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         seed: a.seed,
         device: a.device,
         resume: a.resume,
+        force: a.force,
         jobs: a.jobs,
         augment: !a.no_augment,
         max_val_samples: a.max_val_samples,

@@ -5,8 +5,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_train::evaluate::load_model;
+use depthsense_train::outputs::refuse_existing;
 use depthsense_train::predict::{
-    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs,
+    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, OUTPUT_FILES,
 };
 use depthsense_train::trainer::radar_input_for;
 
@@ -77,10 +78,14 @@ pub struct Args {
     /// a prepared sample uses the maps `mer apply` wrote unless this is given.
     #[arg(long)]
     mer_checkpoint: Option<PathBuf>,
+    /// Replace predictions an earlier `predict` wrote in --out (only the files this run
+    /// writes); without it they are refused before anything is computed.
+    #[arg(long)]
+    force: bool,
 }
 
 fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
-    use depthsense_train::evaluate::{write_predictions, EvalOptions, PredFormat};
+    use depthsense_train::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
     let formats = a
         .format
         .iter()
@@ -96,6 +101,16 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         device: a.device.clone(),
         ..EvalOptions::default()
     };
+    let ds = depthsense_train::data::Dataset::open(data)?;
+    let files: Vec<PathBuf> = select_split(&ds, &opts.split, opts.val_every_scene)?
+        .iter()
+        .flat_map(|e| {
+            formats
+                .iter()
+                .map(|f| a.out.join(format!("{}.{}", e.sample_token, f.ext())))
+        })
+        .collect();
+    refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
     let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
     if let Some(r) = &load_report {
@@ -139,6 +154,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
     };
+    let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
+    refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
     let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
     if let Some(r) = &load_report {

@@ -17,10 +17,14 @@ pub struct Args {
     /// reports (`mer report --json`), each with its .md/.csv/.png beside it.
     #[arg(long, required = true, num_args = 1.., value_name = "DIR")]
     runs: Vec<PathBuf>,
-    /// Output folder: report.html (self-contained), report.md with img/, report.json.
-    /// Replaced as a whole when it exists.
+    /// Output folder: report.html (self-contained), report.md with img/, report.json. A report
+    /// already there is refused unless --force.
     #[arg(long, value_name = "REPORT")]
     out: PathBuf,
+    /// Replace a report already in --out (only report.html, report.md, report.json and img/;
+    /// other files in the folder are left alone).
+    #[arg(long)]
+    force: bool,
     /// Title of the page.
     #[arg(long, default_value = "depthsense report")]
     title: String,
@@ -44,6 +48,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_width: a.max_width.max(16),
         tile_width: a.tile_width.max(16),
         command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        force: a.force,
     };
     let s = build_report(&opts).with_context(|| format!("report → {}", opts.out.display()))?;
     for sec in &s.sections {

@@ -72,6 +72,11 @@ pub struct Args {
     /// Continue exactly from OUT/last.safetensors (same options required).
     #[arg(long)]
     resume: bool,
+    /// Start over in an --out that holds a run: its config.json, metrics.jsonl, curves.png and
+    /// checkpoints are removed first (other files stay). Without --resume or --force such a
+    /// folder is refused.
+    #[arg(long, conflicts_with = "resume")]
+    force: bool,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     jobs: usize,
@@ -205,6 +210,15 @@ pub fn progress_bar(prefix: &str) -> ProgressBar {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let timeout = Duration::from_secs(a.dist_timeout.max(1));
     if let Some(n) = a.nproc {
+        // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
+        if !a.resume && !a.force {
+            depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
+        }
+        // Another writer fails us here, at once (taken and released: rank 0 holds it next).
+        drop(depthsense_nuscenes::lock::OutputLock::exclusive(
+            &a.out,
+            "depthsense train",
+        )?);
         distributed::launch_local(
             n,
             &worker_args(),
@@ -249,6 +263,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         amp: a.amp,
         backbone_weights: a.backbone_weights,
         resume: a.resume,
+        force: a.force,
         jobs: a.jobs,
         prefetch: a.prefetch,
         radar_input: a

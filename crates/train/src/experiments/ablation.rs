@@ -25,6 +25,7 @@ use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
+use super::paired::{paired_test, PairedTest};
 use super::runner::{run_bar, train_and_test, RunSettings};
 pub use super::runner::{
     summarise, PartitionInfo, RowValues, RunRecord, RunStatus, SummaryRow, RUN_EVAL_FILE,
@@ -169,7 +170,7 @@ impl Default for AblationOptions {
             run: RunSettings::default(),
             out: PathBuf::from("runs/ablation"),
             variants: Variant::ALL.to_vec(),
-            seeds: vec![0, 1, 2],
+            seeds: vec![0, 1, 2, 3, 4],
             eval: EvalConfig::default(),
             command_line: None,
         }
@@ -181,7 +182,7 @@ impl Default for AblationOptions {
 pub struct Verdict {
     pub variant: String,
     pub baseline: String,
-    /// "rmse" or "delta1".
+    /// "rmse", "delta1" or "abs_rel".
     pub metric: String,
     pub mean: f64,
     pub baseline_mean: f64,
@@ -189,10 +190,10 @@ pub struct Verdict {
     pub difference: f64,
     /// 100 · difference / baseline mean.
     pub relative_pct: f64,
-    /// max(std of the variant, std of the baseline) over seeds; None when either has n < 2.
-    pub seed_spread: Option<f64>,
-    /// |difference| > seed spread; None when the spread is unknown.
-    pub larger_than_spread: Option<bool>,
+    /// The seeds both variants ran: the pairs of the test.
+    pub paired_seeds: Vec<u64>,
+    /// The paired test over those seeds (`None` when no seed is shared).
+    pub paired: Option<PairedTest>,
     pub n: usize,
     pub baseline_n: usize,
     pub text: String,
@@ -308,36 +309,54 @@ fn check_options(opts: &AblationOptions) -> Result<(), TrainError> {
     Ok(())
 }
 
-/// The verdict rule: the difference of the two means is "larger than the seed spread" when
-/// |mean(variant) − mean(baseline)| > max(std(variant), std(baseline)) (sample stds over
-/// seeds); undecided when either variant has fewer than 2 seeds.
-pub fn verdict(variant: &str, baseline: &str, metric: &str, v: &Stat, b: &Stat) -> Verdict {
+/// The verdict rule: a paired test over the seeds both variants ran (each seed trains both,
+/// [`paired_test`]): the mean per-seed difference, its standard error and a two-sided paired
+/// t-test at 5 %; no verdict with fewer than 2 shared seeds. `values` are (seed, variant value,
+/// baseline value) of the seeds both ran.
+pub fn verdict(
+    variant: &str,
+    baseline: &str,
+    metric: &str,
+    v: &Stat,
+    b: &Stat,
+    values: &[(u64, f64, f64)],
+) -> Verdict {
     let diff = v.mean - b.mean;
     let rel = 100.0 * diff / b.mean;
-    let spread = match (v.std, b.std) {
-        (Some(x), Some(y)) => Some(x.max(y)),
-        _ => None,
-    };
-    let larger = spread.map(|s| diff.abs() > s);
+    let pairs: Vec<(f64, f64)> = values.iter().map(|&(_, a, c)| (a, c)).collect();
+    let paired = paired_test(&pairs);
     let (label, unit, prec) = match metric {
         "rmse" => ("RMSE", " m", 3),
+        "abs_rel" => ("AbsRel", "", 4),
         _ => ("δ1", "", 3),
     };
-    let spread_txt = spread.map_or("unknown (n < 2)".to_string(), |s| {
-        format!("±{s:.prec$}{unit}")
-    });
-    let conclusion = match larger {
-        Some(true) => "larger than the seed spread",
-        Some(false) => "NOT larger than the seed spread",
-        None => "no verdict",
+    let test_txt = match &paired {
+        Some(p) => match (p.standard_error, p.t, p.t_critical, p.significant) {
+            (Some(se), Some(t), Some(c), Some(sig)) => format!(
+                "paired over {} seeds: difference {} ± {se:.prec$}{unit} (standard error), t = {}, |t| {} {c:.3} = t₀.₉₇₅ with {} df → {}",
+                p.n,
+                signed(p.mean_difference, prec),
+                signed(t, 2),
+                if sig { ">" } else { "≤" },
+                p.n - 1,
+                if sig {
+                    "significant (two-sided paired t-test, 5 %)"
+                } else {
+                    "NOT significant: inside the seed-to-seed noise"
+                }
+            ),
+            _ => format!(
+                "{} shared seed(s): no verdict (a paired test needs 2)",
+                p.n
+            ),
+        },
+        None => "no seed shared with the baseline: no verdict".to_string(),
     };
     let text = format!(
-        "{variant} vs {baseline}: {label} {} % (mean {:.prec$}{unit} vs {:.prec$}{unit}), \
-         difference {}{unit} vs seed spread {spread_txt} (n = {} / {}) → {conclusion}",
+        "{variant} vs {baseline}: {label} {} % (mean {:.prec$}{unit} vs {:.prec$}{unit}, n = {} / {}); {test_txt}",
         signed(rel, 1),
         v.mean,
         b.mean,
-        signed(diff, prec),
         v.n,
         b.n
     );
@@ -349,15 +368,41 @@ pub fn verdict(variant: &str, baseline: &str, metric: &str, v: &Stat, b: &Stat) 
         baseline_mean: b.mean,
         difference: diff,
         relative_pct: rel,
-        seed_spread: spread,
-        larger_than_spread: larger,
+        paired_seeds: values.iter().map(|x| x.0).collect(),
+        paired,
         n: v.n,
         baseline_n: b.n,
         text,
     }
 }
 
-fn verdicts(variants: &[&str], summary: &[SummaryRow]) -> Vec<Verdict> {
+/// (seed, variant value, baseline value) of the seeds both ran, from each run's headline row.
+fn seed_pairs(
+    runs: &[RunRecord],
+    variant: &str,
+    baseline: &str,
+    get: fn(&RowValues) -> f64,
+) -> Vec<(u64, f64, f64)> {
+    let value = |name: &str, seed: u64| {
+        runs.iter()
+            .find(|r| r.variant == name && r.seed == seed)
+            .and_then(|r| r.headline())
+            .map(get)
+    };
+    let mut seeds: Vec<u64> = runs
+        .iter()
+        .filter(|r| r.variant == variant)
+        .map(|r| r.seed)
+        .collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    seeds
+        .into_iter()
+        .filter_map(|s| Some((s, value(variant, s)?, value(baseline, s)?)))
+        .collect()
+}
+
+fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Vec<Verdict> {
     let get = |v: &str| {
         summary
             .iter()
@@ -369,12 +414,15 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow]) -> Vec<Verdict> {
     let mut out = vec![];
     for &v in variants.iter().filter(|v| **v != BASELINE) {
         let Some(row) = get(v) else { continue };
-        for (metric, a, b) in [
-            ("rmse", row.rmse, base.rmse),
-            ("delta1", row.delta1, base.delta1),
-        ] {
+        let metrics: [(&str, Option<Stat>, Option<Stat>, fn(&RowValues) -> f64); 3] = [
+            ("rmse", row.rmse, base.rmse, |x| x.rmse),
+            ("delta1", row.delta1, base.delta1, |x| x.delta1),
+            ("abs_rel", row.abs_rel, base.abs_rel, |x| x.abs_rel),
+        ];
+        for (metric, a, b, field) in metrics {
             if let (Some(a), Some(b)) = (a, b) {
-                out.push(verdict(v, BASELINE, metric, &a, &b));
+                let pairs = seed_pairs(runs, v, BASELINE, field);
+                out.push(verdict(v, BASELINE, metric, &a, &b, &pairs));
             }
         }
     }
@@ -402,7 +450,11 @@ pub fn run_ablation(
             part.method
         )));
     }
-    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, e))?;
+    // One writer per experiment folder (each run's folder has its own lock too).
+    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+        &opts.out,
+        "depthsense experiment ablation",
+    )?;
     let total = models.len() * opts.seeds.len();
     let overall = run_bar(mp, "ablation runs");
     overall.set_length(total as u64);
@@ -420,7 +472,7 @@ pub fn run_ablation(
     overall.finish_with_message("done");
     let names: Vec<&str> = models.iter().map(|(v, _)| v.name()).collect();
     let summary = summarise(&names, &runs);
-    let verdicts = verdicts(&names, &summary);
+    let verdicts = verdicts(&names, &summary, &runs);
     let count = |s: RunStatus| status.iter().filter(|x| **x == s).count();
     let result = AblationResult {
         options: opts.clone(),
@@ -625,10 +677,11 @@ fn markdown(r: &AblationResult) -> String {
     if !r.verdicts.is_empty() {
         md.push_str("## Verdicts vs rgb (combined, full image)\n\n");
         md.push_str(
-            "Rule: a difference of means counts as *larger than the seed spread* when \
-             |mean(variant) − mean(rgb)| > max(std(variant), std(rgb)), the larger of the two \
-             variants' sample stds over seeds; with fewer than 2 seeds on either side there is \
-             no verdict. This is a rough screen, not a significance test.\n\n",
+            "Rule: each seed trains both the variant and rgb, so the test is paired over the \
+             seeds both ran: the per-seed differences (variant − rgb), their mean ± standard \
+             error (sd/√n), and a two-sided paired t-test at 5 % (Student's t, n − 1 degrees of \
+             freedom). A difference that is not significant is not a finding; with fewer than 2 \
+             shared seeds there is no verdict.\n\n",
         );
         for v in &r.verdicts {
             md.push_str(&format!("- {}\n", v.text));
@@ -806,41 +859,39 @@ mod tests {
     }
 
     #[test]
-    fn verdict_compares_the_difference_with_the_larger_std() {
-        let rgb = Stat {
-            mean: 5.0,
-            std: Some(0.1),
-            n: 3,
-        };
-        let sam = Stat {
-            mean: 4.5,
-            std: Some(0.3),
-            n: 3,
-        };
-        let v = verdict("late-sam", "rgb", "rmse", &sam, &rgb);
-        assert!((v.difference + 0.5).abs() < 1e-12);
-        assert!((v.relative_pct + 10.0).abs() < 1e-9);
-        assert_eq!(v.seed_spread, Some(0.3));
-        assert_eq!(v.larger_than_spread, Some(true));
-        assert!(v.text.contains("RMSE −10.0 %"), "{}", v.text);
+    fn verdict_is_a_paired_test_over_the_shared_seeds() {
+        // Seeds move both variants alike; late-sam is 0.1 m better on every seed: the
+        // unpaired stds (≈ 0.5 m) would hide it, the paired test finds it.
+        let rgb_v = [10.0, 10.5, 9.5, 11.0];
+        let sam_v = [9.9, 10.4, 9.4, 10.92];
+        let rgb = Stat::of(&rgb_v).unwrap();
+        let sam = Stat::of(&sam_v).unwrap();
+        let pairs: Vec<(u64, f64, f64)> = (0..4)
+            .map(|i| (i, sam_v[i as usize], rgb_v[i as usize]))
+            .collect();
+        let v = verdict("late-sam", "rgb", "rmse", &sam, &rgb, &pairs);
+        assert!((v.difference - (sam.mean - rgb.mean)).abs() < 1e-12);
+        let p = v.paired.clone().unwrap();
+        assert_eq!(p.n, 4);
+        assert!((p.mean_difference + 0.095).abs() < 1e-9);
+        assert_eq!(p.significant, Some(true));
+        assert_eq!(v.paired_seeds, vec![0, 1, 2, 3]);
+        assert!(v.text.contains("paired over 4 seeds"), "{}", v.text);
         assert!(
-            v.text.ends_with("→ larger than the seed spread"),
+            v.text
+                .ends_with("significant (two-sided paired t-test, 5 %)"),
             "{}",
             v.text
         );
-        let close = Stat { mean: 4.8, ..sam };
-        let v = verdict("late", "rgb", "rmse", &close, &rgb);
-        assert_eq!(v.larger_than_spread, Some(false));
-        assert!(v.text.contains("NOT larger"));
-        let single = Stat {
-            std: None,
-            n: 1,
-            ..sam
-        };
-        assert_eq!(
-            verdict("l1", "rgb", "rmse", &single, &rgb).larger_than_spread,
-            None
-        );
+        // One seed against the grain: not significant.
+        let noisy = [(0, 9.9, 10.0), (1, 10.7, 10.5), (2, 9.2, 9.5)];
+        let v = verdict("late", "rgb", "rmse", &sam, &rgb, &noisy);
+        assert_eq!(v.paired.unwrap().significant, Some(false));
+        assert!(v.text.contains("NOT significant"), "{}", v.text);
+        // One shared seed: no verdict.
+        let v = verdict("l1", "rgb", "rmse", &sam, &rgb, &pairs[..1]);
+        assert_eq!(v.paired.unwrap().significant, None);
+        assert!(v.text.contains("no verdict"), "{}", v.text);
     }
 
     #[test]

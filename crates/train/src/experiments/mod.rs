@@ -9,6 +9,7 @@
 pub mod ablation;
 pub mod cost;
 pub mod failure;
+pub mod paired;
 pub mod perturb;
 pub mod reduced_data;
 pub mod runner;

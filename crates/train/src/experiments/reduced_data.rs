@@ -260,7 +260,11 @@ pub fn run_reduced_data(
             part.method
         )));
     }
-    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, e))?;
+    // One writer per experiment folder (each run's folder has its own lock too).
+    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+        &opts.out,
+        "depthsense experiment reduced-data",
+    )?;
     let overall = run_bar(mp, "reduced-data runs");
     overall.set_length((opts.grid.len() * opts.seeds.len()) as u64);
     let (mut runs, mut cells) = (vec![], vec![]);

@@ -205,7 +205,7 @@ impl From<&Partition> for PartitionInfo {
 }
 
 /// Training options as compared across invocations: without where the data and run live,
-/// the device, the thread counts (the loader is thread-count independent), `resume`,
+/// the device, the thread counts (the loader is thread-count independent), `resume`, `force`,
 /// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
 pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
     let mut v = serde_json::to_value(t).map_err(|e| TrainError::Other(e.to_string()))?;
@@ -217,6 +217,7 @@ pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
             "jobs",
             "prefetch",
             "resume",
+            "force",
             "stop_after",
             "checkpoint_every",
             "loss_read_every",
@@ -409,7 +410,11 @@ pub fn train_and_test(
         (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
     } else {
         let resumed = topts.resume;
-        let s = train(topts, &pb)?;
+        // A run of this experiment (its config matched above) that stopped before its first
+        // checkpoint starts over in its own folder.
+        let mut topts = topts.clone();
+        topts.force = !topts.resume && cfg_path.exists();
+        let s = train(&topts, &pb)?;
         if s.interrupted || s.iterations_done < s.total_iterations {
             return Err(TrainError::Other(format!(
                 "{}: training stopped at iteration {} of {}",

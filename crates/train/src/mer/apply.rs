@@ -233,6 +233,9 @@ pub fn apply(
     progress: &ProgressBar,
 ) -> Result<MerApplySummary, TrainError> {
     let started = Instant::now();
+    // It writes the prepared dataset in place: no `prepare`, merge or other `mer apply` meanwhile.
+    let _writing =
+        depthsense_nuscenes::lock::OutputLock::exclusive(&opts.data, "depthsense mer apply")?;
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
     let loaded = pda::load(&opts.checkpoint, device)?;

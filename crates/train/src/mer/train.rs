@@ -27,11 +27,13 @@ use super::adam::Adam;
 use super::labels::{load_labelled, PdaInput};
 use crate::data::{epoch_order, mix64, partition, sample_rng, Dataset};
 use crate::error::TrainError;
+use crate::outputs::claim_run_folder;
 use crate::sgd::poly_lr;
 use crate::trainer::{
     append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
     LAST_OPTIM, METRICS_FILE,
 };
+use depthsense_nuscenes::lock::OutputLock;
 
 /// Options of `mer train`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -47,6 +49,10 @@ pub struct MerTrainOptions {
     pub seed: u64,
     pub device: String,
     pub resume: bool,
+    /// Start over in a folder that holds a run ([`crate::outputs`]). Absent from the JSON when
+    /// false.
+    #[serde(default, skip_serializing_if = "crate::is_default")]
+    pub force: bool,
     /// Loader threads (0 = all cores).
     pub jobs: usize,
     /// Horizontal flip with p = 0.5 (the window is left/right symmetric).
@@ -71,6 +77,7 @@ impl Default for MerTrainOptions {
             seed: 0,
             device: "auto".into(),
             resume: false,
+            force: false,
             jobs: 0,
             augment: true,
             val_every_scene: 5,
@@ -295,6 +302,8 @@ struct Run<'o> {
     state: State,
     pool: rayon::ThreadPool,
     bpe: u64,
+    /// The run folder's lock, held while the run writes there.
+    _lock: OutputLock,
 }
 
 impl<'o> Run<'o> {
@@ -316,7 +325,9 @@ impl<'o> Run<'o> {
                 part.method
             )));
         }
-        std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, e))?;
+        // One writer per run folder; a run there is refused unless --resume or --force.
+        let lock = OutputLock::exclusive(&opts.out, "depthsense mer train")?;
+        claim_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
         let jobs = match opts.jobs {
             0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
             j => j,
@@ -339,6 +350,7 @@ impl<'o> Run<'o> {
             state,
             pool,
             bpe,
+            _lock: lock,
         };
         run.write_config(&part)?;
         Ok(run)

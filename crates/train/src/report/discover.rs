@@ -78,6 +78,17 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
         }
     };
     let names: BTreeSet<&str> = files.iter().filter_map(|p| file_name(p)).collect();
+    if names.contains(DEMO_SUMMARY) {
+        // The demo's report folder (it may hold its own report.html): one section, and its
+        // samples/ subfolder is part of it.
+        match read_json(&dir.join(DEMO_SUMMARY)).and_then(|v| demo(dir, &v, &files, &dirs)) {
+            Ok(f) => {
+                d.sections.push(f);
+                return vec![];
+            }
+            Err(reason) => d.skipped.push(skip(&dir.join(DEMO_SUMMARY), reason)),
+        }
+    }
     if names.contains("report.html") || names.contains("index.json") {
         // An earlier report, or prepared data: nothing of ours inside.
         return vec![];
@@ -143,6 +154,60 @@ fn skip(p: &Path, reason: String) -> Skipped {
 fn read_json(p: &Path) -> Result<Value, String> {
     let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read: {e}"))?;
     serde_json::from_str(&text).map_err(|e| format!("not valid JSON: {e}"))
+}
+
+/// The demo's summary file in `OUT/report/` (`depthsense demo`).
+pub const DEMO_SUMMARY: &str = "summary.json";
+
+/// The demo's report folder: its README (headline, stage times, commands, tables), the curves
+/// and validation plot, and the picture row of every sample (one colour bar in metres each).
+fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Found, String> {
+    if v.get("summary").is_none() || v.get("plan").is_none() {
+        return Err("not a demo summary (no `summary` / `plan`)".into());
+    }
+    let readme = dir.join("README.md");
+    let markdown = std::fs::read_to_string(&readme)
+        .map_err(|e| format!("README.md beside it: cannot read: {e}"))?;
+    let command_line = string_at(v, &["command_line"]);
+    let mut f = Found {
+        kind: Kind::Demo,
+        dir: dir.to_path_buf(),
+        files: files.to_vec(),
+        inputs: inputs(v, command_line.as_deref()),
+        command_line,
+        markdown,
+        images: vec![],
+        grid: None,
+    };
+    for name in ["val_rmse.png", "curves_rgb.png", "curves_fusion.png"] {
+        let p = dir.join(name);
+        if p.is_file() {
+            f.images.push(ImageSource {
+                caption: name.to_string(),
+                path: p,
+                tile: false,
+            });
+        }
+    }
+    for sample in dirs.iter().filter(|d| file_name(d) == Some("samples")) {
+        let Ok((_, rows)) = list(sample) else {
+            continue;
+        };
+        for r in rows {
+            let p = r.join("row.png");
+            if p.is_file() {
+                f.images.push(ImageSource {
+                    caption: format!(
+                        "sample {}: image, radar, lidar GT, RGB only, fusion (m)",
+                        file_name(&r).unwrap_or("?")
+                    ),
+                    path: p,
+                    tile: false,
+                });
+            }
+        }
+    }
+    Ok(f)
 }
 
 /// JSON files of `dir` not claimed yet that hold a MER report (`mer report --json`).

@@ -1,11 +1,12 @@
 //! `depthsense report`: one self-contained page of every experiment output found under some
 //! run folders — ablation, reduced data, sensor failure, calibration perturbation, cost,
-//! Grad-CAM++ (explain), evaluation tables (main, region and distance-cap tables) and the MER
-//! coverage report.
+//! Grad-CAM++ (explain), evaluation tables (main, region and distance-cap tables), the MER
+//! coverage report and the demo's report folder.
 //!
 //! Outputs are recognised by their file names (`ablation.json`, `reduced_data.json`,
 //! `failure.json`, `perturb.json`, `cost.json`, `explain.json`, `tables.json`) or, for the MER
-//! report (`mer report --json FILE`, any name), by its JSON fields. Each becomes one section:
+//! report (`mer report --json FILE`, any name), by its JSON fields; the demo's `OUT/report/` by
+//! its `summary.json` (one section: its README, tables, curves and every sample row). Each becomes one section:
 //! its Markdown rendered to HTML ([`markdown`]), its plot or figure grid, and the command and
 //! data that produced it (the JSON's `command_line` / options).
 //!
@@ -24,7 +25,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-pub use discover::{discover, Discovery};
+pub use discover::{discover, Discovery, DEMO_SUMMARY};
 pub use images::{base64, Embedded};
 
 /// Errors of the report: each names the file or folder at fault.
@@ -40,6 +41,11 @@ pub enum ReportError {
     Invalid { path: String, reason: String },
     #[error("no experiment output found under {0}")]
     Nothing(String),
+    #[error(
+        "{dir} already holds a report ({files}); nothing was changed: pass --force to replace \
+         it (only report.html, report.md, report.json and img/ are replaced) or choose another --out"
+    )]
+    Exists { dir: String, files: String },
 }
 
 impl ReportError {
@@ -70,10 +76,12 @@ pub enum Kind {
     Explain,
     Eval,
     Mer,
+    Demo,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 8] = [
+    pub const ALL: [Kind; 9] = [
+        Kind::Demo,
         Kind::Ablation,
         Kind::ReducedData,
         Kind::Failure,
@@ -95,7 +103,7 @@ impl Kind {
             Kind::Cost => "cost",
             Kind::Explain => "explain",
             Kind::Eval => "tables",
-            Kind::Mer => return None,
+            Kind::Mer | Kind::Demo => return None,
         })
     }
 
@@ -110,6 +118,7 @@ impl Kind {
             Kind::Explain => "explain",
             Kind::Eval => "eval",
             Kind::Mer => "mer",
+            Kind::Demo => "demo",
         }
     }
 
@@ -124,6 +133,7 @@ impl Kind {
             Kind::Explain => "Grad-CAM++ by distance class (SPEC §10.6)",
             Kind::Eval => "Evaluation: main, region and distance-cap tables (SPEC §10.1–10.3)",
             Kind::Mer => "MER: radar map coverage and error (SPEC §5)",
+            Kind::Demo => "Demo: RGB-only vs radar fusion on a synthetic world",
         }
     }
 
@@ -138,6 +148,7 @@ impl Kind {
             Kind::Explain => "depthsense explain",
             Kind::Eval => "depthsense eval",
             Kind::Mer => "depthsense mer report --json FILE",
+            Kind::Demo => "depthsense demo",
         }
     }
 }
@@ -211,6 +222,8 @@ pub struct ReportOptions {
     pub tile_width: u32,
     /// The invocation, shown at the top of the page.
     pub command_line: Option<String>,
+    /// Replace a report already in `out` (its own files only; [`crate::outputs`]).
+    pub force: bool,
 }
 
 impl Default for ReportOptions {
@@ -223,6 +236,7 @@ impl Default for ReportOptions {
             max_width: 1600,
             tile_width: 400,
             command_line: None,
+            force: false,
         }
     }
 }
@@ -239,8 +253,11 @@ pub struct ReportSummary {
     pub html_bytes: usize,
 }
 
-/// Discover, render and write REPORT/ (atomically: a sibling temp folder renamed into place).
-pub fn build_report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
+/// What REPORT/ holds of the report's own (the only entries a rewrite replaces).
+pub const REPORT_ENTRIES: [&str; 4] = ["img", "report.json", "report.md", "report.html"];
+
+/// Discover and render: the summary and the HTML page (nothing is written).
+pub fn render(opts: &ReportOptions) -> Result<(ReportSummary, String), ReportError> {
     let mut found = discover(&opts.runs, &opts.out, opts.max_depth)?;
     found
         .sections
@@ -264,11 +281,28 @@ pub fn build_report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> 
     };
     let page = html::page(&summary);
     summary.html_bytes = page.len();
+    Ok((summary, page))
+}
+
+/// Discover, render and write REPORT/ (a sibling temp folder, then renamed into place; into an
+/// existing REPORT entry by entry). A report already there is refused without `opts.force`.
+pub fn build_report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> {
+    let existing: Vec<&str> = REPORT_ENTRIES
+        .into_iter()
+        .filter(|e| opts.out.join(e).exists())
+        .collect();
+    if !existing.is_empty() && !opts.force {
+        return Err(ReportError::Exists {
+            dir: opts.out.display().to_string(),
+            files: existing.join(", "),
+        });
+    }
+    let (summary, page) = render(opts)?;
     write_folder(&opts.out, &summary, &page)?;
     Ok(summary)
 }
 
-/// Write REPORT/ into a temp sibling, then swap it in place of an existing REPORT.
+/// Write REPORT/ into a temp sibling, then move it (or its entries) into place.
 fn write_folder(out: &Path, s: &ReportSummary, page: &str) -> Result<(), ReportError> {
     let parent = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -280,7 +314,7 @@ fn write_folder(out: &Path, s: &ReportSummary, page: &str) -> Result<(), ReportE
         .map(|n| n.to_string_lossy().into_owned())
         .ok_or_else(|| ReportError::invalid(out, "--out needs a folder name"))?;
     let tmp = parent.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = fill_folder(&tmp, s, page).and_then(|()| swap_in(&tmp, out, &name));
+    let result = fill_folder(&tmp, s, page).and_then(|()| swap_in(&tmp, out));
     if result.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
     }
@@ -312,21 +346,23 @@ fn fill_folder(dir: &Path, s: &ReportSummary, page: &str) -> Result<(), ReportEr
     Ok(())
 }
 
-/// Rename `tmp` to `out`; an existing `out` is moved aside first and removed after.
-fn swap_in(tmp: &Path, out: &Path, name: &str) -> Result<(), ReportError> {
-    let old = out.with_file_name(format!(".{name}.{}.old", std::process::id()));
-    let had_old = out.exists();
-    if had_old {
-        std::fs::rename(out, &old).map_err(|e| ReportError::io(out, e))?;
+/// Rename `tmp` to `out`; into an existing `out`, move each of the report's own entries
+/// ([`REPORT_ENTRIES`]; each rename is atomic, `img/` is swapped as a folder) and leave every
+/// other file there alone.
+fn swap_in(tmp: &Path, out: &Path) -> Result<(), ReportError> {
+    if !out.exists() {
+        return std::fs::rename(tmp, out).map_err(|e| ReportError::io(out, e));
     }
-    if let Err(e) = std::fs::rename(tmp, out) {
-        if had_old {
-            let _ = std::fs::rename(&old, out);
+    for entry in REPORT_ENTRIES {
+        let (src, dst) = (tmp.join(entry), out.join(entry));
+        if dst.is_dir() {
+            let old = out.join(format!(".{entry}.{}.old", std::process::id()));
+            std::fs::rename(&dst, &old).map_err(|e| ReportError::io(&dst, e))?;
+            std::fs::rename(&src, &dst).map_err(|e| ReportError::io(&dst, e))?;
+            std::fs::remove_dir_all(&old).map_err(|e| ReportError::io(&old, e))?;
+        } else {
+            std::fs::rename(&src, &dst).map_err(|e| ReportError::io(&dst, e))?;
         }
-        return Err(ReportError::io(out, e));
     }
-    if had_old {
-        std::fs::remove_dir_all(&old).map_err(|e| ReportError::io(&old, e))?;
-    }
-    Ok(())
+    std::fs::remove_dir_all(tmp).map_err(|e| ReportError::io(tmp, e))
 }

@@ -7,6 +7,7 @@ use std::time::Instant;
 use depthsense_model::precision::{with_autocast, Precision};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use indicatif::ProgressBar;
 use tch::{nn::VarStore, Device, Kind};
@@ -21,6 +22,7 @@ use crate::data::{
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
+use crate::outputs::claim_run_folder;
 use crate::sgd::{warmup_poly_lr, Sgd};
 
 /// A training run in progress.
@@ -47,6 +49,8 @@ pub struct Trainer<'o> {
     val_secs: f64,
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
+    /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
+    _lock: Option<OutputLock>,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -99,6 +103,15 @@ impl<'o> Trainer<'o> {
                 opts.batch_size
             )));
         }
+        // One writer per run folder, and a finished run is never replaced silently
+        // (crate::outputs): refused unless --resume or --force.
+        let lock = if main {
+            let l = OutputLock::exclusive(&opts.out, "depthsense train")?;
+            claim_run_folder(&opts.out, "train", opts.resume, opts.force)?;
+            Some(l)
+        } else {
+            None
+        };
         let device = depthsense_model::device::parse_device(&opts.device)?;
         depthsense_model::device::autotune_fixed_size(device);
         let ds = Dataset::open(&opts.data)?;
@@ -169,6 +182,7 @@ impl<'o> Trainer<'o> {
             train_secs: 0.0,
             val_secs: 0.0,
             dist,
+            _lock: lock,
         };
         if main {
             trainer.write_config()?;
