@@ -1,7 +1,7 @@
 # depthsense — set-up, demo, tests. Every target installs what it needs itself:
 # the PyPI wheel torch==2.11.0 (libtorch for tch 0.24) into .venv/, Rust crates via cargo.
 #
-#   make demo   synthetic world → prepare → train → eval → runs/demo/report/
+#   make demo   synthetic world → prepare → train → eval → runs/demo/report/report.html
 #   make test   the whole test suite (Rust + the nuScenes devkit check of the synthetic world)
 #   make test-browser  `depthsense report`'s page in headless Chromium (installs Debian's chromium)
 #   make gpu-bundle  .gpu/: stripped binary + small prepared world + scripts for scripts/gpu-check.sh
@@ -36,8 +36,10 @@ setup: $(STAMP)
 build: setup
 	$(CARGO) build --release -p depthsense-cli
 
+# A finished demo in runs/demo is never replaced silently: `make demo DEMO_ARGS=--force`.
+DEMO_ARGS ?=
 demo: build
-	$(BIN) demo --out runs/demo
+	$(BIN) demo --out runs/demo $(DEMO_ARGS)
 
 # The test binaries run with the memory settings `depthsense` makes at start (tune_memory in
 # crates/cli/src/main.rs): glibc keeps freed memory and libtorch puts large tensors on huge

@@ -73,7 +73,7 @@ if [ -n "$MAKE_BUNDLE" ]; then
   chmod +x "$B/gpu-check.sh" "$B/depthsense"
   # A small world: 10 scenes × 5 keyframes (val/test scenes held out by the loader's rule),
   # prepared like the demo (K = 2 lidar sweeps for the dense target).
-  "$B/depthsense" synth --out "$WORLD_TMP" --scenes 10 --keyframes-per-scene 5 --seed 7 \
+  "$B/depthsense" synth --out "$WORLD_TMP" --force --scenes 10 --keyframes-per-scene 5 --seed 7 \
     --jobs "${JOBS:-0}" >/dev/null
   "$B/depthsense" prepare --dataroot "$WORLD_TMP" --version v1.0-synth --split all \
     --lidar-sweeps 2 --out "$B/prepared" --jobs "${JOBS:-0}" >/dev/null

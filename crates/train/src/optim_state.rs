@@ -76,3 +76,119 @@ pub(crate) fn bad_state(path: &Path, reason: String) -> TrainError {
         reason,
     }
 }
+
+/// The previous optimiser state beside `path` (`last.optim.safetensors` →
+/// `last.optim.prev.safetensors`): the state of the checkpoint on disk while a new pair is
+/// being written.
+pub(crate) fn prev_path(path: &Path) -> std::path::PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let stem = name.strip_suffix(".safetensors").unwrap_or(&name);
+    path.with_file_name(format!("{stem}.prev.safetensors"))
+}
+
+/// Before a checkpoint writes a new optimiser state to `path` and then the model checkpoint:
+/// the state on disk moves to [`prev_path`] when it belongs to the checkpoint on disk
+/// (`matches_checkpoint`), and is dropped when it does not (a kill left it newer than the
+/// checkpoint; `prev` then already holds the matching one). A kill anywhere in between leaves
+/// `path` or `prev` matching the checkpoint, which [`load_matching`] finds.
+pub(crate) fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), TrainError> {
+    if !path.exists() {
+        return Ok(());
+    }
+    if matches_checkpoint {
+        let prev = prev_path(path);
+        std::fs::rename(path, &prev).map_err(|e| TrainError::io(&prev, e))
+    } else {
+        std::fs::remove_file(path).map_err(|e| TrainError::io(path, e))
+    }
+}
+
+/// Resume: load (with `load`, which returns the stored iteration) the optimiser state whose
+/// iteration is the checkpoint's — `path`, else its [`prev_path`] sibling. Returns whether
+/// `path` itself matched (the next [`rotate`] needs to know).
+pub(crate) fn load_matching(
+    path: &Path,
+    checkpoint: &Path,
+    iteration: u64,
+    mut load: impl FnMut(&Path) -> Result<u64, TrainError>,
+) -> Result<bool, TrainError> {
+    let main = if path.exists() {
+        Some(load(path)?)
+    } else {
+        None
+    };
+    if main == Some(iteration) {
+        return Ok(true);
+    }
+    let prev = prev_path(path);
+    let older = if prev.exists() {
+        Some(load(&prev)?)
+    } else {
+        None
+    };
+    if older == Some(iteration) {
+        return Ok(false);
+    }
+    let at = |x: Option<u64>| x.map_or("absent".to_string(), |i| format!("at iteration {i}"));
+    Err(TrainError::Data(format!(
+        "{} is {} and {} {}, but {} is at iteration {iteration}: no optimiser state belongs to \
+         the checkpoint",
+        path.display(),
+        at(main),
+        prev.display(),
+        at(older),
+        checkpoint.display()
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prev_sibling_and_rotation() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("last.optim.safetensors");
+        assert_eq!(prev_path(&p), d.path().join("last.optim.prev.safetensors"));
+        assert_eq!(
+            prev_path(Path::new(crate::trainer::LAST_OPTIM)),
+            Path::new(crate::trainer::PREV_OPTIM)
+        );
+        rotate(&p, true).unwrap(); // nothing there yet
+        std::fs::write(&p, "9").unwrap();
+        rotate(&p, true).unwrap();
+        assert!(!p.exists());
+        assert_eq!(std::fs::read_to_string(prev_path(&p)).unwrap(), "9");
+        std::fs::write(&p, "10").unwrap();
+        rotate(&p, false).unwrap(); // stale: dropped, prev kept
+        assert!(!p.exists());
+        assert_eq!(std::fs::read_to_string(prev_path(&p)).unwrap(), "9");
+    }
+
+    #[test]
+    fn the_state_of_the_checkpoint_is_found_after_a_kill_anywhere() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("last.optim.safetensors");
+        let ck = d.path().join("last.safetensors");
+        let read = |q: &Path| -> Result<u64, TrainError> {
+            Ok(std::fs::read_to_string(q).unwrap().parse().unwrap())
+        };
+        // killed after the rotation: only prev, at the checkpoint's iteration
+        std::fs::write(prev_path(&p), "9").unwrap();
+        assert!(!load_matching(&p, &ck, 9, read).unwrap());
+        // killed after the new optimiser state, before the checkpoint
+        std::fs::write(&p, "10").unwrap();
+        assert!(!load_matching(&p, &ck, 9, read).unwrap());
+        // a consistent pair
+        assert!(load_matching(&p, &ck, 10, read).unwrap());
+        // neither fits: an error naming all three
+        let e = load_matching(&p, &ck, 11, read).unwrap_err().to_string();
+        assert!(
+            e.contains("at iteration 10") && e.contains("at iteration 9") && e.contains("11"),
+            "{e}"
+        );
+    }
+}

@@ -14,16 +14,19 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::TrainError;
-use crate::trainer::{BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE};
+use crate::trainer::{
+    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE, PREV_OPTIM,
+};
 
 /// The files of a training run (`train` and `mer train` write the same names), removed by
 /// `--force`.
-pub const RUN_FILES: [&str; 6] = [
+pub const RUN_FILES: [&str; 7] = [
     CONFIG_FILE,
     METRICS_FILE,
     CURVES_FILE,
     LAST_CKPT,
     LAST_OPTIM,
+    PREV_OPTIM,
     BEST_CKPT,
 ];
 

@@ -35,6 +35,8 @@ pub const METRICS_FILE: &str = "metrics.jsonl";
 pub const CURVES_FILE: &str = "curves.png";
 pub const LAST_CKPT: &str = "last.safetensors";
 pub const LAST_OPTIM: &str = "last.optim.safetensors";
+/// The optimiser state of the checkpoint before, kept while a new pair is written.
+pub const PREV_OPTIM: &str = "last.optim.prev.safetensors";
 pub const BEST_CKPT: &str = "best.safetensors";
 
 /// Autocast dtype of `train --amp` (bf16: fp16 without loss scaling underflows the ordinal

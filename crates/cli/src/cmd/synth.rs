@@ -41,6 +41,10 @@ pub struct Args {
     /// Make the contact sheet from this existing dataroot instead of generating a world.
     #[arg(long, requires = "contact_sheet")]
     from_dataroot: Option<PathBuf>,
+    /// Replace a synthetic world already in --out (without it, it is refused; any other
+    /// non-empty folder is always refused).
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -57,6 +61,13 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         .out
         .clone()
         .context("--out is required (the dataroot to write)")?;
+    if out.join(depthsense_synth::generate::MARKER_FILE).exists() && !args.force {
+        anyhow::bail!(
+            "{} already holds a synthetic world; nothing was changed: pass --force to replace it \
+             or choose another --out",
+            out.display()
+        );
+    }
     let mut cfg = if args.demo {
         SynthConfig::demo()
     } else {

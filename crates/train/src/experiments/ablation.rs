@@ -381,7 +381,7 @@ fn seed_pairs(
     runs: &[RunRecord],
     variant: &str,
     baseline: &str,
-    get: fn(&RowValues) -> f64,
+    get: Field,
 ) -> Vec<(u64, f64, f64)> {
     let value = |name: &str, seed: u64| {
         runs.iter()
@@ -402,6 +402,9 @@ fn seed_pairs(
         .collect()
 }
 
+/// A headline metric of one run.
+type Field = fn(&RowValues) -> f64;
+
 fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Vec<Verdict> {
     let get = |v: &str| {
         summary
@@ -414,7 +417,7 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Ve
     let mut out = vec![];
     for &v in variants.iter().filter(|v| **v != BASELINE) {
         let Some(row) = get(v) else { continue };
-        let metrics: [(&str, Option<Stat>, Option<Stat>, fn(&RowValues) -> f64); 3] = [
+        let metrics: [(&str, Option<Stat>, Option<Stat>, Field); 3] = [
             ("rmse", row.rmse, base.rmse, |x| x.rmse),
             ("delta1", row.delta1, base.delta1, |x| x.delta1),
             ("abs_rel", row.abs_rel, base.abs_rel, |x| x.abs_rel),

@@ -304,6 +304,8 @@ struct Run<'o> {
     bpe: u64,
     /// The run folder's lock, held while the run writes there.
     _lock: OutputLock,
+    /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors.
+    optim_matches: bool,
 }
 
 impl<'o> Run<'o> {
@@ -336,7 +338,7 @@ impl<'o> Run<'o> {
             .num_threads(jobs)
             .build()
             .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))?;
-        let (vs, net, sgd, state) = build(opts, device)?;
+        let (vs, net, sgd, state, optim_matches) = build(opts, device)?;
         let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
         let run = Run {
             opts,
@@ -351,6 +353,7 @@ impl<'o> Run<'o> {
             pool,
             bpe,
             _lock: lock,
+            optim_matches,
         };
         run.write_config(&part)?;
         Ok(run)
@@ -449,9 +452,14 @@ impl<'o> Run<'o> {
         if improved {
             self.state.best_auc = Some(v.auc);
         }
-        self.sgd
-            .save(&self.path(LAST_OPTIM), self.state.iteration)?;
+        // The optimiser state's predecessor is kept until the checkpoint is written
+        // (optim_state::rotate): a kill anywhere leaves a resumable pair.
+        let optim = self.path(LAST_OPTIM);
+        crate::optim_state::rotate(&optim, self.optim_matches)?;
+        self.optim_matches = false;
+        self.sgd.save(&optim, self.state.iteration)?;
         self.save(LAST_CKPT)?;
+        self.optim_matches = true;
         if improved || !self.path(BEST_CKPT).exists() {
             self.save(BEST_CKPT)?;
         }
@@ -469,7 +477,7 @@ impl<'o> Run<'o> {
 fn build(
     opts: &MerTrainOptions,
     device: Device,
-) -> Result<(VarStore, PdaNet, Adam, State), TrainError> {
+) -> Result<(VarStore, PdaNet, Adam, State, bool), TrainError> {
     let last = opts.out.join(LAST_CKPT);
     let mut state = State {
         kind: "depthsense-mer-train".into(),
@@ -487,7 +495,7 @@ fn build(
         let net = PdaNet::new(&vs.root(), &opts.pda)?;
         let _ = std::fs::remove_file(opts.out.join(METRICS_FILE));
         let sgd = Adam::new(&vs, opts.weight_decay);
-        return Ok((vs, net, sgd, state));
+        return Ok((vs, net, sgd, state, true));
     }
     let l = pda::load(&last, device)?;
     let stored: State =
@@ -506,16 +514,14 @@ fn build(
     }
     state = stored;
     let mut sgd = Adam::new(&l.vs, opts.weight_decay);
-    let it = sgd.load(&opts.out.join(LAST_OPTIM))?;
-    if it != state.iteration {
-        return Err(TrainError::Data(format!(
-            "{}: optimiser state at iteration {it}, checkpoint at {}",
-            opts.out.join(LAST_OPTIM).display(),
-            state.iteration
-        )));
-    }
+    let matches = crate::optim_state::load_matching(
+        &opts.out.join(LAST_OPTIM),
+        &last,
+        state.iteration,
+        |p| sgd.load(p),
+    )?;
     truncate_metrics(&opts.out.join(METRICS_FILE), state.iteration)?;
-    Ok((l.vs, l.net, sgd, state))
+    Ok((l.vs, l.net, sgd, state, matches))
 }
 
 /// RUN/curves.png: training loss (left) and validation AUC (right).

@@ -13,7 +13,7 @@ use indicatif::ProgressBar;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, evaluate_net, radar_input_for, save_ckpt, subsample,
+    all_finite, append_jsonl, evaluate_net, radar_input_for, read_metrics, save_ckpt, subsample,
     truncate_metrics, upload_batch, write_curves, State, TrainOptions, TrainSummary, ValRecord,
     AMP_PRECISION, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
@@ -22,6 +22,7 @@ use crate::data::{
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
+use crate::optim_state;
 use crate::outputs::claim_run_folder;
 use crate::sgd::{warmup_poly_lr, Sgd};
 
@@ -51,6 +52,9 @@ pub struct Trainer<'o> {
     dist: Option<Dist>,
     /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
     _lock: Option<OutputLock>,
+    /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors (false after a resume
+    /// from the `.prev` state: the newer file is stale).
+    optim_matches: std::cell::Cell<bool>,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -130,10 +134,11 @@ impl<'o> Trainer<'o> {
         let run = opts.out.clone();
         std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
-        let (vs, net, state, sgd) = if opts.resume && run.join(LAST_CKPT).exists() {
+        let ((vs, net, state, sgd), optim_matches) = if opts.resume && run.join(LAST_CKPT).exists()
+        {
             resume(opts, &run, &cfg, device, main)?
         } else {
-            fresh(opts, &run, &cfg, device, main)?
+            (fresh(opts, &run, &cfg, device, main)?, true)
         };
         if let Some(d) = dist.as_mut() {
             if part.train.len() < opts.batch_size {
@@ -183,6 +188,7 @@ impl<'o> Trainer<'o> {
             val_secs: 0.0,
             dist,
             _lock: lock,
+            optim_matches: std::cell::Cell::new(optim_matches),
         };
         if main {
             trainer.write_config()?;
@@ -407,10 +413,16 @@ impl<'o> Trainer<'o> {
         if !self.is_main() {
             return Ok(());
         }
-        // Optimiser state first: a crash between the two leaves an optimiser file newer than the
-        // checkpoint, which resume detects by the iteration numbers.
-        self.sgd.save(&self.path(LAST_OPTIM), state.iteration)?;
-        save_ckpt(&last, &self.vs, &self.cfg, state, self.opts)
+        // Optimiser state first, the previous one kept beside it until the checkpoint is
+        // written: a kill anywhere leaves a state that belongs to RUN/last.safetensors
+        // (optim_state::rotate / load_matching).
+        let optim = self.path(LAST_OPTIM);
+        optim_state::rotate(&optim, self.optim_matches.get())?;
+        self.optim_matches.set(false);
+        self.sgd.save(&optim, state.iteration)?;
+        save_ckpt(&last, &self.vs, &self.cfg, state, self.opts)?;
+        self.optim_matches.set(true);
+        Ok(())
     }
 
     /// Epoch end: validate, checkpoint (best when improved), log, plot.
@@ -479,6 +491,21 @@ impl<'o> Trainer<'o> {
             .map_or((0, 1), |d| (d.rank(), d.world_size()));
         let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
         let mut acc = EpochLosses::default();
+        if skip > 0 && self.is_main() {
+            // Resumed inside this epoch: its average loss also counts the iterations before the
+            // interruption (read back from metrics.jsonl), as in an uninterrupted run.
+            let from = epoch * self.bpe;
+            let losses = read_metrics(&self.path(METRICS_FILE))
+                .map(|(l, _)| l)
+                .unwrap_or_default();
+            for (_, l) in losses
+                .iter()
+                .filter(|(i, _)| *i > from && *i <= self.state.iteration)
+            {
+                acc.sum += l;
+                acc.n += 1;
+            }
+        }
         let every = self.loss_read_every();
         let mut t_iter = Instant::now();
         for batch in loader.take((self.bpe as usize).saturating_sub(skip)) {
@@ -640,14 +667,16 @@ fn fresh(
     Ok((vs, net, state, sgd))
 }
 
-/// The network, state and optimiser of RUN/last.safetensors, checked against `opts`.
+/// The network, state and optimiser of RUN/last.safetensors, checked against `opts`; and
+/// whether RUN/last.optim.safetensors itself held the optimiser state (see
+/// [`optim_state::load_matching`]).
 fn resume(
     opts: &TrainOptions,
     run: &Path,
     cfg: &ModelConfig,
     device: Device,
     main: bool,
-) -> Result<Built, TrainError> {
+) -> Result<(Built, bool), TrainError> {
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
     // Build the requested network and copy the checkpoint into it: a checkpoint of another
@@ -692,19 +721,11 @@ fn resume(
         )));
     }
     let mut sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
-    let opt_it = sgd.load(&last_optim)?;
-    if opt_it != state.iteration {
-        return Err(TrainError::Data(format!(
-            "{} is at iteration {opt_it} but {} at {}: the pair is inconsistent",
-            last_optim.display(),
-            last.display(),
-            state.iteration
-        )));
-    }
+    let matches = optim_state::load_matching(&last_optim, &last, state.iteration, |p| sgd.load(p))?;
     if main {
         truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
     }
-    Ok((vs, net, state, sgd))
+    Ok(((vs, net, state, sgd), matches))
 }
 
 /// Train a network. See the module docs for what lands in `opts.out`.
