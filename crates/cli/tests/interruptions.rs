@@ -12,20 +12,13 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+mod common;
+use common::Guard;
+
 const BIN: &str = env!("CARGO_BIN_EXE_depthsense");
-
-/// Kills the child when dropped.
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn output(c: &mut Command) -> Output {
     c.env_remove("WORLD_SIZE")
@@ -113,13 +106,12 @@ fn prepare_killed_five_times_then_finished_equals_one_clean_run() {
     for k in 1..=5u32 {
         let mut c = prepare(&world, &out);
         c.stdout(Stdio::null()).stderr(Stdio::null());
-        let mut g = Guard(c.spawn().unwrap());
+        let mut g = Guard::new(c.spawn().unwrap());
         std::thread::sleep(clean_s.mul_f64(k as f64 / 7.0));
-        if g.0.try_wait().unwrap().is_none() {
+        if !g.ended() {
             interrupted += 1;
         }
-        let _ = g.0.kill(); // SIGKILL
-        let _ = g.0.wait();
+        g.kill(); // SIGKILL
     }
     eprintln!("{interrupted} of 5 kills interrupted a running prepare (clean run {clean_s:?})");
     assert!(interrupted >= 1, "no kill landed while prepare ran");
@@ -157,32 +149,7 @@ fn toy(tmp: &Path) -> PathBuf {
 }
 
 fn train(data: &Path, out: &Path) -> Command {
-    let mut c = Command::new(BIN);
-    c.args(["train", "--data"])
-        .arg(data)
-        .arg("--out")
-        .arg(out)
-        .args([
-            "--config",
-            "tiny",
-            "--set",
-            "width=8",
-            "--set",
-            "decoder-channels=16",
-        ])
-        .args(["--set", "head-channels=16", "--set", "radar-width=8"])
-        .args([
-            "--batch-size",
-            "2",
-            "--epochs",
-            "4",
-            "--device",
-            "cpu",
-            "--jobs",
-            "1",
-        ])
-        .args(["--max-val-samples", "2"]);
-    c
+    common::tiny_train(data, out, 4)
 }
 
 /// The tensors of a safetensors checkpoint.
@@ -234,22 +201,18 @@ fn train_killed_after_a_checkpoint_resumes_to_the_uninterrupted_run() {
     c.args(["--checkpoint-every", "1"])
         .stdout(Stdio::null())
         .stderr(Stdio::null());
-    let mut g = Guard(c.spawn().unwrap());
+    let mut g = Guard::new(c.spawn().unwrap());
     let t = Instant::now();
     // Past the first epoch's checkpoint (8 iterations per epoch), then SIGKILL.
     while records_or_empty(&run.join("metrics.jsonl")) < 11 {
-        assert!(
-            g.0.try_wait().unwrap().is_none(),
-            "finished before it was killed"
-        );
+        assert!(!g.ended(), "finished before it was killed");
         assert!(
             t.elapsed() < Duration::from_secs(120),
             "too slow to reach a checkpoint"
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    g.0.kill().unwrap();
-    g.0.wait().unwrap();
+    g.kill();
     assert!(run.join("last.safetensors").exists());
     let mut c = train(&data, &run);
     c.arg("--resume");

@@ -6,68 +6,17 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use depthsense_nuscenes::lock::{OutputLock, LOCK_FILE};
 
-/// Kills the child when dropped (a failing assertion must not leave it running).
-struct Guard(Option<Child>);
-
-impl Guard {
-    fn wait(mut self, limit: Duration) -> std::process::ExitStatus {
-        let mut c = self.0.take().unwrap();
-        let t = Instant::now();
-        loop {
-            if let Some(s) = c.try_wait().unwrap() {
-                return s;
-            }
-            if t.elapsed() > limit {
-                let _ = c.kill();
-                let _ = c.wait();
-                panic!("child did not finish within {limit:?}");
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    }
-}
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        if let Some(c) = self.0.as_mut() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
+mod common;
+use common::{tiny_train, Guard};
 
 fn train_cmd(data: &Path, out: &Path, epochs: u32) -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_depthsense"));
-    c.args(["train", "--data"])
-        .arg(data)
-        .arg("--out")
-        .arg(out)
-        .args([
-            "--config",
-            "tiny",
-            "--set",
-            "width=8",
-            "--set",
-            "decoder-channels=16",
-        ])
-        .args([
-            "--set",
-            "head-channels=16",
-            "--set",
-            "radar-width=8",
-            "--dropout",
-            "0",
-        ])
-        .args(["--batch-size", "2", "--device", "cpu", "--jobs", "1"])
-        .args(["--max-val-samples", "2", "--epochs"])
-        .arg(epochs.to_string())
-        .env_remove("WORLD_SIZE")
-        .env_remove("RANK");
+    let mut c = tiny_train(data, out, epochs);
+    c.args(["--dropout", "0"]);
     c
 }
 
@@ -90,9 +39,10 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 fn wait_until_locked(dir: &Path, child: &mut Guard) {
     let t = Instant::now();
     while !OutputLock::is_held(dir) {
-        if let Some(s) = child.0.as_mut().unwrap().try_wait().unwrap() {
-            panic!("the first train ended ({s}) before it was seen holding the lock");
-        }
+        assert!(
+            !child.ended(),
+            "the first train ended before it was seen holding the lock"
+        );
         assert!(t.elapsed() < Duration::from_secs(60), "no lock after 60 s");
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -155,8 +105,8 @@ fn a_second_writer_fails_at_once_and_the_first_completes() {
     let out = tmp.path().join("run");
     let mut first = train_cmd(&data, &out, 6);
     first.stdout(Stdio::null()).stderr(Stdio::piped());
-    let mut first = Guard(Some(first.spawn().unwrap()));
-    let pid = first.0.as_ref().unwrap().id();
+    let mut first = Guard::new(first.spawn().unwrap());
+    let pid = first.child().id();
     wait_until_locked(&out, &mut first);
 
     let t = Instant::now();
@@ -172,7 +122,7 @@ fn a_second_writer_fails_at_once_and_the_first_completes() {
     );
     eprintln!("the second train failed after {took:?}");
     assert!(
-        first.0.as_mut().unwrap().try_wait().unwrap().is_none(),
+        !first.ended(),
         "the second must fail while the first still runs (it took {took:?})"
     );
     // --force does not get past the lock either.
@@ -198,11 +148,9 @@ fn a_killed_holder_leaves_no_lock_behind() {
     let out = tmp.path().join("run");
     let mut first = train_cmd(&data, &out, 50);
     first.stdout(Stdio::null()).stderr(Stdio::null());
-    let mut first = Guard(Some(first.spawn().unwrap()));
+    let mut first = Guard::new(first.spawn().unwrap());
     wait_until_locked(&out, &mut first);
-    let mut child = first.0.take().unwrap();
-    child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
+    first.kill(); // SIGKILL
     assert!(out.join(LOCK_FILE).exists(), "the lock file stays");
     assert!(!OutputLock::is_held(&out), "the kernel released the lock");
     // The folder holds the killed run's start: refused without --force, taken with it.

@@ -6,20 +6,16 @@
 //! compare the decoded SID levels pixel by pixel. Skips when the workspace `.venv` (torch) is
 //! absent.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
+
+mod support;
+use support::reference;
 
 use depthsense_model::{checkpoint, ordinal, ModelConfig};
 use tch::{Device, Kind, Tensor};
 
 const H: i64 = 64;
 const W: i64 = 128;
-
-fn python() -> Option<PathBuf> {
-    let ws = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let py = ws.join(".venv/bin/python");
-    py.exists().then_some(py)
-}
 
 /// The narrow `released` config the Python side builds too (ResNet-101 layout, widths /8).
 fn narrow_released() -> ModelConfig {
@@ -65,14 +61,8 @@ fn agreement(ours: &Tensor, theirs: &Tensor) -> (f64, f64, i64) {
 
 #[test]
 fn released_pth_written_by_pytorch_decodes_like_pytorch() {
-    let Some(py) = python() else {
-        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
-        return;
-    };
     let cfg = narrow_released();
     let dir = tempfile::tempdir().unwrap();
-    let script = dir.path().join("released_reference.py");
-    std::fs::write(&script, include_str!("released_reference.py")).unwrap();
     let params = serde_json::json!({
         "seed": 7,
         "width": cfg.backbone_width,
@@ -92,31 +82,9 @@ fn released_pth_written_by_pytorch_decodes_like_pytorch() {
         "beta": cfg.sid.beta_m,
         "decode_offset": cfg.sid.decode_offset_m,
     });
-    let out = Command::new(&py)
-        .arg(&script)
-        .arg(dir.path())
-        .arg(params.to_string())
-        .output()
-        .unwrap();
-    if out.status.code() == Some(77) {
-        eprintln!(
-            "SKIP: {}: {}",
-            py.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
+    let Some(info) = reference::run_reference(dir.path(), &params) else {
         return;
-    }
-    assert!(
-        out.status.success(),
-        "reference script failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("PyTorch reference: {info}");
-    assert!(
-        info["distinct_levels"].as_i64().unwrap() >= 5,
-        "reference too uniform to test: {info}"
-    );
+    };
 
     // Load the authors'-format .pth through the predict/eval path.
     let pth = dir.path().join("weights.pth");

@@ -9,7 +9,9 @@
 //! Skips when the fixture or the workspace `.venv` (torch) is absent.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+#[path = "../../model/tests/support/reference.rs"]
+mod reference;
 
 use depthsense_train::evaluate::load_model;
 use depthsense_train::predict::{input_from_token, predict};
@@ -31,11 +33,6 @@ fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
     let kf0 = workspace().join("../shared/fixtures/nuscenes-kf0");
     if !kf0.is_dir() {
         eprintln!("SKIP: fixture absent at {}", kf0.display());
-        return;
-    }
-    let py = workspace().join(".venv/bin/python");
-    if !py.exists() {
-        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
         return;
     }
     let popts = depthsense_prep::PrepareOptions {
@@ -97,34 +94,9 @@ fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
         "rgb_file": dir.path().join("rgb.f32"),
         "radar_file": dir.path().join("radar.f32"),
     });
-    let script = dir.path().join("released_reference.py");
-    std::fs::write(
-        &script,
-        include_str!("../../model/tests/released_reference.py"),
-    )
-    .unwrap();
-    let out = Command::new(&py)
-        .arg(&script)
-        .arg(dir.path())
-        .arg(params.to_string())
-        .output()
-        .unwrap();
-    if out.status.code() == Some(77) {
-        eprintln!(
-            "SKIP: {}: {}",
-            py.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
+    let Some(_) = reference::run_reference(dir.path(), &params) else {
         return;
-    }
-    assert!(
-        out.status.success(),
-        "reference script failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("PyTorch reference: {info}");
-    assert!(info["distinct_levels"].as_i64().unwrap() >= 5, "{info}");
+    };
     // The state dict has the authors' layout: conv_radar on the top level.
     let keys: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("keys.json")).unwrap()).unwrap();

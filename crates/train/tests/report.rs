@@ -474,23 +474,14 @@ window.addEventListener('load', function () {
 </script>
 </body>"#;
 
-#[test]
-fn report_renders_in_headless_chromium() {
-    let Some(bin) = find_chromium() else {
-        if std::env::var("DEPTHSENSE_REQUIRE_BROWSER").as_deref() == Ok("1") {
-            panic!("DEPTHSENSE_REQUIRE_BROWSER=1 but no chromium on PATH (make test-browser installs it)");
-        }
-        eprintln!("SKIPPED: chromium not found on PATH (apt-get install chromium; or `make test-browser`)");
-        return;
-    };
-    let dir = tempfile::tempdir().unwrap();
-    let (s, html, out) = report(dir.path());
-    let profile = dir.path().join("profile");
-    let check = dir.path().join("check.html");
+/// Load `html` with [`CHECK_SCRIPT`] in headless Chromium (profile and page under `dir`):
+/// the script's result and the DOM.
+fn check_page(bin: &Path, dir: &Path, html: &str) -> (serde_json::Value, String) {
+    let check = dir.join("check.html");
     std::fs::write(&check, html.replace("</body>", CHECK_SCRIPT)).unwrap();
     let dom = chromium(
-        &bin,
-        &profile,
+        bin,
+        &dir.join("profile"),
         &["--virtual-time-budget=10000", "--dump-dom"],
         &format!("file://{}", check.display()),
     );
@@ -504,7 +495,30 @@ fn report_renders_in_headless_chromium() {
                 &dom[..dom.len().min(2000)]
             )
         });
-    let v: serde_json::Value = serde_json::from_str(res).unwrap();
+    (serde_json::from_str(res).unwrap(), dom)
+}
+
+/// Chromium, or `None` after a SKIP line (a panic under DEPTHSENSE_REQUIRE_BROWSER=1).
+fn chromium_or_skip() -> Option<PathBuf> {
+    let bin = find_chromium();
+    if bin.is_none() {
+        if std::env::var("DEPTHSENSE_REQUIRE_BROWSER").as_deref() == Ok("1") {
+            panic!("DEPTHSENSE_REQUIRE_BROWSER=1 but no chromium on PATH (make test-browser installs it)");
+        }
+        eprintln!("SKIPPED: chromium not found on PATH (apt-get install chromium; or `make test-browser`)");
+    }
+    bin
+}
+
+#[test]
+fn report_renders_in_headless_chromium() {
+    let Some(bin) = chromium_or_skip() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (s, html, out) = report(dir.path());
+    let profile = dir.path().join("profile");
+    let (v, _) = check_page(&bin, dir.path(), &html);
     let n_images: usize = s.sections.iter().map(|x| x.images.len()).sum();
     assert_eq!(v["images"].as_u64(), Some(n_images as u64), "{v}");
     assert_eq!(v["bad"], json!([]), "images that did not decode: {v}");
@@ -551,11 +565,7 @@ fn report_renders_in_headless_chromium() {
 /// link points outside the page, and the stage commands are on it.
 #[test]
 fn demo_page_renders_in_headless_chromium() {
-    let Some(bin) = find_chromium() else {
-        if std::env::var("DEPTHSENSE_REQUIRE_BROWSER").as_deref() == Ok("1") {
-            panic!("DEPTHSENSE_REQUIRE_BROWSER=1 but no chromium on PATH (make test-browser installs it)");
-        }
-        eprintln!("SKIPPED: chromium not found on PATH (apt-get install chromium; or `make test-browser`)");
+    let Some(bin) = chromium_or_skip() else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -575,20 +585,7 @@ fn demo_page_renders_in_headless_chromium() {
         .unwrap()
         .count();
     assert_eq!(rows, 2);
-    let check = dir.path().join("check.html");
-    std::fs::write(&check, html.replace("</body>", CHECK_SCRIPT)).unwrap();
-    let dom = chromium(
-        &bin,
-        &dir.path().join("profile"),
-        &["--virtual-time-budget=10000", "--dump-dom"],
-        &format!("file://{}", check.display()),
-    );
-    let res = dom
-        .split("RESULT=")
-        .nth(1)
-        .and_then(|r| r.split("=END").next())
-        .expect("no check result in the DOM");
-    let v: serde_json::Value = serde_json::from_str(res).unwrap();
+    let (v, dom) = check_page(&bin, dir.path(), &html);
     assert_eq!(v["images"].as_u64(), Some(3 + rows as u64), "{v}");
     assert_eq!(v["bad"], json!([]), "images that did not decode: {v}");
     assert_eq!(v["broken"], json!([]), "broken links: {v}");

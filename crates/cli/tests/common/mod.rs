@@ -1,0 +1,83 @@
+//! Shared by the multi-process tests of the binary: a child that is killed when a test fails,
+//! and waits with a deadline.
+#![allow(dead_code)] // each test binary uses its own part
+
+use std::path::Path;
+use std::process::{Child, Command, ExitStatus};
+use std::time::{Duration, Instant};
+
+/// Kills the child when dropped (a failing assertion must not leave it running).
+pub struct Guard(pub Option<Child>);
+
+impl Guard {
+    pub fn new(c: Child) -> Self {
+        Guard(Some(c))
+    }
+
+    pub fn child(&mut self) -> &mut Child {
+        self.0.as_mut().expect("the child was taken")
+    }
+
+    /// Whether it has ended.
+    pub fn ended(&mut self) -> bool {
+        self.child().try_wait().unwrap().is_some()
+    }
+
+    /// Wait for the end, at most `limit` (then kill it and fail).
+    pub fn wait(mut self, limit: Duration) -> ExitStatus {
+        let mut c = self.0.take().unwrap();
+        let t = Instant::now();
+        loop {
+            if let Some(s) = c.try_wait().unwrap() {
+                return s;
+            }
+            if t.elapsed() > limit {
+                let _ = c.kill();
+                let _ = c.wait();
+                panic!("child did not finish within {limit:?}");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// SIGKILL and reap.
+    pub fn kill(mut self) {
+        let mut c = self.0.take().unwrap();
+        let _ = c.kill();
+        let _ = c.wait();
+    }
+}
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        if let Some(c) = self.0.as_mut() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// `depthsense train` of a narrow `tiny` network on `data` (a toy dataset), batch 2, on one CPU
+/// thread of the loader, validating on 2 samples; without the distributed environment.
+pub fn tiny_train(data: &Path, out: &Path, epochs: u32) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_depthsense"));
+    c.args(["train", "--data"])
+        .arg(data)
+        .arg("--out")
+        .arg(out)
+        .args([
+            "--config",
+            "tiny",
+            "--set",
+            "width=8",
+            "--set",
+            "decoder-channels=16",
+        ])
+        .args(["--set", "head-channels=16", "--set", "radar-width=8"])
+        .args(["--batch-size", "2", "--device", "cpu", "--jobs", "1"])
+        .args(["--max-val-samples", "2", "--epochs"])
+        .arg(epochs.to_string())
+        .env_remove("WORLD_SIZE")
+        .env_remove("RANK");
+    c
+}

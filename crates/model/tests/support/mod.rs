@@ -1,0 +1,2 @@
+//! Helpers shared by the model crate's integration tests.
+pub mod reference;
