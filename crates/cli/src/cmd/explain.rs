@@ -43,6 +43,10 @@ pub struct Args {
     /// Device: auto, cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
     device: String,
+    /// Replace the results of an earlier `explain` in --out (its explain.json, explain.md,
+    /// grid.png and overlays of the same names); without it they are refused.
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -59,6 +63,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if dirs.is_empty() {
         anyhow::bail!("give --sample DIR (repeatable) or --data P");
     }
+    let own: Vec<PathBuf> = ["explain.json", "explain.md", "grid.png"]
+        .iter()
+        .map(|f| a.out.join(f))
+        .collect();
+    depthsense_train::outputs::refuse_existing(&own, a.force, "explain")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
     let (loaded, _) = load_model(&a.checkpoint, a.config.as_deref(), &[], device)?;
     let r = run_explain(
