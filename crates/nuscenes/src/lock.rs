@@ -77,7 +77,6 @@ pub enum LockError {
 #[derive(Debug)]
 pub struct OutputLock {
     file: File,
-    path: PathBuf,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -158,15 +157,7 @@ impl OutputLock {
         }
         let record = record(std::process::id(), &utc_now(), command);
         file.write_all_at(&record, 0).map_err(io)?;
-        Ok(OutputLock {
-            file,
-            path: path.to_path_buf(),
-        })
-    }
-
-    /// The lock file.
-    pub fn path(&self) -> &Path {
-        &self.path
+        Ok(OutputLock { file })
     }
 
     /// Whether `dir` is locked by a live process now (without taking anything).

@@ -493,6 +493,8 @@ fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<Str
 fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
     let ropts = crate::report::ReportOptions {
         runs: vec![report_dir.to_path_buf()],
+        // Only rendered, never written as a folder; discovery skips `out`, so it must not be
+        // the folder searched.
         out: report_dir.join("page-unused"),
         title: "depthsense demo".into(),
         max_depth: 0,

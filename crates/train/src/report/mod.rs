@@ -6,7 +6,7 @@
 //! Outputs are recognised by their file names (`ablation.json`, `reduced_data.json`,
 //! `failure.json`, `perturb.json`, `cost.json`, `explain.json`, `tables.json`) or, for the MER
 //! report (`mer report --json FILE`, any name), by its JSON fields; the demo's `OUT/report/` by
-//! its `summary.json` (one section: its README, tables, curves and every sample row). Each becomes one section:
+//! its `summary.json` (its README, tables, curves and every sample row). Each becomes one section:
 //! its Markdown rendered to HTML ([`markdown`]), its plot or figure grid, and the command and
 //! data that produced it (the JSON's `command_line` / options).
 //!

@@ -54,7 +54,7 @@ pub struct Trainer<'o> {
     _lock: Option<OutputLock>,
     /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors (false after a resume
     /// from the `.prev` state: the newer file is stale).
-    optim_matches: std::cell::Cell<bool>,
+    optim_matches: bool,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -188,7 +188,7 @@ impl<'o> Trainer<'o> {
             val_secs: 0.0,
             dist,
             _lock: lock,
-            optim_matches: std::cell::Cell::new(optim_matches),
+            optim_matches,
         };
         if main {
             trainer.write_config()?;
@@ -396,7 +396,7 @@ impl<'o> Trainer<'o> {
     }
 
     /// Writes RUN/last.safetensors and its optimiser state (refusing non-finite weights).
-    fn checkpoint(&self) -> Result<(), TrainError> {
+    fn checkpoint(&mut self) -> Result<(), TrainError> {
         let last = self.path(LAST_CKPT);
         let state = &self.state;
         if !all_finite(&self.vs) {
@@ -417,11 +417,11 @@ impl<'o> Trainer<'o> {
         // written: a kill anywhere leaves a state that belongs to RUN/last.safetensors
         // (optim_state::rotate / load_matching).
         let optim = self.path(LAST_OPTIM);
-        optim_state::rotate(&optim, self.optim_matches.get())?;
-        self.optim_matches.set(false);
+        optim_state::rotate(&optim, self.optim_matches)?;
+        self.optim_matches = false;
         self.sgd.save(&optim, state.iteration)?;
         save_ckpt(&last, &self.vs, &self.cfg, state, self.opts)?;
-        self.optim_matches.set(true);
+        self.optim_matches = true;
         Ok(())
     }
 
