@@ -25,7 +25,7 @@ fn every_reader_survives_a_short_fuzz_run() {
     println!("{}", serde_json::to_string_pretty(&report).unwrap());
     for s in &stats {
         if let Some(why) = &s.skipped {
-            eprintln!("skipping {}: {why}", s.reader);
+            depthsense_testkit::skip(&format!("fuzz reader {}: {why}", s.reader));
             assert!(
                 Reader::from_name(s.reader).is_some_and(|r| r.needs_fixtures()),
                 "{} skipped: {why}",

@@ -16,9 +16,9 @@ fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// The venv's Python with torch: a failure under DEPTHSENSE_REQUIRE_TORCH=1, else a counted skip.
 fn python() -> Option<PathBuf> {
-    let py = workspace().join(".venv/bin/python");
-    py.exists().then_some(py)
+    depthsense_testkit::python_with_torch()
 }
 
 const PRESETS: [&str; 3] = ["released", "paper", "tiny"];
@@ -39,11 +39,11 @@ fn torch_counts(py: &Path) -> Option<Vec<(String, i64, u64)>> {
         .output()
         .expect("running scripts/torch_reference.py");
     if out.status.code() == Some(77) {
-        eprintln!(
-            "SKIP: torch is not importable in .venv: {}",
+        let why = format!(
+            "torch is not importable in .venv: {}",
             String::from_utf8_lossy(&out.stderr)
         );
-        return None;
+        return depthsense_testkit::unavailable(depthsense_testkit::REQUIRE_TORCH, &why);
     }
     assert!(
         out.status.success(),
@@ -72,10 +72,7 @@ fn torch_counts(py: &Path) -> Option<Vec<(String, i64, u64)>> {
 
 #[test]
 fn torch_reference_builds_our_presets_parameter_for_parameter() {
-    let Some(py) = python() else {
-        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
-        return;
-    };
+    let Some(py) = python() else { return };
     let Some(counts) = torch_counts(&py) else {
         return;
     };
@@ -140,10 +137,7 @@ fn randomise(vs: &nn::VarStore) {
 /// downscaling.
 #[test]
 fn torch_reference_computes_what_depthnet_computes() {
-    let Some(py) = python() else {
-        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
-        return;
-    };
+    let Some(py) = python() else { return };
     let (b, h, w) = (2i64, 64i64, 128i64);
     let narrow = [
         "width=8",
@@ -205,7 +199,9 @@ fn torch_reference_computes_what_depthnet_computes() {
             .output()
             .expect("running scripts/torch_reference.py --check");
         if out.status.code() == Some(77) {
-            eprintln!("SKIP: torch is not importable in .venv");
+            let why = "torch is not importable in .venv (exit code 77)";
+            let _: Option<()> =
+                depthsense_testkit::unavailable(depthsense_testkit::REQUIRE_TORCH, why);
             return;
         }
         let report = String::from_utf8_lossy(&out.stdout).to_string();

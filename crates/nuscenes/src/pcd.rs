@@ -1094,17 +1094,12 @@ mod tests {
         assert_err(&good[..h + 5], "short.pcd", "truncated");
     }
 
-    fn fixtures() -> std::path::PathBuf {
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures")
-    }
-
     #[test]
     fn all_radar_front_mini_files_parse() {
-        let dir = fixtures().join("radar-front-mini");
-        let Ok(rd) = std::fs::read_dir(&dir) else {
-            eprintln!("skipping: fixtures absent at {}", dir.display());
+        let Some(dir) = depthsense_testkit::fixture("radar-front-mini") else {
             return;
         };
+        let rd = std::fs::read_dir(&dir).unwrap();
         let mut n = 0;
         for e in rd {
             let p = e.unwrap().path();
@@ -1123,13 +1118,12 @@ mod tests {
 
     #[test]
     fn encoder_matches_real_file_bytes() {
-        let p = fixtures().join(
+        let Some(p) = depthsense_testkit::fixture(
             "nuscenes-kf0/samples/RADAR_FRONT/n015-2018-07-24-11-22-45+0800__RADAR_FRONT__1532402927664178.pcd",
-        );
-        let Ok(bytes) = std::fs::read(&p) else {
-            eprintln!("skipping: fixture absent at {}", p.display());
+        ) else {
             return;
         };
+        let bytes = std::fs::read(&p).unwrap();
         let scan = parse_radar_pcd(&bytes, "kf0").unwrap();
         assert_eq!(scan.points.len(), 125);
         let enc = encode_radar_pcd_binary(&scan.points);

@@ -1565,13 +1565,7 @@ pub(crate) mod tests {
     use super::*;
 
     pub(crate) fn kf0() -> Option<PathBuf> {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
-        if p.is_dir() {
-            Some(p)
-        } else {
-            eprintln!("skipping: fixture absent at {}", p.display());
-            None
-        }
+        depthsense_testkit::fixture("nuscenes-kf0")
     }
 
     #[test]

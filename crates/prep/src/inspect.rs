@@ -132,12 +132,9 @@ mod tests {
 
     #[test]
     fn inspect_pcd_and_folder() {
-        let root =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
-        if !root.is_dir() {
-            eprintln!("skipping: fixture absent at {}", root.display());
+        let Some(root) = depthsense_testkit::fixture("nuscenes-kf0") else {
             return;
-        }
+        };
         let r = inspect(&root.join(
             "samples/RADAR_FRONT/n015-2018-07-24-11-22-45+0800__RADAR_FRONT__1532402927664178.pcd",
         ))

@@ -21,13 +21,7 @@ const LIDAR_KF: &str = "9d9bf11fb0e144c8b446d54a8a00184f";
 const SWEEP: &str = "5eeb5eeb5eeb5eeb5eeb5eeb5eeb0001";
 
 fn kf0() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!("skipping: fixture absent at {}", p.display());
-        None
-    }
+    depthsense_testkit::fixture("nuscenes-kf0")
 }
 
 fn copy_dir(src: &Path, dst: &Path) {
@@ -162,10 +156,11 @@ fn forward_sweep_adds_no_ghosts_and_keeps_the_keyframe() {
     let c = &m.meta.counts;
     eprintln!("{c:?}");
     assert_eq!(c["lidar_dense_sweeps"], 2);
-    // The devkit's remove_close(1.0) count on the real scan (the sweep also has the few
-    // world points that the 3 m move brought into the square).
-    assert_eq!(c["lidar_near_sensor_removed"], 8274);
-    assert!(c["lidar_dense_near_sensor_removed"] >= 8274);
+    // remove_close(1.0) on every sweep (the keyframe's count is checked against the devkit's in
+    // tests/devkit_projection.rs; the sweep also has the few world points that the 3 m move
+    // brought into the square).
+    assert!(c["lidar_near_sensor_removed"] > 0);
+    assert!(c["lidar_dense_near_sensor_removed"] >= c["lidar_near_sensor_removed"]);
     let sparse = &m.lidar_sparse.depth_m;
     let dense = &m.lidar_dense.depth_m;
     let nearest_kf = sparse

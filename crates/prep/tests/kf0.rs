@@ -11,13 +11,7 @@ use indicatif::ProgressBar;
 const SAMPLE: &str = "ca9a282c9e77460f8360f564131a8af5";
 
 fn kf0() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
-    if p.is_dir() {
-        Some(p)
-    } else {
-        eprintln!("skipping: fixture absent at {}", p.display());
-        None
-    }
+    depthsense_testkit::fixture("nuscenes-kf0")
 }
 
 fn opts(root: &Path, out: &Path) -> PrepareOptions {

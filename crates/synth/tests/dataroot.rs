@@ -278,28 +278,9 @@ fn radar_files_respect_the_format() {
 
 #[test]
 fn official_devkit_loads_and_projects() {
-    let require = std::env::var("DEPTHSENSE_REQUIRE_DEVKIT").is_ok_and(|v| v == "1");
-    let py = match std::env::var("VIRTUAL_ENV") {
-        Ok(v) => PathBuf::from(v).join("bin/python"),
-        Err(_) => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python"),
-    };
-    let has_devkit = std::process::Command::new(&py)
-        .args(["-c", "import nuscenes"])
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if !has_devkit {
-        assert!(
-            !require,
-            "DEPTHSENSE_REQUIRE_DEVKIT=1 but {} cannot import nuscenes",
-            py.display()
-        );
-        eprintln!(
-            "skipping: {} cannot import nuscenes (pip install nuscenes-devkit)",
-            py.display()
-        );
+    let Some(py) = depthsense_testkit::python_with_devkit() else {
         return;
-    }
+    };
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scripts/devkit_check.py");
     let out = std::process::Command::new(&py)
         .arg(&script)

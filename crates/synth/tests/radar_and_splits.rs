@@ -64,12 +64,9 @@ fn radar_front_matches_the_real_statistics() {
 
 #[test]
 fn the_real_statistics_are_what_the_docs_say() {
-    let dir =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/radar-front-mini");
-    if !dir.is_dir() {
-        eprintln!("skipping: {} is absent", dir.display());
+    let Some(dir) = depthsense_testkit::fixture("radar-front-mini") else {
         return;
-    }
+    };
     let mut paths: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().path())

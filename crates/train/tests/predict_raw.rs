@@ -1,18 +1,13 @@
 //! `predict` on raw files (JPEG + radar PCD + calibration JSON) builds the same network input
 //! as `prepare` does for the real nuScenes keyframe of ../shared/fixtures/nuscenes-kf0.
 
-use std::path::PathBuf;
-
 use depthsense_prep::PrepareOptions;
 
 #[test]
 fn raw_files_give_the_prepared_maps() {
-    let root =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/fixtures/nuscenes-kf0");
-    if !root.exists() {
-        eprintln!("skipping: {} is absent", root.display());
+    let Some(root) = depthsense_testkit::fixture("nuscenes-kf0") else {
         return;
-    }
+    };
     let token = "ca9a282c9e77460f8360f564131a8af5";
     let opts = PrepareOptions {
         dataroot: root.clone(),

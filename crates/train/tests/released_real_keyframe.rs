@@ -8,7 +8,7 @@
 //! ≥ 99.5 % of the 800x350 pixels. Narrow widths (ResNet-101 layout at /8) keep it to seconds.
 //! Skips when the fixture or the workspace `.venv` (torch) is absent.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 #[path = "../../model/tests/support/reference.rs"]
 mod reference;
@@ -19,10 +19,6 @@ use depthsense_train::trainer::radar_input_for;
 
 const SAMPLE: &str = "ca9a282c9e77460f8360f564131a8af5";
 
-fn workspace() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
 fn f32_file(path: &Path, values: &[f32]) {
     let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
     std::fs::write(path, bytes).unwrap();
@@ -30,11 +26,9 @@ fn f32_file(path: &Path, values: &[f32]) {
 
 #[test]
 fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
-    let kf0 = workspace().join("../shared/fixtures/nuscenes-kf0");
-    if !kf0.is_dir() {
-        eprintln!("SKIP: fixture absent at {}", kf0.display());
+    let Some(kf0) = depthsense_testkit::fixture("nuscenes-kf0") else {
         return;
-    }
+    };
     let popts = depthsense_prep::PrepareOptions {
         dataroot: kf0.clone(),
         version: "v1.0-mini".into(),

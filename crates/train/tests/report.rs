@@ -502,10 +502,10 @@ fn check_page(bin: &Path, dir: &Path, html: &str) -> (serde_json::Value, String)
 fn chromium_or_skip() -> Option<PathBuf> {
     let bin = find_chromium();
     if bin.is_none() {
-        if std::env::var("DEPTHSENSE_REQUIRE_BROWSER").as_deref() == Ok("1") {
-            panic!("DEPTHSENSE_REQUIRE_BROWSER=1 but no chromium on PATH (make test-browser installs it)");
-        }
-        eprintln!("SKIPPED: chromium not found on PATH (apt-get install chromium; or `make test-browser`)");
+        let _: Option<()> = depthsense_testkit::unavailable(
+            depthsense_testkit::REQUIRE_BROWSER,
+            "chromium not found on PATH (`make test-browser` installs it)",
+        );
     }
     bin
 }

@@ -5,10 +5,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The workspace's `.venv` Python, if set up.
+/// The workspace's `.venv` Python with torch: a failure under DEPTHSENSE_REQUIRE_TORCH=1, else a
+/// counted skip.
 pub fn python() -> Option<PathBuf> {
-    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
-    py.exists().then_some(py)
+    depthsense_testkit::python_with_torch()
 }
 
 /// Writes the script into `dir` and runs it with `params` (JSON); it leaves `weights.pth`,
@@ -16,10 +16,7 @@ pub fn python() -> Option<PathBuf> {
 /// returned here. `None` (with a SKIP line) when there is no `.venv` or torch cannot be
 /// imported; a failing script fails the test.
 pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_json::Value> {
-    let Some(py) = python() else {
-        eprintln!("SKIP: no .venv/bin/python in the workspace (run `make setup`)");
-        return None;
-    };
+    let py = python()?;
     let script = dir.join("released_reference.py");
     std::fs::write(&script, include_str!("../released_reference.py")).unwrap();
     let out = Command::new(&py)
@@ -29,12 +26,8 @@ pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_jso
         .output()
         .unwrap();
     if out.status.code() == Some(77) {
-        eprintln!(
-            "SKIP: {}: {}",
-            py.display(),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        return None;
+        let why = format!("{}: {}", py.display(), String::from_utf8_lossy(&out.stderr));
+        return depthsense_testkit::unavailable(depthsense_testkit::REQUIRE_TORCH, &why);
     }
     assert!(
         out.status.success(),
