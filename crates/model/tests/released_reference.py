@@ -219,6 +219,21 @@ for m in model.modules():
 with torch.no_grad():
     model.concat_process[4].weight.mul_(cfg["head_gain"])
 model.eval()
+if cfg.get("fill") == "distinct":
+    # Weight import by value (crates/model/tests/import_by_value.rs): state-dict entry j holds
+    # j + 1 + (i mod 4096)/8192 at flat index i — exact in float32, different for every tensor,
+    # so a swap of two same-shaped tensors or a transposed copy cannot go unseen.
+    sd = model.state_dict()
+    with torch.no_grad():
+        for j, (k, v) in enumerate(sd.items()):
+            if v.is_floating_point():
+                i = torch.arange(v.numel(), dtype=torch.float64)
+                v.copy_((j + 1 + torch.remainder(i, 4096) / 8192).view(v.shape))
+    torch.save(sd, f"{out}/weights.pth")
+    with open(f"{out}/keys.json", "w") as f:
+        json.dump([[k, list(v.shape)] for k, v in sd.items()], f)
+    print(json.dumps({"keys": len(sd), "torch": torch.__version__}))
+    sys.exit(0)
 torch.save(model.state_dict(), f"{out}/weights.pth")
 
 h, w = cfg["height"], cfg["width_px"]

@@ -1,6 +1,9 @@
-//! Running `released_reference.py` (the authors' network in plain PyTorch) from a test; shared
-//! by `crates/model/tests/released_reference.rs` and
-//! `crates/train/tests/released_real_keyframe.rs` (included there by path).
+//! Running the PyTorch reference scripts from a test: `released_reference.py` (the authors'
+//! network in plain PyTorch) and `torchvision_reference.py` (torchvision's ResNet key names).
+//! Shared by the model crate's tests and `crates/train/tests/released_real_keyframe.rs`
+//! (included there by path).
+// Each test binary uses a part of these helpers.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -11,14 +14,18 @@ pub fn python() -> Option<PathBuf> {
     depthsense_testkit::python_with_torch()
 }
 
-/// Writes the script into `dir` and runs it with `params` (JSON); it leaves `weights.pth`,
-/// `keys.json`, the inputs and its decoded levels / depth in `dir` and prints a JSON summary,
-/// returned here. `None` (with a SKIP line) when there is no `.venv` or torch cannot be
-/// imported; a failing script fails the test.
-pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_json::Value> {
+/// Writes `source` into `dir/name` and runs it with `dir` and `params` (JSON); returns the JSON
+/// summary it prints. `None` (a counted skip, or a failure under DEPTHSENSE_REQUIRE_TORCH=1)
+/// when torch cannot be used; a failing script fails the test.
+pub fn run_script(
+    dir: &Path,
+    name: &str,
+    source: &str,
+    params: &serde_json::Value,
+) -> Option<serde_json::Value> {
     let py = python()?;
-    let script = dir.join("released_reference.py");
-    std::fs::write(&script, include_str!("../released_reference.py")).unwrap();
+    let script = dir.join(name);
+    std::fs::write(&script, source).unwrap();
     let out = Command::new(&py)
         .arg(&script)
         .arg(dir)
@@ -31,14 +38,39 @@ pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_jso
     }
     assert!(
         out.status.success(),
-        "reference script failed: {}",
+        "{name} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    eprintln!("PyTorch reference: {info}");
-    assert!(
-        info["distinct_levels"].as_i64().unwrap() >= 5,
-        "reference too uniform to test: {info}"
-    );
+    eprintln!("PyTorch reference ({name}): {info}");
     Some(info)
+}
+
+/// Runs `released_reference.py`: it leaves `weights.pth`, `keys.json`, the inputs and its
+/// decoded levels / depth in `dir` (with `"fill": "distinct"`: the weights and keys only).
+pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_json::Value> {
+    let info = run_script(
+        dir,
+        "released_reference.py",
+        include_str!("../released_reference.py"),
+        params,
+    )?;
+    if let Some(levels) = info.get("distinct_levels") {
+        assert!(
+            levels.as_i64().unwrap() >= 5,
+            "reference too uniform to test: {info}"
+        );
+    }
+    Some(info)
+}
+
+/// Runs `torchvision_reference.py` (`{"depth": 18|34|50|101, "width": w}`): `weights.pth` with
+/// torchvision's key names and distinct values, and `keys.json`, in `dir`.
+pub fn run_torchvision(dir: &Path, params: &serde_json::Value) -> Option<serde_json::Value> {
+    run_script(
+        dir,
+        "torchvision_reference.py",
+        include_str!("../torchvision_reference.py"),
+        params,
+    )
 }
