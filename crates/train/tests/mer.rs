@@ -206,6 +206,11 @@ fn train_apply_twice_and_the_seven_channel_input() {
         s.val
     );
     assert!(run.join(BEST_CKPT).is_file() && run.join("curves.png").is_file());
+    // PDA learns: validation AUC rises from the untrained network's and ends above chance
+    let auc: Vec<f64> = s.val.iter().map(|v| v.auc).collect();
+    eprintln!("validation AUC per record: {auc:?}");
+    assert!(auc[auc.len() - 1] > auc[0], "AUC did not rise: {auc:?}");
+    assert!(auc[auc.len() - 1] > 0.5, "AUC at chance or worse: {auc:?}");
 
     let ck = run.join(BEST_CKPT);
     let opts = MerApplyOptions {
