@@ -7,7 +7,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{hidden, mtime, quick_runs};
+use common::{constant_depth_rmse, hidden, mtime, quick_runs};
 
 use depthsense_train::experiments::ablation::{
     run_ablation, variant_models, AblationOptions, AblationResult, RunStatus, Variant, CSV_FILE,
@@ -86,9 +86,14 @@ fn ablation_runs_reports_and_resumes() {
             .as_f64()
             .unwrap()
     };
+    let baseline = constant_depth_rmse(&data, &r.partition.test_scenes);
     for x in runs {
         let rmse = headline(x, "rmse");
-        assert!(rmse.is_finite() && rmse > 0.0, "{x}");
+        eprintln!(
+            "{} seed {}: RMSE {rmse} m, constant-depth baseline {baseline} m",
+            x["variant"], x["seed"]
+        );
+        assert!(rmse > 0.0 && rmse < baseline, "{x}");
         assert!(x["wall_seconds"].as_f64().unwrap() > 0.0);
         assert!(out
             .join("runs")

@@ -13,7 +13,7 @@ use depthsense_train::experiments::reduced_data::{
 };
 use depthsense_train::trainer::{TrainOptions, Trainer, CONFIG_FILE};
 
-use common::{hidden, mtime, quick_runs, small_model};
+use common::{constant_depth_rmse, hidden, mtime, quick_runs, small_model};
 
 /// The documented order key, written out independently of the library.
 fn key(name: &str) -> (u64, String) {
@@ -130,7 +130,15 @@ fn reduced_data_grid_trains_tables_and_resumes() {
         md.contains("| night=1 |") && md.contains("| full |"),
         "{md}"
     );
-    assert!(r.row("full", "combined").and_then(|x| x.rmse).is_some());
+    let baseline = constant_depth_rmse(&data, &r.partition.test_scenes);
+    for cell in ["full", "night=1"] {
+        let rmse = r.row(cell, "combined").and_then(|x| x.rmse).unwrap().mean;
+        eprintln!("{cell}: RMSE {rmse} m, constant-depth baseline {baseline} m");
+        assert!(
+            rmse > 0.0 && rmse < baseline,
+            "{cell}: {rmse} vs {baseline}"
+        );
+    }
     // second invocation: every run is read back from its eval.json
     let eval_json = r.runs[1].run_dir.join("eval.json");
     let before = mtime(&eval_json);
