@@ -348,3 +348,190 @@ fn radarnet_protocol_strict_cap_no_clip_per_image() {
     };
     assert!(Evaluator::new(pooled).is_err());
 }
+
+// Added after the mutation run of issue 23 (BENCHMARKS.md): the strict δ2/δ3 edges, both
+// aggregations with every metric over two images, the configuration bounds and the CSV quoting.
+
+#[test]
+fn delta2_and_delta3_edges_are_strict() {
+    // 25/16 = 1.5625 = 1.25² and 125/64 = 1.953125 = 1.25³ exactly (binary fractions): a
+    // ratio equal to the threshold is outside (SPEC §9: max(ŷ/y, y/ŷ) < 1.25^n).
+    let gt = [16.0f32, 64.0];
+    let pred = [25.0f32, 125.0];
+    let rep = evaluate(
+        &[EvalImage {
+            pred_m: &pred,
+            gt_m: &gt,
+            lowheight: None,
+            conditions: &[],
+        }],
+        &EvalConfig {
+            clip_max_m: 200.0,
+            caps_m: vec![80.0],
+            ..EvalConfig::default()
+        },
+    )
+    .unwrap();
+    let m = rep.row("combined", "full", 80.0).unwrap().metrics;
+    close(m.delta2, 0.0, 0.0); // 1.5625 not < 1.5625; 1.953 not < 1.5625
+    close(m.delta3, 0.5, 0.0); // 1.5625 < 1.953125; 1.953125 not < 1.953125
+}
+
+/// Image A: gt [10, 20], pred [12, 10]; image B: gt [5], pred [10].
+/// Per pixel (y, ŷ): ratio, |d|, d², AbsRel, SqRel, (ln y − ln ŷ)²
+///   A1 (10, 12): 1.2, 2, 4, 0.2, 0.4, ln²(10/12)
+///   A2 (20, 10): 2.0, 10, 100, 0.5, 5, ln²2
+///   B1 (5, 10):  2.0, 5, 25, 1.0, 5, ln²2
+fn two_images() -> [EvalImage<'static>; 2] {
+    const GA: [f32; 2] = [10.0, 20.0];
+    const PA: [f32; 2] = [12.0, 10.0];
+    const GB: [f32; 1] = [5.0];
+    const PB: [f32; 1] = [10.0];
+    [
+        EvalImage {
+            pred_m: &PA,
+            gt_m: &GA,
+            lowheight: None,
+            conditions: &["day"],
+        },
+        EvalImage {
+            pred_m: &PB,
+            gt_m: &GB,
+            lowheight: None,
+            conditions: &["day"],
+        },
+    ]
+}
+
+#[test]
+fn every_metric_under_both_aggregations() {
+    let l1 = (10f64 / 12.0).ln().powi(2);
+    let l2 = 2f64.ln().powi(2);
+    let check = |m: Metrics, want: [f64; 8]| {
+        let got = [
+            m.delta1, m.delta2, m.delta3, m.abs_rel, m.sq_rel, m.rmse, m.rmse_log, m.mae,
+        ];
+        for (i, (g, w)) in got.iter().zip(want).enumerate() {
+            assert!((g - w).abs() < 1e-12, "metric {i}: {g} vs {w} ({m:?})");
+        }
+    };
+    // Per image, then the mean over the two images (SPEC §9, RadarNet):
+    //   A: δ 1/2 each, AbsRel .35, SqRel 2.7, RMSE √52, RMSE_log √((l1+l2)/2), MAE 6
+    //   B: δ 0, AbsRel 1, SqRel 5, RMSE 5, RMSE_log ln 2, MAE 5
+    let image = evaluate(&two_images(), &EvalConfig::default()).unwrap();
+    let r = image.row("day", "full", 80.0).unwrap();
+    assert_eq!((r.n_images, r.n_pixels), (2, 3));
+    check(
+        r.metrics,
+        [
+            0.25,
+            0.25,
+            0.25,
+            (0.35 + 1.0) / 2.0,
+            (2.7 + 5.0) / 2.0,
+            (52f64.sqrt() + 5.0) / 2.0,
+            (((l1 + l2) / 2.0).sqrt() + 2f64.ln()) / 2.0,
+            (6.0 + 5.0) / 2.0,
+        ],
+    );
+    // Pooled over the 3 pixels (DORN): δ 1/3 each, AbsRel 1.7/3, SqRel 10.4/3, RMSE √(129/3),
+    // RMSE_log √((l1 + 2·l2)/3), MAE 17/3
+    let cfg = EvalConfig {
+        aggregate: Aggregate::Pooled,
+        ..EvalConfig::default()
+    };
+    let pooled = evaluate(&two_images(), &cfg).unwrap();
+    check(
+        pooled.row("day", "full", 80.0).unwrap().metrics,
+        [
+            1.0 / 3.0,
+            1.0 / 3.0,
+            1.0 / 3.0,
+            1.7 / 3.0,
+            10.4 / 3.0,
+            43f64.sqrt(),
+            ((l1 + 2.0 * l2) / 3.0).sqrt(),
+            17.0 / 3.0,
+        ],
+    );
+    let ev = Evaluator::new(cfg.clone()).unwrap();
+    assert_eq!(ev.config(), &cfg);
+}
+
+#[test]
+fn caps_and_clip_range_must_be_positive_and_ordered() {
+    let bad = |c: EvalConfig| Evaluator::new(c).is_err();
+    let d = EvalConfig::default;
+    for caps in [
+        vec![0.0],
+        vec![80.0, -1.0],
+        vec![f64::NAN],
+        vec![f64::INFINITY],
+    ] {
+        assert!(
+            bad(EvalConfig {
+                caps_m: caps.clone(),
+                ..d()
+            }),
+            "{caps:?}"
+        );
+    }
+    assert!(bad(EvalConfig {
+        clip_min_m: 0.0,
+        ..d()
+    }));
+    assert!(bad(EvalConfig {
+        clip_min_m: 80.0,
+        clip_max_m: 80.0,
+        ..d()
+    }));
+    assert!(bad(EvalConfig {
+        clip_min_m: 2.0,
+        clip_max_m: 1.0,
+        ..d()
+    }));
+    assert!(!bad(EvalConfig {
+        caps_m: vec![1e-3],
+        clip_min_m: 1e-3,
+        clip_max_m: 2e-3,
+        ..d()
+    }));
+}
+
+#[test]
+fn csv_fields_with_commas_quotes_or_newlines_are_quoted() {
+    let t = tables::Table {
+        title: "t".into(),
+        header: vec!["a,b".into(), "plain".into()],
+        rows: vec![vec!["say \"hi\"".into(), "two\nlines".into()]],
+    };
+    assert_eq!(
+        t.to_csv(),
+        "\"a,b\",plain\n\"say \"\"hi\"\"\",\"two\nlines\"\n"
+    );
+}
+
+#[test]
+fn a_missing_row_fills_every_column_and_tables_are_separated_once() {
+    let rep = evaluate(&[img_a()], &EvalConfig::default()).unwrap();
+    let mut without_night = rep.clone();
+    without_night.rows.retain(|r| r.condition != "night");
+    let models = [("a", &rep), ("b", &without_night)];
+    let main = tables::main_table(&models);
+    for row in &main.rows {
+        assert_eq!(row.len(), main.header.len(), "{row:?}");
+    }
+    let night_b = main
+        .rows
+        .iter()
+        .find(|r| r[0] == "b" && r[1] == "night")
+        .unwrap();
+    assert!(night_b[2..].iter().all(|c| c == "–"), "{night_b:?}");
+    let csv = tables::csv_report(&models);
+    assert!(csv.starts_with("# "), "{csv}");
+    assert_eq!(
+        csv.matches("\n\n# ").count(),
+        2,
+        "three tables, one blank line between each"
+    );
+}
