@@ -168,3 +168,32 @@ fn decoded_depth_is_the_bin_centre() {
     let d = ordinal_decode(&z, &paper(), 1, 1, false);
     assert!((f32s(&d)[0] as f64 - (80.0 + t(81.0)) / 2.0).abs() < 1e-3);
 }
+
+/// α ≠ 1 (the formulas divide depths by α and offset by ln α; with α = 1 those terms vanish):
+/// K = 4, α = 2 m, β = 32 m, thresholds t = 2, 4, 8, 16, 32 m (t_5 = 64 m). By hand: 5 m →
+/// ⌊4·ln(5/2)/ln 16⌋ = ⌊1.32⌋ = 1; 3 m → 0; 20 m → 3; level 1 decodes to (4 + 8)/2 = 6 m,
+/// level 4 to (32 + 64)/2 = 48 m.
+#[test]
+fn a_first_threshold_other_than_one_metre() {
+    let sid = SidConfig {
+        bins: 4,
+        alpha_m: 2.0,
+        beta_m: 32.0,
+        decode_offset_m: 0.0,
+    };
+    for (d, l) in [(5.0, 1), (3.0, 0), (20.0, 3), (1.0, 0), (40.0, 4)] {
+        assert_eq!(label_of_depth(&sid, d), l, "{d} m");
+    }
+    let got = i64s(&labels(
+        &sid,
+        &Tensor::from_slice(&[5.0f32, 3.0, 20.0, 1.0, 40.0]),
+    ));
+    assert_eq!(got, vec![1, 0, 3, 0, 4]);
+    let d = f32s(&levels_to_depth(&sid, &Tensor::from_slice(&[1i64, 4])));
+    assert!(
+        (d[0] - 6.0).abs() < 1e-5 && (d[1] - 48.0).abs() < 1e-4,
+        "{d:?}"
+    );
+    assert!((depth_of_level(&sid, 1) - 6.0).abs() < 1e-12);
+    assert!((depth_of_level(&sid, 4) - 48.0).abs() < 1e-12);
+}
