@@ -536,6 +536,20 @@ fn torchvision_state_dict_written_by_the_test_loads_into_the_encoder() {
         .to_string();
     assert!(e.contains("rgb.layer4.1.conv2.weight (file: layer4.1.conv2.weight): network [64, 64, 3, 3], file [128, 128, 3, 3]"), "{e}");
     assert!(e.contains("tensor(s) with mismatching shapes"));
+    // early fusion takes a file's RGB filters partly only when nothing but the input channels
+    // differ: a conv1 of another width is a mismatch like any other
+    let mut wide_early = wide.clone();
+    wide_early.fusion = Fusion::Early;
+    let (mut vs_we, _) = build(&wide_early);
+    let e = weights::load_torchvision_resnet(&mut vs_we, &path)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            "rgb.conv1.weight (file: conv1.weight): network [8, 4, 7, 7], file [16, 3, 7, 7]"
+        ),
+        "{e}"
+    );
 
     // truncated and foreign files
     let bytes = std::fs::read(&path).unwrap();

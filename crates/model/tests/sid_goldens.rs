@@ -164,7 +164,10 @@ fn decoded_depth_is_the_bin_centre() {
     sid.decode_offset_m = 0.3;
     assert!((depth_of_level(&sid, 40) - 8.896068).abs() < 1e-6);
     let with_offset = f32s(&levels_to_depth(&sid, &Tensor::from_slice(&[40i64])));
-    assert!((with_offset[0] as f64 - 8.896068).abs() < 1e-5, "{with_offset:?}");
+    assert!(
+        (with_offset[0] as f64 - 8.896068).abs() < 1e-5,
+        "{with_offset:?}"
+    );
     // all K differences ≥ 0 → level K; ≥ 0 is inclusive (P = 0.5 counts, SPEC §7)
     let z = Tensor::zeros([1, 80, 1, 1], (Kind::Float, Device::Cpu));
     let d = ordinal_decode(&z, &paper(), 1, 1, false);
