@@ -728,3 +728,55 @@ fn reads_a_pickled_torch_module() {
     let rm = &t.iter().find(|x| x.0 == "model.1.running_mean").unwrap().1;
     assert_eq!(Vec::<f32>::try_from(rm).unwrap(), [0.25, 0.25]);
 }
+
+/// The import report's summary, worked out by hand: stem groups (`rgb.conv1`, `rgb.bn1`,
+/// `radar.conv4` but not `rgb.convx` or `head.conv1`), modules left random listed when few and
+/// counted per group when many, skip reasons grouped, long lists cut at 10 names.
+#[test]
+fn import_report_summary_by_hand() {
+    let s = |v: &[&str]| v.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    let mut left = s(&["radar.conv1.weight", "radar.bn1.weight", "radar.bn1.bias"]);
+    left.extend((0..10).map(|i| format!("decoder.fpn.P{i}.weight")));
+    left.push("decoder.out.weight".into());
+    let report = weights::LoadReport {
+        loaded: s(&[
+            "rgb.conv1.weight",
+            "rgb.bn1.weight",
+            "rgb.layer1.0.conv1.weight",
+            "radar.conv4.weight",
+            "radar.layer2.0.bn1.weight",
+            "decoder.fpn.P3_1.weight",
+            "head.conv1.weight",
+            "rgb.attn.weight",
+            "rgb.convx.weight",
+        ]),
+        partial: vec![("rgb.conv1.weight".into(), "how".into())],
+        skipped: vec![
+            ("fc.weight".into(), "classifier".into()),
+            ("fc.bias".into(), "classifier".into()),
+            ("bn1.num_batches_tracked".into(), "BN batch counter".into()),
+        ],
+        unused: (0..12).map(|i| format!("u{i}")).collect(),
+        left_random: left,
+    };
+    assert_eq!(
+        report.to_string(),
+        "weights: 9 tensors loaded, 1 partly loaded, 14 left random; file tensors: 3 skipped, 12 unused
+  loaded: decoder.fpn 1, head.conv1 1, radar.layer2 1, radar.stem 1, rgb.attn 1, rgb.convx 1, rgb.layer1 1, rgb.stem 2
+  partly loaded: rgb.conv1.weight (how)
+  left random: decoder.fpn.* (10 modules), decoder.out (11 tensors)
+  left random: radar.bn1, radar.conv1 (3 tensors)
+  skipped (BN batch counter): bn1.num_batches_tracked
+  skipped (classifier): fc.weight, fc.bias
+  unused file tensors: u0, u1, u2, u3, u4, u5, u6, u7, u8, u9, … (12 in all)
+"
+    );
+    let empty = weights::LoadReport {
+        loaded: s(&["rgb.conv1.weight"]),
+        ..Default::default()
+    };
+    assert_eq!(
+        empty.to_string(),
+        "weights: 1 tensors loaded, 0 partly loaded, 0 left random; file tensors: 0 skipped, 0 unused\n  loaded: rgb.stem 1\n"
+    );
+}
