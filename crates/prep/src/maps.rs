@@ -537,11 +537,15 @@ mod tests {
             [0.5, 0.5, -0.3, 0.0, 0.0],  // roof: dropped
             [0.99, -0.2, 5.0, 0.0, 0.0], // any z: dropped
             [1.0, 0.0, 0.0, 0.0, 0.0],   // |x| = 1: kept (strict <)
+            [0.0, -1.0, 0.0, 0.0, 0.0],  // |y| = 1: kept (strict <)
             [0.2, 3.0, 0.0, 0.0, 0.0],   // ahead: kept
         ];
         let (kept, dropped) = remove_close(&pts, NEAR_SENSOR_M);
         assert_eq!(dropped, 2);
-        assert_eq!(kept, vec![[1.0, 0.0, 0.0], [0.2, 3.0, 0.0]]);
+        assert_eq!(
+            kept,
+            vec![[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.2, 3.0, 0.0]]
+        );
     }
 
     #[test]
@@ -565,5 +569,102 @@ mod tests {
         r.splat(2, 0, 5.0, 2.5);
         let m = lowheight_mask(&r);
         assert_eq!(&m[..3], &[0, 255, 0]);
+    }
+
+    // Added after the mutation run of issue 23: the exact thresholds of the depth-consistency
+    // test, the ego box's faces, and which full-resolution pixels the 2x2 reduction averages.
+
+    #[test]
+    fn consistency_thresholds_by_hand() {
+        // Column 100: 10 m at row 50, 20 m at row 60 → at (100, 55) near 10, far 20:
+        // hidden when d > 1.1·20 + 0.5 = 22.5, free space when 1.1·d + 0.5 < 10 (d < 8.64).
+        // Column 200: 6 m at row 50, 20 m at row 60: 1.1·5 + 0.5 = 6 is not < 6.
+        let mut kf = vec![0f32; N];
+        kf[50 * 800 + 100] = 10.0;
+        kf[60 * 800 + 100] = 20.0;
+        kf[50 * 800 + 200] = 6.0;
+        kf[60 * 800 + 200] = 20.0;
+        let s = KeyframeSurface::new(&kf);
+        let v = |x, y, d| s.judge(x, y, d);
+        assert_eq!(
+            v(100, 55, 22.5),
+            Visibility::Consistent,
+            "22.5 is not > 22.5"
+        );
+        assert_eq!(v(100, 55, 22.51), Visibility::Hidden);
+        assert_eq!(v(100, 55, 22.0), Visibility::Consistent);
+        assert_eq!(
+            v(100, 55, 8.5),
+            Visibility::FreeSpace,
+            "1.1·8.5 + 0.5 = 9.85 < 10"
+        );
+        assert_eq!(
+            v(100, 55, 9.0),
+            Visibility::Consistent,
+            "1.1·9 + 0.5 = 10.4"
+        );
+        assert_eq!(v(200, 55, 5.0), Visibility::Consistent, "6 is not < 6");
+        assert_eq!(v(200, 55, 4.9), Visibility::FreeSpace);
+        // evidence within ±2 columns (OCC_RX)
+        assert_eq!(v(102, 55, 30.0), Visibility::Hidden);
+        assert_eq!(v(103, 55, 30.0), Visibility::NoEvidence);
+        // a return must bracket the pixel on both sides within 24 rows (OCC_MAX_GAP_ROWS):
+        // column 300 has them 24 rows above and below row 74, column 400 the lower one 25 below
+        kf[50 * 800 + 300] = 10.0;
+        kf[98 * 800 + 300] = 20.0;
+        kf[50 * 800 + 400] = 10.0;
+        kf[99 * 800 + 400] = 20.0;
+        let s = KeyframeSurface::new(&kf);
+        assert_eq!(s.judge(300, 74, 30.0), Visibility::Hidden);
+        assert_eq!(s.judge(400, 74, 30.0), Visibility::NoEvidence);
+    }
+
+    #[test]
+    fn ego_box_faces_are_outside() {
+        let b = EGO_BOX;
+        assert!(b.contains([0.0, 0.0, 0.0]));
+        assert!(b.contains([-0.99, 0.99, 2.09]));
+        for p in [
+            [-1.0, 0.0, 0.0],
+            [3.3, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [0.0, 0.0, 2.1],
+        ] {
+            assert!(
+                !b.contains(p),
+                "{p:?} lies on a face: outside (strict bounds)"
+            );
+        }
+    }
+
+    #[test]
+    fn image_reduction_averages_each_2x2_block_per_channel() {
+        // Full-res pixel (X, Y): R = X, G = Y, B = 255 − X (mod 256). Frame pixel (x, y)
+        // averages X ∈ {2x, 2x+1}, Y ∈ {2(y+100), 2(y+100)+1} with rounding (sum + 2)/4:
+        // R = (8x + 2 + 2)/4 = 2x + 1, G = 2y + 201, B = (4·(255 − 2x) − 2 + 2)/4 = 255 − 2x.
+        let (w, h) = (1600usize, 900usize);
+        let mut rgb = vec![0u8; w * h * 3];
+        for y in 0..h {
+            for x in 0..w {
+                let o = (y * w + x) * 3;
+                rgb[o] = (x % 256) as u8;
+                rgb[o + 1] = (y % 256) as u8;
+                rgb[o + 2] = (255 - x % 256) as u8;
+            }
+        }
+        let f = image_to_frame(&rgb, w as u32, h as u32).unwrap();
+        for (x, y) in [(0usize, 0usize), (5, 10), (100, 27), (127, 3)] {
+            let o = (y * 800 + x) * 3;
+            assert_eq!(
+                [f[o], f[o + 1], f[o + 2]],
+                [(2 * x + 1) as u8, (2 * y + 201) as u8, (255 - 2 * x) as u8],
+                "frame pixel ({x}, {y})"
+            );
+        }
+        // only 1600x900 RGB8 is accepted
+        assert!(image_to_frame(&rgb, 1600, 899).is_none());
+        assert!(image_to_frame(&rgb, 1599, 900).is_none());
+        assert!(image_to_frame(&rgb[..rgb.len() - 3], 1600, 900).is_none());
     }
 }
