@@ -7,7 +7,7 @@
 //! decode l̂ = Σ_k [P_k ≥ 0.5], depth = (t_l̂ + t_{l̂+1})/2.
 
 use depthsense_model::ordinal::{
-    ordinal_decode, ordinal_loss, ordinal_loss_dense, pair_differences,
+    self, ordinal_decode, ordinal_loss, ordinal_loss_dense, pair_differences,
 };
 use depthsense_model::sid::{depth_of_level, label_of_depth, labels, levels_to_depth};
 use depthsense_model::SidConfig;
@@ -201,4 +201,25 @@ fn a_first_threshold_other_than_one_metre() {
     );
     assert!((depth_of_level(&sid, 1) - 6.0).abs() < 1e-12);
     assert!((depth_of_level(&sid, 4) - 48.0).abs() < 1e-12);
+}
+
+/// Decoding upsamples z bilinearly to the output size first (SPEC §7), also when only one of
+/// the two sizes differs. z = [[−1, 1], [−1, 1]] (one bin) to 2x4 with align_corners: the
+/// columns sample 0, ⅓, ⅔, 1 of the way → z = −1, −⅓, ⅓, 1 → levels 0, 0, 1, 1 on both rows;
+/// to 4x2: every row equals [−1, 1] → levels 0, 1.
+#[test]
+fn decoding_upsamples_when_one_size_differs() {
+    let z = Tensor::from_slice(&[-1.0f32, 1.0, -1.0, 1.0]).view([1, 1, 2, 2]);
+    let wide = ordinal::ordinal_levels(&z, 2, 4, true);
+    assert_eq!(wide.size(), [1, 1, 2, 4]);
+    assert_eq!(i64s(&wide), vec![0, 0, 1, 1, 0, 0, 1, 1]);
+    let tall = ordinal::ordinal_levels(&z, 4, 2, true);
+    assert_eq!(tall.size(), [1, 1, 4, 2]);
+    assert_eq!(i64s(&tall), vec![0, 1, 0, 1, 0, 1, 0, 1]);
+    // align_corners = false: columns sample source x = −¼ (clamped to 0), ¼, ¾, 1¼ (clamped)
+    // → z = −1, −½, ½, 1 → the same levels
+    let wide = ordinal::ordinal_levels(&z, 2, 4, false);
+    assert_eq!(i64s(&wide), vec![0, 0, 1, 1, 0, 0, 1, 1]);
+    let up = ordinal::upsample(&z, 2, 4, false);
+    assert!((f32s(&up.narrow(3, 1, 1))[0] + 0.5).abs() < 1e-6, "{up}");
 }
