@@ -666,5 +666,8 @@ mod tests {
         assert!(image_to_frame(&rgb, 1600, 899).is_none());
         assert!(image_to_frame(&rgb, 1599, 900).is_none());
         assert!(image_to_frame(&rgb[..rgb.len() - 3], 1600, 900).is_none());
+        // a buffer that fits another size is still refused
+        assert!(image_to_frame(&rgb[..1599 * 900 * 3], 1599, 900).is_none());
+        assert!(image_to_frame(&rgb[..1600 * 899 * 3], 1600, 899).is_none());
     }
 }
