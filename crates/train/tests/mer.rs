@@ -172,7 +172,7 @@ fn train_opts(data: &Path, out: &Path) -> MerTrainOptions {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
         pda: PdaConfig::test(),
-        epochs: 2,
+        epochs: 6,
         batch_size: 2,
         device: "cpu".into(),
         jobs: 2,
@@ -199,14 +199,17 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let ds = toy(&data);
     let run = tmp.path().join("pda");
     let s = train_pda(&train_opts(&data, &run), &ProgressBar::hidden()).unwrap();
-    assert_eq!(s.val.len(), 3);
+    assert_eq!(s.val.len(), 7, "the untrained network and 6 epochs");
     assert!(
         s.val.iter().all(|v| v.pairs > 0 && v.positives > 0),
         "{:?}",
         s.val
     );
     assert!(run.join(BEST_CKPT).is_file() && run.join("curves.png").is_file());
-    // PDA learns: validation AUC rises from the untrained network's and ends above chance
+    // PDA learns: validation AUC rises from the untrained network's and ends above chance.
+    // 6 epochs: after 2 the AUC (0.49 → 0.55 here) could end below 0.5 when libtorch's
+    // thread count (set by the apply tests running beside this one) changes the float noise
+    // (measured once: 0.40 → 0.49); after 6 it reaches 0.76.
     let auc: Vec<f64> = s.val.iter().map(|v| v.auc).collect();
     eprintln!("validation AUC per record: {auc:?}");
     assert!(auc[auc.len() - 1] > auc[0], "AUC did not rise: {auc:?}");
