@@ -686,11 +686,7 @@ pub fn fuzz_reader(reader: Reader, cfg: &Config) -> ReaderStats {
 }
 
 fn fnv(b: &[u8]) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    for &x in b {
-        h = (h ^ x as u64).wrapping_mul(0x100_0000_01b3);
-    }
-    h
+    depthsense_nuscenes::hash::fnv1a64(b)
 }
 
 /// Fuzz every reader of `cfg`; the JSON report.

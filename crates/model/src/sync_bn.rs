@@ -35,12 +35,7 @@ pub fn set_sample_seeds(seeds: Option<Vec<u64>>) {
     DROPOUT_CALL.with(|c| c.set(0));
 }
 
-fn mix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+use depthsense_nuscenes::hash::splitmix64 as mix64;
 
 /// Dropout2d (whole channels, kept ones scaled by 1/(1−p)). With sample seeds set, channel c
 /// of sample i in the k-th dropout layer of the forward is kept iff

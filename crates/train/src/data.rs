@@ -12,6 +12,7 @@ use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
 use depthsense_nuscenes::depth_png::{decode_png, DepthMap};
+use depthsense_nuscenes::hash::{fnv1a64, SplitMix64, GOLDEN_GAMMA};
 use depthsense_prep::layout::{
     Condition, IndexEntry, PreparedIndex, IMAGE_FILE, INDEX_FILE, LIDAR_DENSE_FILE,
     LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
@@ -306,28 +307,26 @@ pub struct Sample {
 }
 
 /// splitmix64: the counter-based hash behind every random draw of the loader.
-pub fn mix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
+pub use depthsense_nuscenes::hash::splitmix64 as mix64;
 
-/// A small deterministic generator (splitmix64 stream).
+/// A small deterministic generator: the SplitMix64 stream whose first draw is
+/// `mix64(mix64(seed) + γ)` (the loader's draws since issue 5; the synthetic world's `Rng`
+/// starts from the seed itself — the two seedings differ and each keeps its stream).
 #[derive(Debug, Clone)]
-pub struct Rng(u64);
+pub struct Rng(SplitMix64);
 
 impl Rng {
     pub fn new(seed: u64) -> Self {
-        Self(mix64(seed))
+        Self(SplitMix64::from_state(
+            mix64(seed).wrapping_add(GOLDEN_GAMMA),
+        ))
     }
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        mix64(self.0)
+        self.0.next_u64()
     }
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+        self.0.next_f64()
     }
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.uniform()
@@ -335,9 +334,7 @@ impl Rng {
 }
 
 fn hash_str(s: &str) -> u64 {
-    s.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x100_0000_01b3)
-    })
+    fnv1a64(s.as_bytes())
 }
 
 /// The order of samples in an epoch: a Fisher–Yates shuffle seeded by (seed, epoch).
@@ -987,4 +984,20 @@ pub(crate) fn identity4() -> [[f64; 4]; 4] {
         row[i] = 1.0;
     }
     m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The loader's stream as it has been since issue 5 (every augmentation, radar corruption
+    /// and toy dataset depends on it): state mix64(seed); each draw adds γ and returns
+    /// mix64(state), i.e. the finaliser of state + 2γ on the first draw. Values from a Python
+    /// transcription of that formula.
+    #[test]
+    fn the_loader_stream_is_unchanged() {
+        let mut r = Rng::new(7);
+        assert_eq!(r.next_u64(), 11984929618412882174);
+        assert_eq!(r.next_u64(), 10134167572453724827);
+    }
 }

@@ -22,6 +22,7 @@ use std::time::Instant;
 
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
+use depthsense_nuscenes::hash::fnv1a64;
 use depthsense_prep::layout::{Condition, IndexEntry};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
@@ -108,13 +109,6 @@ pub fn exclusions_label(ex: &[Exclusion]) -> String {
     }
 }
 
-/// FNV-1a 64 of a string.
-fn fnv1a64(s: &str) -> u64 {
-    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3)
-    })
-}
-
 /// The scenes `exclude` withholds from `train` (module docs), sorted by name.
 pub fn withheld_scenes(train: &[IndexEntry], exclude: &[Exclusion]) -> Vec<String> {
     let mut out = BTreeSet::new();
@@ -124,8 +118,10 @@ pub fn withheld_scenes(train: &[IndexEntry], exclude: &[Exclusion]) -> Vec<Strin
             .filter(|e| e.conditions.contains(&ex.condition))
             .map(|e| e.scene_name.as_str())
             .collect();
-        let mut order: Vec<(u64, &str)> =
-            scenes.into_iter().map(|n| (mix64(fnv1a64(n)), n)).collect();
+        let mut order: Vec<(u64, &str)> = scenes
+            .into_iter()
+            .map(|n| (mix64(fnv1a64(n.as_bytes())), n))
+            .collect();
         order.sort();
         let k = (ex.fraction * order.len() as f64).round() as usize;
         out.extend(order.iter().take(k).map(|(_, n)| n.to_string()));

@@ -95,10 +95,10 @@ pub fn derive_channels(depth_m: &[f32], conf: &[f32]) -> Vec<f32> {
 /// FNV-1a 64 of a file's bytes, hex.
 pub fn file_fnv64(path: &Path) -> Result<String, TrainError> {
     let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
-    let h = bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ *b as u64).wrapping_mul(0x100_0000_01b3)
-    });
-    Ok(format!("{h:016x}"))
+    Ok(format!(
+        "{:016x}",
+        depthsense_nuscenes::hash::fnv1a64(&bytes)
+    ))
 }
 
 /// Reads `O/mer.json` when present.
