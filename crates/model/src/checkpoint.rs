@@ -2,7 +2,6 @@
 //! (JSON) and free-form extra JSON (epoch, metrics…), written atomically.
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::Path;
 
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -193,29 +192,17 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
     Ok((out, meta))
 }
 
-/// Writes `bytes` to `path` atomically (temporary file in the same directory, fsync, rename).
+/// Writes `bytes` to `path` atomically: the workspace's one atomic write
+/// (`depthsense_nuscenes::fsutil::write_atomic`: temporary sibling, fsync, rename), with the
+/// error as a [`ModelError`] naming `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
+    // The folder first, so that its failure names the folder (as before).
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| ModelError::io(dir, e))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
-    let res = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = res {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(ModelError::io(path, e));
-    }
-    Ok(())
+    depthsense_nuscenes::fsutil::write_atomic(path, bytes).map_err(|e| ModelError::io(path, e))
 }
 
 /// Saves every variable of `vs` (trainable and BN running statistics) with `cfg` and `extra`
