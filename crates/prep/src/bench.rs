@@ -8,7 +8,6 @@ use std::time::Instant;
 use depthsense_nuscenes::geometry::{cam_from_sensor, ego_from_sensor, Camera};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
 use depthsense_nuscenes::tables::{NuScenes, Token};
-use depthsense_nuscenes::NuError;
 use indicatif::ProgressBar;
 use serde_json::json;
 
@@ -17,10 +16,6 @@ use crate::pipeline::{prepare_timed, PrepError, PrepareOptions};
 
 fn tok(kind: u32, i: u64) -> String {
     format!("{:08x}{:024x}", kind, i)
-}
-
-fn io(path: &Path, e: std::io::Error) -> PrepError {
-    PrepError::Nu(NuError::io(path, e))
 }
 
 /// Row counts of the real v1.0-trainval tables.
@@ -34,7 +29,7 @@ pub const TRAINVAL_ANNOTATIONS: u64 = 1_166_187;
 /// `scale` multiplies the row counts (1.0 = trainval). Returns the total bytes written.
 pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result<u64, PrepError> {
     let v = dir.join(version);
-    std::fs::create_dir_all(&v).map_err(|e| io(&v, e))?;
+    std::fs::create_dir_all(&v).map_err(|e| PrepError::io(&v, e))?;
     let n_sd = (TRAINVAL_SAMPLE_DATA as f64 * scale) as u64;
     let n_samples = ((TRAINVAL_SAMPLES as f64 * scale) as u64).max(1);
     let n_scenes = ((TRAINVAL_SCENES as f64 * scale) as u64).max(1);
@@ -44,21 +39,21 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
     let mut write =
         |name: &str, n: u64, row: &mut dyn FnMut(u64, &mut Vec<u8>)| -> Result<(), PrepError> {
             let p = v.join(format!("{name}.json"));
-            let f = std::fs::File::create(&p).map_err(|e| io(&p, e))?;
+            let f = std::fs::File::create(&p).map_err(|e| PrepError::io(&p, e))?;
             let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
             let mut buf = Vec::with_capacity(1024);
-            w.write_all(b"[\n").map_err(|e| io(&p, e))?;
+            w.write_all(b"[\n").map_err(|e| PrepError::io(&p, e))?;
             for i in 0..n {
                 buf.clear();
                 row(i, &mut buf);
                 if i + 1 < n {
                     buf.extend_from_slice(b",\n");
                 }
-                w.write_all(&buf).map_err(|e| io(&p, e))?;
+                w.write_all(&buf).map_err(|e| PrepError::io(&p, e))?;
                 total += buf.len() as u64;
             }
-            w.write_all(b"\n]\n").map_err(|e| io(&p, e))?;
-            w.flush().map_err(|e| io(&p, e))
+            w.write_all(b"\n]\n").map_err(|e| PrepError::io(&p, e))?;
+            w.flush().map_err(|e| PrepError::io(&p, e))
         };
     let channels = [
         "CAM_FRONT",
@@ -313,10 +308,10 @@ pub fn build_fixture_world(
     ] {
         let src = nu.path_of(sd);
         let dst_dir = out.join(sub);
-        std::fs::create_dir_all(&dst_dir).map_err(|e| io(&dst_dir, e))?;
+        std::fs::create_dir_all(&dst_dir).map_err(|e| PrepError::io(&dst_dir, e))?;
         let dst = out.join(&*sd.filename);
         if !dst.exists() {
-            std::fs::copy(&src, &dst).map_err(|e| io(&src, e))?;
+            std::fs::copy(&src, &dst).map_err(|e| PrepError::io(&src, e))?;
         }
     }
     let calib = |sd: &depthsense_nuscenes::tables::SampleData| {
@@ -333,7 +328,7 @@ pub fn build_fixture_world(
         )?
         .clone();
     let v = out.join("v1.0-bench");
-    std::fs::create_dir_all(&v).map_err(|e| io(&v, e))?;
+    std::fs::create_dir_all(&v).map_err(|e| PrepError::io(&v, e))?;
     let yaw = |deg: f64| {
         let h = deg.to_radians() / 2.0;
         let q = rc.rotation;
@@ -450,7 +445,7 @@ pub fn build_fixture_world(
             &p,
             serde_json::to_vec(&val).map_err(|e| PrepError::Other(e.to_string()))?,
         )
-        .map_err(|e| io(&p, e))?;
+        .map_err(|e| PrepError::io(&p, e))?;
     }
     Ok(out.to_path_buf())
 }
@@ -539,7 +534,7 @@ pub fn run_bench_data(cfg: &BenchDataConfig) -> Result<serde_json::Value, PrepEr
         .clone()
         .unwrap_or_else(std::env::temp_dir)
         .join(format!("depthsense-bench-data-{}", std::process::id()));
-    std::fs::create_dir_all(&work).map_err(|e| io(&work, e))?;
+    std::fs::create_dir_all(&work).map_err(|e| PrepError::io(&work, e))?;
     let res = run_in(cfg, &work);
     let _ = std::fs::remove_dir_all(&work);
     res
@@ -572,7 +567,7 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
             .map(|(k, v)| (k.to_string(), json!(v)))
             .collect();
         drop(nu);
-        std::fs::remove_dir_all(work.join("v1.0-gen")).map_err(|e| io(work, e))?;
+        std::fs::remove_dir_all(work.join("v1.0-gen")).map_err(|e| PrepError::io(work, e))?;
         report["tables"] = json!({
             "json_bytes": bytes, "generate_s": gen_s, "load_s": load_s, "load_cpu_s": load_cpu_s,
             "peak_rss_bytes": peak, "rss_before_load_bytes": rss0, "peak_reset_ok": reset,
@@ -618,7 +613,7 @@ fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepErr
                 "encode": times.encode_s / n * 1e3, "write": times.write_s / n * 1e3,
             },
         }));
-        std::fs::remove_dir_all(&out).map_err(|e| io(&out, e))?;
+        std::fs::remove_dir_all(&out).map_err(|e| PrepError::io(&out, e))?;
     }
     report["prepare"] = json!(runs);
     Ok(report)

@@ -26,13 +26,6 @@ use crate::pipeline::PrepError;
 /// How long to wait for another process's index lock.
 pub const LOCK_WAIT: Duration = Duration::from_secs(120);
 
-fn io_err(path: &Path, e: std::io::Error) -> PrepError {
-    PrepError::Output {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-    }
-}
-
 /// Whether process `pid` is running. Without `/proc` nothing can be told: every other process
 /// counts as running.
 pub fn pid_alive(pid: u32) -> bool {
@@ -66,7 +59,7 @@ pub fn read_index(path: &Path) -> Result<Option<PreparedIndex>, PrepError> {
     let bytes = match std::fs::read(path) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(io_err(path, e)),
+        Err(e) => return Err(PrepError::output(path, e)),
     };
     serde_json::from_slice(&bytes)
         .map(Some)
@@ -126,10 +119,10 @@ pub fn index_files(dir: &Path) -> Result<Vec<PathBuf>, PrepError> {
     let rd = match std::fs::read_dir(dir) {
         Ok(rd) => rd,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(out),
-        Err(e) => return Err(io_err(dir, e)),
+        Err(e) => return Err(PrepError::output(dir, e)),
     };
     for e in rd {
-        let e = e.map_err(|e| io_err(dir, e))?;
+        let e = e.map_err(|e| PrepError::output(dir, e))?;
         let name = e.file_name().to_string_lossy().into_owned();
         if name == layout::INDEX_FILE
             || (name.starts_with("index.shard-") && name.ends_with(".json"))
@@ -198,7 +191,7 @@ pub fn merge_entries(index: &mut PreparedIndex, entries: impl IntoIterator<Item 
 /// Write an index atomically.
 pub fn write_index_file(path: &Path, index: &PreparedIndex) -> Result<(), PrepError> {
     let bytes = serde_json::to_vec_pretty(index).map_err(|e| PrepError::Other(e.to_string()))?;
-    write_atomic(path, &bytes).map_err(|e| io_err(path, e))
+    write_atomic(path, &bytes).map_err(|e| PrepError::output(path, e))
 }
 
 /// What `depthsense index merge` did.
@@ -219,7 +212,7 @@ pub struct MergeSummary {
 /// part, and shard sets of different N. The merged order is the unsharded run's: shard scene
 /// lists are interleaved (scene j came from shard j mod N).
 pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
-    std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| PrepError::output(out, e))?;
     // Nobody else writes the folders while samples move and the index is rewritten.
     let mut _writing = vec![OutputLock::exclusive(out, "depthsense index merge")?];
     for o in others {
@@ -337,7 +330,7 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
                 });
             }
             if dst.exists() {
-                std::fs::remove_dir_all(&dst).map_err(|e| io_err(&dst, e))?;
+                std::fs::remove_dir_all(&dst).map_err(|e| PrepError::output(&dst, e))?;
             }
             std::fs::rename(&src, &dst).map_err(|err| PrepError::Output {
                 path: src.display().to_string(),

@@ -156,6 +156,21 @@ pub enum PrepError {
     Other(String),
 }
 
+impl PrepError {
+    /// A failed read or write of `path` (the reader's error, naming the file).
+    pub(crate) fn io(path: &Path, e: std::io::Error) -> Self {
+        PrepError::Nu(NuError::io(path, e))
+    }
+
+    /// A failed write of the output folder's shared files (index, locks).
+    pub(crate) fn output(path: &Path, e: std::io::Error) -> Self {
+        PrepError::Output {
+            path: path.display().to_string(),
+            reason: e.to_string(),
+        }
+    }
+}
+
 pub use crate::motion::{BOX_MARGIN_M, MAX_TIME_DIFF_S, MOVING_SPEED_MPS};
 
 /// Version of the dense-target rules, stored with the settings: a prepared folder made under
@@ -187,10 +202,6 @@ pub struct SampleMaps {
     pub radar_height: DepthMap,
     /// The radar returns behind the radar maps (SPEC §10.7/§10.8 re-rasterisation).
     pub radar_points: RadarPoints,
-}
-
-fn io_err(path: &Path, e: std::io::Error) -> PrepError {
-    PrepError::Nu(NuError::io(path, e))
 }
 
 /// Everything a worker needs besides the tables.
@@ -297,7 +308,7 @@ fn frame_image(
     clock.decode(|| {
         let img_path = nu.path_of(cam_sd);
         reading(&img_path);
-        let jpeg = std::fs::read(&img_path).map_err(|e| io_err(&img_path, e))?;
+        let jpeg = std::fs::read(&img_path).map_err(|e| PrepError::io(&img_path, e))?;
         let bad_image = |reason: String| {
             PrepError::Nu(NuError::Image {
                 path: img_path.display().to_string(),
@@ -792,12 +803,12 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
     let tmp = guard.path.clone();
     let res = (|| -> Result<(), PrepError> {
         if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(|e| io_err(&tmp, e))?;
+            std::fs::remove_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
         }
-        std::fs::create_dir_all(&tmp).map_err(|e| io_err(&tmp, e))?;
+        std::fs::create_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
         for (name, bytes) in &files {
             let p = tmp.join(name);
-            std::fs::write(&p, bytes).map_err(|e| io_err(&p, e))?;
+            std::fs::write(&p, bytes).map_err(|e| PrepError::io(&p, e))?;
         }
         let complete = |d: &Path| d.join(layout::META_FILE).is_file();
         if complete(&final_dir) {
@@ -806,7 +817,7 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
         }
         if final_dir.exists() {
             // An incomplete directory (no meta.json) from an older run.
-            std::fs::remove_dir_all(&final_dir).map_err(|e| io_err(&final_dir, e))?;
+            std::fs::remove_dir_all(&final_dir).map_err(|e| PrepError::io(&final_dir, e))?;
         }
         match std::fs::rename(&tmp, &final_dir) {
             Ok(()) => {
@@ -815,7 +826,7 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
             }
             // Lost a race with another process that renamed its copy first.
             Err(_) if complete(&final_dir) => Ok(()),
-            Err(e) => Err(io_err(&final_dir, e)),
+            Err(e) => Err(PrepError::io(&final_dir, e)),
         }
     })();
     drop(guard);
@@ -938,7 +949,7 @@ pub fn prepare_timed(
         Some(sh) => format!("{} split {} shard {sh}", opts.version, opts.split),
         None => format!("{} split {}", opts.version, opts.split),
     });
-    std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
+    std::fs::create_dir_all(&opts.out).map_err(|e| PrepError::io(&opts.out, e))?;
     // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
     // may not write it meanwhile (README "Reliability").
     let _writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
@@ -1061,7 +1072,7 @@ pub fn settings_map(opts: &PrepareOptions) -> BTreeMap<String, serde_json::Value
 }
 
 fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepError> {
-    let bytes = std::fs::read(meta_path).map_err(|e| io_err(meta_path, e))?;
+    let bytes = std::fs::read(meta_path).map_err(|e| PrepError::io(meta_path, e))?;
     let meta: SampleMeta = serde_json::from_slice(&bytes).map_err(|e| PrepError::Output {
         path: meta_path.display().to_string(),
         reason: format!("unreadable meta.json: {e}"),
