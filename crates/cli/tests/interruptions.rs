@@ -144,7 +144,7 @@ fn prepare_killed_five_times_then_finished_equals_one_clean_run() {
 
 fn toy(tmp: &Path) -> PathBuf {
     let data = tmp.join("data");
-    depthsense_train::data::write_toy_dataset(&data, 6, 4, 128, 64, 5).unwrap();
+    depthsense_data::write_toy_dataset(&data, 6, 4, 128, 64, 5).unwrap();
     data
 }
 

@@ -50,7 +50,7 @@ fn wait_until_locked(dir: &Path, child: &mut Guard) {
 
 fn toy(tmp: &Path) -> PathBuf {
     let data = tmp.join("data");
-    depthsense_train::data::write_toy_dataset(&data, 6, 4, 128, 64, 3).unwrap();
+    depthsense_data::write_toy_dataset(&data, 6, 4, 128, 64, 3).unwrap();
     data
 }
 

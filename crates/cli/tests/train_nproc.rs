@@ -8,7 +8,7 @@ fn nproc_two_trains_with_sync_bn_and_rank_zero_writes_the_run() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let out = tmp.path().join("run");
-    depthsense_train::data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
+    depthsense_data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_depthsense"))
         .args(["train", "--data"])
         .arg(&data)

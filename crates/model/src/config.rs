@@ -345,6 +345,30 @@ impl ModelConfig {
         }
     }
 
+    /// `tiny` with a ResNet-34 encoder and doubled widths: the default network of `demo` and
+    /// of the experiments (`experiment ablation --model tiny-wide`). Not a `train --model`
+    /// preset ([`ModelConfig::preset`] refuses it); [`ModelConfig::demo_preset`] accepts it.
+    pub fn tiny_wide() -> Self {
+        let mut c = ModelConfig::tiny();
+        c.name = "tiny-wide".into();
+        c.backbone_depth = 34;
+        c.backbone_width = 64;
+        c.decoder_channels = 128;
+        c.head_channels = 128;
+        c.radar_width = 32;
+        c.radar_out_channels = 256;
+        c
+    }
+
+    /// The demo's and the experiments' presets: `tiny-wide` (exactly that name) or any
+    /// [`ModelConfig::preset`].
+    pub fn demo_preset(name: &str) -> Result<ModelConfig, ModelError> {
+        if name == "tiny-wide" {
+            return Ok(Self::tiny_wide());
+        }
+        Self::preset(name)
+    }
+
     /// Head Dropout2d probability scaled with the head's width: the paper's 0.5 at its 512+
     /// channels, p = 0.5·C/512 below. Dropout2d(0.5) on a 32-channel head zeroes 16 of 32
     /// feature maps of the whole image each step, and the tiny network then collapses to a

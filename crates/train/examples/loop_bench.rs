@@ -10,9 +10,9 @@
 
 use std::time::Instant;
 
+use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
 use depthsense_model::ordinal::{ordinal_loss, ordinal_loss_at, SparseTarget};
 use depthsense_model::{DepthNet, ModelConfig, SidConfig};
-use depthsense_train::data::{Dataset, EpochPlan, LoadOptions, Loader};
 use depthsense_train::sgd::Sgd;
 use depthsense_train::trainer::upload_batch;
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -34,7 +34,7 @@ fn median_s(reps: usize, mut f: impl FnMut()) -> f64 {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let reps: usize = std::env::args().nth(1).map_or(Ok(5), |s| s.parse())?;
     let tmp = tempfile::tempdir()?;
-    depthsense_train::data::write_toy_dataset(tmp.path(), 2, 4, 800, 350, 1)?;
+    depthsense_data::write_toy_dataset(tmp.path(), 2, 4, 800, 350, 1)?;
     let ds = Dataset::open(tmp.path())?;
     let plan = EpochPlan {
         entries: ds.split("all"),

@@ -1,6 +1,6 @@
 //! Overfit one batch of the toy dataset: a sanity check of model + loss + optimiser.
+use depthsense_data::*;
 use depthsense_model::{DepthNet, Fusion, ModelConfig};
-use depthsense_train::data::*;
 use tch::nn::OptimizerConfig;
 
 fn main() {

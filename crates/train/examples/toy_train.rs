@@ -14,7 +14,7 @@ fn main() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    depthsense_train::data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
+    depthsense_data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
     let mut model = ModelConfig::tiny();
     model.fusion = fusion;
     model.dropout = std::env::var("DROPOUT")
@@ -47,7 +47,7 @@ fn main() {
         tch::Device::Cpu,
     )
     .unwrap();
-    let ds = depthsense_train::data::Dataset::open(&tmp.path().join("data")).unwrap();
+    let ds = depthsense_data::Dataset::open(&tmp.path().join("data")).unwrap();
     let e = &ds.split("all")[0];
     let inp = depthsense_train::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
     let radar = depthsense_train::trainer::radar_input_for(&l.config, None).unwrap();

@@ -4,11 +4,11 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
+use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
 use depthsense_model::{DepthNet, ModelConfig};
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Kind};
 
-use crate::data::{Dataset, EpochPlan, LoadOptions, Loader};
 use crate::error::TrainError;
 use crate::sgd::Sgd;
 use crate::trainer::{radar_input_for, upload_batch};
@@ -63,7 +63,7 @@ pub fn bench_train(
             tmp = tempfile::tempdir().map_err(|e| TrainError::Other(e.to_string()))?;
             progress.set_message("writing a toy 800x350 dataset");
             let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
-            crate::data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
+            depthsense_data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
             tmp.path().to_path_buf()
         }
     };
@@ -109,7 +109,8 @@ pub fn bench_train(
         epoch += 1;
     }
     let loader_ips = images as f64 / t.elapsed().as_secs_f64();
-    let first = crate::data::load_sample(&ds, &entries[0], &load, &mut crate::data::Rng::new(0))?;
+    let first =
+        depthsense_data::load_sample(&ds, &entries[0], &load, &mut depthsense_data::Rng::new(0))?;
     cfg.out_height = first.height as i64;
     cfg.out_width = first.width as i64;
 

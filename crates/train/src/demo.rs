@@ -15,6 +15,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_data::{partition, Dataset, LoadOptions};
 use depthsense_metrics::Report;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -22,7 +23,6 @@ use depthsense_nuscenes::lock::OutputLock;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
-use crate::data::{partition, Dataset, LoadOptions};
 use crate::error::TrainError;
 use crate::evaluate::write_tables;
 use crate::trainer::{
@@ -390,7 +390,7 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
         .iter()
         .map(|(n, s)| (n.as_str(), s.as_slice()))
         .collect();
-    let png = crate::plot::curves_png(&left, &right)?;
+    let png = depthsense_viz::plot::curves_png(&left, &right)?;
     let p = report_dir.join("val_rmse.png");
     write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
     stages.push(("eval".into(), t.elapsed().as_secs_f64()));
@@ -507,20 +507,9 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
     write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
 }
 
-/// The demo's network: a model preset, or `tiny-wide` (tiny with ResNet-34 and doubled widths).
+/// The demo's network: a model preset, or `tiny-wide` ([`ModelConfig::demo_preset`]).
 pub fn demo_model(preset: &str) -> Result<ModelConfig, TrainError> {
-    if preset == "tiny-wide" {
-        let mut c = ModelConfig::tiny();
-        c.name = "tiny-wide".into();
-        c.backbone_depth = 34;
-        c.backbone_width = 64;
-        c.decoder_channels = 128;
-        c.head_channels = 128;
-        c.radar_width = 32;
-        c.radar_out_channels = 256;
-        return Ok(c);
-    }
-    Ok(ModelConfig::preset(preset)?)
+    Ok(ModelConfig::demo_preset(preset)?)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -534,7 +523,7 @@ fn write_pictures(
     w: u32,
     h: u32,
 ) -> Result<(), TrainError> {
-    use crate::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
+    use depthsense_viz::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
     let save = |name: &str, img: &image::RgbImage| -> Result<(), TrainError> {
         let p = dir.join(name);
         write_atomic(&p, &encode_rgb(img)?).map_err(|e| TrainError::io(&p, e))
@@ -582,7 +571,7 @@ fn write_picture_row(dir: &Path) -> Result<(), TrainError> {
         ("RGB only", read("pred_rgb.png")?),
         ("radar fusion + attention", read("pred_fusion.png")?),
     ];
-    let png = crate::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
+    let png = depthsense_viz::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
     let p = dir.join("row.png");
     write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))
 }

@@ -6,7 +6,7 @@
 //!   replica starts identical (fresh or resumed).
 //! - **Data**: `--batch-size` is the *global* batch; global batch i holds the same samples
 //!   whatever the world size N is, and rank r takes the slice `[r·B/N, (r+1)·B/N)`
-//!   ([`crate::data::Loader::start_shard`]); augmentation draws are per sample.
+//!   ([`depthsense_data::Loader::start_shard`]); augmentation draws are per sample.
 //! - **Step**: the loss of each rank is the mean over its slice; after backward the gradients
 //!   are averaged over the ranks in ≈25 MB flat buckets (DDP's default), then every rank takes
 //!   the same SGD step. The logged loss is the mean of the ranks' losses.
@@ -38,18 +38,12 @@ use depthsense_model::sync_bn::{set_batch_norm_hook, set_sample_seeds, BatchNorm
 use serde::{Deserialize, Serialize};
 use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
 
+use depthsense_data::mix64;
 pub use depthsense_dist::{
     has_nccl, Backend, DistEnv, DistError, ProcessGroup, DEFAULT_BUCKET_BYTES, DEFAULT_TIMEOUT,
 };
 
-use crate::data::mix64;
 use crate::error::TrainError;
-
-impl From<DistError> for TrainError {
-    fn from(e: DistError) -> Self {
-        TrainError::Other(e.to_string())
-    }
-}
 
 /// Options of data-parallel training.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

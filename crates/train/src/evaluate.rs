@@ -11,19 +11,20 @@ pub mod npy;
 
 use std::path::{Path, PathBuf};
 
-use depthsense_metrics::{tables, EvalConfig, EvalImage, Evaluator, Report};
+use depthsense_data::radar_failure::RadarFailure;
+use depthsense_data::{partition, read_depth, Dataset, LoadOptions, RadarInput};
+use depthsense_metrics::{tables, EvalConfig, Evaluator, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_model::ModelConfig;
 use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_prep::layout::{Condition, IndexEntry, LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE};
+use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE};
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
-use crate::data::{partition, read_depth, Dataset, LoadOptions, RadarInput};
 use crate::error::TrainError;
-use crate::experiments::failure::RadarFailure;
 use crate::trainer::{evaluate_net, radar_input_for, subsample};
+pub use crate::validate::{condition_names, score_image};
 
 /// Which samples to evaluate.
 pub const HELD_OUT: &str = "held-out";
@@ -154,7 +155,7 @@ fn eval_with(
     opts: &EvalOptions,
     loaded: &Loaded,
     progress: &ProgressBar,
-    on_batch: impl FnMut(&crate::data::Batch, &[f32]) -> Result<(), TrainError>,
+    on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), TrainError>,
 ) -> Result<Report, TrainError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
         return Err(TrainError::Config(format!(
@@ -191,36 +192,6 @@ fn eval_with(
         progress,
         on_batch,
     )
-}
-
-/// Names of conditions as the metrics rows use them.
-pub fn condition_names(c: &[Condition]) -> Vec<&'static str> {
-    c.iter()
-        .map(|c| match c {
-            Condition::Day => "day",
-            Condition::Night => "night",
-            Condition::Rain => "rain",
-        })
-        .collect()
-}
-
-/// The one scorer (SPEC §9): one image's prediction (metres, row-major, training frame)
-/// against its sparse GT, low-height mask (empty = absent) and scene conditions.
-pub fn score_image(
-    ev: &mut Evaluator,
-    sparse_m: &[f32],
-    lowheight: &[bool],
-    conditions: &[Condition],
-    pred_m: &[f32],
-) -> Result<(), TrainError> {
-    let conds = condition_names(conditions);
-    ev.add(&EvalImage {
-        pred_m,
-        gt_m: sparse_m,
-        lowheight: (!lowheight.is_empty()).then_some(lowheight),
-        conditions: &conds,
-    })?;
-    Ok(())
 }
 
 /// What the scorer needs of a prepared sample: sparse GT and low-height mask.

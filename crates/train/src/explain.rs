@@ -26,12 +26,12 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_data::{normalise_image, Augment};
 use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 
-use crate::data::{normalise_image, Augment};
 use crate::error::TrainError;
 
 /// Grad-CAM++ map of activations `a` `[C,h,w]` for gradients `g` = ∂S/∂A `[C,h,w]` → `[h,w]`
@@ -251,8 +251,8 @@ pub fn run_explain(
             .to_device(device);
         let planes: Vec<f32> = match radar_input {
             None => vec![0.0; (w * h) as usize],
-            Some(crate::data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
-            Some(crate::data::RadarInput::Height) => input.radar_height.depth_m.clone(),
+            Some(depthsense_data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
+            Some(depthsense_data::RadarInput::Height) => input.radar_height.depth_m.clone(),
             Some(r) => {
                 return Err(TrainError::Config(format!(
                     "explain supports the raw or height radar input, not {}",
@@ -287,7 +287,7 @@ pub fn run_explain(
                     if with_radar { "radar" } else { "noradar" }
                 );
                 let p = out.join(&name);
-                write_atomic(&p, &crate::plot::encode_rgb(&ov)?)
+                write_atomic(&p, &depthsense_viz::plot::encode_rgb(&ov)?)
                     .map_err(|e| TrainError::io(&p, e))?;
                 row_tiles.push(ov);
                 records.push(CamRecord {
@@ -308,8 +308,11 @@ pub fn run_explain(
         tiles.push(row_tiles);
     }
     let grid = out.join("grid.png");
-    write_atomic(&grid, &crate::plot::encode_rgb(&grid_image(&tiles))?)
-        .map_err(|e| TrainError::io(&grid, e))?;
+    write_atomic(
+        &grid,
+        &depthsense_viz::plot::encode_rgb(&grid_image(&tiles))?,
+    )
+    .map_err(|e| TrainError::io(&grid, e))?;
     let r = ExplainResult {
         checkpoint: checkpoint.to_path_buf(),
         band,

@@ -1,4 +1,4 @@
-//! What the hand-written optimisers ([`crate::sgd::Sgd`], [`crate::mer::adam::Adam`]) share:
+//! What the hand-written optimisers ([`crate::sgd::Sgd`], [`crate::adam::Adam`]) share:
 //! the VarStore's trainable variables in name order, zeroing their gradients, and their state
 //! written to / read from safetensors atomically (an exact `--resume` needs it; tch's
 //! `nn::Optimizer` cannot save its buffers).

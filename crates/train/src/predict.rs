@@ -16,6 +16,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use depthsense_data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
 use depthsense_model::DepthNet;
 use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -27,7 +28,6 @@ use depthsense_prep::maps::{image_to_frame, radar_maps, radar_positions, Raster}
 use serde::Deserialize;
 use tch::{Device, Kind, Tensor};
 
-use crate::data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
 use crate::error::TrainError;
 
 /// One network input in the training frame.
@@ -40,7 +40,7 @@ pub struct PredictInput {
     /// Sparse lidar GT when known (prepared sample / dataroot token).
     pub gt: Option<DepthMap>,
     /// MER (depth, confidence) maps (SPEC §5): read from a prepared sample where `mer apply`
-    /// wrote them, or computed by [`crate::mer::apply::attach_mer`] (`--mer-checkpoint`).
+    /// wrote them, or computed by [`attach_mer`] (`--mer-checkpoint`).
     pub mer: Option<(DepthMap, DepthMap)>,
 }
 
@@ -66,8 +66,8 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         } else {
             None
         },
-        mer: if dir.join(crate::mer::MER_DEPTH_FILE).exists() {
-            Some(crate::mer::read_mer_maps(dir)?)
+        mer: if dir.join(depthsense_data::mer_maps::MER_DEPTH_FILE).exists() {
+            Some(depthsense_data::mer_maps::read_mer_maps(dir)?)
         } else {
             None
         },
@@ -206,7 +206,7 @@ pub fn predict(
                     input.name
                 ))
             })?;
-            mer_channels = crate::mer::derive_channels(&d.depth_m, &c.depth_m);
+            mer_channels = depthsense_data::mer_maps::derive_channels(&d.depth_m, &c.depth_m);
             let n = d.depth_m.len();
             let mut v: Vec<&[f32]> = vec![&input.radar_raw.depth_m];
             v.extend(mer_channels.chunks(n));
@@ -266,10 +266,31 @@ pub fn write_outputs(
         "depth.png",
         encode_png(depth).map_err(|e| TrainError::Data(e.to_string()))?,
     )?;
-    let color = crate::plot::colorize_depth(&depth.depth_m, depth.width, depth.height, max_m);
-    w("depth_color.png", crate::plot::encode_rgb(&color)?)?;
-    let overlay = crate::plot::overlay_points(&input.image, &input.radar_raw.depth_m, max_m, 3);
-    w("radar_overlay.png", crate::plot::encode_rgb(&overlay)?)?;
-    w("image.png", crate::plot::encode_rgb(&input.image)?)?;
+    let color =
+        depthsense_viz::plot::colorize_depth(&depth.depth_m, depth.width, depth.height, max_m);
+    w("depth_color.png", depthsense_viz::plot::encode_rgb(&color)?)?;
+    let overlay =
+        depthsense_viz::plot::overlay_points(&input.image, &input.radar_raw.depth_m, max_m, 3);
+    w(
+        "radar_overlay.png",
+        depthsense_viz::plot::encode_rgb(&overlay)?,
+    )?;
+    w("image.png", depthsense_viz::plot::encode_rgb(&input.image)?)?;
     Ok(written)
+}
+
+/// Computes the MER maps of a `predict` input with a PDA network (`predict --mer-checkpoint`:
+/// sample tokens and raw files carry no MER maps of their own).
+pub fn attach_mer(
+    input: &mut PredictInput,
+    net: &depthsense_model::pda::PdaNet,
+    device: Device,
+) -> Result<(), TrainError> {
+    input.mer = Some(crate::mer::apply::mer_maps_for_image(
+        &input.image,
+        &input.radar_raw,
+        net,
+        device,
+    )?);
+    Ok(())
 }

@@ -13,21 +13,19 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use depthsense_metrics::{EvalConfig, Evaluator, Report};
+use depthsense_data::{Batch, Partition, RadarInput, TargetKind};
+use depthsense_metrics::{EvalConfig, Report};
 use depthsense_model::ordinal::SparseTarget;
-use depthsense_model::{checkpoint, DepthNet, Fusion, ModelConfig};
+use depthsense_model::{checkpoint, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
-use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use crate::data::{
-    Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput, TargetKind,
-};
 use crate::error::TrainError;
 
 mod session;
+pub use crate::validate::evaluate_net;
 pub use session::{train, train_distributed, Trainer};
 
 pub const CONFIG_FILE: &str = "config.json";
@@ -90,25 +88,25 @@ pub struct TrainOptions {
     /// Training scenes withheld per condition (SPEC §10.5; rule in
     /// `experiments::reduced_data`). Absent from the JSON when empty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub exclude: Vec<crate::experiments::reduced_data::Exclusion>,
+    pub exclude: Vec<depthsense_data::exclusion::Exclusion>,
     /// Read the training losses to the host every N iterations (one synchronisation per N on
     /// CUDA; always before a checkpoint, a stop and the epoch end). 0 = automatic: 1 on the CPU
     /// and in data-parallel jobs, [`CUDA_LOSS_READ_EVERY`] on CUDA. Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub loss_read_every: u64,
     /// Training-time radar dropout: each training sample loses a fraction U(0, p) of its
-    /// radar returns ([`crate::data::LoadOptions::train_radar_drop`]). 0 = off (the paper).
+    /// radar returns ([`depthsense_data::LoadOptions::train_radar_drop`]). 0 = off (the paper).
     /// Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations before the poly decay (0 = none,
     /// the paper). Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub warmup_iters: u64,
     /// Start over in a folder that holds a run (its run files are removed first); without it
     /// such a folder is refused unless `resume` ([`crate::outputs`]). Absent from the JSON
     /// when false.
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub force: bool,
 }
 
@@ -330,73 +328,6 @@ pub fn subsample(entries: &[IndexEntry], max: Option<usize>) -> Vec<IndexEntry> 
     }
 }
 
-/// Run `net` over `entries` and feed the decoded depth to the metrics (SPEC §9). `on_batch`
-/// sees every batch with its predictions ([B,H,W] metres, row-major).
-#[allow(clippy::too_many_arguments)]
-pub fn evaluate_net(
-    net: &DepthNet,
-    ds: &Dataset,
-    entries: &[IndexEntry],
-    load: &LoadOptions,
-    eval_cfg: &EvalConfig,
-    batch_size: usize,
-    jobs: usize,
-    device: Device,
-    progress: &ProgressBar,
-    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<Report, TrainError> {
-    let mut ev = Evaluator::new(eval_cfg.clone())?;
-    let mut load = load.clone();
-    load.eval_maps = true;
-    load.augment = false;
-    load.target = TargetKind::Sparse;
-    let plan = EpochPlan {
-        entries: entries.to_vec(),
-        batch_size: batch_size.max(1),
-        epoch: 0,
-        shuffle: false,
-        drop_last: false,
-        skip_batches: 0,
-        jobs,
-        prefetch: 2,
-    };
-    depthsense_model::device::autotune_fixed_size(device);
-    for batch in Loader::start(ds, &load, &plan)? {
-        let batch = batch?;
-        let (image, radar) = upload_inputs(&batch, device);
-        let pred = tch::no_grad(|| {
-            let out = net.forward_t(&image, &radar, false);
-            net.decode(&out)
-        });
-        let pred = pred
-            .to_device(Device::Cpu)
-            .to_kind(Kind::Float)
-            .contiguous();
-        let hw = batch.width * batch.height;
-        let pred_shape = pred.size();
-        if pred.numel() != batch.size * hw {
-            return Err(TrainError::Other(format!(
-                "decoded prediction has shape {pred_shape:?}, expected [{}, 1, {}, {}]",
-                batch.size, batch.height, batch.width
-            )));
-        }
-        let pred_v: Vec<f32> = Vec::<f32>::try_from(pred.view([-1]))?;
-        for (i, s) in batch.samples.iter().enumerate() {
-            // The one scorer, shared with `eval --predictions`.
-            crate::evaluate::score_image(
-                &mut ev,
-                &s.sparse_m,
-                &s.lowheight,
-                &s.conditions,
-                &pred_v[i * hw..(i + 1) * hw],
-            )?;
-        }
-        on_batch(&batch, &pred_v)?;
-        progress.inc(batch.size as u64);
-    }
-    Ok(ev.finish())
-}
-
 fn all_finite(vs: &VarStore) -> bool {
     tch::no_grad(|| {
         vs.variables().values().all(|t| {
@@ -483,13 +414,17 @@ fn save_ckpt(
 pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), TrainError> {
     let (losses, val) = read_metrics(metrics_path)?;
     let val_pts: Vec<(u64, f64)> = val.iter().map(|v| (v.iteration, v.rmse)).collect();
-    let bytes = crate::plot::curves_png(&[("train loss", &losses)], &[("val RMSE (m)", &val_pts)])?;
+    let bytes = depthsense_viz::plot::curves_png(
+        &[("train loss", &losses)],
+        &[("val RMSE (m)", &val_pts)],
+    )?;
     write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
 
     /// The tensors of the loader's batches as `batch_tensors` built them before issue 9
     /// item 3: `from_slice` of each stacked buffer.
@@ -510,7 +445,7 @@ mod tests {
     #[test]
     fn upload_batch_delivers_the_old_tensors_and_the_nonzero_sparse_target() {
         let tmp = tempfile::tempdir().unwrap();
-        crate::data::write_toy_dataset(tmp.path(), 2, 3, 64, 32, 7).unwrap();
+        depthsense_data::write_toy_dataset(tmp.path(), 2, 3, 64, 32, 7).unwrap();
         let ds = Dataset::open(tmp.path()).unwrap();
         for (no_radar, target) in [(false, TargetKind::Sparse), (true, TargetKind::Dense)] {
             let load = LoadOptions {

@@ -14,8 +14,8 @@ use depthsense_train::experiments::ablation::{
     JSON_FILE, MD_FILE, PNG_FILE, RUN_EVAL_FILE,
 };
 use depthsense_train::experiments::Stat;
-use depthsense_train::plot::{bar_chart_png, colorize_depth, picture_row_png};
 use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
+use depthsense_viz::plot::{bar_chart_png, colorize_depth, picture_row_png};
 use indicatif::ProgressBar;
 
 fn opts(data: &Path, out: &Path) -> AblationOptions {
@@ -34,7 +34,7 @@ fn ablation_runs_reports_and_resumes() {
     let data = tmp.path().join("data");
     // 5 scenes × 2 samples: without split lists the trainer holds out one scene for
     // validation and one for test.
-    depthsense_train::data::write_toy_dataset(&data, 5, 2, 128, 64, 3).unwrap();
+    depthsense_data::write_toy_dataset(&data, 5, 2, 128, 64, 3).unwrap();
     let out = tmp.path().join("abl");
     let o = opts(&data, &out);
 

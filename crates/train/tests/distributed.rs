@@ -21,7 +21,7 @@ fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
 
 /// 5 scenes × 4 samples: 12 training samples (3 global batches of 4), validation 4.
 fn toy(dir: &Path) {
-    depthsense_train::data::write_toy_dataset(dir, 5, 4, 128, 64, 11).unwrap();
+    depthsense_data::write_toy_dataset(dir, 5, 4, 128, 64, 11).unwrap();
 }
 
 fn opts(data: &Path, out: &Path) -> TrainOptions {

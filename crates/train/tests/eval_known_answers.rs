@@ -35,7 +35,7 @@ fn read_png16_m(p: &Path) -> Vec<f64> {
 /// The toy dataset (5 scenes × 2, conditions day/night/rain cycling) and its truth, read
 /// from the files: `index.json`, `lidar_sparse.png`, `lowheight_mask.png`.
 fn dataset(root: &Path) -> Vec<Truth> {
-    depthsense_train::data::write_toy_dataset(root, 5, 2, W, H, 9).unwrap();
+    depthsense_data::write_toy_dataset(root, 5, 2, W, H, 9).unwrap();
     let index: serde_json::Value =
         serde_json::from_slice(&std::fs::read(root.join("index.json")).unwrap()).unwrap();
     let samples = index["samples"].as_array().unwrap();

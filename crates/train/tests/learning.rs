@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
+use depthsense_data::{partition, Dataset, LoadOptions};
 use depthsense_model::{checkpoint, ModelConfig, RadarInput};
-use depthsense_train::data::{partition, Dataset, LoadOptions};
 use depthsense_train::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, LAST_CKPT,
 };
@@ -23,7 +23,7 @@ const W: u32 = 128;
 const H: u32 = 64;
 
 fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
-    depthsense_train::data::write_toy_dataset(dir, scenes, per_scene, W, H, 4).unwrap();
+    depthsense_data::write_toy_dataset(dir, scenes, per_scene, W, H, 4).unwrap();
     Dataset::open(dir).unwrap()
 }
 

@@ -5,11 +5,11 @@
 
 use std::path::Path;
 
+use depthsense_data::{load_sample, Dataset, LoadOptions, Rng};
 use depthsense_model::pda::{MerWindow, PdaConfig};
 use depthsense_model::{ModelConfig, RadarInput};
 use depthsense_prep::layout::{LIDAR_DENSE_FILE, META_FILE};
-use depthsense_train::data::{load_sample, Dataset, LoadOptions, Rng};
-use depthsense_train::mer::apply::{apply, attach_mer, mer_maps, MerApplyOptions};
+use depthsense_train::mer::apply::{apply, mer_maps, MerApplyOptions};
 use depthsense_train::mer::labels::{
     labels, load_labelled, neighbour, radar_pixels, Grid, RadarPixel, UNLABELLED,
 };
@@ -17,6 +17,7 @@ use depthsense_train::mer::train::{train_pda, MerTrainOptions};
 use depthsense_train::mer::{
     derive_channels, quantise_conf, read_mer_maps, MER_CONF_FILE, MER_DEPTH_FILE, THRESHOLDS,
 };
+use depthsense_train::predict::attach_mer;
 use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
 use indicatif::ProgressBar;
 
@@ -163,7 +164,7 @@ fn mer_maps_keep_the_most_confident_return() {
 
 fn toy(dir: &Path) -> Dataset {
     // 5 scenes × 2 samples: the partition holds out one scene for validation and one for test.
-    depthsense_train::data::write_toy_dataset(dir, 5, 2, 128, 64, 7).unwrap();
+    depthsense_data::write_toy_dataset(dir, 5, 2, 128, 64, 7).unwrap();
     Dataset::open(dir).unwrap()
 }
 
@@ -296,7 +297,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let smp = load_sample(&ds, e, &lo, &mut Rng::new(0)).unwrap();
     assert_eq!(smp.radar_channels, 7);
     let n = smp.width * smp.height;
-    let raw = depthsense_train::data::read_depth(&dir.join("radar_raw.png")).unwrap();
+    let raw = depthsense_data::read_depth(&dir.join("radar_raw.png")).unwrap();
     assert_eq!(&smp.radar[..n], &raw.depth_m[..]);
     let (d, c) = read_mer_maps(&dir).unwrap();
     assert_eq!(

@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use depthsense_data::{load_sample, Dataset, LoadOptions, RadarInput, Rng};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::depth_png::{decode_value, encode_value};
 use depthsense_nuscenes::geometry::to_frame;
@@ -13,7 +14,6 @@ use depthsense_prep::radar_points::{
 };
 use depthsense_prep::{prepare, PrepareOptions};
 use depthsense_synth::{generate, SynthConfig, Weather};
-use depthsense_train::data::{load_sample, Dataset, LoadOptions, RadarInput, Rng};
 use depthsense_train::evaluate::{run_eval, EvalOptions};
 use depthsense_train::experiments::failure::RadarFailure;
 use depthsense_train::experiments::perturb::{

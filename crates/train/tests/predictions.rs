@@ -38,7 +38,7 @@ fn setup() -> (tempfile::TempDir, PathBuf, EvalOptions) {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 5 scenes × 2: held-out = the test scene of the scene-modulo partition
-    depthsense_train::data::write_toy_dataset(&data, 5, 2, 128, 64, 9).unwrap();
+    depthsense_data::write_toy_dataset(&data, 5, 2, 128, 64, 9).unwrap();
     let ck = tiny_checkpoint(tmp.path());
     let eo = EvalOptions {
         checkpoint: ck,
@@ -124,10 +124,7 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     assert_eq!(a, b);
 
     // a missing prediction is an error naming the folder, or skipped when allowed
-    let token = depthsense_train::data::Dataset::open(&data)
-        .unwrap()
-        .index
-        .samples[0]
+    let token = depthsense_data::Dataset::open(&data).unwrap().index.samples[0]
         .sample_token
         .clone();
     std::fs::remove_file(out.join(format!("{token}.npy"))).unwrap();
@@ -142,11 +139,7 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     // a prediction of the wrong size is refused
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
-    for s in &depthsense_train::data::Dataset::open(&data)
-        .unwrap()
-        .index
-        .samples
-    {
+    for s in &depthsense_data::Dataset::open(&data).unwrap().index.samples {
         std::fs::write(
             bad.join(format!("{}.npy", s.sample_token)),
             depthsense_train::evaluate::npy::encode_f32(&[1.0; 6], 2, 3),
@@ -182,7 +175,7 @@ fn dropping_every_radar_equals_radar_drop_one() {
     .unwrap();
     assert_eq!(all, full_drop);
     // by channel names: give every sample two radars, drop both
-    let ds = depthsense_train::data::Dataset::open(&data).unwrap();
+    let ds = depthsense_data::Dataset::open(&data).unwrap();
     for e in &ds.index.samples {
         let p = ds.sample_dir(e).join("meta.json");
         let mut m: serde_json::Value =

@@ -6,7 +6,7 @@ mod common;
 
 use std::collections::BTreeSet;
 
-use depthsense_train::data::{mix64, partition, Dataset};
+use depthsense_data::{mix64, partition, Dataset};
 use depthsense_train::experiments::reduced_data::{
     parse_exclusions, parse_grid, run_reduced_data, withheld_scenes, ReducedDataOptions, CSV_FILE,
     JSON_FILE, MD_FILE, PNG_FILE,
@@ -30,7 +30,7 @@ fn exclude_withholds_exactly_the_documented_scenes() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 15 scenes cycling day / night / rain, 2 samples each, no split lists
-    depthsense_train::data::write_toy_dataset(&data, 15, 2, 64, 32, 1).unwrap();
+    depthsense_data::write_toy_dataset(&data, 15, 2, 64, 32, 1).unwrap();
     let ds = Dataset::open(&data).unwrap();
     let part = partition(&ds, 5).unwrap();
     let train_scenes = |cond: &str| -> Vec<String> {
@@ -108,7 +108,7 @@ fn exclude_withholds_exactly_the_documented_scenes() {
 fn reduced_data_grid_trains_tables_and_resumes() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    depthsense_train::data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();
+    depthsense_data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();
     let out = tmp.path().join("rd");
     let opts = ReducedDataOptions {
         run: quick_runs(&data),

@@ -3,10 +3,10 @@
 
 use std::path::Path;
 
-use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
-use depthsense_train::data::{
+use depthsense_data::{
     drop_radar, load_sample, partition, Augment, Dataset, EpochPlan, LoadOptions, Loader, Rng,
 };
+use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
 use depthsense_train::evaluate::{run_eval, write_tables, EvalOptions};
 use depthsense_train::trainer::{read_metrics, train, TrainOptions, BEST_CKPT, LAST_CKPT};
 use depthsense_train::TrainError;
@@ -25,7 +25,7 @@ fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
 }
 
 fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
-    depthsense_train::data::write_toy_dataset(dir, scenes, per_scene, W, H, 11).unwrap();
+    depthsense_data::write_toy_dataset(dir, scenes, per_scene, W, H, 11).unwrap();
     Dataset::open(dir).unwrap()
 }
 
@@ -162,10 +162,10 @@ fn flip_is_applied_to_image_and_every_map_alike() {
         gamma: 1.0,
     };
     let img = image::RgbImage::from_pixel(2, 1, image::Rgb([128, 0, 255]));
-    let n = depthsense_train::data::normalise_image(&img, &Augment::NONE);
+    let n = depthsense_data::normalise_image(&img, &Augment::NONE);
     assert!((n[0] - (128.0 / 255.0 - 0.485) / 0.229).abs() < 1e-6);
     assert!((n[4] - (1.0 - 0.406) / 0.225).abs() < 1e-6);
-    let j = depthsense_train::data::normalise_image(&img, &jitter);
+    let j = depthsense_data::normalise_image(&img, &jitter);
     assert!((j[0] - (128.0 * 1.1 / 255.0 - 0.485) / 0.229).abs() < 1e-5);
     assert!((j[4] - n[4]).abs() < 1e-6, "brightness saturates at 1");
 }

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_train::data::Dataset;
+use depthsense_data::Dataset;
 use depthsense_train::evaluate::{load_model, select_split};
 use depthsense_train::explain::run_explain;
 

@@ -101,7 +101,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         device: a.device.clone(),
         ..EvalOptions::default()
     };
-    let ds = depthsense_train::data::Dataset::open(data)?;
+    let ds = depthsense_data::Dataset::open(data)?;
     let files: Vec<PathBuf> = select_split(&ds, &opts.split, opts.val_every_scene)?
         .iter()
         .flat_map(|e| {
@@ -164,7 +164,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let radar = radar_input_for(&loaded.config, None)?;
     if let Some(ck) = &a.mer_checkpoint {
         let pda = depthsense_model::pda::load(ck, device)?;
-        depthsense_train::mer::apply::attach_mer(&mut input, &pda.net, device)?;
+        depthsense_train::predict::attach_mer(&mut input, &pda.net, device)?;
     }
     let depth = predict(&loaded.net, &input, radar, device)?;
     let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;

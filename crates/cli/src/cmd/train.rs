@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+use depthsense_data::{RadarInput, TargetKind};
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use depthsense_train::data::{RadarInput, TargetKind};
 use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions};
 use indicatif::{ProgressBar, ProgressStyle};

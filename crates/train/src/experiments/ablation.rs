@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
 
+use depthsense_data::{partition, Dataset, Partition};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use indicatif::MultiProgress;
@@ -31,7 +32,6 @@ pub use super::runner::{
     summarise, PartitionInfo, RowValues, RunRecord, RunStatus, SummaryRow, RUN_EVAL_FILE,
 };
 use super::{signed, Machine, Stat};
-use crate::data::{partition, Dataset, Partition};
 use crate::error::TrainError;
 
 pub const MD_FILE: &str = "ablation.md";
@@ -261,7 +261,7 @@ impl AblationResult {
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
 pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
     if spec == "tiny-wide" {
-        return crate::demo::demo_model(spec);
+        return Ok(ModelConfig::tiny_wide());
     }
     Ok(ModelConfig::resolve(spec)?)
 }
@@ -534,22 +534,22 @@ fn chart(r: &AblationResult) -> Result<Vec<u8>, TrainError> {
     let n = r.options.seeds.len();
     let t1 = format!("test RMSE (m), mean ± std over {n} seed(s)");
     let t2 = format!("test δ1, mean ± std over {n} seed(s)");
-    crate::plot::bar_charts_png(&[
-        crate::plot::BarPanel {
+    Ok(depthsense_viz::plot::bar_charts_png(&[
+        depthsense_viz::plot::BarPanel {
             title: &t1,
             labels: &names,
             means: &rm,
             stds: &rs,
             y_label: "RMSE (m)",
         },
-        crate::plot::BarPanel {
+        depthsense_viz::plot::BarPanel {
             title: &t2,
             labels: &names,
             means: &dm,
             stds: &dsd,
             y_label: "δ1",
         },
-    ])
+    ])?)
 }
 
 fn opt_f(x: Option<f64>, prec: usize) -> String {

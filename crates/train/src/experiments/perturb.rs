@@ -217,7 +217,7 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
     let (rot, tr) = (series(true), series(false));
     let mut panels = vec![];
     if !rot.is_empty() {
-        panels.push(crate::plot::LinePanel {
+        panels.push(depthsense_viz::plot::LinePanel {
             title: "test RMSE vs radar rotation error",
             x_label: "rotation (degrees, random sign)",
             y_label: "RMSE (m)",
@@ -225,14 +225,14 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
         });
     }
     if !tr.is_empty() {
-        panels.push(crate::plot::LinePanel {
+        panels.push(depthsense_viz::plot::LinePanel {
             title: "test RMSE vs radar translation error",
             x_label: "translation (m, random sign)",
             y_label: "RMSE (m)",
             series: &tr,
         });
     }
-    crate::plot::line_charts_png(&panels)
+    Ok(depthsense_viz::plot::line_charts_png(&panels)?)
 }
 
 fn fmt_opt(x: Option<f64>, prec: usize) -> String {

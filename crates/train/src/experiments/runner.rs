@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_data::{Dataset, LoadOptions, Partition};
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
 use depthsense_model::{checkpoint, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -16,7 +17,6 @@ use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::Stat;
-use crate::data::{Dataset, LoadOptions, Partition};
 use crate::error::TrainError;
 use crate::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
@@ -47,10 +47,10 @@ pub struct RunSettings {
     /// The trainer's `val_every_scene` (partition of data without split lists).
     pub val_every_scene: usize,
     /// The trainer's training-time radar dropout (0 = off; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub train_radar_drop: f64,
     /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub warmup_iters: u64,
 }
 

@@ -11,6 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_data::{decode_rgb, read_depth, Dataset};
 use depthsense_model::pda::{self, PdaConfig, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -24,7 +25,6 @@ use super::{
     conf_to_u16, derive_channels, file_fnv64, read_mer_maps, read_record, MerRecord, MER_CONF_FILE,
     MER_DEPTH_FILE, MER_RECORD_FILE, THRESHOLDS,
 };
-use crate::data::{decode_rgb, read_depth, Dataset};
 use crate::error::TrainError;
 
 /// Options of `mer apply`.
@@ -412,7 +412,7 @@ fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, 
 
 /// The preview picture of one sample directory (PNG bytes).
 pub fn preview_png(dir: &Path) -> Result<Vec<u8>, TrainError> {
-    use crate::plot::{overlay_points, picture_row_png};
+    use depthsense_viz::plot::{overlay_points, picture_row_png};
     const MAX_M: f32 = 80.0;
     let img = decode_rgb(&dir.join(IMAGE_FILE))?;
     let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
@@ -447,25 +447,27 @@ pub fn preview_png(dir: &Path) -> Result<Vec<u8>, TrainError> {
         .iter()
         .map(|(s, i)| (s.as_str(), i.clone()))
         .collect();
-    picture_row_png(&refs, MAX_M)
+    Ok(picture_row_png(&refs, MAX_M)?)
 }
 
-/// Computes the MER maps of a `predict` input with a PDA network (`predict --mer-checkpoint`:
-/// sample tokens and raw files carry no MER maps of their own).
-pub fn attach_mer(
-    input: &mut crate::predict::PredictInput,
+/// The MER (depth, confidence) maps of one image and its raw radar map, computed with a PDA
+/// network exactly as `mer apply` stores them (`predict --mer-checkpoint`, through
+/// `predict::attach_mer`: sample tokens and raw files carry no MER maps of their own).
+pub fn mer_maps_for_image(
+    image: &image::RgbImage,
+    radar_raw: &DepthMap,
     net: &PdaNet,
     device: Device,
-) -> Result<(), TrainError> {
+) -> Result<(DepthMap, DepthMap), TrainError> {
     let cfg = net.config();
-    let pi = super::labels::pda_input(&input.image, &input.radar_raw.depth_m, cfg, false);
+    let pi = super::labels::pda_input(image, &radar_raw.depth_m, cfg, false);
     let probs = predict_probs(net, std::slice::from_ref(&pi), device)?;
     let g = &pi.grid;
     let (depth, conf) = mer_maps(&pi.pixels, &probs[0], g, cfg);
     let (w, h) = (g.frame_w as u32, g.frame_h as u32);
     // As `mer apply` stores them: confidence quantised to 16 bits (on the grid, then spread).
     let conf_q: Vec<f32> = conf.iter().map(|&c| super::quantise_conf(c)).collect();
-    input.mer = Some((
+    Ok((
         DepthMap {
             width: w,
             height: h,
@@ -476,6 +478,5 @@ pub fn attach_mer(
             height: h,
             depth_m: g.to_frame(&conf_q),
         },
-    ));
-    Ok(())
+    ))
 }

@@ -15,10 +15,10 @@
 
 use std::path::Path;
 
+use depthsense_data::{decode_rgb, read_depth, IMAGENET_MEAN, IMAGENET_STD};
 use depthsense_model::pda::PdaConfig;
 use depthsense_prep::layout::{IMAGE_FILE, LIDAR_DENSE_FILE, META_FILE, RADAR_RAW_FILE};
 
-use crate::data::{decode_rgb, read_depth, IMAGENET_MEAN, IMAGENET_STD};
 use crate::error::TrainError;
 
 /// Label of a neighbour without lidar, outside the image, or beyond the depth limit.
@@ -83,7 +83,7 @@ impl Grid {
     }
 
     /// The ImageNet-normalised image averaged over each cell → `[3, h, w]` channel-major:
-    /// the mean of [`crate::data::normalise_image`] over the cell, computed as the normalised
+    /// the mean of [`depthsense_data::normalise_image`] over the cell, computed as the normalised
     /// mean of the 8-bit values (normalisation is affine: the two agree to float rounding).
     pub fn mean_image(&self, rgb: &image::RgbImage) -> Vec<f32> {
         let cols = self.cell_columns();
@@ -321,7 +321,7 @@ mod tests {
                 (255 - u * 9) as u8,
             ])
         });
-        let planes = crate::data::normalise_image(&rgb, &crate::data::Augment::NONE);
+        let planes = depthsense_data::normalise_image(&rgb, &depthsense_data::Augment::NONE);
         let cell = |u: usize, v: usize| (v / s) * g.w + u / s;
         let (mut sum, mut n, mut near) = (
             vec![0f32; 3 * g.len()],

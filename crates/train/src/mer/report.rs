@@ -8,12 +8,12 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_data::{partition, read_depth, Dataset};
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{derive_channels, read_mer_maps, THRESHOLDS};
-use crate::data::{partition, read_depth, Dataset};
 use crate::error::TrainError;
 
 /// One row of the report.

@@ -9,23 +9,24 @@
 //! RUN/last.safetensors     latest PDA checkpoint (+ last.optim.safetensors: momentum)
 //! RUN/best.safetensors     highest validation AUC
 //! ```
-//! Optimiser: Adam with poly learning-rate decay ([`super::adam`]), whose state is saved, so
+//! Optimiser: Adam with poly learning-rate decay ([`crate::adam`]), whose state is saved, so
 //! that `--resume` continues exactly from the last finished epoch.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_data::{epoch_order, mix64, partition, sample_rng, Dataset};
 use depthsense_model::pda::{self, balanced_bce, PdaConfig, PdaNet};
 use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use super::adam::Adam;
 use super::labels::{load_labelled, PdaInput};
-use crate::data::{epoch_order, mix64, partition, sample_rng, Dataset};
+use crate::adam::Adam;
 use crate::error::TrainError;
 use crate::outputs::claim_run_folder;
 use crate::sgd::poly_lr;
@@ -33,7 +34,6 @@ use crate::trainer::{
     append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
     LAST_OPTIM, METRICS_FILE,
 };
-use depthsense_nuscenes::lock::OutputLock;
 
 /// Options of `mer train`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -51,7 +51,7 @@ pub struct MerTrainOptions {
     pub resume: bool,
     /// Start over in a folder that holds a run ([`crate::outputs`]). Absent from the JSON when
     /// false.
-    #[serde(default, skip_serializing_if = "crate::is_default")]
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub force: bool,
     /// Loader threads (0 = all cores).
     pub jobs: usize,
@@ -363,7 +363,7 @@ impl<'o> Run<'o> {
         self.opts.out.join(name)
     }
 
-    fn write_config(&self, part: &crate::data::Partition) -> Result<(), TrainError> {
+    fn write_config(&self, part: &depthsense_data::Partition) -> Result<(), TrainError> {
         let j = serde_json::json!({
             "mer_train": self.opts,
             "pda": self.opts.pda,
@@ -541,7 +541,7 @@ pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
             _ => {}
         }
     }
-    let bytes = crate::plot::curves_png(&[("train loss", &loss)], &[("val AUC", &auc)])?;
+    let bytes = depthsense_viz::plot::curves_png(&[("train loss", &loss)], &[("val AUC", &auc)])?;
     write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
 }
 

@@ -57,7 +57,8 @@ pub fn embed(path: &Path, max_width: u32) -> Result<(Embedded, (u32, u32)), Stri
     let nw = w.min(max_width.max(1));
     let nh = ((h as u64 * nw as u64) / w as u64).max(1) as u32;
     let small = img.resize_exact(nw, nh, FilterType::Triangle).to_rgb8();
-    let png = crate::plot::encode_rgb(&small).map_err(|e| format!("cannot encode PNG: {e}"))?;
+    let png =
+        depthsense_viz::plot::encode_rgb(&small).map_err(|e| format!("cannot encode PNG: {e}"))?;
     Ok((
         Embedded {
             png,

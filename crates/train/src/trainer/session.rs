@@ -4,6 +4,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_data::{
+    mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
+};
 use depthsense_model::precision::{with_autocast, Precision};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -16,9 +19,6 @@ use super::{
     all_finite, append_jsonl, evaluate_net, radar_input_for, read_metrics, save_ckpt, subsample,
     truncate_metrics, upload_batch, write_curves, State, TrainOptions, TrainSummary, ValRecord,
     AMP_PRECISION, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
-};
-use crate::data::{
-    mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
@@ -120,7 +120,7 @@ impl<'o> Trainer<'o> {
         depthsense_model::device::autotune_fixed_size(device);
         let ds = Dataset::open(&opts.data)?;
         let mut part = partition(&ds, opts.val_every_scene)?;
-        crate::experiments::reduced_data::apply_exclusions(&mut part, &opts.exclude);
+        depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
         if part.train.is_empty() || part.val.is_empty() {
             return Err(TrainError::Data(format!(
                 "{}: {} training and {} validation samples ({}): need both",
@@ -603,14 +603,14 @@ fn model_config_for_data(
     ds: &Dataset,
     first: &IndexEntry,
 ) -> Result<ModelConfig, TrainError> {
-    let probe = crate::data::load_sample(
+    let probe = depthsense_data::load_sample(
         ds,
         first,
         &LoadOptions {
             no_radar: true,
             ..LoadOptions::default()
         },
-        &mut crate::data::Rng::new(0),
+        &mut depthsense_data::Rng::new(0),
     )?;
     let mut cfg = opts.model.clone();
     cfg.out_height = probe.height as i64;

@@ -1,3 +1,9 @@
+//! depthsense-data (layer 2, ARCHITECTURE.md): everything between `depthsense prepare`'s output
+//! and a batch of tensors — dataset and index, the train/validation partition and withheld
+//! scenes ([`exclusion`]), SPEC §8 augmentation, radar corruption ([`radar_failure`]), the MER
+//! maps on disk ([`mer_maps`]) and the prefetching loader. No training code: the training
+//! engine (`depthsense-train`) and everything above it read data only through this crate.
+//!
 //! The data loader: reads `depthsense prepare` output (`depthsense_prep::layout`), applies the
 //! SPEC §8 augmentation, normalises images (SPEC §6 ImageNet statistics) and assembles batches
 //! on a background thread pool that fills a bounded channel (prefetch).
@@ -20,7 +26,18 @@ use depthsense_prep::layout::{
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::error::TrainError;
+pub mod error;
+pub mod exclusion;
+pub mod mer_maps;
+pub mod radar_failure;
+
+pub use error::TrainError;
+
+/// serde `skip_serializing_if` for optional settings that are off at their default (0, false,
+/// empty): the JSON of runs that do not use them stays as it was before they existed.
+pub fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
 
 /// ImageNet mean (SPEC §6).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -58,7 +75,7 @@ pub struct LoadOptions {
     pub seed: u64,
     /// Whole radars absent, returns beyond a range absent, clutter added (SPEC §10.8).
     #[serde(default)]
-    pub failure: crate::experiments::failure::RadarFailure,
+    pub failure: crate::radar_failure::RadarFailure,
     /// Training augmentation (not in the paper): each sample loses a fraction U(0, p) of its
     /// radar returns (with their height-extended strips), drawn from the sample's random
     /// stream, so that a network cannot read "no return here" as a depth cue. 0 = off (no
@@ -473,8 +490,8 @@ pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, see
 /// one raw return, so MER pixels whose depth is no longer among the raw returns (dropped by
 /// `radar_drop` or a failure mode) are removed with them.
 fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), TrainError> {
-    let (mut depth, conf) = crate::mer::read_mer_maps(dir)?;
-    let mp = dir.join(crate::mer::MER_DEPTH_FILE);
+    let (mut depth, conf) = crate::mer_maps::read_mer_maps(dir)?;
+    let mp = dir.join(crate::mer_maps::MER_DEPTH_FILE);
     check_size(&depth, raw.width as usize, raw.height as usize, &mp)?;
     let kept: BTreeSet<u32> = raw.depth_m.iter().map(|d| d.to_bits()).collect();
     for d in depth.depth_m.iter_mut() {
@@ -483,7 +500,10 @@ fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), Trai
         }
     }
     out.extend_from_slice(&raw.depth_m);
-    out.extend_from_slice(&crate::mer::derive_channels(&depth.depth_m, &conf.depth_m));
+    out.extend_from_slice(&crate::mer_maps::derive_channels(
+        &depth.depth_m,
+        &conf.depth_m,
+    ));
     Ok(())
 }
 

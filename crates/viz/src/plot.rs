@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 
 use plotters::prelude::*;
 
-use crate::error::TrainError;
+use crate::VizError;
 
 const FONT_CANDIDATES: &[&str] = &[
     "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
@@ -47,8 +47,8 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(255, 127, 14),
 ];
 
-fn plot_err<E: std::fmt::Debug>(e: E) -> TrainError {
-    TrainError::Other(format!("plotting failed: {e:?}"))
+fn plot_err<E: std::fmt::Debug>(e: E) -> VizError {
+    VizError(format!("plotting failed: {e:?}"))
 }
 
 fn panel(
@@ -56,7 +56,7 @@ fn panel(
     title: &str,
     series: &[Series<'_>],
     text: bool,
-) -> Result<(), TrainError> {
+) -> Result<(), VizError> {
     let pts: Vec<(f64, f64)> = series
         .iter()
         .flat_map(|(_, s)| s.iter().map(|&(x, y)| (x as f64, y)))
@@ -131,7 +131,7 @@ fn panel(
 }
 
 /// Two panels side by side (left: e.g. training loss; right: e.g. validation RMSE), PNG bytes.
-pub fn curves_png(left: &[Series<'_>], right: &[Series<'_>]) -> Result<Vec<u8>, TrainError> {
+pub fn curves_png(left: &[Series<'_>], right: &[Series<'_>]) -> Result<Vec<u8>, VizError> {
     let (w, h) = (1200u32, 450u32);
     let mut buf = vec![0u8; (w * h * 3) as usize];
     let text = fonts_available();
@@ -144,15 +144,15 @@ pub fn curves_png(left: &[Series<'_>], right: &[Series<'_>]) -> Result<Vec<u8>, 
         root.present().map_err(plot_err)?;
     }
     let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| TrainError::Other("plot buffer has the wrong size".into()))?;
+        .ok_or_else(|| VizError("plot buffer has the wrong size".into()))?;
     encode_rgb(&img)
 }
 
 /// PNG-encode an RGB image.
-pub fn encode_rgb(img: &image::RgbImage) -> Result<Vec<u8>, TrainError> {
+pub fn encode_rgb(img: &image::RgbImage) -> Result<Vec<u8>, VizError> {
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| TrainError::Other(format!("PNG encoding failed: {e}")))?;
+        .map_err(|e| VizError(format!("PNG encoding failed: {e}")))?;
     Ok(out.into_inner())
 }
 
@@ -221,14 +221,14 @@ pub fn error_map(pred_m: &[f32], gt_m: &[f32], w: u32, h: u32, max_err_m: f32) -
     img
 }
 
-/// De-normalise an ImageNet-normalised [3,H,W] image back to RGB8 (SPEC §6).
-pub fn denormalise(chw: &[f32], w: u32, h: u32) -> image::RgbImage {
+/// De-normalise a [3,H,W] image normalised with per-channel `mean` and `std` (SPEC §6: the
+/// ImageNet statistics, `depthsense_data::IMAGENET_MEAN` / `IMAGENET_STD`) back to RGB8.
+pub fn denormalise(chw: &[f32], w: u32, h: u32, mean: [f32; 3], std: [f32; 3]) -> image::RgbImage {
     let plane = (w * h) as usize;
     let mut img = image::RgbImage::new(w, h);
     for (i, p) in img.pixels_mut().enumerate() {
         for c in 0..3 {
-            let x =
-                chw[c * plane + i] * crate::data::IMAGENET_STD[c] + crate::data::IMAGENET_MEAN[c];
+            let x = chw[c * plane + i] * std[c] + mean[c];
             p.0[c] = (x.clamp(0.0, 1.0) * 255.0).round() as u8;
         }
     }
@@ -250,7 +250,7 @@ fn bar_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     p: &BarPanel<'_>,
     text: bool,
-) -> Result<(), TrainError> {
+) -> Result<(), VizError> {
     let n = p.labels.len().min(p.means.len());
     let err = |i: usize| {
         p.stds
@@ -350,7 +350,7 @@ fn bar_panel(
 }
 
 /// Several bar charts side by side (one per panel), PNG bytes (500 px wide per panel).
-pub fn bar_charts_png(panels: &[BarPanel<'_>]) -> Result<Vec<u8>, TrainError> {
+pub fn bar_charts_png(panels: &[BarPanel<'_>]) -> Result<Vec<u8>, VizError> {
     panels_png(panels, 500, bar_panel)
 }
 
@@ -363,8 +363,8 @@ fn panels_png<P>(
         &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
         &P,
         bool,
-    ) -> Result<(), TrainError>,
-) -> Result<Vec<u8>, TrainError> {
+    ) -> Result<(), VizError>,
+) -> Result<Vec<u8>, VizError> {
     let k = panels.len().max(1) as u32;
     let (w, h) = (panel_w * k, 420u32);
     let mut buf = vec![0u8; (w * h * 3) as usize];
@@ -379,7 +379,7 @@ fn panels_png<P>(
         root.present().map_err(plot_err)?;
     }
     let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| TrainError::Other("plot buffer has the wrong size".into()))?;
+        .ok_or_else(|| VizError("plot buffer has the wrong size".into()))?;
     encode_rgb(&img)
 }
 
@@ -390,7 +390,7 @@ pub fn bar_chart_png(
     means: &[f64],
     stds: &[f64],
     y_label: &str,
-) -> Result<Vec<u8>, TrainError> {
+) -> Result<Vec<u8>, VizError> {
     bar_charts_png(&[BarPanel {
         title,
         labels,
@@ -408,9 +408,9 @@ pub fn bar_chart_png(
 pub fn picture_row_png(
     panels: &[(&str, image::RgbImage)],
     max_m: f32,
-) -> Result<Vec<u8>, TrainError> {
+) -> Result<Vec<u8>, VizError> {
     if panels.is_empty() {
-        return Err(TrainError::Other("picture row: no panels".into()));
+        return Err(VizError("picture row: no panels".into()));
     }
     let text = fonts_available();
     let cw = panels
@@ -489,7 +489,7 @@ pub fn picture_row_png(
             root.present().map_err(plot_err)?;
         }
         canvas = image::RgbImage::from_raw(w, h, buf)
-            .ok_or_else(|| TrainError::Other("picture buffer has the wrong size".into()))?;
+            .ok_or_else(|| VizError("picture buffer has the wrong size".into()))?;
     }
     encode_rgb(&canvas)
 }
@@ -506,7 +506,7 @@ fn line_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     p: &LinePanel<'_>,
     text: bool,
-) -> Result<(), TrainError> {
+) -> Result<(), VizError> {
     let pts = p.series.iter().flat_map(|(_, s)| s.iter());
     let finite: Vec<(f64, f64)> = pts
         .filter(|(x, y)| x.is_finite() && y.is_finite())
@@ -574,6 +574,6 @@ fn line_panel(
 }
 
 /// Line charts side by side (one per panel, 520 px wide each), PNG bytes.
-pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, TrainError> {
+pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, VizError> {
     panels_png(panels, 520, line_panel)
 }

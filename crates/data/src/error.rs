@@ -20,6 +20,8 @@ pub enum TrainError {
     Model(#[from] depthsense_model::ModelError),
     #[error(transparent)]
     Metrics(#[from] depthsense_metrics::MetricsError),
+    #[error(transparent)]
+    Viz(#[from] depthsense_viz::VizError),
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),
     #[error(
@@ -50,5 +52,11 @@ impl TrainError {
             path: path.display().to_string(),
             source,
         }
+    }
+}
+
+impl From<depthsense_dist::DistError> for TrainError {
+    fn from(e: depthsense_dist::DistError) -> Self {
+        TrainError::Other(e.to_string())
     }
 }

@@ -1,0 +1,109 @@
+//! Validation (SPEC §9): a network over a list of samples into the metrics, through the one
+//! scorer [`score_image`] that `eval`, `eval --predictions` and every experiment use too.
+
+use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader, TargetKind};
+use depthsense_metrics::{EvalConfig, EvalImage, Evaluator, Report};
+use depthsense_model::DepthNet;
+use depthsense_prep::layout::{Condition, IndexEntry};
+use indicatif::ProgressBar;
+use tch::{Device, Kind};
+
+use crate::error::TrainError;
+use crate::trainer::upload_inputs;
+
+/// Run `net` over `entries` and feed the decoded depth to the metrics (SPEC §9). `on_batch`
+/// sees every batch with its predictions ([B,H,W] metres, row-major).
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_net(
+    net: &DepthNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    load: &LoadOptions,
+    eval_cfg: &EvalConfig,
+    batch_size: usize,
+    jobs: usize,
+    device: Device,
+    progress: &ProgressBar,
+    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
+) -> Result<Report, TrainError> {
+    let mut ev = Evaluator::new(eval_cfg.clone())?;
+    let mut load = load.clone();
+    load.eval_maps = true;
+    load.augment = false;
+    load.target = TargetKind::Sparse;
+    let plan = EpochPlan {
+        entries: entries.to_vec(),
+        batch_size: batch_size.max(1),
+        epoch: 0,
+        shuffle: false,
+        drop_last: false,
+        skip_batches: 0,
+        jobs,
+        prefetch: 2,
+    };
+    depthsense_model::device::autotune_fixed_size(device);
+    for batch in Loader::start(ds, &load, &plan)? {
+        let batch = batch?;
+        let (image, radar) = upload_inputs(&batch, device);
+        let pred = tch::no_grad(|| {
+            let out = net.forward_t(&image, &radar, false);
+            net.decode(&out)
+        });
+        let pred = pred
+            .to_device(Device::Cpu)
+            .to_kind(Kind::Float)
+            .contiguous();
+        let hw = batch.width * batch.height;
+        let pred_shape = pred.size();
+        if pred.numel() != batch.size * hw {
+            return Err(TrainError::Other(format!(
+                "decoded prediction has shape {pred_shape:?}, expected [{}, 1, {}, {}]",
+                batch.size, batch.height, batch.width
+            )));
+        }
+        let pred_v: Vec<f32> = Vec::<f32>::try_from(pred.view([-1]))?;
+        for (i, s) in batch.samples.iter().enumerate() {
+            // The one scorer, shared with `eval --predictions`.
+            score_image(
+                &mut ev,
+                &s.sparse_m,
+                &s.lowheight,
+                &s.conditions,
+                &pred_v[i * hw..(i + 1) * hw],
+            )?;
+        }
+        on_batch(&batch, &pred_v)?;
+        progress.inc(batch.size as u64);
+    }
+    Ok(ev.finish())
+}
+
+/// Names of conditions as the metrics rows use them.
+pub fn condition_names(c: &[Condition]) -> Vec<&'static str> {
+    c.iter()
+        .map(|c| match c {
+            Condition::Day => "day",
+            Condition::Night => "night",
+            Condition::Rain => "rain",
+        })
+        .collect()
+}
+
+/// The one scorer (SPEC §9): one image's prediction (metres, row-major, training frame)
+/// against its sparse GT, low-height mask (empty = absent) and scene conditions.
+pub fn score_image(
+    ev: &mut Evaluator,
+    sparse_m: &[f32],
+    lowheight: &[bool],
+    conditions: &[Condition],
+    pred_m: &[f32],
+) -> Result<(), TrainError> {
+    let conds = condition_names(conditions);
+    ev.add(&EvalImage {
+        pred_m,
+        gt_m: sparse_m,
+        lowheight: (!lowheight.is_empty()).then_some(lowheight),
+        conditions: &conds,
+    })?;
+    Ok(())
+}
