@@ -94,7 +94,7 @@ pub(crate) fn prev_path(path: &Path) -> std::path::PathBuf {
 /// (`matches_checkpoint`), and is dropped when it does not (a kill left it newer than the
 /// checkpoint; `prev` then already holds the matching one). A kill anywhere in between leaves
 /// `path` or `prev` matching the checkpoint, which [`load_matching`] finds.
-pub(crate) fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), TrainError> {
+pub fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), TrainError> {
     if !path.exists() {
         return Ok(());
     }
@@ -109,7 +109,7 @@ pub(crate) fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), TrainE
 /// Resume: load (with `load`, which returns the stored iteration) the optimiser state whose
 /// iteration is the checkpoint's — `path`, else its [`prev_path`] sibling. Returns whether
 /// `path` itself matched (the next [`rotate`] needs to know).
-pub(crate) fn load_matching(
+pub fn load_matching(
     path: &Path,
     checkpoint: &Path,
     iteration: u64,

@@ -339,7 +339,7 @@ fn all_finite(vs: &VarStore) -> bool {
     })
 }
 
-pub(crate) fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
+pub fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
     let mut f = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -349,7 +349,7 @@ pub(crate) fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), Tra
 }
 
 /// Keep only the records of metrics.jsonl up to `iteration` (resume after an interruption).
-pub(crate) fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
+pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(());
     };

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_train::demo::{run_demo, DemoOptions};
+use depthsense_experiments::demo::{run_demo, DemoOptions};
 use indicatif::MultiProgress;
 
 #[derive(clap::Args)]

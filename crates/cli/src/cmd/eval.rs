@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_train::evaluate::{
+use depthsense_eval::evaluate::{
     load_model, run_eval_loaded, run_eval_predictions, table_paths, write_tables_with_command,
     EvalOptions, PredictionsOptions,
 };
-use depthsense_train::experiments::failure::RadarFailure;
+use depthsense_experiments::failure::RadarFailure;
+use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_train::outputs::refuse_existing;
 
 #[derive(clap::Args)]

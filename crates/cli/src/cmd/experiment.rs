@@ -6,11 +6,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use depthsense_experiments::ablation::{run_ablation, AblationOptions, Variant, MD_FILE, PNG_FILE};
+use depthsense_experiments::runner::RunSettings;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_train::experiments::ablation::{
-    run_ablation, AblationOptions, Variant, MD_FILE, PNG_FILE,
-};
-use depthsense_train::experiments::runner::RunSettings;
 use indicatif::MultiProgress;
 
 #[derive(clap::Args)]
@@ -159,7 +157,7 @@ pub struct ReducedDataArgs {
     out: PathBuf,
     /// Grid cells separated by `;`, each `full` or CONDITION=FRACTION[,…] (the training
     /// scenes withheld, see `train --exclude`).
-    #[arg(long, default_value = depthsense_train::experiments::reduced_data::DEFAULT_GRID)]
+    #[arg(long, default_value = depthsense_experiments::reduced_data::DEFAULT_GRID)]
     grid: String,
     /// Number of seeds: 0, 1, …, N−1.
     #[arg(long, default_value_t = 1)]
@@ -187,7 +185,7 @@ pub struct FailureArgs {
     /// Scenarios separated by `;`; each `none` or settings joined by `,`: radar-drop=F
     /// (fraction of points), drop-radars=A+B (channel names or all), beyond=M (metres),
     /// clutter=N (ghost points per sample).
-    #[arg(long, default_value = depthsense_train::experiments::failure::DEFAULT_SCENARIOS)]
+    #[arg(long, default_value = depthsense_experiments::failure::DEFAULT_SCENARIOS)]
     scenarios: String,
     /// Samples: held-out (test scenes), all, or a split name.
     #[arg(long, default_value = "held-out")]
@@ -300,7 +298,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_train::experiments::cost::{run_cost, CostOptions, MD_FILE};
+    use depthsense_experiments::cost::{run_cost, CostOptions, MD_FILE};
     let variants = a
         .variants
         .iter()
@@ -349,7 +347,7 @@ fn command_line() -> Option<String> {
 }
 
 fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_train::experiments::reduced_data::{
+    use depthsense_experiments::reduced_data::{
         parse_grid, run_reduced_data, ReducedDataOptions, MD_FILE,
     };
     let opts = ReducedDataOptions {
@@ -368,8 +366,8 @@ fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_train::evaluate::EvalOptions;
-    use depthsense_train::experiments::failure::{parse_scenarios, run_failure, FAILURE_MD};
+    use depthsense_eval::evaluate::EvalOptions;
+    use depthsense_experiments::failure::{parse_scenarios, run_failure, FAILURE_MD};
     let base = EvalOptions {
         checkpoint: a.checkpoint,
         config: a.config,
@@ -390,10 +388,8 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_train::evaluate::EvalOptions;
-    use depthsense_train::experiments::perturb::{
-        parse_axes, run_perturb, PerturbOptions, PERTURB_MD,
-    };
+    use depthsense_eval::evaluate::EvalOptions;
+    use depthsense_experiments::perturb::{parse_axes, run_perturb, PerturbOptions, PERTURB_MD};
     let base = EvalOptions {
         checkpoint: a.checkpoint,
         config: a.config,
@@ -450,8 +446,7 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
     );
     for (name, _) in &r.models {
         let row = r.row(name, "combined", "full");
-        let f =
-            |s: Option<depthsense_train::experiments::Stat>| s.map_or("–".into(), |s| s.fmt(3));
+        let f = |s: Option<depthsense_experiments::Stat>| s.map_or("–".into(), |s| s.fmt(3));
         println!(
             "{:<10} {:>3}  {:>17}  {:>17}  {:>17}",
             name,

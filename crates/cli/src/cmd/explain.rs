@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_data::Dataset;
-use depthsense_train::evaluate::{load_model, select_split};
-use depthsense_train::explain::run_explain;
+use depthsense_eval::evaluate::{load_model, select_split};
+use depthsense_eval::explain::run_explain;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -3,11 +3,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use depthsense_mer::apply::{apply, MerApplyOptions};
+use depthsense_mer::report::{mer_report, report_markdown};
+use depthsense_mer::train::{train_pda, MerTrainOptions};
 use depthsense_model::pda::PdaConfig;
 use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_train::mer::apply::{apply, MerApplyOptions};
-use depthsense_train::mer::report::{mer_report, report_markdown};
-use depthsense_train::mer::train::{train_pda, MerTrainOptions};
 
 use super::train::progress_bar;
 

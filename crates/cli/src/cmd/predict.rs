@@ -4,11 +4,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_train::evaluate::load_model;
-use depthsense_train::outputs::refuse_existing;
-use depthsense_train::predict::{
+use depthsense_eval::evaluate::load_model;
+use depthsense_eval::predict::{
     input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, OUTPUT_FILES,
 };
+use depthsense_train::outputs::refuse_existing;
 use depthsense_train::trainer::radar_input_for;
 
 #[derive(clap::Args)]
@@ -85,7 +85,7 @@ pub struct Args {
 }
 
 fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
-    use depthsense_train::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
+    use depthsense_eval::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
     let formats = a
         .format
         .iter()
@@ -164,7 +164,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let radar = radar_input_for(&loaded.config, None)?;
     if let Some(ck) = &a.mer_checkpoint {
         let pda = depthsense_model::pda::load(ck, device)?;
-        depthsense_train::predict::attach_mer(&mut input, &pda.net, device)?;
+        depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
     }
     let depth = predict(&loaded.net, &input, radar, device)?;
     let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;

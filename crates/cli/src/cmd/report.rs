@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use depthsense_train::report::{build_report, ReportOptions};
+use depthsense_report::{build_report, ReportOptions};
 
 /// A page larger than this gets a warning (browsers and mail handle it, but slowly).
 const LARGE_PAGE_BYTES: usize = 20_000_000;

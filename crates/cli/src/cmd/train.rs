@@ -281,7 +281,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         exclude: a
             .exclude
             .iter()
-            .map(|x| x.parse::<depthsense_train::experiments::reduced_data::Exclusion>())
+            .map(|x| x.parse::<depthsense_experiments::reduced_data::Exclusion>())
             .collect::<Result<Vec<_>, _>>()?,
         max_val_samples: a.max_val_samples,
         max_batches_per_epoch: a.max_batches_per_epoch,

@@ -1,0 +1,65 @@
+//! Train the tiny preset on a generated toy dataset and print the validation curve.
+//! `cargo run -p depthsense-eval --example toy_train -- EPOCHS LR [late|none]`
+use depthsense_model::{Fusion, ModelConfig};
+use depthsense_train::trainer::{train, TrainOptions};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let epochs: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(10);
+    let lr: f64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1e-2);
+    let fusion = if args.get(3).map(String::as_str) == Some("none") {
+        Fusion::None
+    } else {
+        Fusion::Late
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    depthsense_data::write_toy_dataset(&data, 5, 4, 128, 64, 11).unwrap();
+    let mut model = ModelConfig::tiny();
+    model.fusion = fusion;
+    model.dropout = std::env::var("DROPOUT")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0.0);
+    let o = TrainOptions {
+        data,
+        out: tmp.path().join("run"),
+        model,
+        epochs,
+        batch_size: 4,
+        lr,
+        seed: 5,
+        device: "cpu".into(),
+        jobs: 2,
+        ..TrainOptions::default()
+    };
+    let s = train(&o, &indicatif::ProgressBar::hidden()).unwrap();
+    println!(
+        "val {:?}",
+        s.val
+            .iter()
+            .map(|v| (v.rmse * 100.0).round() / 100.0)
+            .collect::<Vec<_>>()
+    );
+    println!("loss last {:?} in {:.1}s", s.losses.last(), s.seconds);
+    let l = depthsense_model::checkpoint::load(
+        &tmp.path().join("run/last.safetensors"),
+        tch::Device::Cpu,
+    )
+    .unwrap();
+    let ds = depthsense_data::Dataset::open(&tmp.path().join("data")).unwrap();
+    let e = &ds.split("all")[0];
+    let inp = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
+    let radar = depthsense_train::trainer::radar_input_for(&l.config, None).unwrap();
+    let d = depthsense_eval::predict::predict(&l.net, &inp, radar, tch::Device::Cpu).unwrap();
+    let gt = inp.gt.unwrap();
+    for v in [5usize, 20, 30, 40, 50, 63] {
+        println!(
+            "row {v}: pred {:.2} gt(sparse) {:.2}",
+            d.depth_m[v * 128 + 9],
+            gt.depth_m[v * 128 + 9]
+                .max(gt.depth_m[v * 128 + 10])
+                .max(gt.depth_m[v * 128 + 11])
+        );
+    }
+}

@@ -1,0 +1,391 @@
+//! Grad-CAM++ by distance class (SPEC §10.6), `depthsense explain`.
+//!
+//! **Target.** For a distance d (metres) and a band half-width b (default 0.1, i.e. ±10 %):
+//! - the thresholds at d are the SID thresholds t_i (SPEC §7, i = 1..K) with
+//!   t_i ∈ [(1 − b)·d, (1 + b)·d], or the single t_i nearest d when none is;
+//! - the ordinal evidence "depth beyond t_i" is the logit difference z_{i−1} = b − a of the
+//!   pair whose probability is P(label ≥ i) = P(depth ≥ t_i), upsampled bilinearly to the
+//!   output resolution (exact: upsampling is linear, SPEC §7);
+//! - the band B_d is the set of pixels whose sparse lidar GT lies in [(1 − b)·d, (1 + b)·d];
+//! - the target is S_d = Σ_{p ∈ B_d} Σ_{i at d} z_{i−1}(p).
+//!
+//! **Grad-CAM++** (Chattopadhyay et al., 2018, with the exponential target so that higher
+//! derivatives are powers of the first): for activations A^c (channel c of the chosen layer,
+//! h×w) and g = ∂S_d/∂A,
+//! α^c_xy = g² / (2 g² + Σ_ab A^c_ab · g³)  (0 where the denominator is 0),
+//! w_c = Σ_xy α^c_xy · relu(g^c_xy),  L = relu(Σ_c w_c A^c),
+//! upsampled bilinearly to the image and divided by its maximum (heat in [0, 1]).
+//!
+//! **Heat inside the band**: of the heat on pixels that have lidar GT, the fraction on pixels
+//! of B_d (Σ_{B_d} L / Σ_{GT > 0} L); compare with |B_d| / |GT > 0|, the fraction a heat map
+//! spread evenly would give ("chance").
+//!
+//! Layers: `rgb.layer1` … `rgb.layer4` (RGB encoder C1..C4), `decoder`, and `radar` (the
+//! radar branch output, late fusion). Fusion models are explained with radar and with radar
+//! zeroed.
+
+use std::path::{Path, PathBuf};
+
+use depthsense_data::{normalise_image, Augment};
+use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
+use depthsense_nuscenes::fsutil::write_atomic;
+use serde::{Deserialize, Serialize};
+use tch::{Device, Kind, Tensor};
+
+use depthsense_data::error::TrainError;
+
+/// Grad-CAM++ map of activations `a` `[C,h,w]` for gradients `g` = ∂S/∂A `[C,h,w]` → `[h,w]`
+/// (module docs; not normalised).
+pub fn gradcam_pp(a: &Tensor, g: &Tensor) -> Tensor {
+    let g2 = g.pow_tensor_scalar(2);
+    let g3 = g.pow_tensor_scalar(3);
+    let sum_a = a.sum_dim_intlist([1i64, 2].as_slice(), true, a.kind());
+    let denom = &g2 * 2.0 + sum_a * &g3;
+    let nonzero = denom.ne(0.0);
+    let safe = denom.where_self(&nonzero, &denom.ones_like());
+    let alpha = (&g2 / safe) * nonzero.to_kind(a.kind());
+    let w = (alpha * g.relu()).sum_dim_intlist([1i64, 2].as_slice(), true, a.kind());
+    (w * a)
+        .sum_dim_intlist([0i64].as_slice(), false, Kind::Float)
+        .relu()
+}
+
+/// Ordinal channels k = i − 1 of the thresholds at `d` (module docs).
+pub fn channels_at(s: &SidConfig, d: f64, band: f64) -> Vec<i64> {
+    let t = sid::thresholds_m(s); // t_0..t_K
+    let mut ks: Vec<i64> = (1..t.len())
+        .filter(|&i| t[i] >= (1.0 - band) * d && t[i] <= (1.0 + band) * d)
+        .map(|i| i as i64 - 1)
+        .collect();
+    if ks.is_empty() {
+        let i = (1..t.len())
+            .min_by(|&a, &b| (t[a] - d).abs().total_cmp(&(t[b] - d).abs()))
+            .unwrap_or(1);
+        ks.push(i as i64 - 1);
+    }
+    ks
+}
+
+/// Band mask `[H,W]` (float 0/1) of the GT `[H,W]` around `d`.
+pub fn band_mask(gt: &Tensor, d: f64, band: f64) -> Tensor {
+    (gt.ge((1.0 - band) * d)
+        .logical_and(&gt.le((1.0 + band) * d)))
+    .to_kind(Kind::Float)
+}
+
+/// S_d of full-resolution logit differences `z` `[1,K,H,W]`.
+pub fn evidence(z: &Tensor, mask: &Tensor, channels: &[i64]) -> Tensor {
+    let idx = Tensor::from_slice(channels).to_device(z.device());
+    let zk = z
+        .index_select(1, &idx)
+        .sum_dim_intlist([1i64].as_slice(), false, Kind::Float);
+    (zk.squeeze_dim(0) * mask).sum(z.kind())
+}
+
+/// One Grad-CAM++ map.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CamRecord {
+    pub sample: String,
+    pub distance_m: f64,
+    pub layer: String,
+    pub radar: bool,
+    pub channels: Vec<i64>,
+    pub band_pixels: u64,
+    pub gt_pixels: u64,
+    /// Σ_{B_d} heat / Σ_{GT>0} heat (None when no heat on GT pixels).
+    pub heat_in_band: Option<f64>,
+    /// |B_d| / |GT > 0|.
+    pub chance: f64,
+    pub target: f64,
+    pub overlay: PathBuf,
+}
+
+/// One map of [`explain_image`]: (heat `[H,W]` in [0,1], distance, layer, ordinal channels,
+/// target S_d).
+pub type CamMap = (Vec<f32>, f64, String, Vec<i64>, f64);
+
+/// Grad-CAM++ maps of `layers` for `distances`, one image: returns (heat `[H,W]` in
+/// [0,1], record) per (distance, layer). `radar` zeroed when `with_radar` is false.
+#[allow(clippy::too_many_arguments)]
+pub fn explain_image(
+    net: &DepthNet,
+    image: &Tensor,
+    radar: &Tensor,
+    gt: &Tensor,
+    distances: &[f64],
+    band: f64,
+    layers: &[String],
+    with_radar: bool,
+) -> Result<Vec<CamMap>, TrainError> {
+    let cfg = net.config();
+    if cfg.head != HeadKind::Ordinal || cfg.clamp_logits {
+        return Err(TrainError::Config(
+            "explain needs an ordinal head at low resolution (not l1/l2, not clamp_logits)".into(),
+        ));
+    }
+    let (h, w) = (cfg.out_height, cfg.out_width);
+    let radar = if with_radar {
+        radar.shallow_clone()
+    } else {
+        radar.zeros_like()
+    };
+    let mut out = vec![];
+    for &d in distances {
+        let mut taps: Vec<(String, Tensor)> = vec![];
+        let logits = net.forward_logits_tap(image, &radar, false, &mut |n, t| {
+            if layers.iter().any(|l| l == n) {
+                taps.push((n.to_string(), t.shallow_clone()));
+            }
+        });
+        let z = ordinal::upsample(&ordinal::pair_differences(&logits), h, w, cfg.align_corners);
+        let mask = band_mask(gt, d, band);
+        let ch = channels_at(&cfg.sid, d, band);
+        let s = evidence(&z, &mask, &ch);
+        if taps.is_empty() {
+            return Err(TrainError::Config(format!(
+                "none of the layers {layers:?} exists in this network (rgb.layer1..4, decoder, radar)"
+            )));
+        }
+        let inputs: Vec<&Tensor> = taps.iter().map(|(_, t)| t).collect();
+        let grads = Tensor::run_backward(&[&s], &inputs, false, false);
+        for ((name, a), g) in taps.iter().zip(&grads) {
+            let cam = gradcam_pp(&a.get(0).detach(), &g.get(0));
+            let up = cam
+                .unsqueeze(0)
+                .unsqueeze(0)
+                .upsample_bilinear2d([h, w], false, None, None)
+                .squeeze();
+            let mx = up.max().double_value(&[]);
+            let up = if mx > 0.0 { up / mx } else { up };
+            let v: Vec<f32> =
+                Vec::<f32>::try_from(up.to_device(Device::Cpu).contiguous().view([-1]))?;
+            out.push((v, d, name.clone(), ch.clone(), s.double_value(&[])));
+        }
+    }
+    Ok(out)
+}
+
+/// Heat inside the band and chance (module docs) of `heat` for GT `gt_m` at `d`.
+pub fn heat_fraction(
+    heat: &[f32],
+    gt_m: &[f32],
+    d: f64,
+    band: f64,
+) -> (Option<f64>, f64, u64, u64) {
+    let (mut in_b, mut on_gt, mut nb, mut ng) = (0f64, 0f64, 0u64, 0u64);
+    for (hv, g) in heat.iter().zip(gt_m) {
+        if *g > 0.0 {
+            ng += 1;
+            on_gt += *hv as f64;
+            let g = *g as f64;
+            if g >= (1.0 - band) * d && g <= (1.0 + band) * d {
+                nb += 1;
+                in_b += *hv as f64;
+            }
+        }
+    }
+    let frac = (on_gt > 0.0).then(|| in_b / on_gt);
+    (frac, nb as f64 / ng.max(1) as f64, nb, ng)
+}
+
+/// Image blended with the heat (turbo) and the band's GT pixels in white.
+pub fn overlay(
+    img: &image::RgbImage,
+    heat: &[f32],
+    gt_m: &[f32],
+    d: f64,
+    band: f64,
+) -> image::RgbImage {
+    let mut o = img.clone();
+    for (i, p) in o.pixels_mut().enumerate() {
+        let c = colorous::TURBO.eval_continuous(heat[i].clamp(0.0, 1.0) as f64);
+        let a = 0.5;
+        for (k, v) in [c.r, c.g, c.b].into_iter().enumerate() {
+            p.0[k] = ((1.0 - a) * p.0[k] as f32 + a * v as f32) as u8;
+        }
+        let g = gt_m[i] as f64;
+        if g >= (1.0 - band) * d && g <= (1.0 + band) * d {
+            p.0 = [255, 255, 255];
+        }
+    }
+    o
+}
+
+/// Everything `explain` wrote (= explain.json).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExplainResult {
+    pub checkpoint: PathBuf,
+    pub band: f64,
+    pub records: Vec<CamRecord>,
+    pub grid: PathBuf,
+    pub command_line: Option<String>,
+}
+
+/// Explain prepared samples `dirs`; writes overlays, `grid.png`, `explain.json`, `explain.md`.
+#[allow(clippy::too_many_arguments)]
+pub fn run_explain(
+    net: &DepthNet,
+    checkpoint: &Path,
+    dirs: &[PathBuf],
+    distances: &[f64],
+    band: f64,
+    layers: &[String],
+    out: &Path,
+    device: Device,
+    command_line: Option<String>,
+) -> Result<ExplainResult, TrainError> {
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    let cfg = net.config().clone();
+    let radar_input = depthsense_train::trainer::radar_input_for(&cfg, None)?;
+    let mut records = vec![];
+    let mut tiles: Vec<Vec<image::RgbImage>> = vec![];
+    for dir in dirs {
+        let input = crate::predict::input_from_prepared(dir)?;
+        let (w, h) = input.image.dimensions();
+        let gt = input
+            .gt
+            .clone()
+            .ok_or_else(|| TrainError::Data(format!("{}: no lidar GT", dir.display())))?;
+        let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
+            .view([1, 3, h as i64, w as i64])
+            .to_device(device);
+        let planes: Vec<f32> = match radar_input {
+            None => vec![0.0; (w * h) as usize],
+            Some(depthsense_data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
+            Some(depthsense_data::RadarInput::Height) => input.radar_height.depth_m.clone(),
+            Some(r) => {
+                return Err(TrainError::Config(format!(
+                    "explain supports the raw or height radar input, not {}",
+                    r.name()
+                )))
+            }
+        };
+        let radar = Tensor::from_slice(&planes)
+            .view([1, 1, h as i64, w as i64])
+            .to_device(device);
+        let gt_t = Tensor::from_slice(&gt.depth_m)
+            .view([h as i64, w as i64])
+            .to_device(device);
+        let states: &[bool] = if radar_input.is_some() {
+            &[true, false]
+        } else {
+            &[false]
+        };
+        let mut row_tiles = vec![];
+        for &with_radar in states {
+            let maps = explain_image(
+                net, &img, &radar, &gt_t, distances, band, layers, with_radar,
+            )?;
+            for (heat, d, layer, ch, target) in maps {
+                let (frac, chance, nb, ng) = heat_fraction(&heat, &gt.depth_m, d, band);
+                let ov = overlay(&input.image, &heat, &gt.depth_m, d, band);
+                let name = format!(
+                    "{}_{}m_{}_{}.png",
+                    input.name,
+                    d,
+                    layer,
+                    if with_radar { "radar" } else { "noradar" }
+                );
+                let p = out.join(&name);
+                write_atomic(&p, &depthsense_viz::plot::encode_rgb(&ov)?)
+                    .map_err(|e| TrainError::io(&p, e))?;
+                row_tiles.push(ov);
+                records.push(CamRecord {
+                    sample: input.name.clone(),
+                    distance_m: d,
+                    layer,
+                    radar: with_radar,
+                    channels: ch,
+                    band_pixels: nb,
+                    gt_pixels: ng,
+                    heat_in_band: frac,
+                    chance,
+                    target,
+                    overlay: PathBuf::from(name),
+                });
+            }
+        }
+        tiles.push(row_tiles);
+    }
+    let grid = out.join("grid.png");
+    write_atomic(
+        &grid,
+        &depthsense_viz::plot::encode_rgb(&grid_image(&tiles))?,
+    )
+    .map_err(|e| TrainError::io(&grid, e))?;
+    let r = ExplainResult {
+        checkpoint: checkpoint.to_path_buf(),
+        band,
+        records,
+        grid: PathBuf::from("grid.png"),
+        command_line,
+    };
+    let json = serde_json::to_string_pretty(&r).map_err(|e| TrainError::Other(e.to_string()))?;
+    let jp = out.join("explain.json");
+    write_atomic(&jp, json.as_bytes()).map_err(|e| TrainError::io(&jp, e))?;
+    let mp = out.join("explain.md");
+    write_atomic(&mp, markdown(&r).as_bytes()).map_err(|e| TrainError::io(&mp, e))?;
+    Ok(r)
+}
+
+/// Tiles in rows (one row per sample), a heat colour bar (0 → 1, turbo) at the bottom.
+fn grid_image(rows: &[Vec<image::RgbImage>]) -> image::RgbImage {
+    let (tw, th) = rows
+        .iter()
+        .flatten()
+        .next()
+        .map_or((1, 1), |t| (t.width(), t.height()));
+    let cols = rows.iter().map(|r| r.len()).max().unwrap_or(1).max(1) as u32;
+    let bar = 12u32;
+    let mut g = image::RgbImage::from_pixel(
+        cols * tw,
+        rows.len() as u32 * th + bar,
+        image::Rgb([255, 255, 255]),
+    );
+    for (ri, r) in rows.iter().enumerate() {
+        for (ci, t) in r.iter().enumerate() {
+            image::imageops::replace(&mut g, t, (ci as u32 * tw) as i64, (ri as u32 * th) as i64);
+        }
+    }
+    let y0 = rows.len() as u32 * th;
+    for x in 0..g.width() {
+        let c = colorous::TURBO.eval_continuous(x as f64 / (g.width().max(2) - 1) as f64);
+        for y in y0..y0 + bar {
+            g.put_pixel(x, y, image::Rgb([c.r, c.g, c.b]));
+        }
+    }
+    g
+}
+
+fn markdown(r: &ExplainResult) -> String {
+    let mut md = String::from(
+        "# Grad-CAM++ by distance class (SPEC §10.6)\n\nTarget, band and heat fraction: README \
+         \"Grad-CAM++\". Heat in band vs chance (the fraction an even heat map would give).\n\n\
+         | sample | d (m) | layer | radar | band px | heat in band | chance |\n|---|---:|---|---|---:|---:|---:|\n",
+    );
+    for x in &r.records {
+        md.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {:.3} |\n",
+            x.sample,
+            x.distance_m,
+            x.layer,
+            if x.radar { "yes" } else { "zeroed" },
+            x.band_pixels,
+            x.heat_in_band.map_or("–".into(), |f| format!("{f:.3}")),
+            x.chance
+        ));
+    }
+    md.push_str(&format!(
+        "\nGrid (`{}`): one row per sample; columns: for each radar state (with, then zeroed), \
+         for each distance, each layer; white = lidar pixels in the band; colour bar: heat 0 → 1 \
+         (turbo).\n",
+        r.grid.display()
+    ));
+    if let Some(c) = &r.command_line {
+        md.push_str(&format!("\nCommand: `{c}`\n"));
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,10 @@
+//! depthsense-eval (layer 5, ARCHITECTURE.md): a trained network put to use —
+//!
+//! - [`evaluate`]: `eval` (SPEC §10 tables 1–3 as Markdown, CSV, JSON; radar drop; scoring
+//!   other methods' depth maps with `--predictions`);
+//! - [`predict`]: depth for a prepared sample, a dataroot token or raw files (`predict`);
+//! - [`explain`]: Grad-CAM++ overlays (`explain`).
+
+pub mod evaluate;
+pub mod explain;
+pub mod predict;

@@ -1,0 +1,296 @@
+//! `depthsense predict`: depth for one input, from
+//! - a prepared sample directory (`prepare` output),
+//! - a sample token of a nuScenes-format dataroot (the `prepare` code runs for that sample), or
+//! - raw files: a 1600x900 CAM_FRONT JPEG, radar `.pcd` files and a calibration JSON:
+//!
+//! ```json
+//! { "camera_intrinsic": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
+//!   "cam_from_radar": { "<radar file name>": [[r, r, r, t], [r, r, r, t], [r, r, r, t], [0, 0, 0, 1]] } }
+//! ```
+//! (`camera_intrinsic` at full 1600x900 resolution, row-major; each radar file, by its file
+//! name without directories, gets its own 4x4 row-major camera-from-radar transform, metres).
+//!
+//! Outputs: `depth.png` (16-bit, depth×256, SPEC §3), `depth_color.png` (turbo),
+//! `radar_overlay.png` (radar points over the image), `image.png` (the 800x350 frame).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use depthsense_data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
+use depthsense_model::DepthNet;
+use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::geometry::Camera;
+use depthsense_prep::layout::{
+    FRAME_H, FRAME_W, IMAGE_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
+};
+use depthsense_prep::maps::{image_to_frame, radar_maps, radar_positions, Raster};
+use serde::Deserialize;
+use tch::{Device, Kind, Tensor};
+
+use depthsense_data::error::TrainError;
+
+/// One network input in the training frame.
+#[derive(Debug, Clone)]
+pub struct PredictInput {
+    pub name: String,
+    pub image: image::RgbImage,
+    pub radar_raw: DepthMap,
+    pub radar_height: DepthMap,
+    /// Sparse lidar GT when known (prepared sample / dataroot token).
+    pub gt: Option<DepthMap>,
+    /// MER (depth, confidence) maps (SPEC §5): read from a prepared sample where `mer apply`
+    /// wrote them, or computed by [`attach_mer`] (`--mer-checkpoint`).
+    pub mer: Option<(DepthMap, DepthMap)>,
+}
+
+/// Read a prepared sample directory.
+pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
+    if !dir.join(META_FILE).exists() {
+        return Err(TrainError::Data(format!(
+            "{}: not a prepared sample directory (no {META_FILE})",
+            dir.display()
+        )));
+    }
+    let gt_path = dir.join(LIDAR_SPARSE_FILE);
+    Ok(PredictInput {
+        name: dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        image: decode_rgb(&dir.join(IMAGE_FILE))?,
+        radar_raw: read_depth(&dir.join(RADAR_RAW_FILE))?,
+        radar_height: read_depth(&dir.join(RADAR_HEIGHT_FILE))?,
+        gt: if gt_path.exists() {
+            Some(read_depth(&gt_path)?)
+        } else {
+            None
+        },
+        mer: if dir.join(depthsense_data::mer_maps::MER_DEPTH_FILE).exists() {
+            Some(depthsense_data::mer_maps::read_mer_maps(dir)?)
+        } else {
+            None
+        },
+    })
+}
+
+/// Run the `prepare` computation for one sample token of a dataroot (nothing is written).
+pub fn input_from_token(
+    dataroot: &Path,
+    version: &str,
+    token: &str,
+    opts: &depthsense_prep::PrepareOptions,
+) -> Result<PredictInput, TrainError> {
+    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version)
+        .map_err(|e| TrainError::Data(e.to_string()))?;
+    let want = depthsense_nuscenes::tables::Token::parse(token);
+    let sample = nu.sample.iter().find(|s| s.token == want).ok_or_else(|| {
+        TrainError::Data(format!(
+            "{}/{version}: no sample with token {token}",
+            dataroot.display()
+        ))
+    })?;
+    let maps = depthsense_prep::pipeline::compute_sample(&nu, sample, opts)
+        .map_err(|e| TrainError::Data(format!("sample {token}: {e}")))?;
+    let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, maps.image_rgb)
+        .ok_or_else(|| TrainError::Data(format!("sample {token}: image has the wrong size")))?;
+    Ok(PredictInput {
+        name: token.to_string(),
+        image,
+        radar_raw: maps.radar_raw,
+        radar_height: maps.radar_height,
+        gt: Some(maps.lidar_sparse),
+        mer: None,
+    })
+}
+
+#[derive(Debug, Deserialize)]
+struct Calibration {
+    camera_intrinsic: [[f64; 3]; 3],
+    cam_from_radar: BTreeMap<String, [[f64; 4]; 4]>,
+}
+
+/// Build the input from raw files (see the module docs for the calibration JSON).
+pub fn input_from_raw(
+    jpeg: &Path,
+    radar_files: &[PathBuf],
+    calibration: &Path,
+    radar_filters: bool,
+) -> Result<PredictInput, TrainError> {
+    let bytes = std::fs::read(calibration).map_err(|e| TrainError::io(calibration, e))?;
+    let calib: Calibration = serde_json::from_slice(&bytes).map_err(|e| TrainError::Parse {
+        path: calibration.display().to_string(),
+        reason: format!(
+            "{e} (expected {{\"camera_intrinsic\": 3x3, \"cam_from_radar\": {{file name: 4x4}}}})"
+        ),
+    })?;
+    let full = decode_rgb(jpeg)?;
+    let (w, h) = full.dimensions();
+    let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| {
+        TrainError::Data(format!(
+            "{}: image is {w}x{h}; a nuScenes CAM_FRONT image is 1600x900",
+            jpeg.display()
+        ))
+    })?;
+    let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, frame)
+        .ok_or_else(|| TrainError::Data("frame has the wrong size".into()))?;
+    let cam = Camera::from_intrinsic(&calib.camera_intrinsic, w, h);
+    let mut raw = Raster::default();
+    let mut height = Raster::default();
+    for f in radar_files {
+        let name = f
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let m = calib.cam_from_radar.get(&name).ok_or_else(|| {
+            TrainError::Data(format!(
+                "{}: no cam_from_radar entry for radar file {name:?} (entries: {:?})",
+                calibration.display(),
+                calib.cam_from_radar.keys().collect::<Vec<_>>()
+            ))
+        })?;
+        let scan = depthsense_nuscenes::pcd::read_radar_pcd(f)
+            .map_err(|e| TrainError::Data(e.to_string()))?;
+        let (points, _) = scan.filtered(radar_filters);
+        let cam_pts: Vec<[f32; 3]> = radar_positions(&points, None)
+            .into_iter()
+            .map(|p| {
+                let p = [p[0] as f64, p[1] as f64, p[2] as f64];
+                let mut q = [0f32; 3];
+                for (r, qr) in q.iter_mut().enumerate() {
+                    *qr = (m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]) as f32;
+                }
+                q
+            })
+            .collect();
+        radar_maps(&cam_pts, &cam, &mut raw, &mut height);
+    }
+    Ok(PredictInput {
+        name: jpeg
+            .file_stem()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        image,
+        radar_raw: raw.to_depth_map(),
+        radar_height: height.to_depth_map(),
+        gt: None,
+        mer: None,
+    })
+}
+
+/// Predict a depth map (metres, the input's frame size).
+pub fn predict(
+    net: &DepthNet,
+    input: &PredictInput,
+    radar: Option<RadarInput>,
+    device: Device,
+) -> Result<DepthMap, TrainError> {
+    depthsense_model::device::autotune_fixed_size(device);
+    let (w, h) = input.image.dimensions();
+    let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
+        .view([1, 3, h as i64, w as i64])
+        .to_device(device);
+    let mer_channels;
+    let planes: Vec<&[f32]> = match radar {
+        None => vec![],
+        Some(RadarInput::Height) => vec![&input.radar_height.depth_m],
+        Some(RadarInput::Raw) => vec![&input.radar_raw.depth_m],
+        Some(RadarInput::RawHeight) => {
+            vec![&input.radar_raw.depth_m, &input.radar_height.depth_m]
+        }
+        Some(RadarInput::Mer) => {
+            let (d, c) = input.mer.as_ref().ok_or_else(|| {
+                TrainError::Config(format!(
+                    "{}: the model takes MER radar (SPEC §5) but the input has no MER maps: \
+                     run `depthsense mer apply` on the prepared data or pass --mer-checkpoint",
+                    input.name
+                ))
+            })?;
+            mer_channels = depthsense_data::mer_maps::derive_channels(&d.depth_m, &c.depth_m);
+            let n = d.depth_m.len();
+            let mut v: Vec<&[f32]> = vec![&input.radar_raw.depth_m];
+            v.extend(mer_channels.chunks(n));
+            v
+        }
+    };
+    let radar_t = if planes.is_empty() {
+        Tensor::zeros([1, 1, h as i64, w as i64], (Kind::Float, device))
+    } else {
+        let flat: Vec<f32> = planes.concat();
+        Tensor::from_slice(&flat)
+            .view([1, planes.len() as i64, h as i64, w as i64])
+            .to_device(device)
+    };
+    let pred = tch::no_grad(|| net.decode(&net.forward_t(&img, &radar_t, false)));
+    let pred = pred
+        .to_device(Device::Cpu)
+        .to_kind(Kind::Float)
+        .contiguous();
+    if pred.numel() != (w * h) as usize {
+        return Err(TrainError::Other(format!(
+            "prediction has shape {:?}, expected [1, 1, {h}, {w}]",
+            pred.size()
+        )));
+    }
+    Ok(DepthMap {
+        width: w,
+        height: h,
+        depth_m: Vec::<f32>::try_from(pred.view([-1]))?,
+    })
+}
+
+/// The files [`write_outputs`] writes.
+pub const OUTPUT_FILES: [&str; 4] = [
+    "depth.png",
+    "depth_color.png",
+    "radar_overlay.png",
+    "image.png",
+];
+
+/// Write depth.png, depth_color.png, radar_overlay.png and image.png into `out`.
+pub fn write_outputs(
+    out: &Path,
+    input: &PredictInput,
+    depth: &DepthMap,
+    max_m: f32,
+) -> Result<Vec<PathBuf>, TrainError> {
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    let mut written = vec![];
+    let mut w = |name: &str, bytes: Vec<u8>| -> Result<(), TrainError> {
+        let p = out.join(name);
+        write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
+        written.push(p);
+        Ok(())
+    };
+    w(
+        "depth.png",
+        encode_png(depth).map_err(|e| TrainError::Data(e.to_string()))?,
+    )?;
+    let color =
+        depthsense_viz::plot::colorize_depth(&depth.depth_m, depth.width, depth.height, max_m);
+    w("depth_color.png", depthsense_viz::plot::encode_rgb(&color)?)?;
+    let overlay =
+        depthsense_viz::plot::overlay_points(&input.image, &input.radar_raw.depth_m, max_m, 3);
+    w(
+        "radar_overlay.png",
+        depthsense_viz::plot::encode_rgb(&overlay)?,
+    )?;
+    w("image.png", depthsense_viz::plot::encode_rgb(&input.image)?)?;
+    Ok(written)
+}
+
+/// Computes the MER maps of a `predict` input with a PDA network (`predict --mer-checkpoint`:
+/// sample tokens and raw files carry no MER maps of their own).
+pub fn attach_mer(
+    input: &mut PredictInput,
+    net: &depthsense_model::pda::PdaNet,
+    device: Device,
+) -> Result<(), TrainError> {
+    input.mer = Some(depthsense_mer::apply::mer_maps_for_image(
+        &input.image,
+        &input.radar_raw,
+        net,
+        device,
+    )?);
+    Ok(())
+}

@@ -1,0 +1,910 @@
+//! `depthsense experiment ablation`: the fusion variants of SPEC §6 and the loss ablation of
+//! SPEC §10.4, each trained with several seeds on the same prepared data, evaluated on the
+//! TEST scenes (the checkpoint is chosen on the validation scenes by the trainer; nothing is
+//! selected on test) and reported as mean ± sample std over seeds.
+//!
+//! ```text
+//! OUT/runs/<variant>/seed<k>/           an ordinary training run (config.json, metrics.jsonl, …)
+//! OUT/runs/<variant>/seed<k>/eval.json  its test evaluation (written atomically, last)
+//! OUT/ablation.md                       tables, verdicts vs rgb, partition, machine, options
+//! OUT/ablation.csv                      per-run and mean/std rows
+//! OUT/ablation.json                     everything, including each run's full report
+//! OUT/ablation.png                      test RMSE and δ1 per variant, mean ± std over seeds
+//! ```
+//!
+//! Resumable: a run with a matching `eval.json` is skipped; a run whose training finished
+//! (its metrics.jsonl holds the last epoch) is only evaluated; any other run is (re)started
+//! with the trainer's `resume: true`, which continues from its last checkpoint when there is one.
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::Instant;
+
+use depthsense_data::error::TrainError;
+use depthsense_data::{partition, Dataset, Partition};
+use depthsense_metrics::EvalConfig;
+use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use indicatif::MultiProgress;
+use serde::{Deserialize, Serialize};
+
+use super::paired::{paired_test, PairedTest};
+use super::runner::{run_bar, train_and_test, RunSettings};
+pub use super::runner::{
+    summarise, PartitionInfo, RowValues, RunRecord, RunStatus, SummaryRow, RUN_EVAL_FILE,
+};
+use super::{signed, Machine, Stat};
+
+pub const MD_FILE: &str = "ablation.md";
+pub const CSV_FILE: &str = "ablation.csv";
+pub const JSON_FILE: &str = "ablation.json";
+pub const PNG_FILE: &str = "ablation.png";
+/// The baseline every other variant is compared with.
+pub const BASELINE: &str = "rgb";
+
+/// A network variant: the three config fields it sets (SPEC §6 "Variants", §10.4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    /// RGB only (fusion none).
+    Rgb,
+    /// Early fusion: radar channels concatenated to the RGB input, one encoder.
+    Early,
+    /// Late fusion without the spatial attention module (the released model's form).
+    Late,
+    /// Late fusion with spatial attention (the paper's model), ordinal head.
+    LateSam,
+    /// The paper's model with an L1 depth head (loss ablation).
+    L1,
+    /// The paper's model with an L2 depth head (loss ablation).
+    L2,
+    /// The paper's model on MER radar (raw + 6 MER channels, SPEC §5; the prepared data needs
+    /// `depthsense mer apply` first).
+    LateSamMer,
+}
+
+impl Variant {
+    pub const ALL: [Variant; 7] = [
+        Variant::Rgb,
+        Variant::Early,
+        Variant::Late,
+        Variant::LateSam,
+        Variant::L1,
+        Variant::L2,
+        Variant::LateSamMer,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Rgb => "rgb",
+            Variant::Early => "early",
+            Variant::Late => "late",
+            Variant::LateSam => "late-sam",
+            Variant::L1 => "l1",
+            Variant::L2 => "l2",
+            Variant::LateSamMer => "late-sam-mer",
+        }
+    }
+
+    /// (fusion, attention, head) of the variant.
+    pub fn fields(self) -> (Fusion, bool, HeadKind) {
+        match self {
+            Variant::Rgb => (Fusion::None, false, HeadKind::Ordinal),
+            Variant::Early => (Fusion::Early, false, HeadKind::Ordinal),
+            Variant::Late => (Fusion::Late, false, HeadKind::Ordinal),
+            Variant::LateSam => (Fusion::Late, true, HeadKind::Ordinal),
+            Variant::L1 => (Fusion::Late, true, HeadKind::L1),
+            Variant::L2 => (Fusion::Late, true, HeadKind::L2),
+            Variant::LateSamMer => (Fusion::Late, true, HeadKind::Ordinal),
+        }
+    }
+
+    /// Set the variant's fields on a config.
+    pub fn apply(self, cfg: &mut ModelConfig) {
+        let (fusion, attention, head) = self.fields();
+        cfg.fusion = fusion;
+        cfg.attention = attention;
+        cfg.head = head;
+        if self == Variant::LateSamMer {
+            cfg.radar_input = depthsense_model::RadarInput::Mer;
+            cfg.radar_channels = cfg.radar_input.channels() as i64;
+        }
+        // Options of parts the variant does not have are reset to their defaults, so that a
+        // `--set attention-gate=…` or `radar-skip=…` leaves e.g. the rgb runs' configs (and
+        // the finished runs an `--out` already holds) unchanged.
+        if !attention {
+            cfg.attention_gate = Default::default();
+        }
+        if fusion != Fusion::Late {
+            cfg.radar_skip_channels = 0;
+        }
+    }
+
+    pub fn describe(self) -> &'static str {
+        match self {
+            Variant::Rgb => "RGB only (no radar)",
+            Variant::Early => "early fusion (radar channels on the RGB input)",
+            Variant::Late => "late fusion, no attention (released model's form)",
+            Variant::LateSam => "late fusion + spatial attention (paper), ordinal head",
+            Variant::L1 => "late-sam with an L1 depth head",
+            Variant::L2 => "late-sam with an L2 depth head",
+            Variant::LateSamMer => "late-sam on MER radar (raw + 6 MER channels)",
+        }
+    }
+}
+
+impl FromStr for Variant {
+    type Err = TrainError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let s = s.trim().to_ascii_lowercase();
+        Variant::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| {
+                TrainError::Config(format!(
+                    "unknown ablation variant {s:?} (rgb, early, late, late-sam, l1, l2, late-sam-mer)"
+                ))
+            })
+    }
+}
+
+/// Everything an ablation is made of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AblationOptions {
+    /// Data, preset, `set` (which may not name fusion, attention or head: those are the
+    /// variant's) and the training settings shared by every run.
+    #[serde(flatten)]
+    pub run: RunSettings,
+    /// Output directory (runs/, ablation.{md,csv,json,png}).
+    pub out: PathBuf,
+    pub variants: Vec<Variant>,
+    pub seeds: Vec<u64>,
+    /// Test metrics settings (caps, protocol, aggregation).
+    pub eval: EvalConfig,
+    /// The invocation, recorded in the outputs (informational).
+    pub command_line: Option<String>,
+}
+
+impl Default for AblationOptions {
+    fn default() -> Self {
+        Self {
+            run: RunSettings::default(),
+            out: PathBuf::from("runs/ablation"),
+            variants: Variant::ALL.to_vec(),
+            seeds: vec![0, 1, 2, 3, 4],
+            eval: EvalConfig::default(),
+            command_line: None,
+        }
+    }
+}
+
+/// A variant against the baseline on one headline metric (combined, full image).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Verdict {
+    pub variant: String,
+    pub baseline: String,
+    /// "rmse", "delta1" or "abs_rel".
+    pub metric: String,
+    pub mean: f64,
+    pub baseline_mean: f64,
+    /// mean − baseline mean.
+    pub difference: f64,
+    /// 100 · difference / baseline mean.
+    pub relative_pct: f64,
+    /// The seeds both variants ran: the pairs of the test.
+    pub paired_seeds: Vec<u64>,
+    /// The paired test over those seeds (`None` when no seed is shared).
+    pub paired: Option<PairedTest>,
+    pub n: usize,
+    pub baseline_n: usize,
+    pub text: String,
+}
+
+/// Train (or resume) and evaluate one run; or read it back when finished.
+#[allow(clippy::too_many_arguments)]
+fn one_run(
+    opts: &AblationOptions,
+    variant: Variant,
+    model: &ModelConfig,
+    seed: u64,
+    ds: &Dataset,
+    part: &Partition,
+    device: tch::Device,
+    mp: &MultiProgress,
+) -> Result<(RunRecord, RunStatus), TrainError> {
+    let run = opts
+        .out
+        .join("runs")
+        .join(variant.name())
+        .join(format!("seed{seed}"));
+    let topts = opts.run.train_options(run, model, seed);
+    train_and_test(
+        variant.name(),
+        &topts,
+        &opts.eval,
+        ds,
+        &part.test,
+        device,
+        mp,
+    )
+}
+
+/// Everything an ablation produced (= `ablation.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AblationResult {
+    pub options: AblationOptions,
+    pub machine: Machine,
+    pub partition: PartitionInfo,
+    /// The model config of each variant (before the trainer sets the output size).
+    pub models: Vec<(String, ModelConfig)>,
+    pub runs: Vec<RunRecord>,
+    /// What this invocation did to each run, in `runs` order.
+    pub status: Vec<RunStatus>,
+    pub summary: Vec<SummaryRow>,
+    pub verdicts: Vec<Verdict>,
+    pub trained: usize,
+    pub resumed: usize,
+    pub evaluated: usize,
+    pub skipped: usize,
+    /// Seconds of this invocation.
+    pub total_seconds: f64,
+}
+
+impl AblationResult {
+    /// The summary row of a variant, condition and region.
+    pub fn row(&self, variant: &str, condition: &str, region: &str) -> Option<&SummaryRow> {
+        self.summary
+            .iter()
+            .find(|r| r.variant == variant && r.condition == condition && r.region == region)
+    }
+}
+
+/// The model of a preset name (`tiny-wide` included) or a config JSON file.
+pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
+    if spec == "tiny-wide" {
+        return Ok(ModelConfig::tiny_wide());
+    }
+    Ok(ModelConfig::resolve(spec)?)
+}
+
+/// The model config of each variant (preset → `set` → variant fields).
+pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfig)>, TrainError> {
+    for s in &opts.run.set {
+        let key = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
+        if ["fusion", "attention", "head", "loss"].contains(&key) {
+            return Err(TrainError::Config(format!(
+                "--set {s}: {key} is what the ablation variants set; choose variants instead"
+            )));
+        }
+    }
+    let base = base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
+    opts.variants
+        .iter()
+        .map(|&v| {
+            let mut c = base.clone();
+            v.apply(&mut c);
+            c.validate()?;
+            Ok((v, c))
+        })
+        .collect()
+}
+
+fn check_options(opts: &AblationOptions) -> Result<(), TrainError> {
+    if opts.variants.is_empty() {
+        return Err(TrainError::Config("no ablation variants given".into()));
+    }
+    if opts.seeds.is_empty() {
+        return Err(TrainError::Config("no seeds given".into()));
+    }
+    let dup = |names: Vec<String>| {
+        let mut s = names.clone();
+        s.sort();
+        s.windows(2).find(|w| w[0] == w[1]).map(|w| w[0].clone())
+    };
+    if let Some(d) = dup(opts.variants.iter().map(|v| v.name().to_string()).collect()) {
+        return Err(TrainError::Config(format!("variant {d} given twice")));
+    }
+    if let Some(d) = dup(opts.seeds.iter().map(|s| s.to_string()).collect()) {
+        return Err(TrainError::Config(format!("seed {d} given twice")));
+    }
+    Ok(())
+}
+
+/// The verdict rule: a paired test over the seeds both variants ran (each seed trains both,
+/// [`paired_test`]): the mean per-seed difference, its standard error and a two-sided paired
+/// t-test at 5 %; no verdict with fewer than 2 shared seeds. `values` are (seed, variant value,
+/// baseline value) of the seeds both ran.
+pub fn verdict(
+    variant: &str,
+    baseline: &str,
+    metric: &str,
+    v: &Stat,
+    b: &Stat,
+    values: &[(u64, f64, f64)],
+) -> Verdict {
+    let diff = v.mean - b.mean;
+    let rel = 100.0 * diff / b.mean;
+    let pairs: Vec<(f64, f64)> = values.iter().map(|&(_, a, c)| (a, c)).collect();
+    let paired = paired_test(&pairs);
+    let (label, unit, prec) = match metric {
+        "rmse" => ("RMSE", " m", 3),
+        "abs_rel" => ("AbsRel", "", 4),
+        _ => ("δ1", "", 3),
+    };
+    let test_txt = match &paired {
+        Some(p) => match (p.standard_error, p.t, p.t_critical, p.significant) {
+            (Some(se), Some(t), Some(c), Some(sig)) => format!(
+                "paired over {} seeds: difference {} ± {se:.prec$}{unit} (standard error), t = {}, |t| {} {c:.3} = t₀.₉₇₅ with {} df → {}",
+                p.n,
+                signed(p.mean_difference, prec),
+                signed(t, 2),
+                if sig { ">" } else { "≤" },
+                p.n - 1,
+                if sig {
+                    "significant (two-sided paired t-test, 5 %)"
+                } else {
+                    "NOT significant: inside the seed-to-seed noise"
+                }
+            ),
+            _ => format!(
+                "{} shared seed(s): no verdict (a paired test needs 2)",
+                p.n
+            ),
+        },
+        None => "no seed shared with the baseline: no verdict".to_string(),
+    };
+    let text = format!(
+        "{variant} vs {baseline}: {label} {} % (mean {:.prec$}{unit} vs {:.prec$}{unit}, n = {} / {}); {test_txt}",
+        signed(rel, 1),
+        v.mean,
+        b.mean,
+        v.n,
+        b.n
+    );
+    Verdict {
+        variant: variant.into(),
+        baseline: baseline.into(),
+        metric: metric.into(),
+        mean: v.mean,
+        baseline_mean: b.mean,
+        difference: diff,
+        relative_pct: rel,
+        paired_seeds: values.iter().map(|x| x.0).collect(),
+        paired,
+        n: v.n,
+        baseline_n: b.n,
+        text,
+    }
+}
+
+/// (seed, variant value, baseline value) of the seeds both ran, from each run's headline row.
+fn seed_pairs(
+    runs: &[RunRecord],
+    variant: &str,
+    baseline: &str,
+    get: Field,
+) -> Vec<(u64, f64, f64)> {
+    let value = |name: &str, seed: u64| {
+        runs.iter()
+            .find(|r| r.variant == name && r.seed == seed)
+            .and_then(|r| r.headline())
+            .map(get)
+    };
+    let mut seeds: Vec<u64> = runs
+        .iter()
+        .filter(|r| r.variant == variant)
+        .map(|r| r.seed)
+        .collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    seeds
+        .into_iter()
+        .filter_map(|s| Some((s, value(variant, s)?, value(baseline, s)?)))
+        .collect()
+}
+
+/// A headline metric of one run.
+type Field = fn(&RowValues) -> f64;
+
+fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Vec<Verdict> {
+    let get = |v: &str| {
+        summary
+            .iter()
+            .find(|r| r.variant == v && r.condition == "combined" && r.region == "full")
+    };
+    let Some(base) = get(BASELINE) else {
+        return vec![];
+    };
+    let mut out = vec![];
+    for &v in variants.iter().filter(|v| **v != BASELINE) {
+        let Some(row) = get(v) else { continue };
+        let metrics: [(&str, Option<Stat>, Option<Stat>, Field); 3] = [
+            ("rmse", row.rmse, base.rmse, |x| x.rmse),
+            ("delta1", row.delta1, base.delta1, |x| x.delta1),
+            ("abs_rel", row.abs_rel, base.abs_rel, |x| x.abs_rel),
+        ];
+        for (metric, a, b, field) in metrics {
+            if let (Some(a), Some(b)) = (a, b) {
+                let pairs = seed_pairs(runs, v, BASELINE, field);
+                out.push(verdict(v, BASELINE, metric, &a, &b, &pairs));
+            }
+        }
+    }
+    out
+}
+
+/// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
+/// `mp` hosts one progress bar per run (pass a hidden one in tests).
+pub fn run_ablation(
+    opts: &AblationOptions,
+    mp: &MultiProgress,
+) -> Result<AblationResult, TrainError> {
+    let t0 = Instant::now();
+    check_options(opts)?;
+    let models = variant_models(opts)?;
+    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let ds = Dataset::open(&opts.run.data)?;
+    let part = partition(&ds, opts.run.val_every_scene)?;
+    if part.test.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: no test samples ({}): the ablation reports on the test scenes and never on \
+             the validation scenes the checkpoints are selected on; prepare the data with a \
+             test split (or without split lists, so that scenes are held out for test)",
+            opts.run.data.display(),
+            part.method
+        )));
+    }
+    // One writer per experiment folder (each run's folder has its own lock too).
+    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+        &opts.out,
+        "depthsense experiment ablation",
+    )?;
+    let total = models.len() * opts.seeds.len();
+    let overall = run_bar(mp, "ablation runs");
+    overall.set_length(total as u64);
+    let mut runs = vec![];
+    let mut status = vec![];
+    for (variant, model) in &models {
+        for &seed in &opts.seeds {
+            overall.set_message(format!("{} seed{seed}", variant.name()));
+            let (rec, st) = one_run(opts, *variant, model, seed, &ds, &part, device, mp)?;
+            runs.push(rec);
+            status.push(st);
+            overall.inc(1);
+        }
+    }
+    overall.finish_with_message("done");
+    let names: Vec<&str> = models.iter().map(|(v, _)| v.name()).collect();
+    let summary = summarise(&names, &runs);
+    let verdicts = verdicts(&names, &summary, &runs);
+    let count = |s: RunStatus| status.iter().filter(|x| **x == s).count();
+    let result = AblationResult {
+        options: opts.clone(),
+        machine: Machine::describe(device),
+        partition: PartitionInfo::from(&part),
+        models: models
+            .iter()
+            .map(|(v, c)| (v.name().to_string(), c.clone()))
+            .collect(),
+        trained: count(RunStatus::Trained),
+        resumed: count(RunStatus::Resumed),
+        evaluated: count(RunStatus::Evaluated),
+        skipped: count(RunStatus::Skipped),
+        runs,
+        status,
+        summary,
+        verdicts,
+        total_seconds: t0.elapsed().as_secs_f64(),
+    };
+    write_outputs(&opts.out, &result)?;
+    Ok(result)
+}
+
+fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), TrainError> {
+    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
+    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
+    super::save(&dir.join(PNG_FILE), &chart(r)?)?;
+    Ok(())
+}
+
+fn headline_stats(r: &AblationResult) -> (Vec<&str>, [Vec<f64>; 4]) {
+    let names: Vec<&str> = r.models.iter().map(|(n, _)| n.as_str()).collect();
+    let mut cols: [Vec<f64>; 4] = Default::default();
+    for n in &names {
+        let row = r.row(n, "combined", "full");
+        let (rm, rs) = row.and_then(|x| x.rmse).map_or((f64::NAN, f64::NAN), |s| {
+            (s.mean, s.std.unwrap_or(f64::NAN))
+        });
+        let (dm, dsd) = row
+            .and_then(|x| x.delta1)
+            .map_or((f64::NAN, f64::NAN), |s| {
+                (s.mean, s.std.unwrap_or(f64::NAN))
+            });
+        cols[0].push(rm);
+        cols[1].push(rs);
+        cols[2].push(dm);
+        cols[3].push(dsd);
+    }
+    (names, cols)
+}
+
+fn chart(r: &AblationResult) -> Result<Vec<u8>, TrainError> {
+    let (names, [rm, rs, dm, dsd]) = headline_stats(r);
+    let n = r.options.seeds.len();
+    let t1 = format!("test RMSE (m), mean ± std over {n} seed(s)");
+    let t2 = format!("test δ1, mean ± std over {n} seed(s)");
+    Ok(depthsense_viz::plot::bar_charts_png(&[
+        depthsense_viz::plot::BarPanel {
+            title: &t1,
+            labels: &names,
+            means: &rm,
+            stds: &rs,
+            y_label: "RMSE (m)",
+        },
+        depthsense_viz::plot::BarPanel {
+            title: &t2,
+            labels: &names,
+            means: &dm,
+            stds: &dsd,
+            y_label: "δ1",
+        },
+    ])?)
+}
+
+fn opt_f(x: Option<f64>, prec: usize) -> String {
+    x.filter(|v| v.is_finite())
+        .map_or(String::new(), |v| format!("{v:.prec$}"))
+}
+
+fn csv(r: &AblationResult) -> String {
+    let mut s = String::from(
+        "kind,variant,seed,condition,region,cap_m,n,n_images,delta1,delta1_std,rmse_m,rmse_std_m,\
+         abs_rel,abs_rel_std,mae_m,mae_std_m,train_s,eval_s,wall_s\n",
+    );
+    for run in &r.runs {
+        for x in &run.rows {
+            s.push_str(&format!(
+                "run,{},{},{},{},{},1,{},{:.6},,{:.6},,{:.6},,{:.6},,{:.2},{:.2},{:.2}\n",
+                run.variant,
+                run.seed,
+                x.condition,
+                x.region,
+                x.cap_m,
+                x.n_images,
+                x.delta1,
+                x.rmse,
+                x.abs_rel,
+                x.mae,
+                run.train_seconds,
+                run.eval_seconds,
+                run.wall_seconds
+            ));
+        }
+    }
+    for x in &r.summary {
+        let st = |s: &Option<Stat>| (opt_f(s.map(|s| s.mean), 6), opt_f(s.and_then(|s| s.std), 6));
+        let (d, ds) = st(&x.delta1);
+        let (rm, rs) = st(&x.rmse);
+        let (a, as_) = st(&x.abs_rel);
+        let (m, ms) = st(&x.mae);
+        s.push_str(&format!(
+            "mean,{},,{},{},{},{},,{d},{ds},{rm},{rs},{a},{as_},{m},{ms},,,\n",
+            x.variant,
+            x.condition,
+            x.region,
+            opt_f(Some(x.cap_m), 0),
+            x.n
+        ));
+    }
+    s
+}
+
+/// The paper's MER table (SPEC §5 / §10): every variant, full image and low-height, combined
+/// conditions at `cap_m`, δ1–3, RMSE, AbsRel and RMSE_log (mean ± std over seeds, from each
+/// run's full test report). Written only when the ablation has the `late-sam-mer` variant.
+pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
+    if !r
+        .runs
+        .iter()
+        .any(|x| x.variant == Variant::LateSamMer.name())
+    {
+        return String::new();
+    }
+    type Get = fn(&depthsense_metrics::Metrics) -> f64;
+    let cols: [Get; 6] = [
+        |m| m.delta1,
+        |m| m.delta2,
+        |m| m.delta3,
+        |m| m.rmse,
+        |m| m.abs_rel,
+        |m| m.rmse_log,
+    ];
+    let mut md = format!(
+        "## MER table: full image and low-height, cap {cap_m:.0} m (test scenes)\n\n\
+         | variant | region | n | δ1 | δ2 | δ3 | RMSE (m) | AbsRel | RMSE_log |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for (name, _) in &r.models {
+        for region in ["full", "lowheight"] {
+            let rows: Vec<&depthsense_metrics::Row> = r
+                .runs
+                .iter()
+                .filter(|x| &x.variant == name)
+                .filter_map(|x| x.report.row("combined", region, cap_m))
+                .collect();
+            let cells: Vec<String> = cols
+                .iter()
+                .map(|g| {
+                    md_stat(&Stat::of(
+                        &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),
+                    ))
+                })
+                .collect();
+            md.push_str(&format!(
+                "| {name} | {region} | {} | {} |\n",
+                rows.len(),
+                cells.join(" | ")
+            ));
+        }
+    }
+    md.push('\n');
+    md
+}
+
+fn md_stat(s: &Option<Stat>) -> String {
+    s.map_or("–".into(), |s| s.fmt(3))
+}
+
+fn markdown(r: &AblationResult) -> String {
+    let o = &r.options;
+    let seeds: Vec<String> = o.seeds.iter().map(|s| s.to_string()).collect();
+    let mut md = String::from("# Ablation: fusion variants and loss (SPEC §6, §10.1, §10.4)\n\n");
+    md.push_str(&format!(
+        "Each variant trained with seeds {} (n = {} per variant) on the same data; each run's \
+         `best.safetensors` (lowest RMSE on the validation scenes) evaluated on the **test** \
+         scenes. Values: mean ± sample std over seeds (divisor n − 1; \"–\" when n < 2).\n\n",
+        seeds.join(", "),
+        seeds.len()
+    ));
+    md.push_str("| variant | fusion | attention | head | description |\n|---|---|---|---|---|\n");
+    for (name, c) in &r.models {
+        let desc = Variant::from_str(name).map_or("", |v| v.describe());
+        md.push_str(&format!(
+            "| {name} | {:?} | {} | {:?} | {desc} |\n",
+            c.fusion, c.attention, c.head
+        ));
+    }
+    md.push('\n');
+
+    if !r.verdicts.is_empty() {
+        md.push_str("## Verdicts vs rgb (combined, full image)\n\n");
+        md.push_str(
+            "Rule: each seed trains both the variant and rgb, so the test is paired over the \
+             seeds both ran: the per-seed differences (variant − rgb), their mean ± standard \
+             error (sd/√n), and a two-sided paired t-test at 5 % (Student's t, n − 1 degrees of \
+             freedom). A difference that is not significant is not a finding; with fewer than 2 \
+             shared seeds there is no verdict.\n\n",
+        );
+        for v in &r.verdicts {
+            md.push_str(&format!("- {}\n", v.text));
+        }
+        md.push('\n');
+    }
+
+    let cap = r
+        .summary
+        .iter()
+        .map(|x| x.cap_m)
+        .find(|c| c.is_finite())
+        .unwrap_or(o.eval.main_cap());
+    for (region, title) in [("full", "Full image"), ("lowheight", "Low-height region")] {
+        md.push_str(&format!(
+            "## {title}, cap {cap:.0} m (test scenes)\n\n\
+             | variant | condition | n | δ1 | RMSE (m) | AbsRel | MAE (m) |\n\
+             |---|---|---:|---:|---:|---:|---:|\n"
+        ));
+        for x in r.summary.iter().filter(|x| x.region == region) {
+            md.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
+                x.variant,
+                x.condition,
+                x.n,
+                md_stat(&x.delta1),
+                md_stat(&x.rmse),
+                md_stat(&x.abs_rel),
+                md_stat(&x.mae)
+            ));
+        }
+        md.push('\n');
+    }
+
+    md.push_str(&mer_table(r, cap));
+
+    md.push_str(
+        "## Per run (combined, full image)\n\n\
+         | variant | seed | δ1 | RMSE (m) | AbsRel | MAE (m) | best val RMSE (m) | train s | eval s | this invocation |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+    );
+    for (run, st) in r.runs.iter().zip(&r.status) {
+        let h = run.headline();
+        let f = |g: fn(&RowValues) -> f64| h.map_or("–".into(), |x| format!("{:.3}", g(x)));
+        md.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {} |\n",
+            run.variant,
+            run.seed,
+            f(|x| x.delta1),
+            f(|x| x.rmse),
+            f(|x| x.abs_rel),
+            f(|x| x.mae),
+            opt_f(run.best_val_rmse, 3),
+            run.train_seconds,
+            run.eval_seconds,
+            serde_json::to_value(st)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default()
+        ));
+    }
+    md.push('\n');
+
+    let p = &r.partition;
+    md.push_str(&format!(
+        "## Setup\n\n\
+         - Partition: {} — {} train, {} validation, {} test samples.\n\
+         - Validation scenes (checkpoint selection): {}\n\
+         - Test scenes (reported above; never used for selection): {}\n\
+         - Model preset `{}`{}; {} epochs, batch {}, lr {}, max batches/epoch {}, max validation samples {}.\n\
+         - Metrics: caps {:?} m, protocol {:?}, aggregation {:?}, prediction clipped to [{}, {}] m (SPEC §9).\n\
+         - Machine: {}.\n\
+         - This invocation: {} trained, {} resumed, {} evaluated only, {} skipped (finished before); {:.1} s.\n",
+        p.method,
+        p.train_samples,
+        p.val_samples,
+        p.test_samples,
+        p.val_scenes.join(", "),
+        p.test_scenes.join(", "),
+        o.run.preset,
+        if o.run.set.is_empty() {
+            String::new()
+        } else {
+            format!(" with `--set {}`", o.run.set.join(" --set "))
+        },
+        o.run.epochs,
+        o.run.batch_size,
+        o.run.lr,
+        o.run.max_batches_per_epoch
+            .map_or("all".to_string(), |m| m.to_string()),
+        o.run.max_val_samples.map_or("all".to_string(), |m| m.to_string()),
+        o.eval.caps_m,
+        o.eval.protocol,
+        o.eval.aggregate,
+        o.eval.clip_min_m,
+        o.eval.clip_max_m,
+        r.machine.line(),
+        r.trained,
+        r.resumed,
+        r.evaluated,
+        r.skipped,
+        r.total_seconds
+    ));
+    if let Some(c) = &o.command_line {
+        md.push_str(&format!("- Command: `{c}`\n"));
+    }
+    md.push_str(&format!(
+        "\nFiles: `{CSV_FILE}` (per-run and mean rows), `{JSON_FILE}` (everything, with each \
+         run's full report), `{PNG_FILE}` (test RMSE and δ1 per variant, error bars ± 1 std), \
+         `runs/<variant>/seed<k>/` (training runs with their `{RUN_EVAL_FILE}`).\n"
+    ));
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::runner::same_json;
+
+    #[test]
+    fn variants_parse_and_set_their_fields() {
+        for v in Variant::ALL {
+            assert_eq!(Variant::from_str(v.name()).unwrap(), v);
+        }
+        assert!(Variant::from_str("sam").is_err());
+        let mut c = ModelConfig::tiny();
+        Variant::Rgb.apply(&mut c);
+        assert_eq!((c.fusion, c.attention), (Fusion::None, false));
+        Variant::L2.apply(&mut c);
+        assert_eq!(
+            (c.fusion, c.attention, c.head),
+            (Fusion::Late, true, HeadKind::L2)
+        );
+        let opts = AblationOptions {
+            run: RunSettings {
+                preset: "tiny".into(),
+                set: vec!["head=l1".into()],
+                ..RunSettings::default()
+            },
+            ..AblationOptions::default()
+        };
+        assert!(
+            variant_models(&opts).is_err(),
+            "--set head is the variant's"
+        );
+    }
+
+    #[test]
+    fn options_of_absent_parts_leave_the_other_variants_unchanged() {
+        let with = |set: Vec<String>| {
+            let opts = AblationOptions {
+                run: RunSettings {
+                    preset: "tiny".into(),
+                    set,
+                    ..RunSettings::default()
+                },
+                variants: vec![Variant::Rgb, Variant::Late, Variant::LateSam],
+                ..AblationOptions::default()
+            };
+            variant_models(&opts).unwrap()
+        };
+        let plain = with(vec![]);
+        let gated = with(vec!["attention-gate=bounded".into(), "radar-skip=8".into()]);
+        assert_eq!(plain[0].1, gated[0].1, "rgb");
+        assert_eq!(
+            gated[1].1.attention_gate,
+            Default::default(),
+            "late has no attention"
+        );
+        assert_eq!(gated[1].1.radar_skip_channels, 8);
+        assert_eq!(
+            gated[2].1.attention_gate,
+            depthsense_model::AttentionGate::Bounded
+        );
+    }
+
+    #[test]
+    fn verdict_is_a_paired_test_over_the_shared_seeds() {
+        // Seeds move both variants alike; late-sam is 0.1 m better on every seed: the
+        // unpaired stds (≈ 0.5 m) would hide it, the paired test finds it.
+        let rgb_v = [10.0, 10.5, 9.5, 11.0];
+        let sam_v = [9.9, 10.4, 9.4, 10.92];
+        let rgb = Stat::of(&rgb_v).unwrap();
+        let sam = Stat::of(&sam_v).unwrap();
+        let pairs: Vec<(u64, f64, f64)> = (0..4)
+            .map(|i| (i, sam_v[i as usize], rgb_v[i as usize]))
+            .collect();
+        let v = verdict("late-sam", "rgb", "rmse", &sam, &rgb, &pairs);
+        assert!((v.difference - (sam.mean - rgb.mean)).abs() < 1e-12);
+        let p = v.paired.clone().unwrap();
+        assert_eq!(p.n, 4);
+        assert!((p.mean_difference + 0.095).abs() < 1e-9);
+        assert_eq!(p.significant, Some(true));
+        assert_eq!(v.paired_seeds, vec![0, 1, 2, 3]);
+        assert!(v.text.contains("paired over 4 seeds"), "{}", v.text);
+        assert!(
+            v.text
+                .ends_with("significant (two-sided paired t-test, 5 %)"),
+            "{}",
+            v.text
+        );
+        // One seed against the grain: not significant.
+        let noisy = [(0, 9.9, 10.0), (1, 10.7, 10.5), (2, 9.2, 9.5)];
+        let v = verdict("late", "rgb", "rmse", &sam, &rgb, &noisy);
+        assert_eq!(v.paired.unwrap().significant, Some(false));
+        assert!(v.text.contains("NOT significant"), "{}", v.text);
+        // One shared seed: no verdict.
+        let v = verdict("l1", "rgb", "rmse", &sam, &rgb, &pairs[..1]);
+        assert_eq!(v.paired.unwrap().significant, None);
+        assert!(v.text.contains("no verdict"), "{}", v.text);
+    }
+
+    #[test]
+    fn json_comparison_tolerates_float_text_round_trips() {
+        let a = serde_json::json!({"lr": 0.001, "x": [1, 2.5]});
+        let b: serde_json::Value = serde_json::from_str(&a.to_string()).unwrap();
+        assert!(same_json(&a, &b));
+        assert!(!same_json(
+            &a,
+            &serde_json::json!({"lr": 0.002, "x": [1, 2.5]})
+        ));
+    }
+}

@@ -1,0 +1,647 @@
+//! `depthsense demo`: synthesise a small world → prepare it (`--split all`) → train an RGB-only
+//! and a late-fusion network with the same seed → evaluate both on the held-out scenes →
+//! `OUT/report/` with the tables, the curves and pictures of a few test samples.
+//!
+//! ```text
+//! OUT/world/                 synthetic nuScenes-format dataroot
+//! OUT/prepared/              prepare output
+//! OUT/rgb/, OUT/fusion/      training runs (config.json, metrics.jsonl, curves.png, checkpoints)
+//! OUT/report/README.md       summary: stage times, headline numbers, held-out scenes
+//! OUT/report/tables.{md,csv,json}
+//! OUT/report/curves_rgb.png, curves_fusion.png, val_rmse.png
+//! OUT/report/samples/<token>/{image,radar,gt,pred_rgb,pred_fusion,err_rgb,err_fusion}.png
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_data::{partition, Dataset, LoadOptions};
+use depthsense_metrics::Report;
+use depthsense_model::{checkpoint, Fusion, ModelConfig};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use depthsense_data::error::TrainError;
+use depthsense_eval::evaluate::write_tables;
+use depthsense_train::trainer::{
+    evaluate_net, radar_input_for, read_metrics, subsample, train, TrainOptions, BEST_CKPT,
+    METRICS_FILE,
+};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoOptions {
+    pub out: PathBuf,
+    /// auto | cpu | cuda | cuda:N. On CUDA a larger preset and more steps are used.
+    pub device: String,
+    /// A much smaller run (integration tests, < 90 s on 2 cores).
+    pub quick: bool,
+    pub seed: u64,
+    /// Override the number of epochs of each training run.
+    pub epochs: Option<usize>,
+    /// Override the world's size: scenes, and keyframes per scene.
+    #[serde(default)]
+    pub scenes: Option<usize>,
+    #[serde(default)]
+    pub keyframes_per_scene: Option<usize>,
+    /// Loader / prepare threads (0 = all cores).
+    pub jobs: usize,
+    /// Test samples drawn in the report.
+    pub pictures: usize,
+    /// Replace a demo already in `out` (its world, prepared data, runs and report);
+    /// without it such a folder is refused ([`depthsense_train::outputs`]).
+    #[serde(default)]
+    pub force: bool,
+    /// The invocation, recorded in `report/summary.json` and shown on the report page.
+    #[serde(default)]
+    pub command_line: Option<String>,
+}
+
+impl Default for DemoOptions {
+    fn default() -> Self {
+        Self {
+            out: PathBuf::from("runs/demo"),
+            device: "auto".into(),
+            quick: false,
+            seed: 7,
+            epochs: None,
+            scenes: None,
+            keyframes_per_scene: None,
+            jobs: 0,
+            pictures: 4,
+            force: false,
+            command_line: None,
+        }
+    }
+}
+
+/// What the demo did.
+#[derive(Debug, Clone, Serialize)]
+pub struct DemoSummary {
+    pub report_dir: PathBuf,
+    pub stage_seconds: Vec<(String, f64)>,
+    pub rgb_rmse: f64,
+    pub fusion_rmse: f64,
+    pub rgb_initial_rmse: f64,
+    pub fusion_initial_rmse: f64,
+    pub total_seconds: f64,
+    pub device: String,
+    pub preset: String,
+    /// Scenes that selected the best epoch (validation) and that are reported (test).
+    pub val_scenes: Vec<String>,
+    pub test_scenes: Vec<String>,
+    pub split_method: String,
+    /// The stages as separate depthsense commands with the demo's settings.
+    pub commands: Vec<String>,
+}
+
+/// The plan of a demo: sizes chosen to fit the time budget on the device.
+#[derive(Debug, Clone, Serialize)]
+pub struct DemoPlan {
+    pub scenes: usize,
+    pub keyframes_per_scene: usize,
+    pub lidar_sweeps: usize,
+    pub preset: String,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub max_batches_per_epoch: Option<usize>,
+    pub max_val_samples: Option<usize>,
+    pub val_every_scene: usize,
+    pub dropout: f64,
+    /// Spatial attention in the fusion model.
+    pub attention: bool,
+    /// Input downscale factor of the network (model config `input_downscale`).
+    pub input_downscale: i64,
+}
+
+pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
+    let tiny = depthsense_model::ModelConfig::tiny();
+    let mut p = DemoPlan {
+        // More keyframes rather than epochs, and the tiny network at half input resolution
+        // (decoded and scored at 800x350): measured in BENCHMARKS.md ("demo budget").
+        scenes: 16,
+        keyframes_per_scene: 10,
+        lidar_sweeps: 2,
+        preset: "tiny".into(),
+        epochs: 14,
+        batch_size: 4,
+        lr: 2e-3,
+        max_batches_per_epoch: None,
+        max_val_samples: None,
+        val_every_scene: 5,
+        dropout: tiny.dropout,
+        attention: true,
+        input_downscale: 2,
+    };
+    if cuda {
+        // A larger world and network: `tiny` at twice the widths, a ResNet-34 encoder
+        // (not measured here: no GPU on the development machine).
+        p.scenes = 20;
+        p.keyframes_per_scene = 10;
+        p.preset = "tiny-wide".into();
+        p.epochs = 30;
+        p.batch_size = 8;
+        p.max_val_samples = None;
+        p.input_downscale = 1;
+        p.dropout = depthsense_model::ModelConfig::dropout_for_head(128);
+    }
+    if opts.quick {
+        p.scenes = p.scenes.min(5);
+        p.keyframes_per_scene = p.keyframes_per_scene.min(4);
+        p.lidar_sweeps = 1;
+        p.epochs = 2;
+        p.batch_size = 2;
+        p.max_batches_per_epoch = Some(4);
+        p.max_val_samples = Some(4);
+    }
+    if let Some(e) = opts.epochs {
+        p.epochs = e.max(1);
+    }
+    if let Some(n) = opts.scenes {
+        p.scenes = n.max(1);
+    }
+    if let Some(n) = opts.keyframes_per_scene {
+        p.keyframes_per_scene = n.max(1);
+    }
+    p
+}
+
+fn stage_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
+    let pb = mp.add(ProgressBar::new(0));
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>10.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb.set_prefix(name.to_string());
+    pb
+}
+
+/// Run the demo. `mp` hosts one progress bar per stage (pass a hidden one in tests).
+pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, TrainError> {
+    let t0 = Instant::now();
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let cuda = device.is_cuda();
+    let plan = plan(opts, cuda);
+    let out = &opts.out;
+    // One demo per folder at a time, and an earlier one is replaced only when asked.
+    let _writing = OutputLock::exclusive(out, "depthsense demo")?;
+    if let Some(what) = demo_in(out) {
+        if !opts.force {
+            return Err(TrainError::OutputExists {
+                dir: out.display().to_string(),
+                what,
+                advice:
+                    "replace it with `depthsense demo --force` (`make demo DEMO_ARGS=--force`) \
+                         or choose another --out"
+                        .into(),
+            });
+        }
+        eprintln!(
+            "--force: replacing {what} in {} (world/, prepared/, rgb/, fusion/, report/)",
+            out.display()
+        );
+        let report = out.join("report");
+        if report.exists() {
+            std::fs::remove_dir_all(&report).map_err(|e| TrainError::io(&report, e))?;
+        }
+    }
+    let mut stages: Vec<(String, f64)> = vec![];
+
+    // 1. Synthesise.
+    let t = Instant::now();
+    let world = out.join("world");
+    let mut scfg = depthsense_synth::SynthConfig::demo();
+    scfg.scenes = plan.scenes;
+    scfg.keyframes_per_scene = plan.keyframes_per_scene;
+    scfg.seed = opts.seed;
+    scfg.jobs = opts.jobs;
+    let pb = stage_bar(mp, "synth");
+    let synth = depthsense_synth::generate(&world, &scfg, &pb)
+        .map_err(|e| TrainError::Other(format!("synth: {e}")))?;
+    pb.finish_with_message(format!("{} keyframes", synth.keyframes));
+    stages.push(("synth".into(), t.elapsed().as_secs_f64()));
+
+    // 2. Prepare (--split all: synthetic scenes match no shipped split list).
+    let t = Instant::now();
+    let prepared = out.join("prepared");
+    // The world was just regenerated: samples prepared from an earlier world (or by an older
+    // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
+    if prepared.exists() {
+        std::fs::remove_dir_all(&prepared).map_err(|e| TrainError::io(&prepared, e))?;
+    }
+    let popts = depthsense_prep::PrepareOptions {
+        dataroot: world.clone(),
+        version: scfg.version_name.clone(),
+        out: prepared.clone(),
+        split: "all".into(),
+        lidar_sweeps: plan.lidar_sweeps,
+        jobs: opts.jobs,
+        ..depthsense_prep::PrepareOptions::default()
+    };
+    let pb = stage_bar(mp, "prepare");
+    let ps = depthsense_prep::prepare(&popts, &pb)
+        .map_err(|e| TrainError::Other(format!("prepare: {e}")))?;
+    if !ps.failed.is_empty() {
+        return Err(TrainError::Data(format!(
+            "prepare failed for {} sample(s), first: {} ({})",
+            ps.failed.len(),
+            ps.failed[0].0,
+            ps.failed[0].1
+        )));
+    }
+    pb.finish_with_message(format!(
+        "{} prepared, {} cached",
+        ps.prepared, ps.skipped_existing
+    ));
+    stages.push(("prepare".into(), t.elapsed().as_secs_f64()));
+
+    // 3. Train RGB-only and late fusion with the same seed.
+    let base_cfg = demo_model(&plan.preset)?;
+    let mut runs: Vec<(&str, PathBuf, f64, f64)> = vec![];
+    for (name, fusion) in [("rgb", Fusion::None), ("fusion", Fusion::Late)] {
+        let t = Instant::now();
+        let mut cfg = base_cfg.clone();
+        // The preset's head dropout (scaled with head width for small presets) and the paper's
+        // late fusion with the spatial attention module (SPEC §6).
+        cfg.dropout = plan.dropout;
+        cfg.fusion = fusion;
+        cfg.attention = plan.attention && fusion == Fusion::Late;
+        cfg.input_downscale = plan.input_downscale;
+        let topts = TrainOptions {
+            data: prepared.clone(),
+            out: out.join(name),
+            model: cfg,
+            epochs: plan.epochs,
+            batch_size: plan.batch_size,
+            lr: plan.lr,
+            seed: opts.seed,
+            device: opts.device.clone(),
+            jobs: opts.jobs,
+            max_batches_per_epoch: plan.max_batches_per_epoch,
+            max_val_samples: plan.max_val_samples,
+            val_every_scene: plan.val_every_scene,
+            force: opts.force,
+            ..TrainOptions::default()
+        };
+        let pb = stage_bar(mp, &format!("train {name}"));
+        let s = train(&topts, &pb)?;
+        pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
+        let initial = s.val.first().map_or(f64::NAN, |v| v.rmse);
+        runs.push((name, out.join(name), initial, s.best_val_rmse));
+        stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
+    }
+
+    // 4. Evaluate both on the test scenes (never used for selection); pictures.
+    let t = Instant::now();
+    let ds = Dataset::open(&prepared)?;
+    let part = partition(&ds, plan.val_every_scene)?;
+    let test = part.test.clone();
+    if test.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: no test scenes ({})",
+            prepared.display(),
+            part.method
+        )));
+    }
+    let report_dir = out.join("report");
+    std::fs::create_dir_all(&report_dir).map_err(|e| TrainError::io(&report_dir, e))?;
+    let pic_tokens: Vec<String> = subsample(&test, Some(opts.pictures.max(1)))
+        .iter()
+        .map(|e| e.sample_token.clone())
+        .collect();
+    let mut reports: Vec<(String, Report)> = vec![];
+    let pb = stage_bar(mp, "eval");
+    pb.set_length(2 * test.len() as u64);
+    for (name, dir, _, _) in &runs {
+        let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
+        let radar = radar_input_for(&loaded.config, None)?;
+        let load = LoadOptions {
+            radar: radar.unwrap_or_default(),
+            no_radar: radar.is_none(),
+            ..LoadOptions::default()
+        };
+        let rep = evaluate_net(
+            &loaded.net,
+            &ds,
+            &test,
+            &load,
+            &Default::default(),
+            plan.batch_size,
+            opts.jobs,
+            device,
+            &pb,
+            |batch, preds| {
+                let hw = batch.width * batch.height;
+                for (i, s) in batch.samples.iter().enumerate() {
+                    if pic_tokens.contains(&s.token) {
+                        write_pictures(
+                            &report_dir.join("samples").join(&s.token),
+                            name,
+                            &ds,
+                            &s.token,
+                            &preds[i * hw..(i + 1) * hw],
+                            &s.sparse_m,
+                            batch.width as u32,
+                            batch.height as u32,
+                        )?;
+                    }
+                }
+                Ok(())
+            },
+        )?;
+        reports.push((name.to_string(), rep));
+    }
+    pb.finish();
+    for token in &pic_tokens {
+        write_picture_row(&report_dir.join("samples").join(token))?;
+    }
+    let models: Vec<(&str, &Report)> = reports.iter().map(|(n, r)| (n.as_str(), r)).collect();
+    write_tables(&report_dir, &models)?;
+    for (name, dir, _, _) in &runs {
+        let src = dir.join(depthsense_train::trainer::CURVES_FILE);
+        if src.exists() {
+            let dst = report_dir.join(format!("curves_{name}.png"));
+            std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
+        }
+    }
+    // Both runs on one picture: training loss (left) and validation RMSE (right).
+    let mut losses = vec![];
+    let mut val_series = vec![];
+    for (name, dir, _, _) in &runs {
+        let (l, val) = read_metrics(&dir.join(METRICS_FILE))?;
+        losses.push((name.to_string(), l));
+        val_series.push((
+            name.to_string(),
+            val.iter()
+                .map(|v| (v.iteration, v.rmse))
+                .collect::<Vec<_>>(),
+        ));
+    }
+    let left: Vec<(&str, &[(u64, f64)])> = losses
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let right: Vec<(&str, &[(u64, f64)])> = val_series
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let png = depthsense_viz::plot::curves_png(&left, &right)?;
+    let p = report_dir.join("val_rmse.png");
+    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
+    stages.push(("eval".into(), t.elapsed().as_secs_f64()));
+
+    let rmse = |name: &str| {
+        reports
+            .iter()
+            .find(|(n, _)| n == name)
+            .and_then(|(_, r)| r.headline().map(|h| h.metrics.rmse))
+            .unwrap_or(f64::NAN)
+    };
+    let summary = DemoSummary {
+        report_dir: report_dir.clone(),
+        stage_seconds: stages,
+        rgb_rmse: rmse("rgb"),
+        fusion_rmse: rmse("fusion"),
+        rgb_initial_rmse: runs[0].2,
+        fusion_initial_rmse: runs[1].2,
+        total_seconds: t0.elapsed().as_secs_f64(),
+        device: depthsense_model::device::describe(device),
+        preset: plan.preset.clone(),
+        val_scenes: part.val_scenes.clone(),
+        test_scenes: part.test_scenes.clone(),
+        split_method: part.method.clone(),
+        commands: stage_commands(opts, &plan, &scfg.version_name),
+    };
+    write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
+    write_page(&report_dir, opts)?;
+    Ok(summary)
+}
+
+/// What `out` holds of an earlier demo, if anything.
+fn demo_in(out: &Path) -> Option<String> {
+    let summary = out.join("report").join(depthsense_report::DEMO_SUMMARY);
+    if let Ok(text) = std::fs::read_to_string(&summary) {
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+        let rmse = |k: &str| v["summary"][k].as_f64().unwrap_or(f64::NAN);
+        return Some(format!(
+            "a finished demo (test RMSE: RGB only {:.3} m, fusion {:.3} m)",
+            rmse("rgb_rmse"),
+            rmse("fusion_rmse")
+        ));
+    }
+    let parts: Vec<&str> = ["world", "prepared", "rgb", "fusion", "report"]
+        .into_iter()
+        .filter(|d| out.join(d).exists())
+        .collect();
+    (!parts.is_empty()).then(|| format!("an unfinished demo ({}/)", parts.join("/, ")))
+}
+
+/// The demo's stages as separate commands with its settings (README "Demo").
+fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<String> {
+    let out = opts.out.display();
+    let mut v = vec![
+        format!(
+            "depthsense synth --out {out}/world --scenes {} --keyframes-per-scene {} --seed {}",
+            plan.scenes, plan.keyframes_per_scene, opts.seed
+        ),
+        format!(
+            "depthsense prepare --dataroot {out}/world --version {version} --split all \
+             --lidar-sweeps {} --out {out}/prepared",
+            plan.lidar_sweeps
+        ),
+    ];
+    let mut extra = String::new();
+    if let Some(m) = plan.max_batches_per_epoch {
+        extra.push_str(&format!(" --max-batches-per-epoch {m}"));
+    }
+    if let Some(m) = plan.max_val_samples {
+        extra.push_str(&format!(" --max-val-samples {m}"));
+    }
+    for (name, fusion) in [("rgb", "none"), ("fusion", "late")] {
+        v.push(format!(
+            "depthsense train --data {out}/prepared --config {} --fusion {fusion} --dropout {} \
+             --set input-downscale={} --epochs {} --batch-size {} --lr {} --seed {} \
+             --val-every-scene {} --device {}{extra} --out {out}/{name}",
+            plan.preset,
+            plan.dropout,
+            plan.input_downscale,
+            plan.epochs,
+            plan.batch_size,
+            plan.lr,
+            opts.seed,
+            plan.val_every_scene,
+            opts.device
+        ));
+    }
+    for name in ["rgb", "fusion"] {
+        v.push(format!(
+            "depthsense eval --checkpoint {out}/{name}/best.safetensors --data {out}/prepared \
+             --val-every-scene {} --out {out}/eval-{name}",
+            plan.val_every_scene
+        ));
+    }
+    v
+}
+
+/// `report/report.html`: the demo's one self-contained page (README, tables, curves, every
+/// sample row with its colour bar, the commands), built by `depthsense report`'s renderer.
+fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
+    let ropts = depthsense_report::ReportOptions {
+        runs: vec![report_dir.to_path_buf()],
+        // Only rendered, never written as a folder; discovery skips `out`, so it must not be
+        // the folder searched.
+        out: report_dir.join("page-unused"),
+        title: "depthsense demo".into(),
+        max_depth: 0,
+        command_line: opts.command_line.clone(),
+        ..depthsense_report::ReportOptions::default()
+    };
+    let (_, page) =
+        depthsense_report::render(&ropts).map_err(|e| TrainError::Other(format!("report: {e}")))?;
+    let p = report_dir.join("report.html");
+    write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
+}
+
+/// The demo's network: a model preset, or `tiny-wide` ([`ModelConfig::demo_preset`]).
+pub fn demo_model(preset: &str) -> Result<ModelConfig, TrainError> {
+    Ok(ModelConfig::demo_preset(preset)?)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_pictures(
+    dir: &Path,
+    model: &str,
+    ds: &Dataset,
+    token: &str,
+    pred: &[f32],
+    gt: &[f32],
+    w: u32,
+    h: u32,
+) -> Result<(), TrainError> {
+    use depthsense_viz::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
+    let save = |name: &str, img: &image::RgbImage| -> Result<(), TrainError> {
+        let p = dir.join(name);
+        write_atomic(&p, &encode_rgb(img)?).map_err(|e| TrainError::io(&p, e))
+    };
+    let max_m = PICTURE_MAX_M;
+    let e = ds
+        .index
+        .samples
+        .iter()
+        .find(|e| e.sample_token == token)
+        .ok_or_else(|| TrainError::Data(format!("sample {token} not in the index")))?;
+    let input = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e))?;
+    if !dir.join("image.png").exists() {
+        save("image.png", &input.image)?;
+        save(
+            "radar.png",
+            &overlay_points(&input.image, &input.radar_raw.depth_m, max_m, 3),
+        )?;
+        save("gt.png", &overlay_points(&input.image, gt, max_m, 1))?;
+    }
+    save(
+        &format!("pred_{model}.png"),
+        &colorize_depth(pred, w, h, max_m),
+    )?;
+    save(
+        &format!("err_{model}.png"),
+        &error_map(pred, gt, w, h, 10.0),
+    )?;
+    Ok(())
+}
+
+/// `dir/row.png`: image, radar, GT, RGB-only and fusion predictions side by side with one
+/// colour bar in metres (the panels written by [`write_pictures`]).
+fn write_picture_row(dir: &Path) -> Result<(), TrainError> {
+    let read = |name: &str| -> Result<image::RgbImage, TrainError> {
+        let p = dir.join(name);
+        image::open(&p)
+            .map(|i| i.to_rgb8())
+            .map_err(|e| TrainError::Other(format!("{}: {e}", p.display())))
+    };
+    let panels = [
+        ("image", read("image.png")?),
+        ("radar (points, m)", read("radar.png")?),
+        ("lidar GT (m)", read("gt.png")?),
+        ("RGB only", read("pred_rgb.png")?),
+        ("radar fusion + attention", read("pred_fusion.png")?),
+    ];
+    let png = depthsense_viz::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
+    let p = dir.join("row.png");
+    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))
+}
+
+/// Upper end of the colour map of every depth picture (metres).
+const PICTURE_MAX_M: f32 = 80.0;
+
+fn write_readme(
+    dir: &Path,
+    s: &DemoSummary,
+    plan: &DemoPlan,
+    models: &[(&str, &Report)],
+    test: &[depthsense_prep::layout::IndexEntry],
+    opts: &DemoOptions,
+) -> Result<(), TrainError> {
+    let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
+    scenes.dedup();
+    let mut md = String::from("# depthsense demo report\n\n");
+    md.push_str(&format!(
+        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes).\n\n",
+        s.device, s.preset, plan.epochs, plan.batch_size, plan.lr, plan.scenes, plan.keyframes_per_scene
+    ));
+    md.push_str(&format!(
+        "Split ({}): validation scenes (select the best epoch → `best.safetensors`): {}; \
+         test scenes (reported below, {} samples, never used for any choice): {}.\n\n",
+        s.split_method,
+        s.val_scenes.join(", "),
+        test.len(),
+        scenes.join(", ")
+    ));
+    md.push_str(
+        "| model | initial RMSE (m, val) | test RMSE, epoch chosen on val (m) |\n|---|---:|---:|\n",
+    );
+    md.push_str(&format!(
+        "| RGB only | {:.3} | {:.3} |\n| late fusion + spatial attention (radar) | {:.3} | {:.3} |\n\n",
+        s.rgb_initial_rmse, s.rgb_rmse, s.fusion_initial_rmse, s.fusion_rmse
+    ));
+    md.push_str(&format!(
+        "Radar fusion vs RGB only: RMSE {:+.1} %.\n\n",
+        100.0 * (s.fusion_rmse - s.rgb_rmse) / s.rgb_rmse
+    ));
+    md.push_str("| stage | seconds |\n|---|---:|\n");
+    for (n, t) in &s.stage_seconds {
+        md.push_str(&format!("| {n} | {t:.1} |\n"));
+    }
+    md.push_str(&format!("| total | {:.1} |\n\n", s.total_seconds));
+    md.push_str("The same stages as separate commands (same settings):\n\n```\n");
+    for c in &s.commands {
+        md.push_str(c);
+        md.push('\n');
+    }
+    md.push_str("```\n\n");
+    md.push_str(&depthsense_metrics::tables::markdown_report(models));
+    md.push_str(
+        "\nPictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
+         and the single panels (image, radar overlay, GT, prediction and |error| per model); \
+         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.\n",
+    );
+    let p = dir.join("README.md");
+    write_atomic(&p, md.as_bytes()).map_err(|e| TrainError::io(&p, e))?;
+    let p = dir.join("summary.json");
+    write_atomic(
+        &p,
+        serde_json::to_string_pretty(&serde_json::json!({
+            "summary": s,
+            "plan": plan,
+            "command_line": opts.command_line,
+        }))
+        .map_err(|e| TrainError::Other(e.to_string()))?
+        .as_bytes(),
+    )
+    .map_err(|e| TrainError::io(&p, e))
+}

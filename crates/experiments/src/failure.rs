@@ -1,0 +1,239 @@
+//! `experiment failure` (SPEC §10.8): one checkpoint evaluated under a list of failure
+//! scenarios. The failures themselves ([`RadarFailure`]) are applied by the loader:
+//! [`depthsense_data::radar_failure`].
+
+use serde::{Deserialize, Serialize};
+
+use depthsense_data::error::TrainError;
+
+pub use depthsense_data::radar_failure::RadarFailure;
+
+// ---------------------------------------------------------------------------------------
+// `experiment failure`: one checkpoint evaluated under a list of failure scenarios.
+
+/// One scenario: random point drop plus a [`RadarFailure`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scenario {
+    pub name: String,
+    pub radar_drop: f64,
+    pub failure: RadarFailure,
+}
+
+/// The default scenarios of `experiment failure`.
+pub const DEFAULT_SCENARIOS: &str =
+    "none;radar-drop=0.5;radar-drop=1;drop-radars=all;beyond=50;beyond=30;beyond=15;clutter=10;clutter=50";
+
+/// Parse "none;radar-drop=0.5;drop-radars=RADAR_FRONT_LEFT+RADAR_FRONT_RIGHT;beyond=30;
+/// clutter=20" (`;` between scenarios, `,` between settings of one scenario).
+pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, TrainError> {
+    let mut out = vec![];
+    for item in s.split(';').map(str::trim).filter(|x| !x.is_empty()) {
+        let mut sc = Scenario {
+            name: item.to_string(),
+            radar_drop: 0.0,
+            failure: RadarFailure::default(),
+        };
+        for kv in item.split(',').map(str::trim).filter(|x| *x != "none") {
+            let bad = || {
+                TrainError::Config(format!("failure scenario {item:?}: cannot read {kv:?} (radar-drop=F, drop-radars=A+B, beyond=M, clutter=N, none)"))
+            };
+            let (k, v) = kv.split_once('=').ok_or_else(bad)?;
+            match k {
+                "radar-drop" => sc.radar_drop = v.parse().map_err(|_| bad())?,
+                "drop-radars" => sc.failure.drop_radars = v.split('+').map(String::from).collect(),
+                "beyond" => sc.failure.drop_beyond_m = Some(v.parse().map_err(|_| bad())?),
+                "clutter" => sc.failure.clutter = v.parse().map_err(|_| bad())?,
+                _ => return Err(bad()),
+            }
+        }
+        sc.failure.validate()?;
+        if !(0.0..=1.0).contains(&sc.radar_drop) {
+            return Err(TrainError::Config(format!(
+                "{item}: radar-drop must be within [0, 1]"
+            )));
+        }
+        out.push(sc);
+    }
+    if out.is_empty() {
+        return Err(TrainError::Config("no failure scenarios given".into()));
+    }
+    Ok(out)
+}
+
+/// One scenario's result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScenarioResult {
+    pub scenario: Scenario,
+    pub rows: Vec<super::runner::RowValues>,
+    pub report: depthsense_metrics::Report,
+    pub seconds: f64,
+}
+
+impl ScenarioResult {
+    pub fn row(&self, condition: &str) -> Option<&super::runner::RowValues> {
+        self.rows
+            .iter()
+            .find(|r| r.condition == condition && r.region == "full" && r.n_images > 0)
+    }
+}
+
+/// Everything `experiment failure` produced (= failure.json).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FailureResult {
+    pub eval: depthsense_eval::evaluate::EvalOptions,
+    pub machine: super::Machine,
+    pub results: Vec<ScenarioResult>,
+    pub command_line: Option<String>,
+}
+
+pub const FAILURE_MD: &str = "failure.md";
+pub const FAILURE_CSV: &str = "failure.csv";
+pub const FAILURE_JSON: &str = "failure.json";
+pub const FAILURE_PNG: &str = "failure.png";
+
+/// Evaluate `base` (checkpoint, data, split, caps …) under every scenario; writes
+/// OUT/failure.{md,csv,json,png}. Deterministic in `base.seed`.
+pub fn run_failure(
+    base: &depthsense_eval::evaluate::EvalOptions,
+    scenarios: &[Scenario],
+    out: &std::path::Path,
+    command_line: Option<String>,
+    mp: &indicatif::MultiProgress,
+) -> Result<FailureResult, TrainError> {
+    let device = depthsense_model::device::parse_device(&base.device)?;
+    let (loaded, _) = depthsense_eval::evaluate::load_model(
+        &base.checkpoint,
+        base.config.as_deref(),
+        &base.set,
+        device,
+    )?;
+    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    let mut results = vec![];
+    for sc in scenarios {
+        let pb = super::runner::run_bar(mp, &sc.name);
+        let t = std::time::Instant::now();
+        let opts = depthsense_eval::evaluate::EvalOptions {
+            radar_drop: sc.radar_drop,
+            failure: sc.failure.clone(),
+            ..base.clone()
+        };
+        let report = depthsense_eval::evaluate::run_eval_loaded(&opts, &loaded, &pb)?;
+        pb.finish_and_clear();
+        results.push(ScenarioResult {
+            scenario: sc.clone(),
+            rows: super::runner::row_values(&report),
+            report,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+    }
+    let r = FailureResult {
+        eval: base.clone(),
+        machine: super::Machine::describe(device),
+        results,
+        command_line,
+    };
+    write_failure(out, &r)?;
+    Ok(r)
+}
+
+fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), TrainError> {
+    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    super::save(&out.join(FAILURE_JSON), json.as_bytes())?;
+    super::save(&out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
+    super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;
+    let names: Vec<&str> = r.results.iter().map(|x| x.scenario.name.as_str()).collect();
+    let metric = |f: fn(&super::runner::RowValues) -> f64| -> Vec<f64> {
+        r.results
+            .iter()
+            .map(|x| x.row("combined").map_or(f64::NAN, f))
+            .collect()
+    };
+    let (rm, d1) = (metric(|x| x.rmse), metric(|x| x.delta1));
+    let nan = vec![f64::NAN; names.len()];
+    let png = depthsense_viz::plot::bar_charts_png(&[
+        depthsense_viz::plot::BarPanel {
+            title: "test RMSE (m) under radar failure",
+            labels: &names,
+            means: &rm,
+            stds: &nan,
+            y_label: "RMSE (m)",
+        },
+        depthsense_viz::plot::BarPanel {
+            title: "test δ1 under radar failure",
+            labels: &names,
+            means: &d1,
+            stds: &nan,
+            y_label: "δ1",
+        },
+    ])?;
+    super::save(&out.join(FAILURE_PNG), &png)
+}
+
+fn fmt_opt(x: Option<f64>, prec: usize) -> String {
+    x.map_or("–".into(), |v| format!("{v:.prec$}"))
+}
+
+fn failure_markdown(r: &FailureResult) -> String {
+    let e = &r.eval;
+    let mut md = String::from("# Sensor failure (SPEC §10.8)\n\n");
+    md.push_str(&format!(
+        "Checkpoint `{}` on `{}` (split {}), cap {} m, full image; seed {} (radar drop and \
+         clutter draws). Scenario rules: README \"Sensor failure\". ΔRMSE is against the \
+         first scenario.\n\n",
+        e.checkpoint.display(),
+        e.data.display(),
+        e.split,
+        e.eval.main_cap(),
+        e.seed
+    ));
+    md.push_str("| scenario | images | RMSE (m) | ΔRMSE (m) | MAE (m) | δ1 | AbsRel | RMSE day | RMSE night | RMSE rain |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    let base = r
+        .results
+        .first()
+        .and_then(|x| x.row("combined"))
+        .map(|x| x.rmse);
+    for x in &r.results {
+        let c = x.row("combined");
+        let cond = |n: &str| fmt_opt(x.row(n).map(|r| r.rmse), 3);
+        md.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            x.scenario.name,
+            c.map_or(0, |r| r.n_images),
+            fmt_opt(c.map(|r| r.rmse), 3),
+            match (c, base) {
+                (Some(c), Some(b)) => super::signed(c.rmse - b, 3),
+                _ => "–".into(),
+            },
+            fmt_opt(c.map(|r| r.mae), 3),
+            fmt_opt(c.map(|r| r.delta1), 3),
+            fmt_opt(c.map(|r| r.abs_rel), 3),
+            cond("day"),
+            cond("night"),
+            cond("rain"),
+        ));
+    }
+    md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
+    if let Some(c) = &r.command_line {
+        md.push_str(&format!("\nCommand: `{c}`\n"));
+    }
+    md
+}
+
+fn failure_csv(r: &FailureResult) -> String {
+    let mut s = String::from("scenario,condition,n_images,rmse_m,mae_m,delta1,abs_rel\n");
+    for x in &r.results {
+        for row in x.rows.iter().filter(|r| r.region == "full") {
+            s.push_str(&format!(
+                "\"{}\",{},{},{:.6},{:.6},{:.6},{:.6}\n",
+                x.scenario.name,
+                row.condition,
+                row.n_images,
+                row.rmse,
+                row.mae,
+                row.delta1,
+                row.abs_rel
+            ));
+        }
+    }
+    s
+}

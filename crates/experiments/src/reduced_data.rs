@@ -1,0 +1,304 @@
+//! Reduced training data (SPEC §10.5): `train --exclude night=1.0,rain=0.5` withholds a
+//! fraction of one condition's TRAINING scenes, and `experiment reduced-data` trains a grid
+//! of such exclusions (several seeds each) and tables the test metrics per test condition.
+//!
+//! The withholding rule is [`depthsense_data::exclusion::withheld_scenes`] (re-exported here).
+//!
+//! ```text
+//! OUT/runs/<cell>/seed<k>/     an ordinary training run (+ eval.json, see `runner`)
+//! OUT/reduced_data.{md,csv,json,png}
+//! ```
+
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use depthsense_data::error::TrainError;
+use depthsense_data::{partition, Dataset};
+use depthsense_metrics::{EvalConfig, CONDITIONS};
+use depthsense_model::ModelConfig;
+use depthsense_train::trainer::TrainOptions;
+use indicatif::MultiProgress;
+use serde::{Deserialize, Serialize};
+
+use super::runner::{
+    run_bar, summarise, train_and_test, PartitionInfo, RunRecord, RunSettings, SummaryRow,
+};
+use super::{Machine, Stat};
+
+pub const MD_FILE: &str = "reduced_data.md";
+pub const CSV_FILE: &str = "reduced_data.csv";
+pub const JSON_FILE: &str = "reduced_data.json";
+pub const PNG_FILE: &str = "reduced_data.png";
+
+pub use depthsense_data::exclusion::*;
+
+/// One cell of the grid: a name and its exclusions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Cell {
+    pub name: String,
+    pub exclude: Vec<Exclusion>,
+}
+
+/// Parse "full;night=1;rain=1;day=0.5" (cells separated by `;`).
+pub fn parse_grid(s: &str) -> Result<Vec<Cell>, TrainError> {
+    s.split(';')
+        .filter(|c| !c.trim().is_empty())
+        .map(|c| {
+            let exclude = parse_exclusions(c)?;
+            Ok(Cell {
+                name: exclusions_label(&exclude),
+                exclude,
+            })
+        })
+        .collect()
+}
+
+/// The default grid: everything, then without half the day scenes, without night, without
+/// rain (our reading of SPEC §10.5; the paper's exact fractions are not in the SPEC).
+pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
+
+/// Everything a reduced-data experiment is made of.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReducedDataOptions {
+    /// Data, preset (the paper's late fusion + attention by default), `set` and the training
+    /// settings shared by every run.
+    #[serde(flatten)]
+    pub run: RunSettings,
+    pub out: PathBuf,
+    pub grid: Vec<Cell>,
+    pub seeds: Vec<u64>,
+    pub eval: EvalConfig,
+    pub command_line: Option<String>,
+}
+
+/// A cell's training set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellInfo {
+    pub name: String,
+    pub train_samples: usize,
+    pub withheld_scenes: Vec<String>,
+}
+
+/// Everything the experiment produced (= reduced_data.json).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReducedDataResult {
+    pub options: ReducedDataOptions,
+    pub machine: Machine,
+    pub partition: PartitionInfo,
+    pub cells: Vec<CellInfo>,
+    pub runs: Vec<RunRecord>,
+    pub summary: Vec<SummaryRow>,
+    pub total_seconds: f64,
+}
+
+impl ReducedDataResult {
+    pub fn row(&self, cell: &str, condition: &str) -> Option<&SummaryRow> {
+        self.summary
+            .iter()
+            .find(|r| r.variant == cell && r.condition == condition && r.region == "full")
+    }
+}
+
+fn check(opts: &ReducedDataOptions) -> Result<(), TrainError> {
+    if opts.grid.is_empty() || opts.seeds.is_empty() {
+        return Err(TrainError::Config(
+            "the grid and the seeds must not be empty".into(),
+        ));
+    }
+    let names: BTreeSet<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
+    if names.len() != opts.grid.len() {
+        return Err(TrainError::Config("a grid cell is given twice".into()));
+    }
+    Ok(())
+}
+
+fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64) -> TrainOptions {
+    let run = opts
+        .out
+        .join("runs")
+        .join(cell.name.replace([',', '='], "_"))
+        .join(format!("seed{seed}"));
+    TrainOptions {
+        exclude: cell.exclude.clone(),
+        ..opts.run.train_options(run, model, seed)
+    }
+}
+
+/// Train every cell × seed, test on the test scenes, write the tables and the chart.
+pub fn run_reduced_data(
+    opts: &ReducedDataOptions,
+    mp: &MultiProgress,
+) -> Result<ReducedDataResult, TrainError> {
+    let t0 = Instant::now();
+    check(opts)?;
+    let model = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
+    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let ds = Dataset::open(&opts.run.data)?;
+    let part = partition(&ds, opts.run.val_every_scene)?;
+    if part.test.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: no test samples ({}): reduced-data reports on the test scenes",
+            opts.run.data.display(),
+            part.method
+        )));
+    }
+    // One writer per experiment folder (each run's folder has its own lock too).
+    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+        &opts.out,
+        "depthsense experiment reduced-data",
+    )?;
+    let overall = run_bar(mp, "reduced-data runs");
+    overall.set_length((opts.grid.len() * opts.seeds.len()) as u64);
+    let (mut runs, mut cells) = (vec![], vec![]);
+    for cell in &opts.grid {
+        let mut p = part.clone();
+        let gone = apply_exclusions(&mut p, &cell.exclude);
+        cells.push(CellInfo {
+            name: cell.name.clone(),
+            train_samples: p.train.len(),
+            withheld_scenes: gone,
+        });
+        for &seed in &opts.seeds {
+            overall.set_message(format!("{} seed{seed}", cell.name));
+            let t = topts(opts, &model, cell, seed);
+            let (rec, _) = train_and_test(&cell.name, &t, &opts.eval, &ds, &part.test, device, mp)?;
+            runs.push(rec);
+            overall.inc(1);
+        }
+    }
+    overall.finish_with_message("done");
+    let names: Vec<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
+    let result = ReducedDataResult {
+        options: opts.clone(),
+        machine: Machine::describe(device),
+        partition: PartitionInfo::from(&part),
+        cells,
+        summary: summarise(&names, &runs),
+        runs,
+        total_seconds: t0.elapsed().as_secs_f64(),
+    };
+    write_outputs(&result)?;
+    Ok(result)
+}
+
+fn write_outputs(r: &ReducedDataResult) -> Result<(), TrainError> {
+    let dir = &r.options.out;
+    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
+    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
+    super::save(&dir.join(PNG_FILE), &chart(r)?)
+}
+
+fn stat_of(
+    r: &ReducedDataResult,
+    cell: &str,
+    cond: &str,
+    f: fn(&SummaryRow) -> Option<Stat>,
+) -> Option<Stat> {
+    r.row(cell, cond).and_then(f)
+}
+
+fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, TrainError> {
+    let names: Vec<&str> = r.cells.iter().map(|c| c.name.as_str()).collect();
+    let mut cols: Vec<(String, Vec<f64>, Vec<f64>)> = vec![];
+    for cond in CONDITIONS {
+        let (m, s): (Vec<f64>, Vec<f64>) = names
+            .iter()
+            .map(|n| {
+                stat_of(r, n, cond, |x| x.rmse).map_or((f64::NAN, f64::NAN), |s| {
+                    (s.mean, s.std.unwrap_or(f64::NAN))
+                })
+            })
+            .unzip();
+        cols.push((format!("test RMSE (m), {cond} scenes"), m, s));
+    }
+    let panels: Vec<depthsense_viz::plot::BarPanel> = cols
+        .iter()
+        .map(|(t, m, s)| depthsense_viz::plot::BarPanel {
+            title: t,
+            labels: &names,
+            means: m,
+            stds: s,
+            y_label: "RMSE (m)",
+        })
+        .collect();
+    Ok(depthsense_viz::plot::bar_charts_png(&panels)?)
+}
+
+fn cell_stat(s: Option<Stat>) -> String {
+    s.map_or("–".into(), |s| s.fmt(3))
+}
+
+fn markdown(r: &ReducedDataResult) -> String {
+    let o = &r.options;
+    let mut md = String::from("# Reduced training data (SPEC §10.5)\n\n");
+    md.push_str(&format!(
+        "Each cell trains `{}` with the listed training scenes withheld (rule: README \
+         \"Reduced training data\"), seeds {:?}, {} epoch(s); every run is selected on the \
+         same validation scenes and tested on the same **test** scenes ({}). Mean ± std over \
+         seeds, full image, cap {} m.\n\n",
+        o.run.preset,
+        o.seeds,
+        o.run.epochs,
+        r.partition.test_scenes.join(", "),
+        o.eval.main_cap()
+    ));
+    for (title, f) in [
+        (
+            "Test RMSE (m) per test condition",
+            (|x: &SummaryRow| x.rmse) as fn(&SummaryRow) -> Option<Stat>,
+        ),
+        ("Test δ1 per test condition", |x: &SummaryRow| x.delta1),
+    ] {
+        md.push_str(&format!("### {title}\n\n| trained without | train samples | combined | day | night | rain |\n|---|---:|---:|---:|---:|---:|\n"));
+        for c in &r.cells {
+            let cells: Vec<String> = CONDITIONS
+                .iter()
+                .map(|cond| cell_stat(stat_of(r, &c.name, cond, f)))
+                .collect();
+            md.push_str(&format!(
+                "| {} | {} | {} |\n",
+                c.name,
+                c.train_samples,
+                cells.join(" | ")
+            ));
+        }
+        md.push('\n');
+    }
+    md.push_str("### Withheld training scenes\n\n");
+    for c in &r.cells {
+        md.push_str(&format!(
+            "- {}: {}\n",
+            c.name,
+            if c.withheld_scenes.is_empty() {
+                "none".to_string()
+            } else {
+                c.withheld_scenes.join(", ")
+            }
+        ));
+    }
+    md.push_str(&format!(
+        "\nMachine: {}; {:.1} s.\n",
+        r.machine.line(),
+        r.total_seconds
+    ));
+    if let Some(c) = &o.command_line {
+        md.push_str(&format!("\nCommand: `{c}`\n"));
+    }
+    md
+}
+
+fn csv(r: &ReducedDataResult) -> String {
+    let mut s = String::from("cell,seed,condition,n_images,delta1,rmse_m,abs_rel,mae_m\n");
+    for run in &r.runs {
+        for x in run.rows.iter().filter(|x| x.region == "full") {
+            s.push_str(&format!(
+                "\"{}\",{},{},{},{:.6},{:.6},{:.6},{:.6}\n",
+                run.variant, run.seed, x.condition, x.n_images, x.delta1, x.rmse, x.abs_rel, x.mae
+            ));
+        }
+    }
+    s
+}

@@ -1,0 +1,488 @@
+//! The runner behind the training experiments (`ablation`, `reduced-data`): one run =
+//! train (or resume) with [`TrainOptions`], then evaluate its `best.safetensors` (chosen on
+//! the validation scenes) on the TEST samples, stored as `RUN/eval.json`. Resumable: a run
+//! with a matching `eval.json` is read back; a finished training is only evaluated; any other
+//! run continues from its last checkpoint. Options that differ from a stored run are refused.
+//! Also the seed summaries ([`summarise`]) the experiments table.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_data::error::TrainError;
+use depthsense_data::{Dataset, LoadOptions, Partition};
+use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
+use depthsense_model::{checkpoint, ModelConfig};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_prep::layout::IndexEntry;
+use depthsense_train::trainer::{
+    evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
+};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+
+use super::Stat;
+
+/// How every run of a training experiment (`ablation`, `reduced-data`) is trained: the same
+/// for each variant or grid cell and seed. Serialised flat into the experiment's options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSettings {
+    /// Prepared data directory.
+    pub data: PathBuf,
+    /// Model preset (`paper`, `released`, `tiny`, `tiny-wide`) or a model-config JSON file.
+    pub preset: String,
+    /// `key=value` model-config overrides applied to the preset (an experiment may reserve
+    /// fields for itself: the ablation's variants own fusion, attention and head).
+    pub set: Vec<String>,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    /// auto | cpu | cuda | cuda:N
+    pub device: String,
+    /// Loader threads (0 = all cores).
+    pub jobs: usize,
+    /// Validate on at most this many validation samples (None = all).
+    pub max_val_samples: Option<usize>,
+    /// At most this many batches per epoch (None = all).
+    pub max_batches_per_epoch: Option<usize>,
+    /// The trainer's `val_every_scene` (partition of data without split lists).
+    pub val_every_scene: usize,
+    /// The trainer's training-time radar dropout (0 = off; absent from the JSON when 0).
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub train_radar_drop: f64,
+    /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub warmup_iters: u64,
+}
+
+impl Default for RunSettings {
+    /// The paper's training settings (SPEC §8) on the `paper` preset.
+    fn default() -> Self {
+        let t = TrainOptions::default();
+        Self {
+            data: t.data,
+            preset: "paper".into(),
+            set: vec![],
+            epochs: t.epochs,
+            batch_size: t.batch_size,
+            lr: t.lr,
+            device: t.device,
+            jobs: t.jobs,
+            max_val_samples: t.max_val_samples,
+            max_batches_per_epoch: t.max_batches_per_epoch,
+            val_every_scene: t.val_every_scene,
+            train_radar_drop: t.train_radar_drop,
+            warmup_iters: t.warmup_iters,
+        }
+    }
+}
+
+impl RunSettings {
+    /// The training options of one run stored in `run_dir`: `model` with `seed`, continuing
+    /// from the run's last checkpoint when it has one (exact resume).
+    pub fn train_options(&self, run_dir: PathBuf, model: &ModelConfig, seed: u64) -> TrainOptions {
+        TrainOptions {
+            data: self.data.clone(),
+            resume: run_dir.join(depthsense_train::trainer::LAST_CKPT).exists(),
+            out: run_dir,
+            model: model.clone(),
+            epochs: self.epochs,
+            batch_size: self.batch_size,
+            lr: self.lr,
+            seed,
+            device: self.device.clone(),
+            jobs: self.jobs,
+            max_val_samples: self.max_val_samples,
+            max_batches_per_epoch: self.max_batches_per_epoch,
+            val_every_scene: self.val_every_scene,
+            train_radar_drop: self.train_radar_drop,
+            warmup_iters: self.warmup_iters,
+            ..TrainOptions::default()
+        }
+    }
+}
+
+/// The per-run evaluation file, written after the run's test evaluation.
+pub const RUN_EVAL_FILE: &str = "eval.json";
+
+/// What happened to a run in this invocation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RunStatus {
+    /// Trained from scratch and evaluated.
+    Trained,
+    /// Continued from its last checkpoint, then evaluated.
+    Resumed,
+    /// Training had finished before: only evaluated.
+    Evaluated,
+    /// Training and evaluation had finished before: read back from eval.json.
+    Skipped,
+}
+
+/// The headline metrics of one report row.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RowValues {
+    pub condition: String,
+    pub region: String,
+    pub cap_m: f64,
+    pub n_images: u64,
+    pub n_pixels: u64,
+    pub delta1: f64,
+    pub rmse: f64,
+    pub abs_rel: f64,
+    pub mae: f64,
+}
+
+/// One run (variant × seed): stored as `RUN/eval.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub variant: String,
+    pub seed: u64,
+    pub run_dir: PathBuf,
+    /// Training seconds of the invocation(s) that trained it (a resumed run: the last one's,
+    /// plus the earlier ones' when recorded).
+    pub train_seconds: f64,
+    pub eval_seconds: f64,
+    /// train + eval.
+    pub wall_seconds: f64,
+    /// How the training part was done when the record was written.
+    pub status: RunStatus,
+    pub best_val_rmse: Option<f64>,
+    pub test_samples: usize,
+    /// Condition × region rows at the largest cap (SPEC §9).
+    pub rows: Vec<RowValues>,
+    /// The full test report (every cap).
+    pub report: Report,
+    /// The run's training options (resume decisions compare them).
+    pub train_options: TrainOptions,
+}
+
+impl RunRecord {
+    /// Combined / full image row.
+    pub fn headline(&self) -> Option<&RowValues> {
+        self.rows
+            .iter()
+            .find(|r| r.condition == "combined" && r.region == "full")
+    }
+}
+
+/// Mean ± std over seeds of one condition × region row of a variant.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SummaryRow {
+    pub variant: String,
+    pub condition: String,
+    pub region: String,
+    pub cap_m: f64,
+    /// Seeds whose run has at least one valid image in this row.
+    pub n: usize,
+    pub delta1: Option<Stat>,
+    pub rmse: Option<Stat>,
+    pub abs_rel: Option<Stat>,
+    pub mae: Option<Stat>,
+}
+
+/// The partition the runs were trained and tested on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartitionInfo {
+    pub method: String,
+    pub train_samples: usize,
+    pub val_samples: usize,
+    pub test_samples: usize,
+    pub val_scenes: Vec<String>,
+    pub test_scenes: Vec<String>,
+}
+
+impl From<&Partition> for PartitionInfo {
+    fn from(p: &Partition) -> Self {
+        Self {
+            method: p.method.clone(),
+            train_samples: p.train.len(),
+            val_samples: p.val.len(),
+            test_samples: p.test.len(),
+            val_scenes: p.val_scenes.clone(),
+            test_scenes: p.test_scenes.clone(),
+        }
+    }
+}
+
+/// Training options as compared across invocations: without where the data and run live,
+/// the device, the thread counts (the loader is thread-count independent), `resume`, `force`,
+/// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
+pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
+    let mut v = serde_json::to_value(t).map_err(|e| TrainError::Other(e.to_string()))?;
+    if let Some(m) = v.as_object_mut() {
+        for k in [
+            "data",
+            "out",
+            "device",
+            "jobs",
+            "prefetch",
+            "resume",
+            "force",
+            "stop_after",
+            "checkpoint_every",
+            "loss_read_every",
+        ] {
+            m.remove(k);
+        }
+    }
+    Ok(v)
+}
+
+/// JSON equality with numbers compared to 1e-12 relative (text round trips).
+pub fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    use serde_json::Value as V;
+    match (a, b) {
+        (V::Number(x), V::Number(y)) => match (x.as_f64(), y.as_f64()) {
+            (Some(x), Some(y)) => x == y || (x - y).abs() <= 1e-12 * x.abs().max(y.abs()),
+            _ => x == y,
+        },
+        (V::Array(x), V::Array(y)) => {
+            x.len() == y.len() && x.iter().zip(y).all(|(a, b)| same_json(a, b))
+        }
+        (V::Object(x), V::Object(y)) => {
+            x.len() == y.len()
+                && x.iter()
+                    .all(|(k, a)| y.get(k).is_some_and(|b| same_json(a, b)))
+        }
+        _ => a == b,
+    }
+}
+
+pub fn read_json(path: &Path) -> Result<serde_json::Value, TrainError> {
+    let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| TrainError::Parse {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    })
+}
+
+/// True when RUN/metrics.jsonl records the end of epoch `epochs` and RUN/best.safetensors
+/// exists. Also returns the largest "seconds" recorded (training time of the last invocation).
+pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
+    let Ok(text) = std::fs::read_to_string(run.join(METRICS_FILE)) else {
+        return (false, None);
+    };
+    let mut done = false;
+    let mut secs: Option<f64> = None;
+    for l in text.lines() {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
+            continue;
+        };
+        if v.get("kind").and_then(|k| k.as_str()) == Some("epoch") {
+            if v.get("epoch").and_then(|e| e.as_u64()) == Some(epochs as u64) {
+                done = true;
+            }
+            if let Some(s) = v.get("seconds").and_then(|s| s.as_f64()) {
+                secs = Some(secs.map_or(s, |p: f64| p.max(s)));
+            }
+        }
+    }
+    (done && run.join(BEST_CKPT).exists(), secs)
+}
+
+pub fn mismatch(run: &Path, file: &str) -> TrainError {
+    TrainError::Config(format!(
+        "{}: this run was made with other training options (see its {file}) than this \
+         experiment asks for; use another --out, or delete the run to redo it",
+        run.display()
+    ))
+}
+
+pub fn row_values(r: &Report) -> Vec<RowValues> {
+    let cap = r.config.main_cap();
+    let mut out = vec![];
+    for cond in CONDITIONS {
+        for region in REGIONS {
+            if let Some(row) = r.row(cond, region, cap) {
+                let m: Metrics = row.metrics;
+                out.push(RowValues {
+                    condition: cond.into(),
+                    region: region.into(),
+                    cap_m: cap,
+                    n_images: row.n_images,
+                    n_pixels: row.n_pixels,
+                    delta1: m.delta1,
+                    rmse: m.rmse,
+                    abs_rel: m.abs_rel,
+                    mae: m.mae,
+                });
+            }
+        }
+    }
+    out
+}
+
+pub fn run_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
+    let pb = mp.add(ProgressBar::new(0));
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>16.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb.set_prefix(name.to_string());
+    pb
+}
+
+/// Mean ± std over seeds per variant × condition × region (rows without valid images in a
+/// run do not count for that run).
+pub fn summarise(variants: &[&str], runs: &[RunRecord]) -> Vec<SummaryRow> {
+    let mut out = vec![];
+    for &v in variants {
+        for region in REGIONS {
+            for cond in CONDITIONS {
+                let rows: Vec<&RowValues> = runs
+                    .iter()
+                    .filter(|r| r.variant == v)
+                    .filter_map(|r| {
+                        r.rows
+                            .iter()
+                            .find(|x| x.condition == cond && x.region == region && x.n_images > 0)
+                    })
+                    .collect();
+                let stat = |f: fn(&RowValues) -> f64| {
+                    Stat::of(&rows.iter().map(|r| f(r)).collect::<Vec<_>>())
+                };
+                out.push(SummaryRow {
+                    variant: v.into(),
+                    condition: cond.into(),
+                    region: region.into(),
+                    cap_m: rows.first().map_or(f64::NAN, |r| r.cap_m),
+                    n: rows.len(),
+                    delta1: stat(|r| r.delta1),
+                    rmse: stat(|r| r.rmse),
+                    abs_rel: stat(|r| r.abs_rel),
+                    mae: stat(|r| r.mae),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Train (or resume) the run `topts` describes (its `out` is the run folder) and evaluate it
+/// on `test`; or read it back when finished. `label` names it in the records ("variant").
+pub fn train_and_test(
+    label: &str,
+    topts: &TrainOptions,
+    eval: &EvalConfig,
+    ds: &Dataset,
+    test: &[IndexEntry],
+    device: tch::Device,
+    mp: &MultiProgress,
+) -> Result<(RunRecord, RunStatus), TrainError> {
+    let run = topts.out.clone();
+    let seed = topts.seed;
+    let fp = fingerprint(topts)?;
+    let eval_path = run.join(RUN_EVAL_FILE);
+    if eval_path.exists() {
+        let v = read_json(&eval_path)?;
+        let rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
+            path: eval_path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
+            return Err(mismatch(&run, RUN_EVAL_FILE));
+        }
+        return Ok((rec, RunStatus::Skipped));
+    }
+    let cfg_path = run.join(CONFIG_FILE);
+    if cfg_path.exists() {
+        let stored = read_json(&cfg_path)?;
+        let stored_opts: TrainOptions =
+            serde_json::from_value(stored["train"].clone()).map_err(|e| TrainError::Parse {
+                path: cfg_path.display().to_string(),
+                reason: format!("train: {e}"),
+            })?;
+        if !same_json(&fingerprint(&stored_opts)?, &fp) {
+            return Err(mismatch(&run, CONFIG_FILE));
+        }
+    }
+    let name = format!("{label} seed{seed}");
+    let pb = run_bar(mp, &name);
+    let (finished, earlier_secs) = training_finished(&run, topts.epochs);
+    let t = Instant::now();
+    let (status, train_seconds, best_val_rmse) = if finished {
+        let best = checkpoint::read_config(&run.join(BEST_CKPT))
+            .ok()
+            .and_then(|(_, extra)| extra["train_state"]["best_val_rmse"].as_f64());
+        (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
+    } else {
+        let resumed = topts.resume;
+        // A run of this experiment (its config matched above) that stopped before its first
+        // checkpoint starts over in its own folder.
+        let mut topts = topts.clone();
+        topts.force = !topts.resume && cfg_path.exists();
+        let s = train(&topts, &pb)?;
+        if s.interrupted || s.iterations_done < s.total_iterations {
+            return Err(TrainError::Other(format!(
+                "{}: training stopped at iteration {} of {}",
+                run.display(),
+                s.iterations_done,
+                s.total_iterations
+            )));
+        }
+        let status = if resumed {
+            RunStatus::Resumed
+        } else {
+            RunStatus::Trained
+        };
+        let best = s.best_val_rmse.is_finite().then_some(s.best_val_rmse);
+        (status, t.elapsed().as_secs_f64(), best)
+    };
+
+    // Test evaluation of the checkpoint selected on the validation scenes.
+    let t = Instant::now();
+    let best = run.join(BEST_CKPT);
+    if !best.exists() {
+        return Err(TrainError::Data(format!(
+            "{}: missing — no epoch improved the validation RMSE (non-finite?)",
+            best.display()
+        )));
+    }
+    let loaded = checkpoint::load(&best, device)?;
+    let radar = radar_input_for(&loaded.config, None)?;
+    let load = LoadOptions {
+        radar: radar.unwrap_or_default(),
+        no_radar: radar.is_none(),
+        ..LoadOptions::default()
+    };
+    pb.set_length(test.len() as u64);
+    pb.set_position(0);
+    pb.set_message("test evaluation");
+    let report = evaluate_net(
+        &loaded.net,
+        ds,
+        test,
+        &load,
+        eval,
+        topts.batch_size,
+        topts.jobs,
+        device,
+        &pb,
+        |_, _| Ok(()),
+    )?;
+    let eval_seconds = t.elapsed().as_secs_f64();
+    let rec = RunRecord {
+        variant: label.to_string(),
+        seed,
+        run_dir: run.clone(),
+        train_seconds,
+        eval_seconds,
+        wall_seconds: train_seconds + eval_seconds,
+        status,
+        best_val_rmse,
+        test_samples: test.len(),
+        rows: row_values(&report),
+        report,
+        train_options: topts.clone(),
+    };
+    let text = serde_json::to_string_pretty(&rec).map_err(|e| TrainError::Other(e.to_string()))?;
+    write_atomic(&eval_path, text.as_bytes()).map_err(|e| TrainError::io(&eval_path, e))?;
+    pb.finish_with_message(format!(
+        "test RMSE {:.3} m",
+        rec.headline().map_or(f64::NAN, |r| r.rmse)
+    ));
+    Ok((rec, status))
+}

@@ -1,0 +1,14 @@
+//! depthsense-mer (layer 4, ARCHITECTURE.md) — MER, the multi-channel enhanced radar of RC-PDA (SPEC §5): association labels from
+//! `prepare` output ([`labels`]), training of the PDA network ([`train`]), writing the
+//! enhanced maps into every prepared sample ([`apply`], with preview pictures) and the
+//! coverage / error measurement against the sparse lidar GT ([`report`]).
+//!
+//! The on-disk format and the loader's side live in [`depthsense_data::mer_maps`] (re-exported
+//! here).
+
+pub mod apply;
+pub mod labels;
+pub mod report;
+pub mod train;
+
+pub use depthsense_data::mer_maps::*;

@@ -1,0 +1,177 @@
+//! `depthsense mer report`: how much of the sparse lidar GT each radar map covers and how
+//! wrong its depth is there — raw radar, height-extended radar (SPEC §5) and MER at every θ —
+//! over the samples of a split (default: the test scenes, never used to choose anything).
+//!
+//! Per map: covered = GT pixels (sparse lidar > 0, ≤ `cap_m`) where the map holds a depth;
+//! coverage = covered / GT pixels; the relative error |d − gt| / gt is pooled over every
+//! covered pixel of every sample, and its median (and 90th percentile) reported.
+
+use std::path::{Path, PathBuf};
+
+use depthsense_data::error::TrainError;
+use depthsense_data::{partition, read_depth, Dataset};
+use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{derive_channels, read_mer_maps, THRESHOLDS};
+
+/// One row of the report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CoverageRow {
+    pub map: String,
+    /// Pixels holding a depth, mean per image (whether GT is there or not).
+    pub pixels_per_image: f64,
+    pub covered_gt_pixels: u64,
+    pub gt_pixels: u64,
+    /// covered / GT pixels.
+    pub coverage: f64,
+    pub median_rel_error: f64,
+    pub p90_rel_error: f64,
+}
+
+/// The whole report.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MerReport {
+    pub data: PathBuf,
+    pub split: String,
+    pub images: usize,
+    pub cap_m: f64,
+    pub rows: Vec<CoverageRow>,
+    /// The invocation that wrote the report's JSON (`mer report --json`), when recorded.
+    #[serde(default)]
+    pub command_line: Option<String>,
+}
+
+/// Per map of one sample: (name, pixels with depth, relative errors at covered GT pixels).
+type SampleStats = Vec<(String, u64, Vec<f32>)>;
+
+fn sample_stats(dir: &Path, cap_m: f32) -> Result<(u64, SampleStats), TrainError> {
+    let gt = read_depth(&dir.join(LIDAR_SPARSE_FILE))?;
+    let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
+    let height = read_depth(&dir.join(RADAR_HEIGHT_FILE))?;
+    let (md, mc) = read_mer_maps(dir)?;
+    let n = gt.depth_m.len();
+    for (name, len) in [
+        ("radar", raw.depth_m.len()),
+        ("height", height.depth_m.len()),
+    ] {
+        if len != n || md.depth_m.len() != n {
+            return Err(TrainError::Data(format!(
+                "{}: {name} / MER maps and the lidar GT differ in size",
+                dir.display()
+            )));
+        }
+    }
+    let ch = derive_channels(&md.depth_m, &mc.depth_m);
+    let mut maps: Vec<(String, &[f32])> = vec![
+        ("raw".into(), &raw.depth_m),
+        ("height-extended".into(), &height.depth_m),
+    ];
+    for (i, t) in THRESHOLDS.iter().enumerate() {
+        maps.push((format!("MER θ = {t}"), &ch[i * n..(i + 1) * n]));
+    }
+    let valid = |g: f32| g > 0.0 && g <= cap_m;
+    let gt_pixels = gt.depth_m.iter().filter(|g| valid(**g)).count() as u64;
+    let stats = maps
+        .into_iter()
+        .map(|(name, m)| {
+            let px = m.iter().filter(|d| **d > 0.0).count() as u64;
+            let errs = m
+                .iter()
+                .zip(&gt.depth_m)
+                .filter(|(d, g)| **d > 0.0 && valid(**g))
+                .map(|(d, g)| (d - g).abs() / g)
+                .collect();
+            (name, px, errs)
+        })
+        .collect();
+    Ok((gt_pixels, stats))
+}
+
+fn quantile(sorted: &[f32], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i] as f64
+}
+
+/// Samples of `split`: "held-out" = the test scenes of the train/val/test partition.
+fn entries_of(ds: &Dataset, split: &str) -> Result<Vec<IndexEntry>, TrainError> {
+    let e = if split == "held-out" {
+        partition(ds, 5)?.test
+    } else {
+        ds.split(split)
+    };
+    if e.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: no samples in split {split:?}",
+            ds.root.display()
+        )));
+    }
+    Ok(e)
+}
+
+/// Measure every map on the samples of `split` (GT ≤ `cap_m`).
+pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, TrainError> {
+    let ds = Dataset::open(data)?;
+    let entries = entries_of(&ds, split)?;
+    let per: Vec<(u64, SampleStats)> = entries
+        .par_iter()
+        .map(|e| sample_stats(&ds.sample_dir(e), cap_m as f32))
+        .collect::<Result<_, _>>()?;
+    let gt_pixels: u64 = per.iter().map(|p| p.0).sum();
+    let names: Vec<String> = per[0].1.iter().map(|s| s.0.clone()).collect();
+    let rows = names
+        .iter()
+        .enumerate()
+        .map(|(i, name)| {
+            let px: u64 = per.iter().map(|p| p.1[i].1).sum();
+            let mut errs: Vec<f32> = per.iter().flat_map(|p| p.1[i].2.iter().copied()).collect();
+            errs.sort_by(f32::total_cmp);
+            CoverageRow {
+                map: name.clone(),
+                pixels_per_image: px as f64 / per.len() as f64,
+                covered_gt_pixels: errs.len() as u64,
+                gt_pixels,
+                coverage: errs.len() as f64 / gt_pixels.max(1) as f64,
+                median_rel_error: quantile(&errs, 0.5),
+                p90_rel_error: quantile(&errs, 0.9),
+            }
+        })
+        .collect();
+    Ok(MerReport {
+        data: data.to_path_buf(),
+        split: split.to_string(),
+        images: per.len(),
+        cap_m,
+        rows,
+        command_line: None,
+    })
+}
+
+/// The report as a Markdown table.
+pub fn report_markdown(r: &MerReport) -> String {
+    let mut s = format!(
+        "{} images of split `{}`, sparse lidar GT ≤ {} m ({} GT pixels)\n\n\
+         | radar map | pixels / image | GT pixels covered | coverage | median rel. error | p90 rel. error |\n\
+         |---|---:|---:|---:|---:|---:|\n",
+        r.images,
+        r.split,
+        r.cap_m,
+        r.rows.first().map_or(0, |x| x.gt_pixels)
+    );
+    for x in &r.rows {
+        s.push_str(&format!(
+            "| {} | {:.0} | {} | {:.2} % | {:.2} % | {:.1} % |\n",
+            x.map,
+            x.pixels_per_image,
+            x.covered_gt_pixels,
+            100.0 * x.coverage,
+            100.0 * x.median_rel_error,
+            100.0 * x.p90_rel_error
+        ));
+    }
+    s
+}

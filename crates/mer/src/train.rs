@@ -1,0 +1,596 @@
+//! `depthsense mer train`: the PDA association network (SPEC §5) on the `train` split, with
+//! validation on `val` (precision / recall at 0.5 and ROC AUC of the associations), the same
+//! run-directory conventions as `train`:
+//!
+//! ```text
+//! RUN/config.json          options, PDA config, partition
+//! RUN/metrics.jsonl        {"kind":"iter"} per iteration, {"kind":"epoch","val":…} per epoch
+//! RUN/curves.png           training loss and validation AUC
+//! RUN/last.safetensors     latest PDA checkpoint (+ last.optim.safetensors: momentum)
+//! RUN/best.safetensors     highest validation AUC
+//! ```
+//! Optimiser: Adam with poly learning-rate decay ([`depthsense_train::adam`]), whose state is saved, so
+//! that `--resume` continues exactly from the last finished epoch.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use depthsense_data::error::TrainError;
+use depthsense_data::{epoch_order, mix64, partition, sample_rng, Dataset};
+use depthsense_model::pda::{self, balanced_bce, PdaConfig, PdaNet};
+use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_nuscenes::lock::OutputLock;
+use depthsense_prep::layout::IndexEntry;
+use depthsense_train::adam::Adam;
+use depthsense_train::outputs::claim_run_folder;
+use depthsense_train::sgd::poly_lr;
+use depthsense_train::trainer::{
+    append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
+    LAST_OPTIM, METRICS_FILE,
+};
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use tch::{nn::VarStore, Device, Kind, Tensor};
+
+use super::labels::{load_labelled, PdaInput};
+
+/// Options of `mer train`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MerTrainOptions {
+    pub data: PathBuf,
+    pub out: PathBuf,
+    pub pda: PdaConfig,
+    pub epochs: usize,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub lr_power: f64,
+    pub weight_decay: f64,
+    pub seed: u64,
+    pub device: String,
+    pub resume: bool,
+    /// Start over in a folder that holds a run ([`depthsense_train::outputs`]). Absent from the JSON when
+    /// false.
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub force: bool,
+    /// Loader threads (0 = all cores).
+    pub jobs: usize,
+    /// Horizontal flip with p = 0.5 (the window is left/right symmetric).
+    pub augment: bool,
+    pub val_every_scene: usize,
+    pub max_val_samples: Option<usize>,
+}
+
+impl Default for MerTrainOptions {
+    fn default() -> Self {
+        Self {
+            data: PathBuf::from("prepared"),
+            out: PathBuf::from("runs/mer"),
+            pda: PdaConfig::paper(),
+            epochs: 20,
+            batch_size: 4,
+            // Adam at 1e-2: val AUC 0.584 after 4 epochs on the 20-scene world, 1e-3: 0.501
+            // after 1 epoch (README, MER).
+            lr: 1e-2,
+            lr_power: 0.9,
+            weight_decay: 1e-4,
+            seed: 0,
+            device: "auto".into(),
+            resume: false,
+            force: false,
+            jobs: 0,
+            augment: true,
+            val_every_scene: 5,
+            max_val_samples: None,
+        }
+    }
+}
+
+/// Validation of the associations over every labelled (radar pixel, neighbour) pair.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MerValRecord {
+    pub epoch: u64,
+    pub iteration: u64,
+    /// Class-balanced BCE, mean over validation batches.
+    pub loss: f64,
+    /// At confidence > 0.5.
+    pub precision: f64,
+    pub recall: f64,
+    /// ROC area under the curve (ties counted ½).
+    pub auc: f64,
+    pub pairs: u64,
+    pub positives: u64,
+}
+
+/// What `mer train` did.
+#[derive(Debug, Clone)]
+pub struct MerTrainSummary {
+    pub run_dir: PathBuf,
+    pub val: Vec<MerValRecord>,
+    pub best_auc: f64,
+    pub parameters: i64,
+    pub iterations: u64,
+    pub seconds: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct State {
+    kind: String,
+    epoch: u64,
+    iteration: u64,
+    seed: u64,
+    batch_size: usize,
+    epochs: usize,
+    lr: f64,
+    best_auc: Option<f64>,
+}
+
+/// A batch on the device: image `[B,3,h,w]`, radar `[B,1,h,w]`, flat radar-pixel indices
+/// `[N]`, labels and mask `[N,K]`.
+struct PdaBatch {
+    image: Tensor,
+    radar: Tensor,
+    idx: Tensor,
+    labels: Tensor,
+    mask: Tensor,
+    n: usize,
+}
+
+fn stack(samples: &[(PdaInput, Vec<i8>)], device: Device) -> Result<PdaBatch, TrainError> {
+    let g = samples[0].0.grid;
+    if let Some((s, _)) = samples.iter().find(|(s, _)| s.grid != g) {
+        return Err(TrainError::Data(format!(
+            "MER grids differ within a batch ({}x{} vs {}x{}): frames of one size are needed",
+            s.grid.w, s.grid.h, g.w, g.h
+        )));
+    }
+    let b = samples.len() as i64;
+    let (h, w) = (g.h as i64, g.w as i64);
+    let image: Vec<f32> = samples.iter().flat_map(|(s, _)| s.image.clone()).collect();
+    let radar: Vec<f32> = samples.iter().flat_map(|(s, _)| s.radar.clone()).collect();
+    let mut idx = vec![];
+    let mut lab = vec![];
+    for (bi, (s, l)) in samples.iter().enumerate() {
+        idx.extend(
+            s.pixels
+                .iter()
+                .map(|p| (bi * g.len() + p.v * g.w + p.u) as i64),
+        );
+        lab.extend_from_slice(l);
+    }
+    let k = if idx.is_empty() {
+        1
+    } else {
+        lab.len() / idx.len()
+    } as i64;
+    let labels: Vec<f32> = lab.iter().map(|&x| (x == 1) as u8 as f32).collect();
+    let mask: Vec<f32> = lab.iter().map(|&x| (x >= 0) as u8 as f32).collect();
+    let n = idx.len();
+    Ok(PdaBatch {
+        image: Tensor::from_slice(&image)
+            .view([b, 3, h, w])
+            .to_device(device),
+        radar: Tensor::from_slice(&radar)
+            .view([b, 1, h, w])
+            .to_device(device),
+        idx: Tensor::from_slice(&idx).to_device(device),
+        labels: Tensor::from_slice(&labels)
+            .view([n as i64, k])
+            .to_device(device),
+        mask: Tensor::from_slice(&mask)
+            .view([n as i64, k])
+            .to_device(device),
+        n,
+    })
+}
+
+/// Reads labelled samples in parallel on `pool`.
+fn load_group(
+    ds: &Dataset,
+    entries: &[&IndexEntry],
+    flips: &[bool],
+    cfg: &PdaConfig,
+    pool: &rayon::ThreadPool,
+) -> Result<Vec<(PdaInput, Vec<i8>)>, TrainError> {
+    pool.install(|| {
+        entries
+            .par_iter()
+            .zip(flips)
+            .map(|(e, &f)| load_labelled(&ds.sample_dir(e), cfg, f))
+            .collect()
+    })
+}
+
+/// Loss of a batch (None when it holds no labelled pair) and the network output at its
+/// radar pixels.
+fn batch_loss(net: &PdaNet, b: &PdaBatch, train: bool) -> Option<(Tensor, Tensor)> {
+    if b.n == 0 || b.mask.sum(Kind::Float).double_value(&[]) == 0.0 {
+        return None;
+    }
+    let f = net.features_t(&b.image, &b.radar, train);
+    let sel = net.logits_at(&f, &b.idx);
+    Some((balanced_bce(&sel, &b.labels, &b.mask), sel))
+}
+
+/// ROC AUC of (score, label) pairs: the probability that a random positive scores above a
+/// random negative, ties ½ (Mann–Whitney). NaN without both classes.
+pub fn roc_auc(pairs: &mut [(f32, bool)]) -> f64 {
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let n_pos = pairs.iter().filter(|p| p.1).count() as f64;
+    let n_neg = pairs.len() as f64 - n_pos;
+    if n_pos == 0.0 || n_neg == 0.0 {
+        return f64::NAN;
+    }
+    // Sum of (average) ranks of the positives.
+    let (mut i, mut rank_sum) = (0usize, 0f64);
+    while i < pairs.len() {
+        let mut j = i;
+        while j < pairs.len() && pairs[j].0 == pairs[i].0 {
+            j += 1;
+        }
+        let avg = (i + j + 1) as f64 / 2.0; // ranks i+1..=j
+        rank_sum += avg * pairs[i..j].iter().filter(|p| p.1).count() as f64;
+        i = j;
+    }
+    (rank_sum - n_pos * (n_pos + 1.0) / 2.0) / (n_pos * n_neg)
+}
+
+/// Precision and recall of `score > threshold` (NaN when undefined).
+pub fn precision_recall(pairs: &[(f32, bool)], threshold: f32) -> (f64, f64) {
+    let tp = pairs.iter().filter(|p| p.1 && p.0 > threshold).count() as f64;
+    let fp = pairs.iter().filter(|p| !p.1 && p.0 > threshold).count() as f64;
+    let pos = pairs.iter().filter(|p| p.1).count() as f64;
+    (tp / (tp + fp), tp / pos)
+}
+
+/// Validation metrics of `net` on `entries`.
+pub fn validate_pda(
+    net: &PdaNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    batch_size: usize,
+    pool: &rayon::ThreadPool,
+    device: Device,
+) -> Result<MerValRecord, TrainError> {
+    let cfg = net.config();
+    let mut pairs: Vec<(f32, bool)> = vec![];
+    let (mut loss, mut nb) = (0.0, 0usize);
+    for chunk in entries.chunks(batch_size.max(1)) {
+        let refs: Vec<&IndexEntry> = chunk.iter().collect();
+        let samples = load_group(ds, &refs, &vec![false; refs.len()], cfg, pool)?;
+        let b = stack(&samples, device)?;
+        let Some((l, sel)) = tch::no_grad(|| batch_loss(net, &b, false)) else {
+            continue;
+        };
+        loss += l.double_value(&[]);
+        nb += 1;
+        let p = Vec::<f32>::try_from(sel.sigmoid().to_device(Device::Cpu).view([-1]))?;
+        let y = Vec::<f32>::try_from(b.labels.to_device(Device::Cpu).view([-1]))?;
+        let m = Vec::<f32>::try_from(b.mask.to_device(Device::Cpu).view([-1]))?;
+        pairs.extend(
+            p.iter()
+                .zip(&y)
+                .zip(&m)
+                .filter(|(_, &m)| m > 0.0)
+                .map(|((&p, &y), _)| (p, y > 0.5)),
+        );
+    }
+    let (precision, recall) = precision_recall(&pairs, 0.5);
+    let positives = pairs.iter().filter(|p| p.1).count() as u64;
+    Ok(MerValRecord {
+        epoch: 0,
+        iteration: 0,
+        loss: loss / nb.max(1) as f64,
+        precision,
+        recall,
+        auc: roc_auc(&mut pairs),
+        pairs: pairs.len() as u64,
+        positives,
+    })
+}
+
+/// A training run of the PDA network in progress.
+struct Run<'o> {
+    opts: &'o MerTrainOptions,
+    device: Device,
+    ds: Dataset,
+    train: Vec<IndexEntry>,
+    val: Vec<IndexEntry>,
+    vs: VarStore,
+    net: PdaNet,
+    sgd: Adam,
+    state: State,
+    pool: rayon::ThreadPool,
+    bpe: u64,
+    /// The run folder's lock, held while the run writes there.
+    _lock: OutputLock,
+    /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors.
+    optim_matches: bool,
+}
+
+impl<'o> Run<'o> {
+    fn new(opts: &'o MerTrainOptions) -> Result<Self, TrainError> {
+        if opts.batch_size == 0 || opts.epochs == 0 {
+            return Err(TrainError::Config(
+                "batch size and epochs must be ≥ 1".into(),
+            ));
+        }
+        let device = depthsense_model::device::parse_device(&opts.device)?;
+        let ds = Dataset::open(&opts.data)?;
+        let part = partition(&ds, opts.val_every_scene)?;
+        if part.train.is_empty() || part.val.is_empty() {
+            return Err(TrainError::Data(format!(
+                "{}: {} training and {} validation samples ({}): need both",
+                opts.data.display(),
+                part.train.len(),
+                part.val.len(),
+                part.method
+            )));
+        }
+        // One writer per run folder; a run there is refused unless --resume or --force.
+        let lock = OutputLock::exclusive(&opts.out, "depthsense mer train")?;
+        claim_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
+        let jobs = match opts.jobs {
+            0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+            j => j,
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(jobs)
+            .build()
+            .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))?;
+        let (vs, net, sgd, state, optim_matches) = build(opts, device)?;
+        let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
+        let run = Run {
+            opts,
+            device,
+            ds,
+            val: subsample(&part.val, opts.max_val_samples),
+            train: part.train.clone(),
+            vs,
+            net,
+            sgd,
+            state,
+            pool,
+            bpe,
+            _lock: lock,
+            optim_matches,
+        };
+        run.write_config(&part)?;
+        Ok(run)
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.opts.out.join(name)
+    }
+
+    fn write_config(&self, part: &depthsense_data::Partition) -> Result<(), TrainError> {
+        let j = serde_json::json!({
+            "mer_train": self.opts,
+            "pda": self.opts.pda,
+            "parameters": pda::parameter_count(&self.vs),
+            "device": depthsense_model::device::describe(self.device),
+            "partition": {"method": part.method, "train_samples": part.train.len(),
+                          "val_samples": part.val.len(), "val_samples_used": self.val.len(),
+                          "val_scenes": part.val_scenes},
+        });
+        let p = self.path(CONFIG_FILE);
+        let text =
+            serde_json::to_string_pretty(&j).map_err(|e| TrainError::Other(e.to_string()))?;
+        write_atomic(&p, text.as_bytes()).map_err(|e| TrainError::io(&p, e))
+    }
+
+    fn save(&self, name: &str) -> Result<(), TrainError> {
+        let extra = serde_json::json!({"train_state": self.state, "mer_train": self.opts});
+        pda::save(&self.path(name), &self.vs, &self.opts.pda, &extra)?;
+        Ok(())
+    }
+
+    /// One epoch of SGD steps; returns the mean loss.
+    fn epoch(&mut self, epoch: u64, progress: &ProgressBar) -> Result<f64, TrainError> {
+        let o = self.opts;
+        let order = epoch_order(self.train.len(), o.seed, epoch, true);
+        let total = self.bpe * o.epochs as u64;
+        let (mut sum, mut n) = (0.0, 0usize);
+        for chunk in order.chunks(o.batch_size).take(self.bpe as usize) {
+            let refs: Vec<&IndexEntry> = chunk.iter().map(|&i| &self.train[i]).collect();
+            let flips: Vec<bool> = chunk
+                .iter()
+                .map(|&i| o.augment && sample_rng(o.seed, epoch, i).uniform() < 0.5)
+                .collect();
+            let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
+            let b = stack(&samples, self.device)?;
+            let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
+            tch::manual_seed((mix64(o.seed ^ mix64(self.state.iteration + 1)) >> 1) as i64);
+            self.state.iteration += 1;
+            let Some((loss, _)) = batch_loss(&self.net, &b, true) else {
+                continue;
+            };
+            let lv = loss.double_value(&[]);
+            if !lv.is_finite() {
+                return Err(TrainError::NonFiniteLoss {
+                    loss: lv,
+                    epoch,
+                    iteration: self.state.iteration,
+                    kept: self.path(LAST_CKPT).display().to_string(),
+                });
+            }
+            self.sgd.zero_grad();
+            loss.backward();
+            self.sgd.step(lr);
+            (sum, n) = (sum + lv, n + 1);
+            let it = self.state.iteration;
+            append_jsonl(
+                &self.path(METRICS_FILE),
+                &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
+                                    "loss": lv, "lr": lr}),
+            )?;
+            progress.set_position(it);
+            progress.set_message(format!("epoch {}/{} loss {lv:.4}", epoch + 1, o.epochs));
+        }
+        self.state.iteration = (epoch + 1) * self.bpe;
+        Ok(sum / n.max(1) as f64)
+    }
+
+    fn validate(&self, epoch: u64) -> Result<MerValRecord, TrainError> {
+        let mut v = validate_pda(
+            &self.net,
+            &self.ds,
+            &self.val,
+            self.opts.batch_size,
+            &self.pool,
+            self.device,
+        )?;
+        v.epoch = epoch;
+        v.iteration = self.state.iteration;
+        Ok(v)
+    }
+
+    fn end_epoch(&mut self, epoch: u64, loss: f64) -> Result<MerValRecord, TrainError> {
+        let v = self.validate(epoch + 1)?;
+        self.state.epoch = epoch + 1;
+        let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
+        if improved {
+            self.state.best_auc = Some(v.auc);
+        }
+        // The optimiser state's predecessor is kept until the checkpoint is written
+        // (optim_state::rotate): a kill anywhere leaves a resumable pair.
+        let optim = self.path(LAST_OPTIM);
+        depthsense_train::optim_state::rotate(&optim, self.optim_matches)?;
+        self.optim_matches = false;
+        self.sgd.save(&optim, self.state.iteration)?;
+        self.save(LAST_CKPT)?;
+        self.optim_matches = true;
+        if improved || !self.path(BEST_CKPT).exists() {
+            self.save(BEST_CKPT)?;
+        }
+        append_jsonl(
+            &self.path(METRICS_FILE),
+            &serde_json::json!({"kind": "epoch", "epoch": epoch + 1,
+                                "iteration": self.state.iteration, "train_loss": loss, "val": v}),
+        )?;
+        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
+        Ok(v)
+    }
+}
+
+/// A fresh (seeded) network or the one of RUN/last.safetensors when resuming.
+fn build(
+    opts: &MerTrainOptions,
+    device: Device,
+) -> Result<(VarStore, PdaNet, Adam, State, bool), TrainError> {
+    let last = opts.out.join(LAST_CKPT);
+    let mut state = State {
+        kind: "depthsense-mer-train".into(),
+        epoch: 0,
+        iteration: 0,
+        seed: opts.seed,
+        batch_size: opts.batch_size,
+        epochs: opts.epochs,
+        lr: opts.lr,
+        best_auc: None,
+    };
+    if !(opts.resume && last.exists()) {
+        tch::manual_seed(opts.seed as i64);
+        let vs = VarStore::new(device);
+        let net = PdaNet::new(&vs.root(), &opts.pda)?;
+        let _ = std::fs::remove_file(opts.out.join(METRICS_FILE));
+        let sgd = Adam::new(&vs, opts.weight_decay);
+        return Ok((vs, net, sgd, state, true));
+    }
+    let l = pda::load(&last, device)?;
+    let stored: State =
+        serde_json::from_value(l.extra["train_state"].clone()).map_err(|e| TrainError::Parse {
+            path: last.display().to_string(),
+            reason: format!("train_state: {e}"),
+        })?;
+    let same = (stored.batch_size, stored.epochs, stored.lr, stored.seed)
+        == (state.batch_size, state.epochs, state.lr, state.seed);
+    if l.config != opts.pda || !same {
+        return Err(TrainError::Config(format!(
+            "--resume: {} was trained with another PDA config or batch/epochs/lr/seed; \
+             an exact resume needs the same options",
+            last.display()
+        )));
+    }
+    state = stored;
+    let mut sgd = Adam::new(&l.vs, opts.weight_decay);
+    let matches = depthsense_train::optim_state::load_matching(
+        &opts.out.join(LAST_OPTIM),
+        &last,
+        state.iteration,
+        |p| sgd.load(p),
+    )?;
+    truncate_metrics(&opts.out.join(METRICS_FILE), state.iteration)?;
+    Ok((l.vs, l.net, sgd, state, matches))
+}
+
+/// RUN/curves.png: training loss (left) and validation AUC (right).
+pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
+    let text = std::fs::read_to_string(metrics).map_err(|e| TrainError::io(metrics, e))?;
+    let (mut loss, mut auc) = (vec![], vec![]);
+    for l in text.lines() {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
+            continue;
+        };
+        let it = v["iteration"].as_u64().unwrap_or(0);
+        match v["kind"].as_str() {
+            Some("iter") => loss.push((it, v["loss"].as_f64().unwrap_or(f64::NAN))),
+            Some("epoch") | Some("val") => {
+                auc.push((it, v["val"]["auc"].as_f64().unwrap_or(f64::NAN)))
+            }
+            _ => {}
+        }
+    }
+    let bytes = depthsense_viz::plot::curves_png(&[("train loss", &loss)], &[("val AUC", &auc)])?;
+    write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
+}
+
+/// Train the PDA network (see the module docs for RUN/).
+pub fn train_pda(
+    opts: &MerTrainOptions,
+    progress: &ProgressBar,
+) -> Result<MerTrainSummary, TrainError> {
+    let started = Instant::now();
+    let mut run = Run::new(opts)?;
+    progress.set_length(run.bpe * opts.epochs as u64);
+    progress.set_position(run.state.iteration);
+    let mut val = vec![];
+    if run.state.iteration == 0 {
+        progress.set_message("validating the initial network");
+        let v = run.validate(0)?;
+        append_jsonl(
+            &run.path(METRICS_FILE),
+            &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
+        )?;
+        val.push(v);
+    }
+    for epoch in run.state.epoch..opts.epochs as u64 {
+        let loss = run.epoch(epoch, progress)?;
+        progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
+        val.push(run.end_epoch(epoch, loss)?);
+    }
+    Ok(MerTrainSummary {
+        run_dir: opts.out.clone(),
+        val,
+        best_auc: run.state.best_auc.unwrap_or(f64::NAN),
+        parameters: pda::parameter_count(&run.vs),
+        iterations: run.state.iteration,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auc_by_hand() {
+        let mut p = vec![(0.9, true), (0.8, false), (0.7, true), (0.1, false)];
+        assert!((roc_auc(&mut p) - 0.75).abs() < 1e-12);
+        let mut ties = vec![(0.5, true), (0.5, false)];
+        assert!((roc_auc(&mut ties) - 0.5).abs() < 1e-12);
+        assert!(roc_auc(&mut [(0.3, true)]).is_nan());
+        let (pr, rc) = precision_recall(&[(0.9, true), (0.6, false), (0.4, true)], 0.5);
+        assert_eq!((pr, rc), (0.5, 0.5));
+    }
+}
