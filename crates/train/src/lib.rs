@@ -2,6 +2,7 @@
 //! step, validation, checkpoints and exact resume, run folders, data-parallel training.
 //!
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
+//! - [`upload`]: a batch onto the device (pinned host memory on CUDA);
 //! - [`validate`]: a network over samples into the metrics through the one scorer;
 //! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
 //!   (exact resume, [`optim_state`]);
@@ -16,6 +17,7 @@ pub mod optim_state;
 pub mod outputs;
 pub mod sgd;
 pub mod trainer;
+pub mod upload;
 pub mod validate;
 
 /// The training stack's one error type (defined in `depthsense-data`, the lowest crate that

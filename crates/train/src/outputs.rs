@@ -14,9 +14,16 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::TrainError;
-use crate::trainer::{
-    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE, PREV_OPTIM,
-};
+
+// The files of a training run folder (SPEC §8; `trainer` re-exports them).
+pub const CONFIG_FILE: &str = "config.json";
+pub const METRICS_FILE: &str = "metrics.jsonl";
+pub const CURVES_FILE: &str = "curves.png";
+pub const LAST_CKPT: &str = "last.safetensors";
+pub const LAST_OPTIM: &str = "last.optim.safetensors";
+/// The optimiser state of the checkpoint before, kept while a new pair is written.
+pub const PREV_OPTIM: &str = "last.optim.prev.safetensors";
+pub const BEST_CKPT: &str = "best.safetensors";
 
 /// The files of a training run (`train` and `mer train` write the same names), removed by
 /// `--force`.

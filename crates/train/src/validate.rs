@@ -9,7 +9,7 @@ use indicatif::ProgressBar;
 use tch::{Device, Kind};
 
 use crate::error::TrainError;
-use crate::trainer::upload_inputs;
+use crate::upload::upload_inputs;
 
 /// Run `net` over `entries` and feed the decoded depth to the metrics (SPEC §9). `on_batch`
 /// sees every batch with its predictions ([B,H,W] metres, row-major).
