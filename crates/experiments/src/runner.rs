@@ -14,6 +14,7 @@ use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
 use depthsense_model::{checkpoint, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
+use depthsense_train::metrics_log::{read_log, BadLine};
 use depthsense_train::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
 };
@@ -259,24 +260,21 @@ pub fn read_json(path: &Path) -> Result<serde_json::Value, TrainError> {
 /// True when RUN/metrics.jsonl records the end of epoch `epochs` and RUN/best.safetensors
 /// exists. Also returns the largest "seconds" recorded (training time of the last invocation).
 pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
-    let Ok(text) = std::fs::read_to_string(run.join(METRICS_FILE)) else {
+    // A run killed mid-write may end in half a line: skipped, not an error.
+    let Ok(log) = read_log(&run.join(METRICS_FILE), BadLine::Skip) else {
         return (false, None);
     };
-    let mut done = false;
-    let mut secs: Option<f64> = None;
-    for l in text.lines() {
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
-            continue;
-        };
-        if v.get("kind").and_then(|k| k.as_str()) == Some("epoch") {
-            if v.get("epoch").and_then(|e| e.as_u64()) == Some(epochs as u64) {
-                done = true;
-            }
-            if let Some(s) = v.get("seconds").and_then(|s| s.as_f64()) {
-                secs = Some(secs.map_or(s, |p: f64| p.max(s)));
-            }
-        }
-    }
+    let done = log
+        .epoch_ends
+        .iter()
+        .any(|e| e.epoch == Some(epochs as u64));
+    let secs = log
+        .epoch_ends
+        .iter()
+        .filter_map(|e| e.seconds)
+        .fold(None, |acc: Option<f64>, s| {
+            Some(acc.map_or(s, |p| p.max(s)))
+        });
     (done && run.join(BEST_CKPT).exists(), secs)
 }
 

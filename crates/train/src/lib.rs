@@ -3,6 +3,7 @@
 //!
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
 //! - [`upload`]: a batch onto the device (pinned host memory on CUDA);
+//! - [`metrics_log`]: RUN/metrics.jsonl — the one writer, reader and resume cut;
 //! - [`validate`]: a network over samples into the metrics through the one scorer;
 //! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
 //!   (exact resume, [`optim_state`]);
@@ -13,6 +14,7 @@
 pub mod adam;
 pub mod bench;
 pub mod distributed;
+pub mod metrics_log;
 pub mod optim_state;
 pub mod outputs;
 pub mod sgd;

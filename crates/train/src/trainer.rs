@@ -10,13 +10,11 @@
 //! RUN/best.safetensors       lowest validation RMSE so far
 //! ```
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use depthsense_data::{Partition, RadarInput, TargetKind};
-use depthsense_metrics::{EvalConfig, Report};
+use depthsense_metrics::EvalConfig;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
@@ -27,6 +25,9 @@ mod session;
 pub use crate::validate::evaluate_net;
 pub use session::{train, train_distributed, Trainer};
 
+pub use crate::metrics_log::{
+    append_jsonl, read_metrics, truncate_metrics, write_curves, LossCurve, ValRecord,
+};
 pub use crate::outputs::{
     BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE, PREV_OPTIM,
 };
@@ -145,36 +146,6 @@ impl Default for TrainOptions {
     }
 }
 
-/// One validation result.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ValRecord {
-    pub epoch: u64,
-    pub iteration: u64,
-    pub rmse: f64,
-    pub mae: f64,
-    pub abs_rel: f64,
-    pub delta1: f64,
-    pub n_images: u64,
-    pub n_pixels: u64,
-}
-
-impl ValRecord {
-    fn from_report(epoch: u64, iteration: u64, r: &Report) -> Self {
-        let row = r.headline().cloned();
-        let m = row.as_ref().map(|r| r.metrics).unwrap_or_default();
-        Self {
-            epoch,
-            iteration,
-            rmse: m.rmse,
-            mae: m.mae,
-            abs_rel: m.abs_rel,
-            delta1: m.delta1,
-            n_images: row.as_ref().map_or(0, |r| r.n_images),
-            n_pixels: row.as_ref().map_or(0, |r| r.n_pixels),
-        }
-    }
-}
-
 /// What a (possibly partial) training invocation did.
 #[derive(Debug, Clone)]
 pub struct TrainSummary {
@@ -258,62 +229,6 @@ fn all_finite(vs: &VarStore) -> bool {
     })
 }
 
-pub fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
-    let mut f = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)
-        .map_err(|e| TrainError::io(path, e))?;
-    writeln!(f, "{v}").map_err(|e| TrainError::io(path, e))
-}
-
-/// Keep only the records of metrics.jsonl up to `iteration` (resume after an interruption).
-pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Ok(());
-    };
-    let kept: String = text
-        .lines()
-        .filter(|l| {
-            serde_json::from_str::<serde_json::Value>(l)
-                .ok()
-                .and_then(|v| v.get("iteration").and_then(|i| i.as_u64()))
-                .is_some_and(|i| i <= iteration)
-        })
-        .map(|l| format!("{l}\n"))
-        .collect();
-    write_atomic(path, kept.as_bytes()).map_err(|e| TrainError::io(path, e))
-}
-
-/// (global iteration, loss) pairs of a run.
-pub type LossCurve = Vec<(u64, f64)>;
-
-/// Read the loss curve and the validation records back from metrics.jsonl.
-pub fn read_metrics(path: &Path) -> Result<(LossCurve, Vec<ValRecord>), TrainError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
-    let mut losses = vec![];
-    let mut val = vec![];
-    for l in text.lines() {
-        let v: serde_json::Value = serde_json::from_str(l).map_err(|e| TrainError::Parse {
-            path: path.display().to_string(),
-            reason: e.to_string(),
-        })?;
-        match v.get("kind").and_then(|k| k.as_str()) {
-            Some("iter") => losses.push((
-                v["iteration"].as_u64().unwrap_or(0),
-                v["loss"].as_f64().unwrap_or(f64::NAN),
-            )),
-            Some("epoch") | Some("val") => {
-                if let Ok(r) = serde_json::from_value::<ValRecord>(v["val"].clone()) {
-                    val.push(r);
-                }
-            }
-            _ => {}
-        }
-    }
-    Ok((losses, val))
-}
-
 fn save_ckpt(
     path: &Path,
     vs: &VarStore,
@@ -327,17 +242,6 @@ fn save_ckpt(
     });
     checkpoint::save(path, vs, cfg, &extra)?;
     Ok(())
-}
-
-/// Render RUN/curves.png from RUN/metrics.jsonl.
-pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), TrainError> {
-    let (losses, val) = read_metrics(metrics_path)?;
-    let val_pts: Vec<(u64, f64)> = val.iter().map(|v| (v.iteration, v.rmse)).collect();
-    let bytes = depthsense_viz::plot::curves_png(
-        &[("train loss", &losses)],
-        &[("val RMSE (m)", &val_pts)],
-    )?;
-    write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
 }
 
 #[cfg(test)]
