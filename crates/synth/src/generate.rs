@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use crate::calib::{self, Mount, IMG_H, IMG_W};
 use crate::rng::{hash_str, name_token, token, Rng};
 use crate::tables::*;
-use crate::world::{ActorKind, Ground, Motion, World, STATIC_OBJ_BASE};
+use crate::world::{ActorKind, ActorState, Ground, Motion, World, STATIC_OBJ_BASE};
 use crate::{camera, lidar, radar, SynthConfig, SynthError, SynthSummary, Weather};
 
 /// File name of the marker written at the dataroot (config + summary).
@@ -159,13 +159,48 @@ fn generate_into(
     let m = cfg.keyframes_per_scene;
     let weathers = allocate_conditions(cfg.scenes, &cfg.conditions);
     let mounts = calib::all_mounts();
-    let radar_mounts: Vec<Mount> = calib::RADAR_CHANNELS
-        .iter()
-        .map(|c| calib::radar(c))
-        .collect();
 
     // Fixed tables.
     let mut tb = Tables::default();
+    push_fixed_tables(&mut tb, &mounts);
+    let map_token = token(seed, &[hash_str("map")]);
+
+    // Plan scenes.
+    let plans = plan_scenes(seed, m, &weathers);
+    let tl = plan_frames(&mut tb, seed, &plans, &mounts);
+
+    create_dirs(root, &mounts, &cfg.version_name)?;
+    let outs_ok = render_frames(root, cfg, &tl.jobs, &plans, progress)?;
+    let mut bytes: u64 = outs_ok.iter().map(|o| o.bytes).sum();
+    let counts = push_sample_data(&mut tb, seed, &plans, &tl, &outs_ok);
+    // Annotations: every actor within range of the ego at each keyframe.
+    for (si, plan) in plans.iter().enumerate() {
+        push_annotations(&mut tb, seed, si, plan, &counts);
+    }
+    bytes += write_map(root, &mut tb, &plans, map_token)?;
+
+    let vdir = root.join(&cfg.version_name);
+    bytes += write_tables(&vdir, &tb)?;
+    bytes += write_splits(&vdir, &tb, &weathers)?;
+    let summary = SynthSummary {
+        keyframes: cfg.scenes * m,
+        scenes: cfg.scenes,
+        sample_data: tb.sample_data.len(),
+        files: tl.jobs.len() + m * cfg.scenes + 14 + crate::splits::SPLIT_NAMES.len(),
+        bytes,
+        version_dir: vdir,
+        seconds: 0.0,
+        conditions: weathers.iter().fold([0usize; 3], |mut acc, w| {
+            acc[*w as usize] += 1;
+            acc
+        }),
+    };
+    write_marker(root, cfg)?;
+    Ok(summary)
+}
+
+/// The tables that do not depend on the scenes: category, attribute, visibility, sensor.
+fn push_fixed_tables(tb: &mut Tables, mounts: &[Mount]) {
     let cats = [
         ("vehicle.car", "Vehicle designed primarily for personal use, e.g. sedans, hatch-backs, wagons, vans, mini-vans, SUVs and jeeps."),
         ("vehicle.truck", "Vehicles primarily designed to haul cargo including pick-ups, lorrys, trucks and semi-tractors."),
@@ -211,19 +246,25 @@ fn generate_into(
             description: d.to_string(),
         });
     }
-    for mt in &mounts {
+    for mt in mounts {
         tb.sensor.push(Sensor {
             token: name_token("sensor", mt.channel),
             channel: mt.channel.into(),
             modality: mt.modality.into(),
         });
     }
-    let map_token = token(seed, &[hash_str("map")]);
+}
 
-    // Plan scenes.
-    let kf_t0 = 0.1 + LIDAR_PAD as f64 * calib::LIDAR_PERIOD_S;
+/// Time of the first keyframe (s): after the lidar sweeps that precede it.
+fn first_keyframe_t() -> f64 {
+    0.1 + LIDAR_PAD as f64 * calib::LIDAR_PERIOD_S
+}
+
+/// Build every scene's world (in parallel) with its log name, keyframe times and sample tokens.
+fn plan_scenes(seed: u64, m: usize, weathers: &[Weather]) -> Vec<ScenePlan> {
+    let kf_t0 = first_keyframe_t();
     let duration = kf_t0 + (m as f64 - 1.0) * calib::KEYFRAME_PERIOD_S + 0.6;
-    let plans: Vec<ScenePlan> = weathers
+    weathers
         .iter()
         .enumerate()
         .collect::<Vec<_>>()
@@ -248,99 +289,166 @@ fn generate_into(
                 sample_tokens,
             }
         })
-        .collect();
+        .collect()
+}
 
-    let mut jobs: Vec<Job> = Vec::new();
-    // Per (scene, channel) lists of (job index, is_keyframe sample index).
-    struct ChanRow {
-        job: usize,
-        kf: Option<usize>,
-    }
-    let mut chans: Vec<(usize, &'static str, Vec<ChanRow>)> = Vec::new();
+/// Every scene's table rows (log, scene, sample, calibrated_sensor) and frame timeline.
+fn plan_frames(tb: &mut Tables, seed: u64, plans: &[ScenePlan], mounts: &[Mount]) -> Timeline {
+    let radar_mounts: Vec<Mount> = calib::RADAR_CHANNELS
+        .iter()
+        .map(|c| calib::radar(c))
+        .collect();
+    let mut tl = Timeline::default();
     for (si, plan) in plans.iter().enumerate() {
         let mut jr = Rng::stream(seed, &[hash_str("timing"), si as u64]);
-        let log_token = token(seed, &[hash_str("log"), si as u64]);
-        let scene_token = token(seed, &[hash_str("scene"), si as u64]);
-        tb.log.push(Log {
-            token: log_token.clone(),
-            logfile: plan.logfile.clone(),
-            vehicle: "synth".into(),
-            date_captured: "2026-01-01".into(),
-            location: "synth-city".into(),
-        });
-        tb.scene.push(Scene {
-            token: scene_token.clone(),
-            log_token,
-            nbr_samples: m,
-            first_sample_token: plan.sample_tokens[0].clone(),
-            last_sample_token: plan.sample_tokens[m - 1].clone(),
-            name: format!("synth-{si:04}"),
-            description: plan.world.description.clone(),
-        });
-        for k in 0..m {
-            tb.sample.push(Sample {
-                token: plan.sample_tokens[k].clone(),
-                timestamp: ts_us(si, plan.kf_t[k]),
-                prev: if k > 0 {
-                    plan.sample_tokens[k - 1].clone()
-                } else {
-                    String::new()
-                },
-                next: if k + 1 < m {
-                    plan.sample_tokens[k + 1].clone()
-                } else {
-                    String::new()
-                },
-                scene_token: scene_token.clone(),
-            });
+        push_scene_tables(tb, seed, si, plan, mounts);
+        let ids = SceneIds { seed, si };
+        tl.add_camera(&ids, plan, &mut jr);
+        tl.add_lidar(&ids, plan, &mut jr);
+        for rm in &radar_mounts {
+            tl.add_radar(&ids, plan, rm, &mut jr);
         }
-        for mt in &mounts {
-            let intr = if mt.modality == "camera" {
-                vec![
-                    [calib::CAM_FX, 0.0, calib::CAM_CX],
-                    [0.0, calib::CAM_FY, calib::CAM_CY],
-                    [0.0, 0.0, 1.0],
-                ]
+    }
+    tl
+}
+
+/// The log, scene, sample and calibrated_sensor rows of scene `si`.
+fn push_scene_tables(tb: &mut Tables, seed: u64, si: usize, plan: &ScenePlan, mounts: &[Mount]) {
+    let m = plan.sample_tokens.len();
+    let log_token = token(seed, &[hash_str("log"), si as u64]);
+    let scene_token = token(seed, &[hash_str("scene"), si as u64]);
+    tb.log.push(Log {
+        token: log_token.clone(),
+        logfile: plan.logfile.clone(),
+        vehicle: "synth".into(),
+        date_captured: "2026-01-01".into(),
+        location: "synth-city".into(),
+    });
+    tb.scene.push(Scene {
+        token: scene_token.clone(),
+        log_token,
+        nbr_samples: m,
+        first_sample_token: plan.sample_tokens[0].clone(),
+        last_sample_token: plan.sample_tokens[m - 1].clone(),
+        name: format!("synth-{si:04}"),
+        description: plan.world.description.clone(),
+    });
+    for k in 0..m {
+        tb.sample.push(Sample {
+            token: plan.sample_tokens[k].clone(),
+            timestamp: ts_us(si, plan.kf_t[k]),
+            prev: if k > 0 {
+                plan.sample_tokens[k - 1].clone()
             } else {
-                Vec::new()
-            };
-            tb.calibrated_sensor.push(CalibratedSensor {
-                token: token(
-                    seed,
-                    &[
-                        hash_str("calibrated_sensor"),
-                        si as u64,
-                        hash_str(mt.channel),
-                    ],
-                ),
-                sensor_token: name_token("sensor", mt.channel),
-                translation: mt.translation,
-                rotation: mt.rotation_wxyz,
-                camera_intrinsic: intr,
-            });
-        }
-        let sd_token = |ch: &str, j: usize| {
-            token(
-                seed,
-                &[hash_str("sample_data"), si as u64, hash_str(ch), j as u64],
-            )
-        };
-        let salt = |ch: &str, j: usize| {
-            crate::rng::hash_ids(
-                seed,
-                &[hash_str("frame"), si as u64, hash_str(ch), j as u64],
-            )
-        };
-        // CAM_FRONT at the keyframes.
+                String::new()
+            },
+            next: if k + 1 < m {
+                plan.sample_tokens[k + 1].clone()
+            } else {
+                String::new()
+            },
+            scene_token: scene_token.clone(),
+        });
+    }
+    for mt in mounts {
+        tb.calibrated_sensor
+            .push(calibrated_sensor_row(seed, si, mt));
+    }
+}
+
+/// The calibrated_sensor row of one mount in scene `si`.
+fn calibrated_sensor_row(seed: u64, si: usize, mt: &Mount) -> CalibratedSensor {
+    let intr = if mt.modality == "camera" {
+        vec![
+            [calib::CAM_FX, 0.0, calib::CAM_CX],
+            [0.0, calib::CAM_FY, calib::CAM_CY],
+            [0.0, 0.0, 1.0],
+        ]
+    } else {
+        Vec::new()
+    };
+    CalibratedSensor {
+        token: token(
+            seed,
+            &[
+                hash_str("calibrated_sensor"),
+                si as u64,
+                hash_str(mt.channel),
+            ],
+        ),
+        sensor_token: name_token("sensor", mt.channel),
+        translation: mt.translation,
+        rotation: mt.rotation_wxyz,
+        camera_intrinsic: intr,
+    }
+}
+
+/// The sample_data token and the RNG salt of frame `j` of a channel of scene `si`.
+struct SceneIds {
+    seed: u64,
+    si: usize,
+}
+
+impl SceneIds {
+    /// sample_data token (also the ego_pose token) of frame `j` of channel `ch`.
+    fn sd_token(&self, ch: &str, j: usize) -> String {
+        token(
+            self.seed,
+            &[
+                hash_str("sample_data"),
+                self.si as u64,
+                hash_str(ch),
+                j as u64,
+            ],
+        )
+    }
+
+    /// RNG salt of frame `j` of channel `ch`.
+    fn salt(&self, ch: &str, j: usize) -> u64 {
+        crate::rng::hash_ids(
+            self.seed,
+            &[hash_str("frame"), self.si as u64, hash_str(ch), j as u64],
+        )
+    }
+}
+
+/// Index of the time in `times` nearest to `t` (the first on a tie).
+fn nearest_index(times: &[f64], t: f64) -> usize {
+    times
+        .iter()
+        .enumerate()
+        .map(|(j, &tt)| (j, (tt - t).abs()))
+        .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
+        .0
+}
+
+/// One frame of a channel: its job and, for a keyframe, its sample index.
+struct ChanRow {
+    job: usize,
+    kf: Option<usize>,
+}
+
+/// Every frame to render (one job per file) and the per-channel frame lists.
+#[derive(Default)]
+struct Timeline {
+    jobs: Vec<Job>,
+    /// Per (scene, channel) lists of (job index, is_keyframe sample index).
+    chans: Vec<(usize, &'static str, Vec<ChanRow>)>,
+}
+
+impl Timeline {
+    /// CAM_FRONT at the keyframes.
+    fn add_camera(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng) {
+        let si = ids.si;
         let mut rows = Vec::new();
-        for k in 0..m {
+        for k in 0..plan.kf_t.len() {
             let t = plan.kf_t[k] + calib::CAM_OFFSET_S + jr.range(-0.002, 0.002);
-            let tok = sd_token(calib::CAM_FRONT, k);
+            let tok = ids.sd_token(calib::CAM_FRONT, k);
             rows.push(ChanRow {
-                job: jobs.len(),
+                job: self.jobs.len(),
                 kf: Some(k),
             });
-            jobs.push(Job {
+            self.jobs.push(Job {
                 scene: si,
                 kind: JobKind::Cam {
                     truth: format!("{TRUTH_DIR}/{tok}.png"),
@@ -352,11 +460,17 @@ fn generate_into(
                     ts_us(si, t)
                 ),
                 token: tok,
-                salt: salt(calib::CAM_FRONT, k),
+                salt: ids.salt(calib::CAM_FRONT, k),
             });
         }
-        chans.push((si, calib::CAM_FRONT, rows));
-        // LIDAR_TOP at 20 Hz, keyframes every 10th sweep.
+        self.chans.push((si, calib::CAM_FRONT, rows));
+    }
+
+    /// LIDAR_TOP at 20 Hz, keyframes every 10th sweep.
+    fn add_lidar(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng) {
+        let si = ids.si;
+        let m = plan.kf_t.len();
+        let kf_t0 = first_keyframe_t();
         let per = (calib::KEYFRAME_PERIOD_S / calib::LIDAR_PERIOD_S).round() as usize;
         let n_lidar = (m - 1) * per + 1 + 2 * LIDAR_PAD;
         let mut rows = Vec::new();
@@ -376,10 +490,10 @@ fn generate_into(
             };
             let folder = if kf.is_some() { "samples" } else { "sweeps" };
             rows.push(ChanRow {
-                job: jobs.len(),
+                job: self.jobs.len(),
                 kf,
             });
-            jobs.push(Job {
+            self.jobs.push(Job {
                 scene: si,
                 kind: JobKind::Lidar,
                 t,
@@ -388,75 +502,90 @@ fn generate_into(
                     plan.logfile,
                     ts_us(si, t)
                 ),
-                token: sd_token(calib::LIDAR_TOP, j),
-                salt: salt(calib::LIDAR_TOP, j),
+                token: ids.sd_token(calib::LIDAR_TOP, j),
+                salt: ids.salt(calib::LIDAR_TOP, j),
             });
         }
-        chans.push((si, calib::LIDAR_TOP, rows));
-        // Radars at ≈13 Hz with their own phases; the sweep nearest each keyframe is the keyframe.
-        for rm in &radar_mounts {
-            let phase = jr.range(0.0, calib::RADAR_PERIOD_S);
-            let t_first =
-                plan.kf_t[0] - 5.0 * calib::RADAR_PERIOD_S + phase - calib::RADAR_PERIOD_S / 2.0;
-            let t_last = plan.kf_t[m - 1] + calib::RADAR_PERIOD_S / 2.0;
-            let mut times = Vec::new();
-            let mut t = t_first;
-            while t <= t_last {
-                times.push(t + jr.range(-0.001, 0.001));
-                t += calib::RADAR_PERIOD_S;
-            }
-            let mut kf_of = vec![None; times.len()];
-            for k in 0..m {
-                let (jbest, _) = times
-                    .iter()
-                    .enumerate()
-                    .map(|(j, &tt)| (j, (tt - plan.kf_t[k]).abs()))
-                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-                kf_of[jbest] = Some(k);
-            }
-            let mut rows = Vec::new();
-            for (j, &t) in times.iter().enumerate() {
-                let folder = if kf_of[j].is_some() {
-                    "samples"
-                } else {
-                    "sweeps"
-                };
-                rows.push(ChanRow {
-                    job: jobs.len(),
-                    kf: kf_of[j],
-                });
-                jobs.push(Job {
-                    scene: si,
-                    kind: JobKind::Radar { mount: *rm },
-                    t,
-                    filename: format!(
-                        "{folder}/{}/{}__{}__{}.pcd",
-                        rm.channel,
-                        plan.logfile,
-                        rm.channel,
-                        ts_us(si, t)
-                    ),
-                    token: sd_token(rm.channel, j),
-                    salt: salt(rm.channel, j),
-                });
-            }
-            chans.push((si, rm.channel, rows));
-        }
+        self.chans.push((si, calib::LIDAR_TOP, rows));
     }
 
-    // Directories.
+    /// A radar at ≈13 Hz with its own phase; the sweep nearest each keyframe is the keyframe.
+    fn add_radar(&mut self, ids: &SceneIds, plan: &ScenePlan, rm: &Mount, jr: &mut Rng) {
+        let si = ids.si;
+        let (times, kf_of) = radar_times(plan, jr);
+        let mut rows = Vec::new();
+        for (j, &t) in times.iter().enumerate() {
+            let folder = if kf_of[j].is_some() {
+                "samples"
+            } else {
+                "sweeps"
+            };
+            rows.push(ChanRow {
+                job: self.jobs.len(),
+                kf: kf_of[j],
+            });
+            self.jobs.push(Job {
+                scene: si,
+                kind: JobKind::Radar { mount: *rm },
+                t,
+                filename: format!(
+                    "{folder}/{}/{}__{}__{}.pcd",
+                    rm.channel,
+                    plan.logfile,
+                    rm.channel,
+                    ts_us(si, t)
+                ),
+                token: ids.sd_token(rm.channel, j),
+                salt: ids.salt(rm.channel, j),
+            });
+        }
+        self.chans.push((si, rm.channel, rows));
+    }
+}
+
+/// Sweep times of one radar (random phase and jitter) and the keyframe index of each sweep.
+fn radar_times(plan: &ScenePlan, jr: &mut Rng) -> (Vec<f64>, Vec<Option<usize>>) {
+    let m = plan.kf_t.len();
+    let phase = jr.range(0.0, calib::RADAR_PERIOD_S);
+    let t_first = plan.kf_t[0] - 5.0 * calib::RADAR_PERIOD_S + phase - calib::RADAR_PERIOD_S / 2.0;
+    let t_last = plan.kf_t[m - 1] + calib::RADAR_PERIOD_S / 2.0;
+    let mut times = Vec::new();
+    let mut t = t_first;
+    while t <= t_last {
+        times.push(t + jr.range(-0.001, 0.001));
+        t += calib::RADAR_PERIOD_S;
+    }
+    let mut kf_of = vec![None; times.len()];
+    for k in 0..m {
+        let jbest = nearest_index(&times, plan.kf_t[k]);
+        kf_of[jbest] = Some(k);
+    }
+    (times, kf_of)
+}
+
+/// The dataroot's folders: samples/ and sweeps/ per channel, truth/, maps/, the version.
+fn create_dirs(root: &Path, mounts: &[Mount], version_name: &str) -> Result<(), SynthError> {
     for d in ["samples", "sweeps"] {
-        for mt in &mounts {
+        for mt in mounts {
             let p = root.join(d).join(mt.channel);
             std::fs::create_dir_all(&p).map_err(io_err(&p))?;
         }
     }
-    for d in [TRUTH_DIR, "maps", cfg.version_name.as_str()] {
+    for d in [TRUTH_DIR, "maps", version_name] {
         let p = root.join(d);
         std::fs::create_dir_all(&p).map_err(io_err(&p))?;
     }
+    Ok(())
+}
 
-    // Render and write every frame in parallel; each frame has its own RNG stream.
+/// Render and write every frame in parallel; each frame has its own RNG stream.
+fn render_frames(
+    root: &Path,
+    cfg: &SynthConfig,
+    jobs: &[Job],
+    plans: &[ScenePlan],
+    progress: &indicatif::ProgressBar,
+) -> Result<Vec<JobOut>, SynthError> {
     progress.set_length(jobs.len() as u64);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(cfg.jobs)
@@ -475,19 +604,69 @@ fn generate_into(
     for o in outs {
         outs_ok.push(o?);
     }
-    let mut bytes: u64 = outs_ok.iter().map(|o| o.bytes).sum();
+    Ok(outs_ok)
+}
 
-    // sample_data and ego_pose rows, channel by channel, with prev/next chains.
-    let mut lidar_counts: BTreeMap<(usize, usize), BTreeMap<u32, u32>> = BTreeMap::new();
-    let mut radar_counts: BTreeMap<(usize, usize), BTreeMap<u32, u32>> = BTreeMap::new();
-    for (si, ch, rows) in &chans {
+/// Points per object at each (scene, keyframe index).
+type ObjCounts = BTreeMap<(usize, usize), BTreeMap<u32, u32>>;
+
+/// Lidar and radar points per object at each keyframe (the annotations' point counts).
+#[derive(Default)]
+struct KeyframeCounts {
+    lidar: ObjCounts,
+    radar: ObjCounts,
+}
+
+impl KeyframeCounts {
+    /// Add a keyframe's points per object: the lidar sweep's, or summed over the radars.
+    fn add(&mut self, si: usize, k: usize, kind: &JobKind, counts: &[(u32, u32)]) {
+        match kind {
+            JobKind::Lidar => {
+                self.lidar
+                    .entry((si, k))
+                    .or_default()
+                    .extend(counts.iter().copied());
+            }
+            JobKind::Radar { .. } => {
+                let e = self.radar.entry((si, k)).or_default();
+                for &(o, c) in counts {
+                    *e.entry(o).or_default() += c;
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// (lidar, radar) points on actor `ai` at keyframe `k` of scene `si`.
+    fn of(&self, si: usize, k: usize, ai: usize) -> (u32, u32) {
+        let get = |c: &ObjCounts| {
+            c.get(&(si, k))
+                .and_then(|c| c.get(&(ai as u32)))
+                .copied()
+                .unwrap_or(0)
+        };
+        (get(&self.lidar), get(&self.radar))
+    }
+}
+
+/// sample_data and ego_pose rows, channel by channel, with prev/next chains; returns the
+/// keyframes' points per object.
+fn push_sample_data(
+    tb: &mut Tables,
+    seed: u64,
+    plans: &[ScenePlan],
+    tl: &Timeline,
+    outs_ok: &[JobOut],
+) -> KeyframeCounts {
+    let mut counts = KeyframeCounts::default();
+    for (si, ch, rows) in &tl.chans {
         let plan = &plans[*si];
         let cs_token = token(
             seed,
             &[hash_str("calibrated_sensor"), *si as u64, hash_str(ch)],
         );
         for (r, row) in rows.iter().enumerate() {
-            let job = &jobs[row.job];
+            let job = &tl.jobs[row.job];
             let (ep, eq) = plan.world.ego_pose(job.t);
             let ts = ts_us(*si, job.t);
             tb.ego_pose.push(EgoPose {
@@ -496,153 +675,167 @@ fn generate_into(
                 rotation: q_wxyz(eq),
                 translation: [ep.x, ep.y, ep.z],
             });
-            // Sweeps belong to the nearest keyframe's sample.
-            let sample_k = row.kf.unwrap_or_else(|| {
-                plan.kf_t
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &tk)| (k, (tk - job.t).abs()))
-                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
-                    .0
-            });
-            let (fileformat, w, h) = match job.kind {
-                JobKind::Cam { .. } => ("jpg", IMG_W, IMG_H),
-                _ => ("pcd", 0, 0),
+            let chain_token = |i: usize| tl.jobs[rows[i].job].token.clone();
+            let prev = if r > 0 {
+                chain_token(r - 1)
+            } else {
+                String::new()
             };
-            tb.sample_data.push(SampleData {
-                token: job.token.clone(),
-                sample_token: plan.sample_tokens[sample_k].clone(),
-                ego_pose_token: job.token.clone(),
-                calibrated_sensor_token: cs_token.clone(),
-                timestamp: ts,
-                fileformat: fileformat.into(),
-                is_key_frame: row.kf.is_some(),
-                height: h,
-                width: w,
-                filename: job.filename.clone(),
-                prev: if r > 0 {
-                    jobs[rows[r - 1].job].token.clone()
-                } else {
-                    String::new()
-                },
-                next: if r + 1 < rows.len() {
-                    jobs[rows[r + 1].job].token.clone()
-                } else {
-                    String::new()
-                },
-            });
+            let next = if r + 1 < rows.len() {
+                chain_token(r + 1)
+            } else {
+                String::new()
+            };
+            tb.sample_data.push(sample_data_row(
+                plan, job, row.kf, &cs_token, ts, prev, next,
+            ));
             if let Some(k) = row.kf {
-                let counts = &outs_ok[row.job].counts;
-                match job.kind {
-                    JobKind::Lidar => {
-                        lidar_counts
-                            .entry((*si, k))
-                            .or_default()
-                            .extend(counts.iter().copied());
-                    }
-                    JobKind::Radar { .. } => {
-                        let e = radar_counts.entry((*si, k)).or_default();
-                        for &(o, c) in counts {
-                            *e.entry(o).or_default() += c;
-                        }
-                    }
-                    _ => {}
-                }
+                counts.add(*si, k, &job.kind, &outs_ok[row.job].counts);
             }
         }
     }
+    counts
+}
 
-    // Annotations: every actor within range of the ego at each keyframe.
-    for (si, plan) in plans.iter().enumerate() {
-        let w = &plan.world;
-        let mut per_actor: BTreeMap<usize, Vec<(usize, SampleAnnotation)>> = BTreeMap::new();
-        for k in 0..m {
-            let t = plan.kf_t[k];
-            let (ep, _) = w.ego_pose(t);
-            for (ai, a) in w.actors.iter().enumerate() {
-                let st = w.actor_state(ai, t);
-                if (st.pos - DVec2::new(ep.x, ep.y)).length() > ANNOTATE_RANGE_M
-                    || w.actor_hidden(ai, &st, t)
-                {
-                    continue;
-                }
-                let nl = lidar_counts
-                    .get(&(si, k))
-                    .and_then(|c| c.get(&(ai as u32)))
-                    .copied()
-                    .unwrap_or(0);
-                let nr = radar_counts
-                    .get(&(si, k))
-                    .and_then(|c| c.get(&(ai as u32)))
-                    .copied()
-                    .unwrap_or(0);
-                let speed = st.vel.length();
-                let attr = match (a.kind, a.motion) {
-                    (ActorKind::Pedestrian, _) if speed > 0.3 => "pedestrian.moving",
-                    (ActorKind::Pedestrian, _) => "pedestrian.standing",
-                    (_, Motion::Parked { .. }) => "vehicle.parked",
-                    _ if speed > 0.3 => "vehicle.moving",
-                    _ => "vehicle.stopped",
-                };
-                let vis = match nl {
-                    0 => "1",
-                    1..=9 => "2",
-                    10..=49 => "3",
-                    _ => "4",
-                };
-                per_actor.entry(ai).or_default().push((
-                    k,
-                    SampleAnnotation {
-                        token: token(
-                            seed,
-                            &[
-                                hash_str("sample_annotation"),
-                                si as u64,
-                                ai as u64,
-                                k as u64,
-                            ],
-                        ),
-                        sample_token: plan.sample_tokens[k].clone(),
-                        instance_token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
-                        visibility_token: vis.into(),
-                        attribute_tokens: vec![name_token("attribute", attr)],
-                        translation: [st.pos.x, st.pos.y, a.size.z / 2.0],
-                        size: [a.size.y, a.size.x, a.size.z],
-                        rotation: q_wxyz(DQuat::from_rotation_z(st.yaw)),
-                        prev: String::new(),
-                        next: String::new(),
-                        num_lidar_pts: nl,
-                        num_radar_pts: nr,
-                        velocity: [st.vel.x, st.vel.y, 0.0],
-                    },
-                ));
+/// The sample_data row of one frame.
+fn sample_data_row(
+    plan: &ScenePlan,
+    job: &Job,
+    kf: Option<usize>,
+    cs_token: &str,
+    ts: i64,
+    prev: String,
+    next: String,
+) -> SampleData {
+    // Sweeps belong to the nearest keyframe's sample.
+    let sample_k = kf.unwrap_or_else(|| nearest_index(&plan.kf_t, job.t));
+    let (fileformat, w, h) = match job.kind {
+        JobKind::Cam { .. } => ("jpg", IMG_W, IMG_H),
+        _ => ("pcd", 0, 0),
+    };
+    SampleData {
+        token: job.token.clone(),
+        sample_token: plan.sample_tokens[sample_k].clone(),
+        ego_pose_token: job.token.clone(),
+        calibrated_sensor_token: cs_token.to_string(),
+        timestamp: ts,
+        fileformat: fileformat.into(),
+        is_key_frame: kf.is_some(),
+        height: h,
+        width: w,
+        filename: job.filename.clone(),
+        prev,
+        next,
+    }
+}
+
+/// The sample_annotation and instance rows of scene `si`: every actor within range of the
+/// ego at each keyframe, chained per actor.
+fn push_annotations(
+    tb: &mut Tables,
+    seed: u64,
+    si: usize,
+    plan: &ScenePlan,
+    counts: &KeyframeCounts,
+) {
+    let w = &plan.world;
+    let mut per_actor: BTreeMap<usize, Vec<(usize, SampleAnnotation)>> = BTreeMap::new();
+    for k in 0..plan.kf_t.len() {
+        let t = plan.kf_t[k];
+        let (ep, _) = w.ego_pose(t);
+        for ai in 0..w.actors.len() {
+            let st = w.actor_state(ai, t);
+            if (st.pos - DVec2::new(ep.x, ep.y)).length() > ANNOTATE_RANGE_M
+                || w.actor_hidden(ai, &st, t)
+            {
+                continue;
             }
-        }
-        for (ai, mut anns) in per_actor {
-            let n = anns.len();
-            for i in 0..n {
-                if i > 0 {
-                    anns[i].1.prev = anns[i - 1].1.token.clone();
-                }
-                if i + 1 < n {
-                    anns[i].1.next = anns[i + 1].1.token.clone();
-                }
-            }
-            tb.instance.push(Instance {
-                token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
-                category_token: name_token("category", w.actors[ai].kind.category()),
-                nbr_annotations: n,
-                first_annotation_token: anns[0].1.token.clone(),
-                last_annotation_token: anns[n - 1].1.token.clone(),
-            });
-            tb.sample_annotation.extend(anns.into_iter().map(|a| a.1));
+            let ann = annotation(seed, si, plan, k, ai, &st, counts.of(si, k, ai));
+            per_actor.entry(ai).or_default().push((k, ann));
         }
     }
+    for (ai, mut anns) in per_actor {
+        let n = anns.len();
+        for i in 0..n {
+            if i > 0 {
+                anns[i].1.prev = anns[i - 1].1.token.clone();
+            }
+            if i + 1 < n {
+                anns[i].1.next = anns[i + 1].1.token.clone();
+            }
+        }
+        tb.instance.push(Instance {
+            token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
+            category_token: name_token("category", w.actors[ai].kind.category()),
+            nbr_annotations: n,
+            first_annotation_token: anns[0].1.token.clone(),
+            last_annotation_token: anns[n - 1].1.token.clone(),
+        });
+        tb.sample_annotation.extend(anns.into_iter().map(|a| a.1));
+    }
+}
 
-    // Semantic-prior map (roads and sidewalks) of the synthetic city.
+/// The (unchained) annotation of actor `ai` in state `st` at keyframe `k`, with its
+/// (lidar, radar) point counts `(nl, nr)`.
+fn annotation(
+    seed: u64,
+    si: usize,
+    plan: &ScenePlan,
+    k: usize,
+    ai: usize,
+    st: &ActorState,
+    (nl, nr): (u32, u32),
+) -> SampleAnnotation {
+    let a = &plan.world.actors[ai];
+    let speed = st.vel.length();
+    let attr = match (a.kind, a.motion) {
+        (ActorKind::Pedestrian, _) if speed > 0.3 => "pedestrian.moving",
+        (ActorKind::Pedestrian, _) => "pedestrian.standing",
+        (_, Motion::Parked { .. }) => "vehicle.parked",
+        _ if speed > 0.3 => "vehicle.moving",
+        _ => "vehicle.stopped",
+    };
+    let vis = match nl {
+        0 => "1",
+        1..=9 => "2",
+        10..=49 => "3",
+        _ => "4",
+    };
+    SampleAnnotation {
+        token: token(
+            seed,
+            &[
+                hash_str("sample_annotation"),
+                si as u64,
+                ai as u64,
+                k as u64,
+            ],
+        ),
+        sample_token: plan.sample_tokens[k].clone(),
+        instance_token: token(seed, &[hash_str("instance"), si as u64, ai as u64]),
+        visibility_token: vis.into(),
+        attribute_tokens: vec![name_token("attribute", attr)],
+        translation: [st.pos.x, st.pos.y, a.size.z / 2.0],
+        size: [a.size.y, a.size.x, a.size.z],
+        rotation: q_wxyz(DQuat::from_rotation_z(st.yaw)),
+        prev: String::new(),
+        next: String::new(),
+        num_lidar_pts: nl,
+        num_radar_pts: nr,
+        velocity: [st.vel.x, st.vel.y, 0.0],
+    }
+}
+
+/// Semantic-prior map (roads and sidewalks) of the synthetic city: writes the PNG, adds the
+/// map row and returns the bytes written.
+fn write_map(
+    root: &Path,
+    tb: &mut Tables,
+    plans: &[ScenePlan],
+    map_token: String,
+) -> Result<u64, SynthError> {
     let map_file = format!("maps/{map_token}.png");
-    let map_bytes = render_map(&plans)?;
-    bytes += map_bytes.len() as u64;
+    let map_bytes = render_map(plans)?;
     let map_path = root.join(&map_file);
     std::fs::write(&map_path, &map_bytes).map_err(io_err(&map_path))?;
     tb.map.push(MapRow {
@@ -651,8 +844,12 @@ fn generate_into(
         category: "semantic_prior".into(),
         filename: map_file,
     });
+    Ok(map_bytes.len() as u64)
+}
 
-    let vdir = root.join(&cfg.version_name);
+/// Write the 13 tables to `<version>/<table>.json`; returns the bytes written.
+fn write_tables(vdir: &Path, tb: &Tables) -> Result<u64, SynthError> {
+    let mut bytes = 0;
     for (stem, json) in tb
         .to_json()
         .map_err(|e| SynthError::Encode(format!("tables: {e}")))?
@@ -661,8 +858,14 @@ fn generate_into(
         bytes += json.len() as u64;
         std::fs::write(&p, json).map_err(io_err(&p))?;
     }
-    // Train / val / test scene lists (by condition, never by content; see `splits`).
-    let scene_splits = crate::splits::assign_splits(&weathers);
+    Ok(bytes)
+}
+
+/// Train / val / test scene lists (by condition, never by content; see `splits`); returns
+/// the bytes written.
+fn write_splits(vdir: &Path, tb: &Tables, weathers: &[Weather]) -> Result<u64, SynthError> {
+    let mut bytes = 0;
+    let scene_splits = crate::splits::assign_splits(weathers);
     let sdir = vdir.join(crate::splits::SPLITS_DIR);
     std::fs::create_dir_all(&sdir).map_err(io_err(&sdir))?;
     for name in crate::splits::SPLIT_NAMES {
@@ -677,19 +880,11 @@ fn generate_into(
         bytes += text.len() as u64;
         std::fs::write(&p, text).map_err(io_err(&p))?;
     }
-    let summary = SynthSummary {
-        keyframes: cfg.scenes * m,
-        scenes: cfg.scenes,
-        sample_data: tb.sample_data.len(),
-        files: jobs.len() + m * cfg.scenes + 14 + crate::splits::SPLIT_NAMES.len(),
-        bytes,
-        version_dir: vdir,
-        seconds: 0.0,
-        conditions: weathers.iter().fold([0usize; 3], |mut acc, w| {
-            acc[*w as usize] += 1;
-            acc
-        }),
-    };
+    Ok(bytes)
+}
+
+/// The marker file at the dataroot (the configuration).
+fn write_marker(root: &Path, cfg: &SynthConfig) -> Result<(), SynthError> {
     let marker = serde_json::json!({
         "generator": "depthsense synth",
         "version_name": cfg.version_name,
@@ -704,8 +899,7 @@ fn generate_into(
         &p,
         serde_json::to_vec_pretty(&marker).map_err(|e| SynthError::Encode(e.to_string()))?,
     )
-    .map_err(io_err(&p))?;
-    Ok(summary)
+    .map_err(io_err(&p))
 }
 
 fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> {
