@@ -505,314 +505,346 @@ impl World {
     }
 
     fn populate(&mut self, rng: &mut Rng, legs: &[(DVec2, DVec2, f64)], v_cruise: f64) {
-        let mut statics = Vec::new();
-        let mut obj = STATIC_OBJ_BASE;
+        let mut statics = StaticsBuf {
+            prims: Vec::new(),
+            obj: STATIC_OBJ_BASE,
+        };
         let segs = self.segs.clone();
         let night = self.weather == Weather::Night;
         let _ = night;
         for (si, seg) in segs.iter().enumerate() {
             for side in [-1.0f64, 1.0] {
-                // Buildings / walls.
-                let mut s = rng.range(-5.0, 5.0);
-                while s < seg.len {
-                    let w = rng.range(8.0, 28.0);
-                    let gap = if rng.chance(0.35) {
-                        rng.range(2.0, 9.0)
-                    } else {
-                        0.3
-                    };
-                    let depth = rng.range(10.0, 22.0);
-                    // Open streets: forecourts, car parks and plazas set many buildings far
-                    // back from the sidewalk. Real RADAR_FRONT kept points lie at 16.0 / 47.0 /
-                    // 91.1 m (p10/p50/p90) and off-axis ones reach far (|az| 20–30°: p90
-                    // 82 m), which a canyon of facades 10 m from the lane cannot produce
-                    // (a facade at 10 m lateral offset is at 8° already at 70 m). Real off-axis
-                    // returns sit ≈ 20 m to the side (median range 37 m at |az| 30–40°,
-                    // 25 m at 50–60°).
-                    let setback = if rng.chance(0.7) {
-                        rng.range(10.0, 40.0)
-                    } else {
-                        rng.range(0.0, 3.0)
-                    };
-                    let sc = s + w / 2.0;
-                    let lc = side * (seg.hw + seg.sw + setback + depth / 2.0);
-                    let c = seg.point(sc, lc);
-                    let fp_ok = self.footprint_clear(c, seg.dir, w, depth);
-                    if fp_ok {
-                        obj += 1;
-                        if rng.chance(0.12) {
-                            let h = rng.range(1.8, 3.0);
-                            let rgb = *rng.pick(&[
-                                [0.60, 0.58, 0.55],
-                                [0.50, 0.30, 0.24],
-                                [0.70, 0.70, 0.68],
-                            ]);
-                            let wl = seg.point(sc, side * (seg.hw + seg.sw + setback + 0.15));
-                            statics.push(Prim::oriented_box(
-                                DVec3::new(wl.x, wl.y, h / 2.0),
-                                DVec3::new(w, 0.3, h),
-                                seg.yaw(),
-                                Surface::Wall,
-                                rgb,
-                                obj,
-                            ));
-                        } else {
-                            let h = if rng.chance(0.2) {
-                                rng.range(20.0, 45.0)
-                            } else {
-                                rng.range(5.0, 18.0)
-                            };
-                            let base = *rng.pick(&FACADES);
-                            let k = rng.range(0.85, 1.1) as f32;
-                            statics.push(Prim::oriented_box(
-                                DVec3::new(c.x, c.y, h / 2.0),
-                                DVec3::new(w, depth, h),
-                                seg.yaw(),
-                                Surface::Facade,
-                                [base[0] * k, base[1] * k, base[2] * k],
-                                obj,
-                            ));
-                        }
-                    }
-                    s += w + gap;
-                }
-                // Street lamps / poles at the kerb.
-                let mut s = rng.range(5.0, 25.0);
-                while s < seg.len {
-                    let l = side * (seg.hw + 0.5);
-                    let p = seg.point(s, l);
-                    if self.ground_kind(p) == Ground::Sidewalk
-                        && self.clear_of_other_roads(p, si, 2.0)
-                    {
-                        obj += 1;
-                        let h = rng.range(7.0, 9.0);
-                        statics.push(Prim::new(
-                            Shape::Cyl {
-                                c: p,
-                                r: 0.11,
-                                z0: 0.0,
-                                z1: h,
-                            },
-                            Surface::Pole,
-                            [0.35, 0.36, 0.37],
-                            obj,
-                        ));
-                        // Arm reaching over the road and the lamp head.
-                        let arm_c = seg.point(s, l - side * 0.9);
-                        statics.push(Prim::oriented_box(
-                            DVec3::new(arm_c.x, arm_c.y, h - 0.1),
-                            DVec3::new(0.15, 1.8, 0.12),
-                            seg.yaw(),
-                            Surface::Pole,
-                            [0.35, 0.36, 0.37],
-                            obj,
-                        ));
-                        let head = seg.point(s, l - side * 1.7);
-                        statics.push(Prim::oriented_box(
-                            DVec3::new(head.x, head.y, h - 0.25),
-                            DVec3::new(0.5, 0.7, 0.18),
-                            seg.yaw(),
-                            Surface::LampHead,
-                            [0.8, 0.8, 0.75],
-                            obj,
-                        ));
-                        self.lamps.push(DVec3::new(head.x, head.y, h - 0.4));
-                    }
-                    s += rng.range(26.0, 36.0);
-                }
-                // Street furniture at the kerb between the lamps: sign posts with a metal
-                // plate. Real RADAR_FRONT kept points are mostly static (dyn_prop 1: 68 %,
-                // 3: 22 %) and spread evenly in range from 10 to 80 m (12–14 % per 10 m bin
-                // up to 60 m, 8–10 % beyond), the signature of many small roadside targets
-                // at regular spacing.
-                let mut s = rng.range(4.0, 16.0);
-                while s < seg.len {
-                    let l = side * (seg.hw + 0.35);
-                    let p = seg.point(s, l);
-                    if self.ground_kind(p) == Ground::Sidewalk
-                        && self.clear_of_other_roads(p, si, 2.0)
-                        && !self.lamps.iter().any(|q| (q.truncate() - p).length() < 3.0)
-                    {
-                        obj += 1;
-                        let h = rng.range(2.4, 3.0);
-                        statics.push(Prim::new(
-                            Shape::Cyl {
-                                c: p,
-                                r: 0.04,
-                                z0: 0.0,
-                                z1: h,
-                            },
-                            Surface::Pole,
-                            [0.55, 0.56, 0.57],
-                            obj,
-                        ));
-                        let rgb = *rng.pick(&[
-                            [0.75, 0.10, 0.10],
-                            [0.10, 0.25, 0.65],
-                            [0.85, 0.85, 0.85],
-                        ]);
-                        statics.push(Prim::oriented_box(
-                            DVec3::new(p.x, p.y, h - 0.35),
-                            DVec3::new(0.05, 0.6, 0.6),
-                            seg.yaw(),
-                            Surface::Pole,
-                            rgb,
-                            obj,
-                        ));
-                    }
-                    s += rng.range(8.0, 16.0);
-                }
-                // Trees on the back of the sidewalk.
-                let mut s = rng.range(3.0, 15.0);
-                while s < seg.len {
-                    let p = seg.point(s, side * (seg.hw + seg.sw - 0.9));
-                    if rng.chance(0.6)
-                        && self.ground_kind(p) == Ground::Sidewalk
-                        && self.clear_of_other_roads(p, si, 3.0)
-                    {
-                        obj += 1;
-                        let th = rng.range(1.8, 3.2);
-                        let cr = rng.range(1.4, 2.6);
-                        statics.push(Prim::new(
-                            Shape::Cyl {
-                                c: p,
-                                r: rng.range(0.12, 0.22),
-                                z0: 0.0,
-                                z1: th + cr * 0.5,
-                            },
-                            Surface::Bark,
-                            [0.30, 0.22, 0.15],
-                            obj,
-                        ));
-                        let g = rng.range(0.8, 1.15) as f32;
-                        statics.push(Prim::new(
-                            Shape::Sphere {
-                                c: DVec3::new(p.x, p.y, th + cr * 0.8),
-                                r: cr,
-                            },
-                            Surface::Foliage,
-                            [0.16 * g, 0.32 * g, 0.10 * g],
-                            obj,
-                        ));
-                    }
-                    s += rng.range(10.0, 22.0);
-                }
-                // Parked vehicles in the parking strip.
-                let mut s = rng.range(8.0, 14.0);
-                while s < seg.len - 8.0 {
-                    let l = side * (seg.hw - 1.25);
-                    let p = seg.point(s, l);
-                    if rng.chance(0.4) && self.clear_of_other_roads(p, si, 9.0) {
-                        let kind = if rng.chance(0.08) {
-                            ActorKind::Truck
-                        } else {
-                            ActorKind::Car
-                        };
-                        let yaw = seg.yaw()
-                            + if side > 0.0 {
-                                std::f64::consts::PI
-                            } else {
-                                0.0
-                            };
-                        let size = vehicle_size(rng, kind);
-                        self.actors.push(Actor {
-                            kind,
-                            motion: Motion::Parked { pos: p, yaw },
-                            size,
-                            rgb: *rng.pick(&CAR_COLOURS),
-                            clothes2: [0.0; 3],
-                        });
-                        s += size.x + rng.range(1.0, 3.0);
-                    } else {
-                        s += rng.range(5.0, 8.0);
-                    }
-                }
-                // Pedestrians on the sidewalk.
-                let n_ped = (seg.len / 30.0 * rng.range(0.3, 1.3)) as usize;
-                for _ in 0..n_ped {
-                    let l = side * (seg.hw + rng.range(1.0, seg.sw - 0.6));
-                    let v = if rng.chance(0.2) {
-                        0.0
-                    } else {
-                        rng.range(1.0, 1.7) * if rng.chance(0.5) { 1.0 } else { -1.0 }
-                    };
-                    let s0 = rng.range(5.0, seg.len - 5.0);
-                    let h = rng.range(1.55, 1.95);
-                    let motion = if v == 0.0 {
-                        let p = seg.point(s0, l);
-                        if !self.clear_of_other_roads(p, si, 1.0) {
-                            continue;
-                        }
-                        Motion::Parked {
-                            pos: p,
-                            yaw: seg.yaw() + rng.range(-3.0, 3.0),
-                        }
-                    } else {
-                        Motion::Lane {
-                            seg: si,
-                            l,
-                            s0,
-                            v,
-                            s_min: 5.0,
-                            s_max: seg.len - 5.0,
-                        }
-                    };
-                    self.actors.push(Actor {
-                        kind: ActorKind::Pedestrian,
-                        motion,
-                        size: DVec3::new(0.55, 0.65, h),
-                        rgb: *rng.pick(&[
-                            [0.10, 0.12, 0.20],
-                            [0.55, 0.10, 0.10],
-                            [0.85, 0.82, 0.75],
-                            [0.20, 0.35, 0.55],
-                            [0.15, 0.15, 0.15],
-                            [0.80, 0.60, 0.20],
-                        ]),
-                        clothes2: *rng.pick(&[
-                            [0.15, 0.15, 0.30],
-                            [0.20, 0.20, 0.20],
-                            [0.45, 0.40, 0.35],
-                        ]),
-                    });
-                }
+                self.place_buildings(rng, seg, side, &mut statics);
+                self.place_lamps(rng, seg, si, side, &mut statics);
+                self.place_signs(rng, seg, si, side, &mut statics);
+                self.place_trees(rng, seg, si, side, &mut statics);
+                self.place_parked(rng, seg, si, side);
+                self.place_pedestrians(rng, seg, si, side);
             }
-            // Moving traffic: oncoming lane on every road, own direction on non-ego roads.
-            let is_ego_leg = legs
-                .iter()
-                .any(|&(_, d, _)| d.dot(seg.dir) > 0.999 && self.on_leg_line(seg, legs));
-            for dir_sign in [1.0f64, -1.0] {
-                if dir_sign > 0.0 && is_ego_leg {
-                    continue;
-                }
-                let n = (seg.len / 45.0 * rng.range(0.4, 1.2)).round() as usize;
-                for _ in 0..n {
-                    let kind = if rng.chance(0.06) {
-                        ActorKind::Bus
-                    } else if rng.chance(0.08) {
-                        ActorKind::Truck
+            self.place_traffic(rng, seg, si, legs);
+        }
+        self.place_lead(rng);
+        let _ = v_cruise;
+        // Remove parked / lane actors that would sit on the ego's own path.
+        let path = self.ego_path.clone();
+        self.actors.retain(|a| match a.motion {
+            Motion::Parked { pos, .. } => dist_to_path(&path, pos) > 2.6,
+            _ => true,
+        });
+        self.statics = statics.prims;
+    }
+
+    /// Buildings / walls along one side of `seg`.
+    fn place_buildings(&self, rng: &mut Rng, seg: &RoadSeg, side: f64, statics: &mut StaticsBuf) {
+        let mut s = rng.range(-5.0, 5.0);
+        while s < seg.len {
+            let w = rng.range(8.0, 28.0);
+            let gap = if rng.chance(0.35) {
+                rng.range(2.0, 9.0)
+            } else {
+                0.3
+            };
+            let depth = rng.range(10.0, 22.0);
+            // Open streets: forecourts, car parks and plazas set many buildings far
+            // back from the sidewalk. Real RADAR_FRONT kept points lie at 16.0 / 47.0 /
+            // 91.1 m (p10/p50/p90) and off-axis ones reach far (|az| 20–30°: p90
+            // 82 m), which a canyon of facades 10 m from the lane cannot produce
+            // (a facade at 10 m lateral offset is at 8° already at 70 m). Real off-axis
+            // returns sit ≈ 20 m to the side (median range 37 m at |az| 30–40°,
+            // 25 m at 50–60°).
+            let setback = if rng.chance(0.7) {
+                rng.range(10.0, 40.0)
+            } else {
+                rng.range(0.0, 3.0)
+            };
+            let lot = Lot {
+                sc: s + w / 2.0,
+                w,
+                depth,
+                setback,
+            };
+            let lc = side * (seg.hw + seg.sw + lot.setback + lot.depth / 2.0);
+            let c = seg.point(lot.sc, lc);
+            let fp_ok = self.footprint_clear(c, seg.dir, w, depth);
+            if fp_ok {
+                let obj = statics.next_obj();
+                statics.prims.push(building(rng, seg, side, &lot, c, obj));
+            }
+            s += w + gap;
+        }
+    }
+
+    /// Street lamps / poles at the kerb along one side of `seg`.
+    fn place_lamps(
+        &mut self,
+        rng: &mut Rng,
+        seg: &RoadSeg,
+        si: usize,
+        side: f64,
+        statics: &mut StaticsBuf,
+    ) {
+        let mut s = rng.range(5.0, 25.0);
+        while s < seg.len {
+            let l = side * (seg.hw + 0.5);
+            let p = seg.point(s, l);
+            if self.ground_kind(p) == Ground::Sidewalk && self.clear_of_other_roads(p, si, 2.0) {
+                let obj = statics.next_obj();
+                let h = rng.range(7.0, 9.0);
+                statics.prims.push(Prim::new(
+                    Shape::Cyl {
+                        c: p,
+                        r: 0.11,
+                        z0: 0.0,
+                        z1: h,
+                    },
+                    Surface::Pole,
+                    [0.35, 0.36, 0.37],
+                    obj,
+                ));
+                // Arm reaching over the road and the lamp head.
+                let arm_c = seg.point(s, l - side * 0.9);
+                statics.prims.push(Prim::oriented_box(
+                    DVec3::new(arm_c.x, arm_c.y, h - 0.1),
+                    DVec3::new(0.15, 1.8, 0.12),
+                    seg.yaw(),
+                    Surface::Pole,
+                    [0.35, 0.36, 0.37],
+                    obj,
+                ));
+                let head = seg.point(s, l - side * 1.7);
+                statics.prims.push(Prim::oriented_box(
+                    DVec3::new(head.x, head.y, h - 0.25),
+                    DVec3::new(0.5, 0.7, 0.18),
+                    seg.yaw(),
+                    Surface::LampHead,
+                    [0.8, 0.8, 0.75],
+                    obj,
+                ));
+                self.lamps.push(DVec3::new(head.x, head.y, h - 0.4));
+            }
+            s += rng.range(26.0, 36.0);
+        }
+    }
+
+    /// Street furniture at the kerb between the lamps: sign posts with a metal
+    /// plate. Real RADAR_FRONT kept points are mostly static (dyn_prop 1: 68 %,
+    /// 3: 22 %) and spread evenly in range from 10 to 80 m (12–14 % per 10 m bin
+    /// up to 60 m, 8–10 % beyond), the signature of many small roadside targets
+    /// at regular spacing.
+    fn place_signs(
+        &self,
+        rng: &mut Rng,
+        seg: &RoadSeg,
+        si: usize,
+        side: f64,
+        statics: &mut StaticsBuf,
+    ) {
+        let mut s = rng.range(4.0, 16.0);
+        while s < seg.len {
+            let l = side * (seg.hw + 0.35);
+            let p = seg.point(s, l);
+            if self.ground_kind(p) == Ground::Sidewalk
+                && self.clear_of_other_roads(p, si, 2.0)
+                && !self.lamps.iter().any(|q| (q.truncate() - p).length() < 3.0)
+            {
+                let obj = statics.next_obj();
+                let h = rng.range(2.4, 3.0);
+                statics.prims.push(Prim::new(
+                    Shape::Cyl {
+                        c: p,
+                        r: 0.04,
+                        z0: 0.0,
+                        z1: h,
+                    },
+                    Surface::Pole,
+                    [0.55, 0.56, 0.57],
+                    obj,
+                ));
+                let rgb = *rng.pick(&[[0.75, 0.10, 0.10], [0.10, 0.25, 0.65], [0.85, 0.85, 0.85]]);
+                statics.prims.push(Prim::oriented_box(
+                    DVec3::new(p.x, p.y, h - 0.35),
+                    DVec3::new(0.05, 0.6, 0.6),
+                    seg.yaw(),
+                    Surface::Pole,
+                    rgb,
+                    obj,
+                ));
+            }
+            s += rng.range(8.0, 16.0);
+        }
+    }
+
+    /// Trees on the back of the sidewalk along one side of `seg`.
+    fn place_trees(
+        &self,
+        rng: &mut Rng,
+        seg: &RoadSeg,
+        si: usize,
+        side: f64,
+        statics: &mut StaticsBuf,
+    ) {
+        let mut s = rng.range(3.0, 15.0);
+        while s < seg.len {
+            let p = seg.point(s, side * (seg.hw + seg.sw - 0.9));
+            if rng.chance(0.6)
+                && self.ground_kind(p) == Ground::Sidewalk
+                && self.clear_of_other_roads(p, si, 3.0)
+            {
+                let obj = statics.next_obj();
+                let th = rng.range(1.8, 3.2);
+                let cr = rng.range(1.4, 2.6);
+                statics.prims.push(Prim::new(
+                    Shape::Cyl {
+                        c: p,
+                        r: rng.range(0.12, 0.22),
+                        z0: 0.0,
+                        z1: th + cr * 0.5,
+                    },
+                    Surface::Bark,
+                    [0.30, 0.22, 0.15],
+                    obj,
+                ));
+                let g = rng.range(0.8, 1.15) as f32;
+                statics.prims.push(Prim::new(
+                    Shape::Sphere {
+                        c: DVec3::new(p.x, p.y, th + cr * 0.8),
+                        r: cr,
+                    },
+                    Surface::Foliage,
+                    [0.16 * g, 0.32 * g, 0.10 * g],
+                    obj,
+                ));
+            }
+            s += rng.range(10.0, 22.0);
+        }
+    }
+
+    /// Parked vehicles in the parking strip along one side of `seg`.
+    fn place_parked(&mut self, rng: &mut Rng, seg: &RoadSeg, si: usize, side: f64) {
+        let mut s = rng.range(8.0, 14.0);
+        while s < seg.len - 8.0 {
+            let l = side * (seg.hw - 1.25);
+            let p = seg.point(s, l);
+            if rng.chance(0.4) && self.clear_of_other_roads(p, si, 9.0) {
+                let kind = if rng.chance(0.08) {
+                    ActorKind::Truck
+                } else {
+                    ActorKind::Car
+                };
+                let yaw = seg.yaw()
+                    + if side > 0.0 {
+                        std::f64::consts::PI
                     } else {
-                        ActorKind::Car
+                        0.0
                     };
-                    let v = dir_sign * rng.range(6.0, 13.0);
-                    self.actors.push(Actor {
-                        kind,
-                        motion: Motion::Lane {
-                            seg: si,
-                            l: dir_sign * EGO_LANE_L,
-                            s0: rng.range(0.0, seg.len),
-                            v,
-                            s_min: 0.0,
-                            s_max: seg.len,
-                        },
-                        size: vehicle_size(rng, kind),
-                        rgb: *rng.pick(&CAR_COLOURS),
-                        clothes2: [0.0; 3],
-                    });
-                }
+                let size = vehicle_size(rng, kind);
+                self.actors.push(Actor {
+                    kind,
+                    motion: Motion::Parked { pos: p, yaw },
+                    size,
+                    rgb: *rng.pick(&CAR_COLOURS),
+                    clothes2: [0.0; 3],
+                });
+                s += size.x + rng.range(1.0, 3.0);
+            } else {
+                s += rng.range(5.0, 8.0);
             }
         }
-        // A vehicle ahead of the ego in its lane.
+    }
+
+    /// Pedestrians on the sidewalk along one side of `seg`.
+    fn place_pedestrians(&mut self, rng: &mut Rng, seg: &RoadSeg, si: usize, side: f64) {
+        let n_ped = (seg.len / 30.0 * rng.range(0.3, 1.3)) as usize;
+        for _ in 0..n_ped {
+            let l = side * (seg.hw + rng.range(1.0, seg.sw - 0.6));
+            let v = if rng.chance(0.2) {
+                0.0
+            } else {
+                rng.range(1.0, 1.7) * if rng.chance(0.5) { 1.0 } else { -1.0 }
+            };
+            let s0 = rng.range(5.0, seg.len - 5.0);
+            let h = rng.range(1.55, 1.95);
+            let motion = if v == 0.0 {
+                let p = seg.point(s0, l);
+                if !self.clear_of_other_roads(p, si, 1.0) {
+                    continue;
+                }
+                Motion::Parked {
+                    pos: p,
+                    yaw: seg.yaw() + rng.range(-3.0, 3.0),
+                }
+            } else {
+                Motion::Lane {
+                    seg: si,
+                    l,
+                    s0,
+                    v,
+                    s_min: 5.0,
+                    s_max: seg.len - 5.0,
+                }
+            };
+            self.actors.push(Actor {
+                kind: ActorKind::Pedestrian,
+                motion,
+                size: DVec3::new(0.55, 0.65, h),
+                rgb: *rng.pick(&[
+                    [0.10, 0.12, 0.20],
+                    [0.55, 0.10, 0.10],
+                    [0.85, 0.82, 0.75],
+                    [0.20, 0.35, 0.55],
+                    [0.15, 0.15, 0.15],
+                    [0.80, 0.60, 0.20],
+                ]),
+                clothes2: *rng.pick(&[[0.15, 0.15, 0.30], [0.20, 0.20, 0.20], [0.45, 0.40, 0.35]]),
+            });
+        }
+    }
+
+    /// Moving traffic: oncoming lane on every road, own direction on non-ego roads.
+    fn place_traffic(
+        &mut self,
+        rng: &mut Rng,
+        seg: &RoadSeg,
+        si: usize,
+        legs: &[(DVec2, DVec2, f64)],
+    ) {
+        let is_ego_leg = legs
+            .iter()
+            .any(|&(_, d, _)| d.dot(seg.dir) > 0.999 && self.on_leg_line(seg, legs));
+        for dir_sign in [1.0f64, -1.0] {
+            if dir_sign > 0.0 && is_ego_leg {
+                continue;
+            }
+            let n = (seg.len / 45.0 * rng.range(0.4, 1.2)).round() as usize;
+            for _ in 0..n {
+                let kind = if rng.chance(0.06) {
+                    ActorKind::Bus
+                } else if rng.chance(0.08) {
+                    ActorKind::Truck
+                } else {
+                    ActorKind::Car
+                };
+                let v = dir_sign * rng.range(6.0, 13.0);
+                self.actors.push(Actor {
+                    kind,
+                    motion: Motion::Lane {
+                        seg: si,
+                        l: dir_sign * EGO_LANE_L,
+                        s0: rng.range(0.0, seg.len),
+                        v,
+                        s_min: 0.0,
+                        s_max: seg.len,
+                    },
+                    size: vehicle_size(rng, kind),
+                    rgb: *rng.pick(&CAR_COLOURS),
+                    clothes2: [0.0; 3],
+                });
+            }
+        }
+    }
+
+    /// A vehicle ahead of the ego in its lane.
+    fn place_lead(&mut self, rng: &mut Rng) {
         if rng.chance(0.7) {
             let kind = if rng.chance(0.15) {
                 ActorKind::Truck
@@ -832,14 +864,6 @@ impl World {
                 clothes2: [0.0; 3],
             });
         }
-        let _ = v_cruise;
-        // Remove parked / lane actors that would sit on the ego's own path.
-        let path = self.ego_path.clone();
-        self.actors.retain(|a| match a.motion {
-            Motion::Parked { pos, .. } => dist_to_path(&path, pos) > 2.6,
-            _ => true,
-        });
-        self.statics = statics;
     }
 
     fn on_leg_line(&self, seg: &RoadSeg, legs: &[(DVec2, DVec2, f64)]) -> bool {
@@ -1216,6 +1240,68 @@ fn vehicle_size(rng: &mut Rng, kind: ActorKind) -> DVec3 {
             rng.range(3.0, 3.4),
         ),
         ActorKind::Pedestrian => DVec3::new(0.55, 0.65, 1.75),
+    }
+}
+
+/// Static prims of a world under construction and the last static object id given out.
+struct StaticsBuf {
+    prims: Vec<Prim>,
+    obj: u32,
+}
+
+impl StaticsBuf {
+    /// The id of the next static object.
+    fn next_obj(&mut self) -> u32 {
+        self.obj += 1;
+        self.obj
+    }
+}
+
+/// A building lot along a road: centre `sc` along the road, width `w` along it, `depth`
+/// across, set back `setback` behind the sidewalk (m).
+struct Lot {
+    sc: f64,
+    w: f64,
+    depth: f64,
+    setback: f64,
+}
+
+/// A low wall at the front of the lot (12 %) or a building centred at `c`.
+fn building(rng: &mut Rng, seg: &RoadSeg, side: f64, lot: &Lot, c: DVec2, obj: u32) -> Prim {
+    let Lot {
+        sc,
+        w,
+        depth,
+        setback,
+    } = *lot;
+    if rng.chance(0.12) {
+        let h = rng.range(1.8, 3.0);
+        let rgb = *rng.pick(&[[0.60, 0.58, 0.55], [0.50, 0.30, 0.24], [0.70, 0.70, 0.68]]);
+        let wl = seg.point(sc, side * (seg.hw + seg.sw + setback + 0.15));
+        Prim::oriented_box(
+            DVec3::new(wl.x, wl.y, h / 2.0),
+            DVec3::new(w, 0.3, h),
+            seg.yaw(),
+            Surface::Wall,
+            rgb,
+            obj,
+        )
+    } else {
+        let h = if rng.chance(0.2) {
+            rng.range(20.0, 45.0)
+        } else {
+            rng.range(5.0, 18.0)
+        };
+        let base = *rng.pick(&FACADES);
+        let k = rng.range(0.85, 1.1) as f32;
+        Prim::oriented_box(
+            DVec3::new(c.x, c.y, h / 2.0),
+            DVec3::new(w, depth, h),
+            seg.yaw(),
+            Surface::Facade,
+            [base[0] * k, base[1] * k, base[2] * k],
+            obj,
+        )
     }
 }
 
