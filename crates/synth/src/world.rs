@@ -272,160 +272,17 @@ impl World {
         let v_cruise = rng.range(6.0, 11.0);
         let need = v_cruise * duration + 40.0 + 160.0;
 
-        // Ego legs: alternate left/right 90° turns (a staircase never crosses itself).
-        let mut legs: Vec<(DVec2, DVec2, f64)> = Vec::new();
-        let mut p = origin;
-        let mut heading = rot + (rng.below(4) as f64) * std::f64::consts::FRAC_PI_2;
-        let mut total = 0.0;
-        let mut turn_left = rng.chance(0.5);
-        while total < need {
-            // The first leg is long (the ego looks down it for most of a short scene): real
-            // RADAR_FRONT kept points reach 47 m (median) and 91 m (p90), so the view ahead
-            // must stay open well beyond 100 m.
-            let len = if legs.is_empty() {
-                rng.range(160.0, 260.0)
-            } else {
-                rng.range(70.0, 150.0)
-            };
-            let dir = DVec2::from_angle(heading);
-            legs.push((p, dir, len));
-            p += dir * len;
-            total += len;
-            heading += if turn_left { 1.0 } else { -1.0 } * std::f64::consts::FRAC_PI_2;
-            turn_left = !turn_left;
-        }
-        let ext = ROAD_HW + SIDEWALK_W;
-        let mut segs = Vec::new();
-        for (i, &(a, dir, len)) in legs.iter().enumerate() {
-            let (a0, l0) = if i == 0 {
-                (a - dir * 60.0, len + 60.0)
-            } else {
-                (a - dir * 45.0, len + 45.0)
-            };
-            let l1 = if i + 1 == legs.len() { 150.0 } else { 45.0 };
-            segs.push(RoadSeg {
-                a: a0,
-                dir,
-                len: l0 + l1,
-                hw: ROAD_HW,
-                sw: SIDEWALK_W,
-            });
-            // A crossing street in the middle of long legs.
-            if len > 100.0 && rng.chance(0.6) {
-                let s = rng.range(40.0, len - 40.0);
-                let c = a + dir * s;
-                let n = dir.perp();
-                segs.push(RoadSeg {
-                    a: c - n * 70.0,
-                    dir: n,
-                    len: 140.0,
-                    hw: ROAD_HW,
-                    sw: SIDEWALK_W,
-                });
-            }
-        }
-        let _ = ext;
+        let legs = ego_legs(&mut rng, origin, rot, need);
+        let segs = road_segs(&mut rng, &legs);
 
         // Ego path: the legs offset into the right lane, with filleted corners.
-        let mut pts: Vec<DVec2> = Vec::new();
-        let r_turn = 11.0;
-        let mut turn_s: Vec<f64> = Vec::new();
-        {
-            let first = legs[0];
-            let off = |dir: DVec2| -dir.perp() * (-EGO_LANE_L);
-            pts.push(first.0 - first.1 * 40.0 + off(first.1));
-            for i in 0..legs.len() {
-                let (a, dir, len) = legs[i];
-                let corner = a + dir * len;
-                if i + 1 < legs.len() {
-                    let nd = legs[i + 1].1;
-                    // Offset lines intersect at corner + offsets of both legs (perpendicular legs).
-                    let oc = corner + off(dir) + off(nd);
-                    let t1 = oc - dir * r_turn;
-                    let t2 = oc + nd * r_turn;
-                    pts.push(t1);
-                    let turn_sign = dir.perp_dot(nd).signum();
-                    let centre = t1 + dir.perp() * (turn_sign * r_turn);
-                    let steps = 16;
-                    let a0 = (t1 - centre).to_angle();
-                    for k in 1..steps {
-                        let ang =
-                            a0 + turn_sign * std::f64::consts::FRAC_PI_2 * k as f64 / steps as f64;
-                        pts.push(centre + DVec2::from_angle(ang) * r_turn);
-                    }
-                    pts.push(t2);
-                } else {
-                    pts.push(corner + dir * 140.0 + off(dir));
-                }
-            }
-        }
-        let ego_path = Path::new(pts);
-        // Arc lengths of the turn midpoints.
-        for i in 1..ego_path.pts.len().saturating_sub(1) {
-            let a = ego_path.pts[i] - ego_path.pts[i - 1];
-            let b = ego_path.pts[i + 1] - ego_path.pts[i];
-            if a.perp_dot(b).abs() > 1e-6 * a.length() * b.length()
-                && (turn_s.is_empty() || ego_path.s[i] - turn_s[turn_s.len() - 1] > 5.0)
-            {
-                turn_s.push(ego_path.s[i] + r_turn * std::f64::consts::FRAC_PI_4 - 1.0);
-            }
-        }
+        let ego_path = Path::new(ego_path_pts(&legs));
+        let turn_s = turn_midpoints(&ego_path);
 
         // Speed profile: cruise, slow through turns, maybe a stop (traffic light).
         let s_start = 40.0;
-        let mut stops: Vec<(f64, f64)> = Vec::new();
-        if rng.chance(0.45) {
-            // Wait at the stop line before the first reachable intersection, else mid-block.
-            let reach = s_start + (v_cruise * duration * 0.7).max(20.0);
-            let before_turn = turn_s.iter().map(|&ts| {
-                ts - r_turn * std::f64::consts::FRAC_PI_4 + r_turn - ROAD_HW - SIDEWALK_W - 3.0
-            });
-            let s_stop = before_turn
-                .into_iter()
-                .find(|&s| s > s_start + 10.0 && s < reach)
-                .unwrap_or_else(|| {
-                    s_start + rng.range(15.0, (v_cruise * duration * 0.6).max(20.0))
-                });
-            stops.push((s_stop, rng.range(1.5, 4.0)));
-        }
-        let start_stopped = rng.chance(0.1);
-        let dt = 0.01;
-        let n = (duration / dt).ceil() as usize + 3;
-        let mut s_hist = Vec::with_capacity(n);
-        let (mut s, mut v) = (s_start, if start_stopped { 0.0 } else { v_cruise });
-        let mut hold = if start_stopped {
-            rng.range(1.0, 3.0)
-        } else {
-            0.0
-        };
-        let mut stop_i = 0;
-        for _ in 0..n {
-            s_hist.push(s);
-            if hold > 0.0 {
-                hold -= dt;
-                v = 0.0;
-                continue;
-            }
-            let mut target = v_cruise;
-            for &ts in &turn_s {
-                target = target.min((16.0 + 2.0 * 1.6 * (s - ts).abs()).sqrt());
-            }
-            if stop_i < stops.len() {
-                let (ss, hs) = stops[stop_i];
-                let dist = ss - s;
-                if dist <= 0.05 {
-                    hold = hs;
-                    stop_i += 1;
-                    v = 0.0;
-                    continue;
-                }
-                target = target.min((2.0 * 2.0 * dist).sqrt());
-            }
-            let dv = (target - v).clamp(-3.0 * dt, 1.5 * dt);
-            v = (v + dv).max(0.0);
-            s += v * dt;
-        }
-        let ego = EgoDrive { dt, s: s_hist };
+        let stops = plan_stops(&mut rng, &turn_s, s_start, v_cruise, duration);
+        let ego = drive(&mut rng, &turn_s, &stops, s_start, v_cruise, duration);
 
         let mut world = World {
             scene_idx,
@@ -1303,6 +1160,198 @@ fn building(rng: &mut Rng, seg: &RoadSeg, side: f64, lot: &Lot, c: DVec2, obj: u
             obj,
         )
     }
+}
+
+/// Radius of the ego's turns (m).
+const R_TURN: f64 = 11.0;
+
+/// Ego legs (start, direction, length) covering at least `need` metres: alternate left/right
+/// 90° turns (a staircase never crosses itself).
+fn ego_legs(rng: &mut Rng, origin: DVec2, rot: f64, need: f64) -> Vec<(DVec2, DVec2, f64)> {
+    let mut legs: Vec<(DVec2, DVec2, f64)> = Vec::new();
+    let mut p = origin;
+    let mut heading = rot + (rng.below(4) as f64) * std::f64::consts::FRAC_PI_2;
+    let mut total = 0.0;
+    let mut turn_left = rng.chance(0.5);
+    while total < need {
+        // The first leg is long (the ego looks down it for most of a short scene): real
+        // RADAR_FRONT kept points reach 47 m (median) and 91 m (p90), so the view ahead
+        // must stay open well beyond 100 m.
+        let len = if legs.is_empty() {
+            rng.range(160.0, 260.0)
+        } else {
+            rng.range(70.0, 150.0)
+        };
+        let dir = DVec2::from_angle(heading);
+        legs.push((p, dir, len));
+        p += dir * len;
+        total += len;
+        heading += if turn_left { 1.0 } else { -1.0 } * std::f64::consts::FRAC_PI_2;
+        turn_left = !turn_left;
+    }
+    legs
+}
+
+/// The roads: one along each ego leg (extended past its corners) and a crossing street in
+/// the middle of some long legs.
+fn road_segs(rng: &mut Rng, legs: &[(DVec2, DVec2, f64)]) -> Vec<RoadSeg> {
+    let ext = ROAD_HW + SIDEWALK_W;
+    let mut segs = Vec::new();
+    for (i, &(a, dir, len)) in legs.iter().enumerate() {
+        let (a0, l0) = if i == 0 {
+            (a - dir * 60.0, len + 60.0)
+        } else {
+            (a - dir * 45.0, len + 45.0)
+        };
+        let l1 = if i + 1 == legs.len() { 150.0 } else { 45.0 };
+        segs.push(RoadSeg {
+            a: a0,
+            dir,
+            len: l0 + l1,
+            hw: ROAD_HW,
+            sw: SIDEWALK_W,
+        });
+        // A crossing street in the middle of long legs.
+        if len > 100.0 && rng.chance(0.6) {
+            let s = rng.range(40.0, len - 40.0);
+            let c = a + dir * s;
+            let n = dir.perp();
+            segs.push(RoadSeg {
+                a: c - n * 70.0,
+                dir: n,
+                len: 140.0,
+                hw: ROAD_HW,
+                sw: SIDEWALK_W,
+            });
+        }
+    }
+    let _ = ext;
+    segs
+}
+
+/// Vertices of the ego path: the legs offset into the right lane, with filleted corners.
+fn ego_path_pts(legs: &[(DVec2, DVec2, f64)]) -> Vec<DVec2> {
+    let mut pts: Vec<DVec2> = Vec::new();
+    let r_turn = R_TURN;
+    let first = legs[0];
+    let off = |dir: DVec2| -dir.perp() * (-EGO_LANE_L);
+    pts.push(first.0 - first.1 * 40.0 + off(first.1));
+    for i in 0..legs.len() {
+        let (a, dir, len) = legs[i];
+        let corner = a + dir * len;
+        if i + 1 < legs.len() {
+            let nd = legs[i + 1].1;
+            // Offset lines intersect at corner + offsets of both legs (perpendicular legs).
+            let oc = corner + off(dir) + off(nd);
+            let t1 = oc - dir * r_turn;
+            let t2 = oc + nd * r_turn;
+            pts.push(t1);
+            let turn_sign = dir.perp_dot(nd).signum();
+            let centre = t1 + dir.perp() * (turn_sign * r_turn);
+            let steps = 16;
+            let a0 = (t1 - centre).to_angle();
+            for k in 1..steps {
+                let ang = a0 + turn_sign * std::f64::consts::FRAC_PI_2 * k as f64 / steps as f64;
+                pts.push(centre + DVec2::from_angle(ang) * r_turn);
+            }
+            pts.push(t2);
+        } else {
+            pts.push(corner + dir * 140.0 + off(dir));
+        }
+    }
+    pts
+}
+
+/// Arc lengths of the turn midpoints.
+fn turn_midpoints(ego_path: &Path) -> Vec<f64> {
+    let r_turn = R_TURN;
+    let mut turn_s: Vec<f64> = Vec::new();
+    for i in 1..ego_path.pts.len().saturating_sub(1) {
+        let a = ego_path.pts[i] - ego_path.pts[i - 1];
+        let b = ego_path.pts[i + 1] - ego_path.pts[i];
+        if a.perp_dot(b).abs() > 1e-6 * a.length() * b.length()
+            && (turn_s.is_empty() || ego_path.s[i] - turn_s[turn_s.len() - 1] > 5.0)
+        {
+            turn_s.push(ego_path.s[i] + r_turn * std::f64::consts::FRAC_PI_4 - 1.0);
+        }
+    }
+    turn_s
+}
+
+/// Maybe (45 %) one stop (arc length, wait s): at the stop line before the first reachable
+/// intersection, else mid-block.
+fn plan_stops(
+    rng: &mut Rng,
+    turn_s: &[f64],
+    s_start: f64,
+    v_cruise: f64,
+    duration: f64,
+) -> Vec<(f64, f64)> {
+    let r_turn = R_TURN;
+    let mut stops: Vec<(f64, f64)> = Vec::new();
+    if rng.chance(0.45) {
+        // Wait at the stop line before the first reachable intersection, else mid-block.
+        let reach = s_start + (v_cruise * duration * 0.7).max(20.0);
+        let before_turn = turn_s.iter().map(|&ts| {
+            ts - r_turn * std::f64::consts::FRAC_PI_4 + r_turn - ROAD_HW - SIDEWALK_W - 3.0
+        });
+        let s_stop = before_turn
+            .into_iter()
+            .find(|&s| s > s_start + 10.0 && s < reach)
+            .unwrap_or_else(|| s_start + rng.range(15.0, (v_cruise * duration * 0.6).max(20.0)));
+        stops.push((s_stop, rng.range(1.5, 4.0)));
+    }
+    stops
+}
+
+/// The ego's arc length every 10 ms: cruise, slow through turns, wait at the stops (and
+/// maybe, 10 %, at the start).
+fn drive(
+    rng: &mut Rng,
+    turn_s: &[f64],
+    stops: &[(f64, f64)],
+    s_start: f64,
+    v_cruise: f64,
+    duration: f64,
+) -> EgoDrive {
+    let start_stopped = rng.chance(0.1);
+    let dt = 0.01;
+    let n = (duration / dt).ceil() as usize + 3;
+    let mut s_hist = Vec::with_capacity(n);
+    let (mut s, mut v) = (s_start, if start_stopped { 0.0 } else { v_cruise });
+    let mut hold = if start_stopped {
+        rng.range(1.0, 3.0)
+    } else {
+        0.0
+    };
+    let mut stop_i = 0;
+    for _ in 0..n {
+        s_hist.push(s);
+        if hold > 0.0 {
+            hold -= dt;
+            v = 0.0;
+            continue;
+        }
+        let mut target = v_cruise;
+        for &ts in turn_s {
+            target = target.min((16.0 + 2.0 * 1.6 * (s - ts).abs()).sqrt());
+        }
+        if stop_i < stops.len() {
+            let (ss, hs) = stops[stop_i];
+            let dist = ss - s;
+            if dist <= 0.05 {
+                hold = hs;
+                stop_i += 1;
+                v = 0.0;
+                continue;
+            }
+            target = target.min((2.0 * 2.0 * dist).sqrt());
+        }
+        let dv = (target - v).clamp(-3.0 * dt, 1.5 * dt);
+        v = (v + dv).max(0.0);
+        s += v * dt;
+    }
+    EgoDrive { dt, s: s_hist }
 }
 
 fn dist_to_path(path: &Path, p: DVec2) -> f64 {
