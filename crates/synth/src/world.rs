@@ -917,111 +917,16 @@ impl World {
     /// Primitives of actor `i` in state `st`.
     pub fn actor_prims(&self, i: usize, st: &ActorState, out: &mut Vec<Prim>) {
         let a = &self.actors[i];
-        let (l, w, h) = (a.size.x, a.size.y, a.size.z);
-        let fwd = DVec2::from_angle(st.yaw);
-        let at = |x: f64, y: f64, z: f64| {
-            let p = st.pos + fwd * x + fwd.perp() * y;
-            DVec3::new(p.x, p.y, z)
+        let frame = ActorFrame {
+            pos: st.pos,
+            fwd: DVec2::from_angle(st.yaw),
+            yaw: st.yaw,
+            obj: i as u32,
         };
-        let obj = i as u32;
-        let dark = [0.05, 0.05, 0.05];
         match a.kind {
-            ActorKind::Car => {
-                let body_top = 0.25 + 0.5 * (h - 0.25);
-                out.push(Prim::oriented_box(
-                    at(0.0, 0.0, (0.25 + body_top) / 2.0),
-                    DVec3::new(l, w, body_top - 0.25),
-                    st.yaw,
-                    Surface::CarBody,
-                    a.rgb,
-                    obj,
-                ));
-                out.push(Prim::oriented_box(
-                    at(-0.06 * l, 0.0, (body_top + h) / 2.0),
-                    DVec3::new(0.55 * l, 0.88 * w, h - body_top),
-                    st.yaw,
-                    Surface::CarGlass,
-                    a.rgb,
-                    obj,
-                ));
-                for (sx, sy) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
-                    out.push(Prim::oriented_box(
-                        at(sx * 0.32 * l, sy * (w / 2.0 - 0.13), 0.31),
-                        DVec3::new(0.62, 0.24, 0.62),
-                        st.yaw,
-                        Surface::Wheel,
-                        dark,
-                        obj,
-                    ));
-                }
-            }
-            ActorKind::Truck | ActorKind::Bus => {
-                let (cab_l, cargo_rgb) = if a.kind == ActorKind::Truck {
-                    (2.3, [0.82, 0.82, 0.80])
-                } else {
-                    (0.0, a.rgb)
-                };
-                if cab_l > 0.0 {
-                    out.push(Prim::oriented_box(
-                        at(l / 2.0 - cab_l / 2.0, 0.0, (0.5 + 0.8 * h) / 2.0),
-                        DVec3::new(cab_l, w, 0.8 * h - 0.5),
-                        st.yaw,
-                        Surface::CarBody,
-                        a.rgb,
-                        obj,
-                    ));
-                }
-                let cl = l - cab_l - if cab_l > 0.0 { 0.3 } else { 0.0 };
-                out.push(Prim::oriented_box(
-                    at(-l / 2.0 + cl / 2.0, 0.0, (0.55 + h) / 2.0),
-                    DVec3::new(cl, w, h - 0.55),
-                    st.yaw,
-                    Surface::CarBody,
-                    cargo_rgb,
-                    obj,
-                ));
-                for sx in [0.36, -0.36] {
-                    for sy in [1.0, -1.0] {
-                        out.push(Prim::oriented_box(
-                            at(sx * l, sy * (w / 2.0 - 0.16), 0.5),
-                            DVec3::new(1.0, 0.3, 1.0),
-                            st.yaw,
-                            Surface::Wheel,
-                            dark,
-                            obj,
-                        ));
-                    }
-                }
-            }
-            ActorKind::Pedestrian => {
-                let leg_h = 0.47 * h;
-                out.push(Prim::oriented_box(
-                    at(0.0, 0.0, leg_h / 2.0),
-                    DVec3::new(0.25, 0.38, leg_h),
-                    st.yaw,
-                    Surface::Person,
-                    a.clothes2,
-                    obj,
-                ));
-                let torso_top = h - 0.25;
-                out.push(Prim::oriented_box(
-                    at(0.0, 0.0, (leg_h + torso_top) / 2.0),
-                    DVec3::new(0.28, 0.5, torso_top - leg_h),
-                    st.yaw,
-                    Surface::Person,
-                    a.rgb,
-                    obj,
-                ));
-                out.push(Prim::new(
-                    Shape::Sphere {
-                        c: at(0.0, 0.0, h - 0.12),
-                        r: 0.12,
-                    },
-                    Surface::Skin,
-                    [0.62, 0.47, 0.38],
-                    obj,
-                ));
-            }
+            ActorKind::Car => car_prims(a, &frame, out),
+            ActorKind::Truck | ActorKind::Bus => heavy_vehicle_prims(a, &frame, out),
+            ActorKind::Pedestrian => pedestrian_prims(a, &frame, out),
         }
     }
 
@@ -1098,6 +1003,136 @@ fn vehicle_size(rng: &mut Rng, kind: ActorKind) -> DVec3 {
         ),
         ActorKind::Pedestrian => DVec3::new(0.55, 0.65, 1.75),
     }
+}
+
+/// An actor's pose for placing its parts: position and heading, and its object id.
+struct ActorFrame {
+    pos: DVec2,
+    /// Unit heading.
+    fwd: DVec2,
+    yaw: f64,
+    obj: u32,
+}
+
+impl ActorFrame {
+    /// Global point at `x` forward, `y` left of the actor's centre, at height `z` (m).
+    fn at(&self, x: f64, y: f64, z: f64) -> DVec3 {
+        let p = self.pos + self.fwd * x + self.fwd.perp() * y;
+        DVec3::new(p.x, p.y, z)
+    }
+}
+
+/// Wheel colour.
+const WHEEL_RGB: [f32; 3] = [0.05, 0.05, 0.05];
+
+/// A car: body, glasshouse and four wheels.
+fn car_prims(a: &Actor, f: &ActorFrame, out: &mut Vec<Prim>) {
+    let (l, w, h) = (a.size.x, a.size.y, a.size.z);
+    let obj = f.obj;
+    let dark = WHEEL_RGB;
+    let body_top = 0.25 + 0.5 * (h - 0.25);
+    out.push(Prim::oriented_box(
+        f.at(0.0, 0.0, (0.25 + body_top) / 2.0),
+        DVec3::new(l, w, body_top - 0.25),
+        f.yaw,
+        Surface::CarBody,
+        a.rgb,
+        obj,
+    ));
+    out.push(Prim::oriented_box(
+        f.at(-0.06 * l, 0.0, (body_top + h) / 2.0),
+        DVec3::new(0.55 * l, 0.88 * w, h - body_top),
+        f.yaw,
+        Surface::CarGlass,
+        a.rgb,
+        obj,
+    ));
+    for (sx, sy) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
+        out.push(Prim::oriented_box(
+            f.at(sx * 0.32 * l, sy * (w / 2.0 - 0.13), 0.31),
+            DVec3::new(0.62, 0.24, 0.62),
+            f.yaw,
+            Surface::Wheel,
+            dark,
+            obj,
+        ));
+    }
+}
+
+/// A truck (cab and a light cargo box) or a bus (one body), on four large wheels.
+fn heavy_vehicle_prims(a: &Actor, f: &ActorFrame, out: &mut Vec<Prim>) {
+    let (l, w, h) = (a.size.x, a.size.y, a.size.z);
+    let obj = f.obj;
+    let dark = WHEEL_RGB;
+    let (cab_l, cargo_rgb) = if a.kind == ActorKind::Truck {
+        (2.3, [0.82, 0.82, 0.80])
+    } else {
+        (0.0, a.rgb)
+    };
+    if cab_l > 0.0 {
+        out.push(Prim::oriented_box(
+            f.at(l / 2.0 - cab_l / 2.0, 0.0, (0.5 + 0.8 * h) / 2.0),
+            DVec3::new(cab_l, w, 0.8 * h - 0.5),
+            f.yaw,
+            Surface::CarBody,
+            a.rgb,
+            obj,
+        ));
+    }
+    let cl = l - cab_l - if cab_l > 0.0 { 0.3 } else { 0.0 };
+    out.push(Prim::oriented_box(
+        f.at(-l / 2.0 + cl / 2.0, 0.0, (0.55 + h) / 2.0),
+        DVec3::new(cl, w, h - 0.55),
+        f.yaw,
+        Surface::CarBody,
+        cargo_rgb,
+        obj,
+    ));
+    for sx in [0.36, -0.36] {
+        for sy in [1.0, -1.0] {
+            out.push(Prim::oriented_box(
+                f.at(sx * l, sy * (w / 2.0 - 0.16), 0.5),
+                DVec3::new(1.0, 0.3, 1.0),
+                f.yaw,
+                Surface::Wheel,
+                dark,
+                obj,
+            ));
+        }
+    }
+}
+
+/// A pedestrian: legs, torso and head.
+fn pedestrian_prims(a: &Actor, f: &ActorFrame, out: &mut Vec<Prim>) {
+    let h = a.size.z;
+    let obj = f.obj;
+    let leg_h = 0.47 * h;
+    out.push(Prim::oriented_box(
+        f.at(0.0, 0.0, leg_h / 2.0),
+        DVec3::new(0.25, 0.38, leg_h),
+        f.yaw,
+        Surface::Person,
+        a.clothes2,
+        obj,
+    ));
+    let torso_top = h - 0.25;
+    out.push(Prim::oriented_box(
+        f.at(0.0, 0.0, (leg_h + torso_top) / 2.0),
+        DVec3::new(0.28, 0.5, torso_top - leg_h),
+        f.yaw,
+        Surface::Person,
+        a.rgb,
+        obj,
+    ));
+    out.push(Prim::new(
+        Shape::Sphere {
+            c: f.at(0.0, 0.0, h - 0.12),
+            r: 0.12,
+        },
+        Surface::Skin,
+        [0.62, 0.47, 0.38],
+        obj,
+    ));
 }
 
 /// Static prims of a world under construction and the last static object id given out.
