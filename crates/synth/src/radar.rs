@@ -9,7 +9,7 @@ use depthsense_nuscenes::pcd::RadarPoint;
 use glam::{DMat3, DVec2, DVec3};
 
 use crate::calib::Mount;
-use crate::geom::Surface;
+use crate::geom::{Prim, Surface};
 use crate::rng::Rng;
 use crate::world::{ActorKind, Motion, World, STATIC_OBJ_BASE};
 
@@ -140,6 +140,99 @@ struct Det {
     moving_actor: bool,
 }
 
+/// Hits (horizontal range m, azimuth rad in the sensor frame) grouped by object.
+type Hits = BTreeMap<u32, Vec<(f64, f64)>>;
+
+/// The sensor at one time: origin and global_from_radar rotation, and the primitives it can
+/// see.
+struct RadarView {
+    o: DVec3,
+    r: DMat3,
+    prims: Vec<Prim>,
+}
+
+impl RadarView {
+    /// Nearest primitive hit along global direction `d` within `max_r`: (distance, object).
+    fn nearest_hit(&self, d: DVec3, max_r: f64) -> (f64, Option<u32>) {
+        let mut best = max_r;
+        let mut who = None;
+        for p in &self.prims {
+            if let Some(tp) = p.intersect(self.o, d, 0.5, best) {
+                best = tp;
+                who = Some(p.obj);
+            }
+        }
+        (best, who)
+    }
+
+    /// Fan of rays over ±`fov` degrees every `step` degrees, two elevations.
+    fn fan(&self, fov: f64, step: f64, max_r: f64, hits: &mut Hits) {
+        let n = (2.0 * fov / step).round() as i64;
+        for k in 0..=n {
+            let az = (-fov + step * k as f64).to_radians();
+            for el in [0.0f64, 2.5] {
+                let (se, ce) = el.to_radians().sin_cos();
+                let ds = DVec3::new(ce * az.cos(), ce * az.sin(), se);
+                let d = self.r * ds;
+                let (best, who) = self.nearest_hit(d, max_r);
+                if let Some(obj) = who {
+                    // Range in the horizontal plane (the radar reports no elevation).
+                    hits.entry(obj).or_default().push((best * ce, az));
+                }
+            }
+        }
+    }
+
+    /// Thin vertical targets (poles, sign posts): the radar beam (degrees wide) always covers
+    /// them, but a 0.75° / 0.25° ray fan misses most of them beyond 20 m. Aim one ray at each
+    /// one's axis at 1.0 m, 2.2 m and near its top (the elevation beam is several degrees
+    /// wide: it sees over parked cars and under tree crowns); it counts when one of these rays
+    /// hits nothing else first.
+    fn pole_hits(&self, hits: &mut Hits) {
+        let (o, rt) = (self.o, self.r.transpose());
+        for p in &self.prims {
+            let crate::geom::Shape::Cyl { c, r: rad, z0, z1 } = p.shape else {
+                continue;
+            };
+            if p.surface != Surface::Pole || z0 > 0.5 || z1 < 2.3 || hits.contains_key(&p.obj) {
+                continue;
+            }
+            let flat = DVec3::new(c.x - o.x, c.y - o.y, 0.0);
+            let ls = rt * flat;
+            let az = ls.y.atan2(ls.x);
+            let az_deg = az.to_degrees().abs();
+            let dist_h = flat.length();
+            let in_fov = (az_deg <= NEAR_FOV_DEG && dist_h < NEAR_RANGE_M)
+                || (az_deg <= FAR_FOV_DEG && dist_h < FAR_RANGE_M);
+            if !in_fov || dist_h < 1.0 {
+                continue;
+            }
+            for z in [1.0, 2.2, z1 - 0.2] {
+                let to = DVec3::new(flat.x, flat.y, z - o.z);
+                let dist = to.length();
+                let d = to / dist;
+                let mut best = dist;
+                let mut who = None;
+                for q in &self.prims {
+                    if let Some(tq) = q.intersect(o, d, 0.5, best + rad) {
+                        if tq < best {
+                            best = tq;
+                            who = Some(q.obj);
+                        }
+                    }
+                }
+                if who == Some(p.obj) {
+                    // Range in the horizontal plane (the radar reports no elevation).
+                    hits.entry(p.obj)
+                        .or_default()
+                        .push((best * d.truncate().length(), az));
+                    break;
+                }
+            }
+        }
+    }
+}
+
 /// One radar sweep of mount `m` at time t.
 pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
     let (o, r) = radar_pose(world, m, t);
@@ -151,6 +244,7 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
         .into_iter()
         .filter(|p| p.corners().iter().any(|c| (rt * (*c - o)).x > 0.0))
         .collect();
+    let view = RadarView { o, r, prims };
     let (ego_v, ego_w) = world.ego_motion(t);
     let (ep, _) = world.ego_pose(t);
     // Velocity of the sensor: ego velocity + ω × lever arm.
@@ -158,169 +252,158 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
     let v_sensor = ego_v + DVec3::new(-ego_w * arm.y, ego_w * arm.x, 0.0);
 
     // Fan of rays: near and far scans, two elevations each; hits grouped by object.
-    let mut hits: BTreeMap<u32, Vec<(f64, f64)>> = BTreeMap::new();
-    let fan = |fov: f64, step: f64, max_r: f64, hits: &mut BTreeMap<u32, Vec<(f64, f64)>>| {
-        let n = (2.0 * fov / step).round() as i64;
-        for k in 0..=n {
-            let az = (-fov + step * k as f64).to_radians();
-            for el in [0.0f64, 2.5] {
-                let (se, ce) = el.to_radians().sin_cos();
-                let ds = DVec3::new(ce * az.cos(), ce * az.sin(), se);
-                let d = r * ds;
-                let mut best = max_r;
-                let mut who = None;
-                for p in &prims {
-                    if let Some(tp) = p.intersect(o, d, 0.5, best) {
-                        best = tp;
-                        who = Some(p.obj);
-                    }
-                }
-                if let Some(obj) = who {
-                    // Range in the horizontal plane (the radar reports no elevation).
-                    hits.entry(obj).or_default().push((best * ce, az));
-                }
-            }
-        }
-    };
-    fan(NEAR_FOV_DEG, 0.75, NEAR_RANGE_M, &mut hits);
-    fan(FAR_FOV_DEG, 0.25, FAR_RANGE_M, &mut hits);
-    // Thin vertical targets (poles, sign posts): the radar beam (degrees wide) always covers
-    // them, but a 0.75° / 0.25° ray fan misses most of them beyond 20 m. Aim one ray at each
-    // one's axis at 1.0 m, 2.2 m and near its top (the elevation beam is several degrees
-    // wide: it sees over parked cars and under tree crowns); it counts when one of these rays
-    // hits nothing else first.
-    for p in &prims {
-        let crate::geom::Shape::Cyl { c, r: rad, z0, z1 } = p.shape else {
-            continue;
-        };
-        if p.surface != Surface::Pole || z0 > 0.5 || z1 < 2.3 || hits.contains_key(&p.obj) {
-            continue;
-        }
-        let flat = DVec3::new(c.x - o.x, c.y - o.y, 0.0);
-        let ls = rt * flat;
-        let az = ls.y.atan2(ls.x);
-        let az_deg = az.to_degrees().abs();
-        let dist_h = flat.length();
-        let in_fov = (az_deg <= NEAR_FOV_DEG && dist_h < NEAR_RANGE_M)
-            || (az_deg <= FAR_FOV_DEG && dist_h < FAR_RANGE_M);
-        if !in_fov || dist_h < 1.0 {
-            continue;
-        }
-        for z in [1.0, 2.2, z1 - 0.2] {
-            let to = DVec3::new(flat.x, flat.y, z - o.z);
-            let dist = to.length();
-            let d = to / dist;
-            let mut best = dist;
-            let mut who = None;
-            for q in &prims {
-                if let Some(tq) = q.intersect(o, d, 0.5, best + rad) {
-                    if tq < best {
-                        best = tq;
-                        who = Some(q.obj);
-                    }
-                }
-            }
-            if who == Some(p.obj) {
-                // Range in the horizontal plane (the radar reports no elevation).
-                hits.entry(p.obj)
-                    .or_default()
-                    .push((best * d.truncate().length(), az));
-                break;
-            }
-        }
-    }
+    let mut hits: Hits = BTreeMap::new();
+    view.fan(NEAR_FOV_DEG, 0.75, NEAR_RANGE_M, &mut hits);
+    view.fan(FAR_FOV_DEG, 0.25, FAR_RANGE_M, &mut hits);
+    view.pole_hits(&mut hits);
     let mut dets: Vec<Det> = Vec::new();
     for (&obj, hs) in &hits {
-        let (kind, surface) = if obj < STATIC_OBJ_BASE {
-            (Some(world.actors[obj as usize].kind), None)
-        } else {
-            let s = prims.iter().find(|p| p.obj == obj).map(|p| p.surface);
-            (None, s)
-        };
-        let (v_obj, moving_actor) = if obj < STATIC_OBJ_BASE {
-            let st = world.actor_state(obj as usize, t);
-            let moving = !matches!(world.actors[obj as usize].motion, Motion::Parked { .. });
-            (DVec3::new(st.vel.x, st.vel.y, 0.0), moving)
-        } else {
-            (DVec3::ZERO, false)
-        };
-        let nearest = hs.iter().map(|h| h.0).fold(f64::INFINITY, f64::min);
-        let (base_rcs, p_det, max_k) = match (kind, surface) {
-            (Some(ActorKind::Pedestrian), _) => (ActorKind::Pedestrian.rcs_dbsm(), 0.55, 1),
-            (Some(k @ (ActorKind::Truck | ActorKind::Bus)), _) => (k.rcs_dbsm(), 0.95, 8),
-            (Some(k), _) => (k.rcs_dbsm(), 0.92, 4),
-            // Extended facades return many resolution cells along their length.
-            (None, Some(Surface::Facade)) => (12.0, 0.85, 24),
-            (None, Some(Surface::Wall)) => (8.0, 0.75, 8),
-            (None, Some(Surface::Pole | Surface::LampHead)) => (5.0, 0.85, 1),
-            // Trees: trunk and crown, a volume scatterer a few resolution cells wide.
-            (None, Some(_)) => (-2.0, 0.6, 3),
-            (None, None) => (0.0, 0.3, 1),
-        };
-        // Targets fade towards the end of the far beam.
-        let p = p_det * (1.0 - (nearest / FAR_RANGE_M).powf(1.5)).max(0.0);
-        if !rng.chance(p) {
-            continue;
-        }
-        // Clusters on an object: one per resolution cell it fills, in azimuth (cells widen off
-        // boresight, see `az_resolution_deg`) and in range (1.79 m, the far scan's range
-        // resolution: a facade seen at a grazing angle spans many range cells).
-        let (mut az_lo, mut az_hi, mut r_lo, mut r_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for h in hs {
-            az_lo = az_lo.min(h.1);
-            az_hi = az_hi.max(h.1);
-            r_lo = r_lo.min(h.0);
-            r_hi = r_hi.max(h.0);
-        }
-        let cells = (az_hi - az_lo).to_degrees() / az_resolution_deg(0.5 * (az_lo + az_hi))
-            + range_cells(r_lo, r_hi)
-            + 1.0;
-        let k = ((cells * rng.range(0.75, 1.25)).round() as usize).clamp(1, max_k);
-        let mut used = Vec::new();
-        for i in 0..k {
-            let (range, az) = if i < hs.len() {
-                let j = rng.below(hs.len());
-                if used.contains(&j) {
-                    continue;
-                }
-                used.push(j);
-                hs[j]
-            } else {
-                // More cells than fan rays (a far facade at a grazing angle): aim a
-                // horizontal ray into the object's azimuth span; it counts only when it hits
-                // this object first, so the cluster lies on its surface.
-                let az = rng.range(az_lo, az_hi);
-                let d = r * DVec3::new(az.cos(), az.sin(), 0.0);
-                let mut best = FAR_RANGE_M;
-                let mut who = None;
-                for p in &prims {
-                    if let Some(tp) = p.intersect(o, d, 0.5, best) {
-                        best = tp;
-                        who = Some(p.obj);
-                    }
-                }
-                if who != Some(obj) {
-                    continue;
-                }
-                (best, az)
-            };
-            let rcs = base_rcs + RCS_SIGMA_DB * rng.normal();
-            // Clusters below the sensitivity at their range and azimuth are not reported.
-            if rcs - antenna_loss_db(az) < rcs_min_dbsm(range) {
+        object_clusters(world, t, &view, obj, hs, &mut rng, &mut dets);
+    }
+    add_ghosts(&mut dets, &mut rng);
+    add_clutter(&mut dets, &mut rng);
+    // The sensor reports at most 125 clusters: keep the nearest.
+    dets.sort_by(|a, b| a.range.total_cmp(&b.range));
+    dets.truncate(MAX_POINTS);
+
+    let mut out: Vec<(RadarPoint, Origin, f64)> = Vec::with_capacity(dets.len());
+    for d in &dets {
+        out.push(radar_point(d, &r, v_sensor, &mut rng));
+    }
+    out.sort_by(|a, b| a.2.total_cmp(&b.2));
+    let mut points = Vec::with_capacity(out.len());
+    let mut origins = Vec::with_capacity(out.len());
+    for (i, (mut p, og, _)) in out.into_iter().enumerate() {
+        p.id = i as i16;
+        points.push(p);
+        origins.push(og);
+    }
+    RadarSweep { points, origins }
+}
+
+/// How object `obj` reflects: typical RCS (dBsm), detection probability, most clusters,
+/// velocity (global) and whether it is an actor that moves.
+struct Reflector {
+    base_rcs: f64,
+    p_det: f64,
+    max_k: usize,
+    v_obj: DVec3,
+    moving_actor: bool,
+}
+
+/// The reflection properties of object `obj` at time `t`.
+fn reflector(world: &World, t: f64, prims: &[Prim], obj: u32) -> Reflector {
+    let (kind, surface) = if obj < STATIC_OBJ_BASE {
+        (Some(world.actors[obj as usize].kind), None)
+    } else {
+        let s = prims.iter().find(|p| p.obj == obj).map(|p| p.surface);
+        (None, s)
+    };
+    let (v_obj, moving_actor) = if obj < STATIC_OBJ_BASE {
+        let st = world.actor_state(obj as usize, t);
+        let moving = !matches!(world.actors[obj as usize].motion, Motion::Parked { .. });
+        (DVec3::new(st.vel.x, st.vel.y, 0.0), moving)
+    } else {
+        (DVec3::ZERO, false)
+    };
+    let (base_rcs, p_det, max_k) = match (kind, surface) {
+        (Some(ActorKind::Pedestrian), _) => (ActorKind::Pedestrian.rcs_dbsm(), 0.55, 1),
+        (Some(k @ (ActorKind::Truck | ActorKind::Bus)), _) => (k.rcs_dbsm(), 0.95, 8),
+        (Some(k), _) => (k.rcs_dbsm(), 0.92, 4),
+        // Extended facades return many resolution cells along their length.
+        (None, Some(Surface::Facade)) => (12.0, 0.85, 24),
+        (None, Some(Surface::Wall)) => (8.0, 0.75, 8),
+        (None, Some(Surface::Pole | Surface::LampHead)) => (5.0, 0.85, 1),
+        // Trees: trunk and crown, a volume scatterer a few resolution cells wide.
+        (None, Some(_)) => (-2.0, 0.6, 3),
+        (None, None) => (0.0, 0.3, 1),
+    };
+    Reflector {
+        base_rcs,
+        p_det,
+        max_k,
+        v_obj,
+        moving_actor,
+    }
+}
+
+/// Clusters on an object: one per resolution cell it fills, in azimuth (cells widen off
+/// boresight, see `az_resolution_deg`) and in range (1.79 m, the far scan's range
+/// resolution: a facade seen at a grazing angle spans many range cells). Returns the hits'
+/// azimuth span (rad) and the number of cells.
+fn resolution_cells(hs: &[(f64, f64)]) -> (f64, f64, f64) {
+    let (mut az_lo, mut az_hi, mut r_lo, mut r_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for h in hs {
+        az_lo = az_lo.min(h.1);
+        az_hi = az_hi.max(h.1);
+        r_lo = r_lo.min(h.0);
+        r_hi = r_hi.max(h.0);
+    }
+    let cells = (az_hi - az_lo).to_degrees() / az_resolution_deg(0.5 * (az_lo + az_hi))
+        + range_cells(r_lo, r_hi)
+        + 1.0;
+    (az_lo, az_hi, cells)
+}
+
+/// The clusters of object `obj` from its fan hits `hs` (none when it is not detected).
+fn object_clusters(
+    world: &World,
+    t: f64,
+    view: &RadarView,
+    obj: u32,
+    hs: &[(f64, f64)],
+    rng: &mut Rng,
+    dets: &mut Vec<Det>,
+) {
+    let refl = reflector(world, t, &view.prims, obj);
+    let nearest = hs.iter().map(|h| h.0).fold(f64::INFINITY, f64::min);
+    // Targets fade towards the end of the far beam.
+    let p = refl.p_det * (1.0 - (nearest / FAR_RANGE_M).powf(1.5)).max(0.0);
+    if !rng.chance(p) {
+        return;
+    }
+    let (az_lo, az_hi, cells) = resolution_cells(hs);
+    let k = ((cells * rng.range(0.75, 1.25)).round() as usize).clamp(1, refl.max_k);
+    let mut used = Vec::new();
+    for i in 0..k {
+        let (range, az) = if i < hs.len() {
+            let j = rng.below(hs.len());
+            if used.contains(&j) {
                 continue;
             }
-            dets.push(Det {
-                range,
-                az,
-                obj,
-                rcs,
-                v_obj,
-                origin: Origin::Surface { obj },
-                moving_actor,
-            });
+            used.push(j);
+            hs[j]
+        } else {
+            // More cells than fan rays (a far facade at a grazing angle): aim a
+            // horizontal ray into the object's azimuth span; it counts only when it hits
+            // this object first, so the cluster lies on its surface.
+            let az = rng.range(az_lo, az_hi);
+            let d = view.r * DVec3::new(az.cos(), az.sin(), 0.0);
+            let (best, who) = view.nearest_hit(d, FAR_RANGE_M);
+            if who != Some(obj) {
+                continue;
+            }
+            (best, az)
+        };
+        let rcs = refl.base_rcs + RCS_SIGMA_DB * rng.normal();
+        // Clusters below the sensitivity at their range and azimuth are not reported.
+        if rcs - antenna_loss_db(az) < rcs_min_dbsm(range) {
+            continue;
         }
+        dets.push(Det {
+            range,
+            az,
+            obj,
+            rcs,
+            v_obj: refl.v_obj,
+            origin: Origin::Surface { obj },
+            moving_actor: refl.moving_actor,
+        });
     }
-    // Multipath ghosts behind vehicles.
+}
+
+/// Multipath ghosts behind vehicles.
+fn add_ghosts(dets: &mut Vec<Det>, rng: &mut Rng) {
     let n_real = dets.len();
     for i in 0..n_real {
         if rng.chance(if dets[i].obj < STATIC_OBJ_BASE {
@@ -340,7 +423,10 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
             });
         }
     }
-    // Clutter (at least one point: a radar file is never empty).
+}
+
+/// Clutter (at least one point: a radar file is never empty).
+fn add_clutter(dets: &mut Vec<Det>, rng: &mut Rng) {
     let n_clutter = 6 + rng.below(25);
     for _ in 0..n_clutter {
         dets.push(Det {
@@ -353,122 +439,127 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
             moving_actor: false,
         });
     }
-    // The sensor reports at most 125 clusters: keep the nearest.
-    dets.sort_by(|a, b| a.range.total_cmp(&b.range));
-    dets.truncate(MAX_POINTS);
+}
 
-    let mut out: Vec<(RadarPoint, Origin, f64)> = Vec::with_capacity(dets.len());
-    for d in &dets {
-        let sig_r = RANGE_SIGMA_M + RANGE_SIGMA_REL * d.range;
-        let (rr, az) = match d.origin {
-            Origin::Surface { .. } => (
-                d.range + sig_r * rng.normal(),
-                d.az + AZ_SIGMA_DEG.to_radians() * rng.normal(),
-            ),
-            _ => (d.range, d.az),
-        };
-        let los_s = DVec2::new(az.cos(), az.sin());
-        let los_g = r * DVec3::new(los_s.x, los_s.y, 0.0);
-        let v_rel = d.v_obj - v_sensor;
-        let vr = v_rel.dot(los_g) + 0.1 * rng.normal();
-        let vc = d.v_obj.dot(los_g) + 0.1 * rng.normal();
-        let speed = d.v_obj.length();
-        // Cluster states (SPEC §2 filters act on them). Rates from the real RADAR_FRONT files
-        // (v1.0-mini, 404 keyframes): invalid_state ≠ 0 48.4 %, ambig_state ≠ 3 9.6 %
-        // (0: 6.7 %, almost all with invalid_state 7 or 3; 1: 2.3 %; 2: 0.6 %; never 4),
-        // dyn_prop 7 0.5 %; together 50.0 % pass the devkit filters.
-        let p_invalid = match d.origin {
-            Origin::Surface { .. } => P_INVALID_SURFACE,
-            Origin::Ghost { .. } => P_INVALID_GHOST,
-            Origin::Clutter => P_INVALID_CLUTTER,
-        };
-        let invalid = if !rng.chance(p_invalid) {
-            0
-        } else if matches!(d.origin, Origin::Ghost { .. }) && rng.chance(0.3) {
-            6 // high mirror probability
-        } else if d.rcs < rcs_min_dbsm(d.range) + 4.0 && rng.chance(0.6) {
-            // "valid cluster with low RCS": real flagged points have lower RCS
-            // (p50 2.0 dBsm against 6.5 for kept points).
-            4
-        } else {
-            let total: u32 = INVALID_CODES.iter().map(|c| c.1).sum();
-            let mut x = rng.below(total as usize) as u32;
-            let mut code = INVALID_CODES[0].0;
-            for &(c, w) in &INVALID_CODES {
-                if x < w {
-                    code = c;
-                    break;
-                }
-                x -= w;
+/// The reported point of detection `d` (noise, Doppler, cluster states) with its origin and
+/// noisy range; `r` is global_from_radar, `v_sensor` the sensor's velocity (global).
+fn radar_point(d: &Det, r: &DMat3, v_sensor: DVec3, rng: &mut Rng) -> (RadarPoint, Origin, f64) {
+    let sig_r = RANGE_SIGMA_M + RANGE_SIGMA_REL * d.range;
+    let (rr, az) = match d.origin {
+        Origin::Surface { .. } => (
+            d.range + sig_r * rng.normal(),
+            d.az + AZ_SIGMA_DEG.to_radians() * rng.normal(),
+        ),
+        _ => (d.range, d.az),
+    };
+    let los_s = DVec2::new(az.cos(), az.sin());
+    let los_g = *r * DVec3::new(los_s.x, los_s.y, 0.0);
+    let v_rel = d.v_obj - v_sensor;
+    let vr = v_rel.dot(los_g) + 0.1 * rng.normal();
+    let vc = d.v_obj.dot(los_g) + 0.1 * rng.normal();
+    let speed = d.v_obj.length();
+    // Cluster states (SPEC §2 filters act on them). Rates from the real RADAR_FRONT files
+    // (v1.0-mini, 404 keyframes): invalid_state ≠ 0 48.4 %, ambig_state ≠ 3 9.6 %
+    // (0: 6.7 %, almost all with invalid_state 7 or 3; 1: 2.3 %; 2: 0.6 %; never 4),
+    // dyn_prop 7 0.5 %; together 50.0 % pass the devkit filters.
+    let invalid = invalid_state(d, rng);
+    let ambig = ambig_state(invalid, rng);
+    let dyn_prop = dyn_prop(d, los_g, speed, rng);
+    let pdh0 = match d.origin {
+        Origin::Surface { .. } => 1,
+        Origin::Ghost { .. } => 3 + rng.below(4) as i8,
+        Origin::Clutter => 2 + rng.below(6) as i8,
+    };
+    let p = RadarPoint {
+        x: (rr * los_s.x) as f32,
+        y: (rr * los_s.y) as f32,
+        z: 0.0,
+        dyn_prop,
+        id: 0,
+        rcs: (d.rcs * 2.0).round() as f32 / 2.0,
+        vx: (vr * los_s.x) as f32,
+        vy: (vr * los_s.y) as f32,
+        vx_comp: (vc * los_s.x) as f32,
+        vy_comp: (vc * los_s.y) as f32,
+        is_quality_valid: 1,
+        ambig_state: ambig,
+        x_rms: (3.0 + rr / 25.0).min(31.0) as i8,
+        y_rms: (4.0 + rr / 15.0).min(31.0) as i8,
+        invalid_state: invalid,
+        pdh0,
+        vx_rms: 4,
+        vy_rms: 4,
+    };
+    (p, d.origin, rr)
+}
+
+/// `invalid_state` of a cluster: 0 (valid) or a flag code drawn with the real rates.
+fn invalid_state(d: &Det, rng: &mut Rng) -> i8 {
+    let p_invalid = match d.origin {
+        Origin::Surface { .. } => P_INVALID_SURFACE,
+        Origin::Ghost { .. } => P_INVALID_GHOST,
+        Origin::Clutter => P_INVALID_CLUTTER,
+    };
+    if !rng.chance(p_invalid) {
+        0
+    } else if matches!(d.origin, Origin::Ghost { .. }) && rng.chance(0.3) {
+        6 // high mirror probability
+    } else if d.rcs < rcs_min_dbsm(d.range) + 4.0 && rng.chance(0.6) {
+        // "valid cluster with low RCS": real flagged points have lower RCS
+        // (p50 2.0 dBsm against 6.5 for kept points).
+        4
+    } else {
+        let total: u32 = INVALID_CODES.iter().map(|c| c.1).sum();
+        let mut x = rng.below(total as usize) as u32;
+        let mut code = INVALID_CODES[0].0;
+        for &(c, w) in &INVALID_CODES {
+            if x < w {
+                code = c;
+                break;
             }
-            code
-        };
-        let ambig = if matches!(invalid, 7 | 3) && rng.chance(0.95) {
-            0
-        } else if rng.chance(0.025) {
-            1
-        } else if rng.chance(0.006) {
-            2
-        } else {
-            3
-        };
-        let dyn_prop = match d.origin {
-            Origin::Surface { .. } | Origin::Ghost { .. } => {
-                if speed > 0.5 {
-                    let along = d.v_obj.dot(los_g) / speed;
-                    if along > 0.5 {
-                        0
-                    } else if along < -0.5 {
-                        2
-                    } else {
-                        6
-                    }
-                } else if d.moving_actor && rng.chance(0.2) {
-                    7 // stopped (real: 0.5 % of all points)
+            x -= w;
+        }
+        code
+    }
+}
+
+/// `ambig_state` of a cluster with `invalid_state` `invalid`.
+fn ambig_state(invalid: i8, rng: &mut Rng) -> i8 {
+    if matches!(invalid, 7 | 3) && rng.chance(0.95) {
+        0
+    } else if rng.chance(0.025) {
+        1
+    } else if rng.chance(0.006) {
+        2
+    } else {
+        3
+    }
+}
+
+/// `dyn_prop` of a cluster: from the object's motion along the line of sight `los_g`
+/// (global), `speed` its speed (m/s).
+fn dyn_prop(d: &Det, los_g: DVec3, speed: f64, rng: &mut Rng) -> i8 {
+    match d.origin {
+        Origin::Surface { .. } | Origin::Ghost { .. } => {
+            if speed > 0.5 {
+                let along = d.v_obj.dot(los_g) / speed;
+                if along > 0.5 {
+                    0
+                } else if along < -0.5 {
+                    2
                 } else {
-                    // Real kept static points: dyn_prop 1 68 %, 3 22 %, 5 0.6 %.
-                    *rng.pick(&[1, 1, 1, 1, 1, 1, 1, 3, 3, 3, 5])
+                    6
                 }
+            } else if d.moving_actor && rng.chance(0.2) {
+                7 // stopped (real: 0.5 % of all points)
+            } else {
+                // Real kept static points: dyn_prop 1 68 %, 3 22 %, 5 0.6 %.
+                *rng.pick(&[1, 1, 1, 1, 1, 1, 1, 3, 3, 3, 5])
             }
-            // Clutter: stationary, stationary candidate or unknown (real dyn_prop 4 = 5.7 %).
-            Origin::Clutter => *rng.pick(&[1, 3, 4, 4]),
-        };
-        let pdh0 = match d.origin {
-            Origin::Surface { .. } => 1,
-            Origin::Ghost { .. } => 3 + rng.below(4) as i8,
-            Origin::Clutter => 2 + rng.below(6) as i8,
-        };
-        let p = RadarPoint {
-            x: (rr * los_s.x) as f32,
-            y: (rr * los_s.y) as f32,
-            z: 0.0,
-            dyn_prop,
-            id: 0,
-            rcs: (d.rcs * 2.0).round() as f32 / 2.0,
-            vx: (vr * los_s.x) as f32,
-            vy: (vr * los_s.y) as f32,
-            vx_comp: (vc * los_s.x) as f32,
-            vy_comp: (vc * los_s.y) as f32,
-            is_quality_valid: 1,
-            ambig_state: ambig,
-            x_rms: (3.0 + rr / 25.0).min(31.0) as i8,
-            y_rms: (4.0 + rr / 15.0).min(31.0) as i8,
-            invalid_state: invalid,
-            pdh0,
-            vx_rms: 4,
-            vy_rms: 4,
-        };
-        out.push((p, d.origin, rr));
+        }
+        // Clutter: stationary, stationary candidate or unknown (real dyn_prop 4 = 5.7 %).
+        Origin::Clutter => *rng.pick(&[1, 3, 4, 4]),
     }
-    out.sort_by(|a, b| a.2.total_cmp(&b.2));
-    let mut points = Vec::with_capacity(out.len());
-    let mut origins = Vec::with_capacity(out.len());
-    for (i, (mut p, og, _)) in out.into_iter().enumerate() {
-        p.id = i as i16;
-        points.push(p);
-        origins.push(og);
-    }
-    RadarSweep { points, origins }
 }
 
 #[cfg(test)]
