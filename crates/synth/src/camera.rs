@@ -92,10 +92,43 @@ fn light_of(weather: Weather, rng: &mut Rng) -> Light {
     }
 }
 
+/// The camera at one time: origin, rotation global_from_camera (and its columns) and
+/// camera_from_global.
+struct View {
+    o: DVec3,
+    cx: DVec3,
+    cy: DVec3,
+    cz: DVec3,
+    rt: DMat3,
+}
+
+impl View {
+    /// Global, un-normalised ray direction of pixel (u, v): its parameter is the z-depth.
+    fn dir_at(&self, u: usize, v: usize) -> DVec3 {
+        let c = cam_dir(u as f64 + 0.5, v as f64 + 0.5);
+        self.cx * c.x + self.cy * c.y + self.cz * c.z
+    }
+}
+
+/// Per pixel: nearest ray parameter (the z-depth), what was hit, and the ground normal.
+struct Raster {
+    best_t: Vec<f64>,
+    hit: Vec<Hit>,
+    normals: Vec<DVec3>,
+}
+
+/// What lights a frame besides the sky: the ego's headlight and the street lamps nearby.
+struct Lights<'a> {
+    light: &'a Light,
+    night: bool,
+    rain: bool,
+    headlight: DVec3,
+    fwd: DVec3,
+    lamps: Vec<DVec3>,
+}
+
 /// Render CAM_FRONT at time `t` (s since scene start). `salt` seeds per-frame noise.
 pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
-    let w = IMG_W as usize;
-    let h = IMG_H as usize;
     let pose = camera_pose(world, t);
     let o = pose.origin;
     let r = pose.rot;
@@ -104,23 +137,63 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
     let light = light_of(world.weather, &mut light_rng);
     let prims = world.snapshot(t, o.truncate(), MAX_TRUTH_M + 20.0);
     let rt = r.transpose();
+    let view = View {
+        o,
+        cx: r.x_axis,
+        cy: r.y_axis,
+        cz: r.z_axis,
+        rt,
+    };
 
     // Pass 1: ground for every pixel.
+    let mut raster = ground_pass(world, &view);
+    // Pass 2: primitives inside their projected bounds, nearest first, skipping pixels where
+    // something nearer than the primitive's nearest possible depth was already found.
+    let boxes = screen_boxes(&view, &prims);
+    prim_pass(&view, &prims, &boxes, &mut raster);
+    // Shading.
+    let (ego_p, ego_q) = world.ego_pose(t);
+    let fwd = ego_q * DVec3::X;
+    let lights = Lights {
+        light: &light,
+        night: world.weather == Weather::Night,
+        rain: world.weather == Weather::Rain,
+        headlight: ego_p + fwd * 3.8 + DVec3::new(0.0, 0.0, 0.7),
+        fwd,
+        lamps: world
+            .lamps
+            .iter()
+            .copied()
+            .filter(|l| (l.truncate() - o.truncate()).length() < 160.0)
+            .collect(),
+    };
+    let (mut lin, depth) = shade_pixels(world, &view, &prims, &raster, &lights);
+
+    // Rain: wet-road reflections (mirror about the horizon row) and streaks.
+    if lights.rain {
+        rain_reflections(&view, &raster.hit, &mut lin);
+        rain_streaks(&mut rng, &mut lin);
+        lower_contrast(&mut lin);
+    }
+
+    CamFrame {
+        rgb: tone_map(&lin, lights.night, &mut rng),
+        depth_m: depth,
+    }
+}
+
+/// Pass 1: the ground for every pixel.
+fn ground_pass(world: &World, view: &View) -> Raster {
+    let w = IMG_W as usize;
+    let h = IMG_H as usize;
     let n = w * h;
     let mut best_t = vec![f64::INFINITY; n];
     let mut hit = vec![Hit::Sky; n];
     let mut normals = vec![DVec3::Z; n];
-    let cx = r.x_axis;
-    let cy = r.y_axis;
-    let cz = r.z_axis;
-    let dir_at = |u: usize, v: usize| {
-        let c = cam_dir(u as f64 + 0.5, v as f64 + 0.5);
-        cx * c.x + cy * c.y + cz * c.z
-    };
     for v in 0..h {
         for u in 0..w {
-            let d = dir_at(u, v);
-            if let Some((tg, nrm, kind)) = world.ground_hit(o, d, FAR) {
+            let d = view.dir_at(u, v);
+            if let Some((tg, nrm, kind)) = world.ground_hit(view.o, d, FAR) {
                 let i = v * w + u;
                 best_t[i] = tg;
                 hit[i] = Hit::Ground(kind);
@@ -128,111 +201,113 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
             }
         }
     }
-    // Pass 2: primitives inside their projected bounds, nearest first, skipping pixels where
-    // something nearer than the primitive's nearest possible depth was already found.
-    let mut boxes: Vec<(f64, usize, usize, usize, usize, usize)> = Vec::with_capacity(prims.len());
+    Raster {
+        best_t,
+        hit,
+        normals,
+    }
+}
+
+/// A primitive's nearest possible depth, its index and its pixel bounds [u0, u1) × [v0, v1).
+type ScreenBox = (f64, usize, usize, usize, usize, usize);
+
+/// The screen boxes of the primitives in view, nearest first (ties by index).
+fn screen_boxes(view: &View, prims: &[Prim]) -> Vec<ScreenBox> {
+    let mut boxes: Vec<ScreenBox> = Vec::with_capacity(prims.len());
     for (pi, p) in prims.iter().enumerate() {
-        let mut umin = f64::INFINITY;
-        let mut umax = f64::NEG_INFINITY;
-        let mut vmin = f64::INFINITY;
-        let mut vmax = f64::NEG_INFINITY;
-        let mut zmin = f64::INFINITY;
-        let mut behind = 0;
-        for c in p.corners() {
-            let q = rt * (c - o);
-            zmin = zmin.min(q.z);
-            if q.z < 0.05 {
-                behind += 1;
-                continue;
-            }
-            let u = CAM_FX * q.x / q.z + CAM_CX;
-            let v = CAM_FY * q.y / q.z + CAM_CY;
-            umin = umin.min(u);
-            umax = umax.max(u);
-            vmin = vmin.min(v);
-            vmax = vmax.max(v);
+        if let Some(b) = screen_box(view, pi, p) {
+            boxes.push(b);
         }
-        if behind == 8 {
-            continue;
-        }
-        // The box's corners bound its depth from below only when it is wholly in front.
-        let znear = if behind > 0 { 0.0 } else { zmin.max(0.0) };
-        let (u0, u1, v0, v1) = if behind > 0 {
-            (0, w, 0, h)
-        } else {
-            if umax < 0.0 || vmax < 0.0 || umin > w as f64 || vmin > h as f64 {
-                continue;
-            }
-            (
-                (umin.floor().max(0.0)) as usize,
-                ((umax.ceil() + 1.0).min(w as f64)) as usize,
-                (vmin.floor().max(0.0)) as usize,
-                ((vmax.ceil() + 1.0).min(h as f64)) as usize,
-            )
-        };
-        boxes.push((znear, pi, u0, u1, v0, v1));
     }
     boxes.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    for &(znear, pi, u0, u1, v0, v1) in &boxes {
+    boxes
+}
+
+/// The screen bounds of primitive `pi` (the whole image when it reaches behind the camera),
+/// or None when it is wholly behind or off screen.
+fn screen_box(view: &View, pi: usize, p: &Prim) -> Option<ScreenBox> {
+    let (w, h) = (IMG_W as usize, IMG_H as usize);
+    let mut umin = f64::INFINITY;
+    let mut umax = f64::NEG_INFINITY;
+    let mut vmin = f64::INFINITY;
+    let mut vmax = f64::NEG_INFINITY;
+    let mut zmin = f64::INFINITY;
+    let mut behind = 0;
+    for c in p.corners() {
+        let q = view.rt * (c - view.o);
+        zmin = zmin.min(q.z);
+        if q.z < 0.05 {
+            behind += 1;
+            continue;
+        }
+        let u = CAM_FX * q.x / q.z + CAM_CX;
+        let v = CAM_FY * q.y / q.z + CAM_CY;
+        umin = umin.min(u);
+        umax = umax.max(u);
+        vmin = vmin.min(v);
+        vmax = vmax.max(v);
+    }
+    if behind == 8 {
+        return None;
+    }
+    // The box's corners bound its depth from below only when it is wholly in front.
+    let znear = if behind > 0 { 0.0 } else { zmin.max(0.0) };
+    let (u0, u1, v0, v1) = if behind > 0 {
+        (0, w, 0, h)
+    } else {
+        if umax < 0.0 || vmax < 0.0 || umin > w as f64 || vmin > h as f64 {
+            return None;
+        }
+        (
+            (umin.floor().max(0.0)) as usize,
+            ((umax.ceil() + 1.0).min(w as f64)) as usize,
+            (vmin.floor().max(0.0)) as usize,
+            ((vmax.ceil() + 1.0).min(h as f64)) as usize,
+        )
+    };
+    Some((znear, pi, u0, u1, v0, v1))
+}
+
+/// Pass 2: intersect each primitive inside its screen box (boxes sorted nearest first).
+fn prim_pass(view: &View, prims: &[Prim], boxes: &[ScreenBox], raster: &mut Raster) {
+    let w = IMG_W as usize;
+    for &(znear, pi, u0, u1, v0, v1) in boxes {
         let p = &prims[pi];
         for v in v0..v1 {
             for u in u0..u1 {
                 let i = v * w + u;
-                if znear >= best_t[i] {
+                if znear >= raster.best_t[i] {
                     continue;
                 }
-                let d = dir_at(u, v);
-                if let Some(tp) = p.intersect(o, d, 0.05, best_t[i]) {
-                    best_t[i] = tp;
-                    hit[i] = Hit::Prim(pi as u32);
+                let d = view.dir_at(u, v);
+                if let Some(tp) = p.intersect(view.o, d, 0.05, raster.best_t[i]) {
+                    raster.best_t[i] = tp;
+                    raster.hit[i] = Hit::Prim(pi as u32);
                 }
             }
         }
     }
-    // Shading.
-    let (ego_p, ego_q) = world.ego_pose(t);
-    let fwd = ego_q * DVec3::X;
-    let headlight = ego_p + fwd * 3.8 + DVec3::new(0.0, 0.0, 0.7);
-    let lamps: Vec<DVec3> = world
-        .lamps
-        .iter()
-        .copied()
-        .filter(|l| (l.truncate() - o.truncate()).length() < 160.0)
-        .collect();
-    let night = world.weather == Weather::Night;
-    let rain = world.weather == Weather::Rain;
+}
+
+/// Linear colour (with haze) and truth depth of every pixel.
+fn shade_pixels(
+    world: &World,
+    view: &View,
+    prims: &[Prim],
+    raster: &Raster,
+    lights: &Lights,
+) -> (Vec<[f32; 3]>, Vec<f32>) {
+    let w = IMG_W as usize;
+    let h = IMG_H as usize;
+    let n = w * h;
+    let light = lights.light;
     let mut lin = vec![[0f32; 3]; n];
     let mut depth = vec![0f32; n];
     for v in 0..h {
         for u in 0..w {
             let i = v * w + u;
-            let d = dir_at(u, v);
-            let dn = d.normalize();
-            let (col, tt) = match hit[i] {
-                Hit::Sky => (sky_colour(&light, dn), f64::INFINITY),
-                Hit::Ground(kind) => {
-                    let tg = best_t[i];
-                    let p = o + d * tg;
-                    let (albedo, gloss) = ground_albedo(world, kind, p);
-                    let c = shade(
-                        &light, night, albedo, normals[i], p, dn, headlight, fwd, &lamps,
-                    );
-                    let c = add_spec(c, gloss, &light, normals[i], dn, rain);
-                    (c, tg)
-                }
-                Hit::Prim(pi) => {
-                    let prim = &prims[pi as usize];
-                    let tp = best_t[i];
-                    let p = o + d * tp;
-                    let nrm = prim.normal(p);
-                    let (albedo, emit) = prim_albedo(prim, p, nrm, night);
-                    let mut c = shade(&light, night, albedo, nrm, p, dn, headlight, fwd, &lamps);
-                    for k in 0..3 {
-                        c[k] += emit[k];
-                    }
-                    (c, tp)
-                }
-            };
+            let d = view.dir_at(u, v);
+            let (col, tt) = shade_hit(world, view, prims, raster, lights, i, d);
             let fog = if tt.is_finite() {
                 1.0 - (-tt / light.haze_m).exp()
             } else {
@@ -248,62 +323,123 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
             }
         }
     }
+    (lin, depth)
+}
 
-    // Rain: wet-road reflections (mirror about the horizon row) and streaks.
-    if rain {
-        let src = lin.clone();
-        for v in 0..h {
-            for u in 0..w {
-                let i = v * w + u;
-                if let Hit::Ground(Ground::Road | Ground::Marking) = hit[i] {
-                    // Horizon row in this column: d.z = 0.
-                    let xu = (u as f64 + 0.5 - CAM_CX) / CAM_FX;
-                    let yv = -(cx.z * xu + cz.z) / cy.z;
-                    let vh = yv * CAM_FY + CAM_CY;
-                    let vm = (2.0 * vh - v as f64).round();
-                    if vm >= 0.0 && (vm as usize) < h {
-                        let j = vm as usize * w + u;
-                        let f = 0.32 + 0.1 * lattice(u as i64 / 3, v as i64 / 2, 0, 7) as f64;
-                        for k in 0..3 {
-                            lin[i][k] =
-                                (lin[i][k] as f64 * (1.0 - f) + src[j][k] as f64 * f) as f32;
-                        }
+/// Colour (before haze) and depth of pixel `i`, whose ray direction is `d`.
+fn shade_hit(
+    world: &World,
+    view: &View,
+    prims: &[Prim],
+    raster: &Raster,
+    lights: &Lights,
+    i: usize,
+    d: DVec3,
+) -> ([f64; 3], f64) {
+    let Lights {
+        light,
+        night,
+        rain,
+        headlight,
+        fwd,
+        ..
+    } = *lights;
+    let lamps = &lights.lamps;
+    let o = view.o;
+    let dn = d.normalize();
+    match raster.hit[i] {
+        Hit::Sky => (sky_colour(light, dn), f64::INFINITY),
+        Hit::Ground(kind) => {
+            let tg = raster.best_t[i];
+            let p = o + d * tg;
+            let (albedo, gloss) = ground_albedo(world, kind, p);
+            let nrm = raster.normals[i];
+            let c = shade(light, night, albedo, nrm, p, dn, headlight, fwd, lamps);
+            let c = add_spec(c, gloss, light, nrm, dn, rain);
+            (c, tg)
+        }
+        Hit::Prim(pi) => {
+            let prim = &prims[pi as usize];
+            let tp = raster.best_t[i];
+            let p = o + d * tp;
+            let nrm = prim.normal(p);
+            let (albedo, emit) = prim_albedo(prim, p, nrm, night);
+            let mut c = shade(light, night, albedo, nrm, p, dn, headlight, fwd, lamps);
+            for k in 0..3 {
+                c[k] += emit[k];
+            }
+            (c, tp)
+        }
+    }
+}
+
+/// Rain: wet-road reflections (mirror about the horizon row).
+fn rain_reflections(view: &View, hit: &[Hit], lin: &mut [[f32; 3]]) {
+    let w = IMG_W as usize;
+    let h = IMG_H as usize;
+    let (cx, cy, cz) = (view.cx, view.cy, view.cz);
+    let src = lin.to_vec();
+    for v in 0..h {
+        for u in 0..w {
+            let i = v * w + u;
+            if let Hit::Ground(Ground::Road | Ground::Marking) = hit[i] {
+                // Horizon row in this column: d.z = 0.
+                let xu = (u as f64 + 0.5 - CAM_CX) / CAM_FX;
+                let yv = -(cx.z * xu + cz.z) / cy.z;
+                let vh = yv * CAM_FY + CAM_CY;
+                let vm = (2.0 * vh - v as f64).round();
+                if vm >= 0.0 && (vm as usize) < h {
+                    let j = vm as usize * w + u;
+                    let f = 0.32 + 0.1 * lattice(u as i64 / 3, v as i64 / 2, 0, 7) as f64;
+                    for k in 0..3 {
+                        lin[i][k] = (lin[i][k] as f64 * (1.0 - f) + src[j][k] as f64 * f) as f32;
                     }
                 }
-            }
-        }
-        for _ in 0..900 {
-            let x0 = rng.range(0.0, w as f64);
-            let y0 = rng.range(0.0, h as f64);
-            let len = rng.range(15.0, 60.0);
-            let slant = rng.range(0.12, 0.22);
-            let a = rng.range(0.05, 0.14) as f32;
-            let steps = len as usize;
-            for s in 0..steps {
-                let x = (x0 + slant * s as f64) as usize;
-                let y = (y0 + s as f64) as usize;
-                if x < w && y < h {
-                    let c = &mut lin[y * w + x];
-                    for ch in c.iter_mut() {
-                        *ch = *ch * (1.0 - a) + 0.8 * a;
-                    }
-                }
-            }
-        }
-        // Lower contrast.
-        for c in lin.iter_mut() {
-            let m = (c[0] + c[1] + c[2]) / 3.0;
-            for ch in c.iter_mut() {
-                *ch = 0.75 * *ch + 0.25 * m * 0.9 + 0.02;
             }
         }
     }
+}
 
-    // Tone map, sensor noise, 8-bit sRGB.
+/// Rain: 900 light streaks.
+fn rain_streaks(rng: &mut Rng, lin: &mut [[f32; 3]]) {
+    let w = IMG_W as usize;
+    let h = IMG_H as usize;
+    for _ in 0..900 {
+        let x0 = rng.range(0.0, w as f64);
+        let y0 = rng.range(0.0, h as f64);
+        let len = rng.range(15.0, 60.0);
+        let slant = rng.range(0.12, 0.22);
+        let a = rng.range(0.05, 0.14) as f32;
+        let steps = len as usize;
+        for s in 0..steps {
+            let x = (x0 + slant * s as f64) as usize;
+            let y = (y0 + s as f64) as usize;
+            if x < w && y < h {
+                let c = &mut lin[y * w + x];
+                for ch in c.iter_mut() {
+                    *ch = *ch * (1.0 - a) + 0.8 * a;
+                }
+            }
+        }
+    }
+}
+
+/// Rain: lower contrast.
+fn lower_contrast(lin: &mut [[f32; 3]]) {
+    for c in lin.iter_mut() {
+        let m = (c[0] + c[1] + c[2]) / 3.0;
+        for ch in c.iter_mut() {
+            *ch = 0.75 * *ch + 0.25 * m * 0.9 + 0.02;
+        }
+    }
+}
+
+/// Tone map, sensor noise, 8-bit sRGB.
+fn tone_map(lin: &[[f32; 3]], night: bool, rng: &mut Rng) -> Vec<u8> {
     let gain: f32 = if night { 2.2 } else { 1.0 };
     let noise_amp: f32 = if night { 0.035 } else { 0.008 };
     let lut = srgb_lut();
-    let mut rgb = vec![0u8; n * 3];
+    let mut rgb = vec![0u8; lin.len() * 3];
     let fsalt = rng.next_u64();
     for (i, c) in lin.iter().enumerate() {
         let nz = (lattice(i as i64, 0, 0, fsalt) - 0.5) * 2.0 * noise_amp;
@@ -319,10 +455,7 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
             rgb[i * 3 + k] = lut[(x * 4095.0) as usize];
         }
     }
-    CamFrame {
-        rgb,
-        depth_m: depth,
-    }
+    rgb
 }
 
 fn srgb_lut() -> Vec<u8> {
@@ -412,91 +545,8 @@ fn prim_albedo(prim: &Prim, p: DVec3, nrm: DVec3, night: bool) -> ([f64; 3], [f6
     let mut emit = [0.0; 3];
     let salt = prim.obj as u64;
     let albedo = match prim.surface {
-        Surface::Facade => {
-            // Face-aligned coordinate: along the face and height.
-            let along = if nrm.z.abs() > 0.5 {
-                -1.0
-            } else {
-                // Which local axis lies along the face: the one not parallel to the normal.
-                let lx = match prim.shape {
-                    crate::geom::Shape::Box { cos, sin, .. } => (nrm.x * cos + nrm.y * sin).abs(),
-                    _ => 0.0,
-                };
-                if lx > 0.5 {
-                    loc.y
-                } else {
-                    loc.x
-                }
-            };
-            let z = loc.z;
-            let n = 0.85 + 0.25 * noise2(DVec2::new(along, z), 0.9, salt) as f64;
-            if along >= 0.0 && z > 0.6 {
-                let (col, row) = if z < 3.6 {
-                    ((along / 5.0).floor(), -1.0)
-                } else {
-                    ((along / 3.1).floor(), ((z - 3.6) / 3.3).floor())
-                };
-                let fa = if z < 3.6 {
-                    (along / 5.0).fract()
-                } else {
-                    (along / 3.1).fract()
-                };
-                let fz = if z < 3.6 {
-                    (z - 0.6) / 3.0
-                } else {
-                    ((z - 3.6) / 3.3).fract()
-                };
-                let is_win = if z < 3.6 {
-                    fa > 0.08 && fa < 0.92 && fz > 0.05 && fz < 0.85
-                } else {
-                    fa > 0.22 && fa < 0.78 && fz > 0.3 && fz < 0.8
-                };
-                if is_win {
-                    let lit = lattice(col as i64, row as i64, 0, salt);
-                    if night && lit < 0.35 {
-                        let k = 0.25 + 0.3 * lit as f64;
-                        emit = [k * 1.0, k * 0.78, k * 0.45];
-                    }
-                    let g = 0.08 + 0.06 * lit as f64;
-                    [g, g * 1.1, g * 1.3]
-                } else {
-                    [base[0] * n, base[1] * n, base[2] * n]
-                }
-            } else {
-                [base[0] * n, base[1] * n, base[2] * n]
-            }
-        }
-        Surface::CarBody => {
-            let hx = match prim.shape {
-                crate::geom::Shape::Box { h, .. } => h,
-                _ => DVec3::ONE,
-            };
-            let front = loc.x > 2.0 * hx.x - 0.01;
-            let rear = loc.x < 0.01;
-            // Head / tail lamps: 0.45 m wide at the corners, 0.25–0.5 m above the body bottom.
-            let side_lamp = (loc.y > 0.08 && loc.y < 0.53
-                || loc.y > 2.0 * hx.y - 0.53 && loc.y < 2.0 * hx.y - 0.08)
-                && loc.z > 0.25
-                && loc.z < 0.5;
-            if (front || rear) && side_lamp {
-                if night {
-                    emit = if front {
-                        [2.5, 2.4, 2.1]
-                    } else {
-                        [1.2, 0.08, 0.05]
-                    };
-                }
-                if front {
-                    [0.9, 0.9, 0.85]
-                } else {
-                    [0.6, 0.05, 0.04]
-                }
-            } else if loc.z < 0.12 * 2.0 * hx.z {
-                [base[0] * 0.3, base[1] * 0.3, base[2] * 0.3]
-            } else {
-                base
-            }
-        }
+        Surface::Facade => facade_albedo(prim, loc, nrm, base, night, &mut emit),
+        Surface::CarBody => car_body_albedo(prim, loc, base, night, &mut emit),
         Surface::CarGlass => {
             if nrm.z > 0.5 {
                 base
@@ -528,6 +578,116 @@ fn prim_albedo(prim: &Prim, p: DVec3, nrm: DVec3, night: bool) -> ([f64; 3], [f6
     };
     let _ = STATIC_OBJ_BASE;
     (albedo, emit)
+}
+
+/// Face-aligned coordinate of a facade point: along the face (−1 on the roof).
+fn facade_along(prim: &Prim, loc: DVec3, nrm: DVec3) -> f64 {
+    if nrm.z.abs() > 0.5 {
+        -1.0
+    } else {
+        // Which local axis lies along the face: the one not parallel to the normal.
+        let lx = match prim.shape {
+            crate::geom::Shape::Box { cos, sin, .. } => (nrm.x * cos + nrm.y * sin).abs(),
+            _ => 0.0,
+        };
+        if lx > 0.5 {
+            loc.y
+        } else {
+            loc.x
+        }
+    }
+}
+
+/// Albedo of a facade at local point `loc`: noisy wall with shop windows on the ground floor
+/// and windows above (some lit at night: their light goes to `emit`).
+fn facade_albedo(
+    prim: &Prim,
+    loc: DVec3,
+    nrm: DVec3,
+    base: [f64; 3],
+    night: bool,
+    emit: &mut [f64; 3],
+) -> [f64; 3] {
+    let salt = prim.obj as u64;
+    // Face-aligned coordinate: along the face and height.
+    let along = facade_along(prim, loc, nrm);
+    let z = loc.z;
+    let n = 0.85 + 0.25 * noise2(DVec2::new(along, z), 0.9, salt) as f64;
+    if along >= 0.0 && z > 0.6 {
+        let (col, row) = if z < 3.6 {
+            ((along / 5.0).floor(), -1.0)
+        } else {
+            ((along / 3.1).floor(), ((z - 3.6) / 3.3).floor())
+        };
+        let fa = if z < 3.6 {
+            (along / 5.0).fract()
+        } else {
+            (along / 3.1).fract()
+        };
+        let fz = if z < 3.6 {
+            (z - 0.6) / 3.0
+        } else {
+            ((z - 3.6) / 3.3).fract()
+        };
+        let is_win = if z < 3.6 {
+            fa > 0.08 && fa < 0.92 && fz > 0.05 && fz < 0.85
+        } else {
+            fa > 0.22 && fa < 0.78 && fz > 0.3 && fz < 0.8
+        };
+        if is_win {
+            let lit = lattice(col as i64, row as i64, 0, salt);
+            if night && lit < 0.35 {
+                let k = 0.25 + 0.3 * lit as f64;
+                *emit = [k * 1.0, k * 0.78, k * 0.45];
+            }
+            let g = 0.08 + 0.06 * lit as f64;
+            [g, g * 1.1, g * 1.3]
+        } else {
+            [base[0] * n, base[1] * n, base[2] * n]
+        }
+    } else {
+        [base[0] * n, base[1] * n, base[2] * n]
+    }
+}
+
+/// Albedo of a car body at local point `loc`: head / tail lamps (lit at night: their light
+/// goes to `emit`), a dark sill, else the paint.
+fn car_body_albedo(
+    prim: &Prim,
+    loc: DVec3,
+    base: [f64; 3],
+    night: bool,
+    emit: &mut [f64; 3],
+) -> [f64; 3] {
+    let hx = match prim.shape {
+        crate::geom::Shape::Box { h, .. } => h,
+        _ => DVec3::ONE,
+    };
+    let front = loc.x > 2.0 * hx.x - 0.01;
+    let rear = loc.x < 0.01;
+    // Head / tail lamps: 0.45 m wide at the corners, 0.25–0.5 m above the body bottom.
+    let side_lamp = (loc.y > 0.08 && loc.y < 0.53
+        || loc.y > 2.0 * hx.y - 0.53 && loc.y < 2.0 * hx.y - 0.08)
+        && loc.z > 0.25
+        && loc.z < 0.5;
+    if (front || rear) && side_lamp {
+        if night {
+            *emit = if front {
+                [2.5, 2.4, 2.1]
+            } else {
+                [1.2, 0.08, 0.05]
+            };
+        }
+        if front {
+            [0.9, 0.9, 0.85]
+        } else {
+            [0.6, 0.05, 0.04]
+        }
+    } else if loc.z < 0.12 * 2.0 * hx.z {
+        [base[0] * 0.3, base[1] * 0.3, base[2] * 0.3]
+    } else {
+        base
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
