@@ -7,7 +7,8 @@ use std::path::Path;
 use depthsense_nuscenes::depth_png::read_depth_png;
 use depthsense_nuscenes::geometry::{apply_f32, cam_from_sensor, Camera, Rigid};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
-use depthsense_nuscenes::{NuError, NuScenes};
+use depthsense_nuscenes::tables::{SampleData, Scene};
+use depthsense_nuscenes::{NuError, NuScenes, Token};
 
 use crate::calib::{IMG_H, IMG_W, RADAR_CHANNELS};
 use crate::{SynthError, TRUTH_DIR};
@@ -103,20 +104,7 @@ fn nu_err(e: NuError) -> SynthError {
 /// The dataroot is read with depthsense's own reader (`depthsense_nuscenes`).
 pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(), SynthError> {
     let nu = NuScenes::load(dataroot, version).map_err(nu_err)?;
-    let mut columns = Vec::new();
-    for want in ["day", "night", "rain"] {
-        let scene = nu.scene.iter().find(|s| {
-            let desc = s.description.to_lowercase();
-            match want {
-                "night" => desc.contains("night"),
-                "rain" => desc.contains("rain"),
-                _ => !desc.contains("night") && !desc.contains("rain"),
-            }
-        });
-        if let Some(s) = scene {
-            columns.push(s);
-        }
-    }
+    let columns = condition_scenes(&nu);
     if columns.is_empty() {
         return Err(SynthError::Data(format!(
             "{}: no scenes",
@@ -127,82 +115,8 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
     let (w, h) = (TW * ncol, TH * 3);
     let mut sheet = image::RgbImage::new(w, h);
     for (ci, scene) in columns.iter().enumerate() {
-        // Middle keyframe of the scene.
-        let samples = nu.scene_samples(scene.token);
-        let sample = samples
-            .get((scene.nbr_samples as usize / 2).min(samples.len().saturating_sub(1)))
-            .ok_or_else(|| SynthError::Data(format!("scene {} has no samples", scene.token)))?;
-        let kf = |ch: &str| {
-            nu.keyframe(sample.token, ch).ok_or_else(|| {
-                SynthError::Data(format!("sample {} has no {ch} keyframe", sample.token))
-            })
-        };
-        let cam_sd = kf("CAM_FRONT")?;
-        let cam_cs = nu
-            .get_calibrated_sensor(
-                cam_sd.calibrated_sensor_token,
-                "sample_data",
-                cam_sd.token,
-                "calibrated_sensor_token",
-            )
-            .map_err(nu_err)?;
-        let k = cam_cs.camera_intrinsic.ok_or_else(|| {
-            SynthError::Data(format!(
-                "calibrated_sensor {}: CAM_FRONT has no 3x3 camera_intrinsic",
-                cam_cs.token
-            ))
-        })?;
-        let cam = Camera::from_intrinsic(&k, IMG_W, IMG_H);
-        let img_path = nu.path_of(cam_sd);
-        let img = image::open(&img_path)
-            .map_err(|e| SynthError::Data(format!("{}: {e}", img_path.display())))?
-            .to_rgb8();
-        // Row 1: lidar.
-        let mut t1 = Tile::from_image(&img);
-        t1.dim(0.6);
-        let lid = kf("LIDAR_TOP")?;
-        let scan = read_lidar_pcd_bin(&nu.path_of(lid)).map_err(nu_err)?;
-        let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-        let tf = cam_from_sensor(&nu, lid, cam_sd).map_err(nu_err)?;
-        let mut pts = project(&cam, &tf, &xyz);
-        pts.sort_by(|a, b| b.2.total_cmp(&a.2));
-        for (u, v, z) in pts {
-            t1.dot(u, v, 0, depth_colour(z));
-        }
-        // Row 2: radar, 5 sweeps of the three radars, as short vertical bars.
-        let mut t2 = Tile::from_image(&img);
-        t2.dim(0.6);
-        for ch in RADAR_CHANNELS {
-            for sd in nu.sweeps_back(kf(ch)?, 5) {
-                let scan = read_radar_pcd(&nu.path_of(sd)).map_err(nu_err)?;
-                let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p.x, p.y, 0.0]).collect();
-                let tf = cam_from_sensor(&nu, sd, cam_sd).map_err(nu_err)?;
-                for (u, v, z) in project(&cam, &tf, &xyz) {
-                    let c = depth_colour(z);
-                    t2.dot(u, v, 1, c);
-                    t2.dot(u, v - 4.0 * (IMG_H / TH) as f64, 0, c);
-                    t2.dot(u, v - 8.0 * (IMG_H / TH) as f64, 0, c);
-                }
-            }
-        }
-        // Row 3: truth depth.
-        let truth = read_depth_png(
-            &dataroot
-                .join(TRUTH_DIR)
-                .join(format!("{}.png", cam_sd.token)),
-        )
-        .map_err(|e| SynthError::Data(e.to_string()))?;
-        let mut t3 = Tile {
-            px: vec![[0u8; 3]; (TW * TH) as usize],
-        };
-        let s = IMG_W / TW;
-        for y in 0..TH {
-            for x in 0..TW {
-                let z = truth.at(x * s + s / 2, y * s + s / 2) as f64;
-                t3.px[(y * TW + x) as usize] = if z > 0.0 { depth_colour(z) } else { [0, 0, 0] };
-            }
-        }
-        for (ri, t) in [t1, t2, t3].iter().enumerate() {
+        let tiles = scene_tiles(&nu, dataroot, scene)?;
+        for (ri, t) in tiles.iter().enumerate() {
             for y in 0..TH {
                 for x in 0..TW {
                     // Quantise to 6 bits per channel: keeps the PNG small.
@@ -228,4 +142,131 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
         path: out_png.display().to_string(),
         source,
     })
+}
+
+/// The first day, night and rain scene (by description), those that exist.
+fn condition_scenes(nu: &NuScenes) -> Vec<&Scene> {
+    let mut columns = Vec::new();
+    for want in ["day", "night", "rain"] {
+        let scene = nu.scene.iter().find(|s| {
+            let desc = s.description.to_lowercase();
+            match want {
+                "night" => desc.contains("night"),
+                "rain" => desc.contains("rain"),
+                _ => !desc.contains("night") && !desc.contains("rain"),
+            }
+        });
+        if let Some(s) = scene {
+            columns.push(s);
+        }
+    }
+    columns
+}
+
+/// The keyframe of channel `ch` of `sample`.
+fn keyframe<'a>(nu: &'a NuScenes, sample: Token, ch: &str) -> Result<&'a SampleData, SynthError> {
+    nu.keyframe(sample, ch)
+        .ok_or_else(|| SynthError::Data(format!("sample {sample} has no {ch} keyframe")))
+}
+
+/// The three tiles (lidar, radar, truth depth) of the middle keyframe of `scene`.
+fn scene_tiles(nu: &NuScenes, dataroot: &Path, scene: &Scene) -> Result<[Tile; 3], SynthError> {
+    // Middle keyframe of the scene.
+    let samples = nu.scene_samples(scene.token);
+    let sample = samples
+        .get((scene.nbr_samples as usize / 2).min(samples.len().saturating_sub(1)))
+        .ok_or_else(|| SynthError::Data(format!("scene {} has no samples", scene.token)))?;
+    let cam_sd = keyframe(nu, sample.token, "CAM_FRONT")?;
+    let cam_cs = nu
+        .get_calibrated_sensor(
+            cam_sd.calibrated_sensor_token,
+            "sample_data",
+            cam_sd.token,
+            "calibrated_sensor_token",
+        )
+        .map_err(nu_err)?;
+    let k = cam_cs.camera_intrinsic.ok_or_else(|| {
+        SynthError::Data(format!(
+            "calibrated_sensor {}: CAM_FRONT has no 3x3 camera_intrinsic",
+            cam_cs.token
+        ))
+    })?;
+    let cam = Camera::from_intrinsic(&k, IMG_W, IMG_H);
+    let img_path = nu.path_of(cam_sd);
+    let img = image::open(&img_path)
+        .map_err(|e| SynthError::Data(format!("{}: {e}", img_path.display())))?
+        .to_rgb8();
+    let t1 = lidar_tile(nu, &img, &cam, cam_sd, sample.token)?;
+    let t2 = radar_tile(nu, &img, &cam, cam_sd, sample.token)?;
+    let t3 = truth_tile(dataroot, cam_sd)?;
+    Ok([t1, t2, t3])
+}
+
+/// Row 1: the image with the projected lidar points.
+fn lidar_tile(
+    nu: &NuScenes,
+    img: &image::RgbImage,
+    cam: &Camera,
+    cam_sd: &SampleData,
+    sample: Token,
+) -> Result<Tile, SynthError> {
+    let mut t1 = Tile::from_image(img);
+    t1.dim(0.6);
+    let lid = keyframe(nu, sample, "LIDAR_TOP")?;
+    let scan = read_lidar_pcd_bin(&nu.path_of(lid)).map_err(nu_err)?;
+    let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    let tf = cam_from_sensor(nu, lid, cam_sd).map_err(nu_err)?;
+    let mut pts = project(cam, &tf, &xyz);
+    pts.sort_by(|a, b| b.2.total_cmp(&a.2));
+    for (u, v, z) in pts {
+        t1.dot(u, v, 0, depth_colour(z));
+    }
+    Ok(t1)
+}
+
+/// Row 2: radar, 5 sweeps of the three radars, as short vertical bars.
+fn radar_tile(
+    nu: &NuScenes,
+    img: &image::RgbImage,
+    cam: &Camera,
+    cam_sd: &SampleData,
+    sample: Token,
+) -> Result<Tile, SynthError> {
+    let mut t2 = Tile::from_image(img);
+    t2.dim(0.6);
+    for ch in RADAR_CHANNELS {
+        for sd in nu.sweeps_back(keyframe(nu, sample, ch)?, 5) {
+            let scan = read_radar_pcd(&nu.path_of(sd)).map_err(nu_err)?;
+            let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p.x, p.y, 0.0]).collect();
+            let tf = cam_from_sensor(nu, sd, cam_sd).map_err(nu_err)?;
+            for (u, v, z) in project(cam, &tf, &xyz) {
+                let c = depth_colour(z);
+                t2.dot(u, v, 1, c);
+                t2.dot(u, v - 4.0 * (IMG_H / TH) as f64, 0, c);
+                t2.dot(u, v - 8.0 * (IMG_H / TH) as f64, 0, c);
+            }
+        }
+    }
+    Ok(t2)
+}
+
+/// Row 3: truth depth.
+fn truth_tile(dataroot: &Path, cam_sd: &SampleData) -> Result<Tile, SynthError> {
+    let truth = read_depth_png(
+        &dataroot
+            .join(TRUTH_DIR)
+            .join(format!("{}.png", cam_sd.token)),
+    )
+    .map_err(|e| SynthError::Data(e.to_string()))?;
+    let mut t3 = Tile {
+        px: vec![[0u8; 3]; (TW * TH) as usize],
+    };
+    let s = IMG_W / TW;
+    for y in 0..TH {
+        for x in 0..TW {
+            let z = truth.at(x * s + s / 2, y * s + s / 2) as f64;
+            t3.px[(y * TW + x) as usize] = if z > 0.0 { depth_colour(z) } else { [0, 0, 0] };
+        }
+    }
+    Ok(t3)
 }
