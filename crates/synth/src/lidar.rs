@@ -166,7 +166,56 @@ pub fn scan(world: &World, t: f64, salt: u64) -> LidarSweep {
     let prims = world.snapshot(t, o.truncate(), LIDAR_MAX_RANGE_M + 5.0);
     let n_az = LIDAR_AZIMUTHS;
     let two_pi = std::f64::consts::TAU;
-    // Column lists: which primitives can be hit in each azimuth column.
+    let cols = azimuth_columns(&prims, o, rt);
+    let elev = calib::lidar_elevations_deg();
+    let rain = world.weather == Weather::Rain;
+    let caster = Caster {
+        world,
+        o,
+        r,
+        prims: &prims,
+        rain,
+        base_drop: if rain { 0.07 } else { 0.02 },
+    };
+    let mut points = Vec::with_capacity(n_az * 32);
+    let mut objs = Vec::with_capacity(n_az * 32);
+    let az_jitter = rng.range(0.0, 1.0);
+    let mut ego_rng = Rng::stream(salt, &[0x11DA, 0xE60]);
+    for (ci, col) in cols.iter().enumerate() {
+        let az = -std::f64::consts::PI + (ci as f64 + az_jitter) * two_pi / n_az as f64;
+        let (sa, ca) = az.sin_cos();
+        for (ring, &e) in elev.iter().enumerate() {
+            let (se, ce) = e.to_radians().sin_cos();
+            let ds = DVec3::new(ce * ca, ce * sa, se);
+            let (world_return, sky) = caster.world_return(&mut rng, ds, ring, col);
+            // The ego car's own returns draw from their own random stream, and the world's
+            // return is drawn even where the roof hides it, so that every other point is the
+            // same with or without them.
+            let ret = match ego_roof(&mut ego_rng, ds, ring) {
+                Roof::Return(p) => Some((p, u32::MAX)),
+                Roof::Blocked => None,
+                Roof::Miss => match world_return {
+                    Some(r) => Some(r),
+                    // A ray that hit nothing reports the sensor's "no return" point near
+                    // the origin (a dropped-out hit reports nothing, as before).
+                    None if sky => Some((no_return_point(&mut ego_rng, ring), u32::MAX)),
+                    None => None,
+                },
+            };
+            if let Some((p, obj)) = ret {
+                points.push(p);
+                objs.push(obj);
+            }
+        }
+    }
+    LidarSweep { points, objs }
+}
+
+/// Column lists: which primitives can be hit in each azimuth column (sensor at `o`,
+/// `rt` = lidar_from_global).
+fn azimuth_columns(prims: &[Prim], o: DVec3, rt: DMat3) -> Vec<Vec<u32>> {
+    let n_az = LIDAR_AZIMUTHS;
+    let two_pi = std::f64::consts::TAU;
     let mut cols: Vec<Vec<u32>> = vec![Vec::new(); n_az];
     let col_of =
         |a: f64| -> i64 { ((a + std::f64::consts::PI) / two_pi * n_az as f64).floor() as i64 };
@@ -192,99 +241,91 @@ pub fn scan(world: &World, t: f64, salt: u64) -> LidarSweep {
             cols[c.rem_euclid(n_az as i64) as usize].push(pi as u32);
         }
     }
-    let elev = calib::lidar_elevations_deg();
-    let rain = world.weather == Weather::Rain;
-    let base_drop = if rain { 0.07 } else { 0.02 };
-    let mut points = Vec::with_capacity(n_az * 32);
-    let mut objs = Vec::with_capacity(n_az * 32);
-    let az_jitter = rng.range(0.0, 1.0);
-    let mut ego_rng = Rng::stream(salt, &[0x11DA, 0xE60]);
-    for (ci, col) in cols.iter().enumerate() {
-        let az = -std::f64::consts::PI + (ci as f64 + az_jitter) * two_pi / n_az as f64;
-        let (sa, ca) = az.sin_cos();
-        for (ring, &e) in elev.iter().enumerate() {
-            let (se, ce) = e.to_radians().sin_cos();
-            let ds = DVec3::new(ce * ca, ce * sa, se);
-            let d = r * ds;
-            let mut best = LIDAR_MAX_RANGE_M;
-            let mut what: Option<(f64, u32)> = None;
-            let mut gnd: Option<(DVec3, Ground)> = None;
-            if let Some((tg, n, g)) = world.ground_hit(o, d, best) {
-                best = tg;
-                gnd = Some((n, g));
-            }
-            for &pi in col {
-                let p: &Prim = &prims[pi as usize];
-                if let Some(tp) = p.intersect(o, d, 0.3, best) {
-                    best = tp;
-                    what = Some((tp, pi));
-                }
-            }
-            let sky = what.is_none() && gnd.is_none();
-            let world_return: Option<([f32; 5], u32)> = if let Some((tp, pi)) = what {
-                let p = &prims[pi as usize];
-                let n = p.normal(o + d * tp);
-                surface_return(
-                    &mut rng,
-                    ds,
-                    ring,
-                    tp,
-                    reflectivity(p.surface),
-                    n,
-                    d,
-                    p.obj,
-                    base_drop,
-                )
-            } else if let Some((n, g)) = gnd {
-                surface_return(
-                    &mut rng,
-                    ds,
-                    ring,
-                    best,
-                    ground_reflectivity(g),
-                    n,
-                    d,
-                    u32::MAX,
-                    base_drop,
-                )
-            } else if rain && rng.chance(0.004) {
-                // Spurious return from a rain drop close to the sensor.
-                let rr = rng.range(1.5, 6.0);
-                let q = ds * rr;
-                Some((
-                    [
-                        q.x as f32,
-                        q.y as f32,
-                        q.z as f32,
-                        rng.range(0.0, 3.0) as f32,
-                        ring as f32,
-                    ],
-                    u32::MAX,
-                ))
-            } else {
-                None
-            };
-            // The ego car's own returns draw from their own random stream, and the world's
-            // return is drawn even where the roof hides it, so that every other point is the
-            // same with or without them.
-            let ret = match ego_roof(&mut ego_rng, ds, ring) {
-                Roof::Return(p) => Some((p, u32::MAX)),
-                Roof::Blocked => None,
-                Roof::Miss => match world_return {
-                    Some(r) => Some(r),
-                    // A ray that hit nothing reports the sensor's "no return" point near
-                    // the origin (a dropped-out hit reports nothing, as before).
-                    None if sky => Some((no_return_point(&mut ego_rng, ring), u32::MAX)),
-                    None => None,
-                },
-            };
-            if let Some((p, obj)) = ret {
-                points.push(p);
-                objs.push(obj);
+    cols
+}
+
+/// A primitive hit: distance (m) and primitive index.
+type PrimHit = (f64, u32);
+/// A ground hit: normal and ground kind.
+type GroundHit = (DVec3, Ground);
+
+/// The sensor in the world at one time: origin, global_from_lidar, the primitives near it,
+/// and the weather's dropout.
+struct Caster<'a> {
+    world: &'a World,
+    o: DVec3,
+    r: DMat3,
+    prims: &'a [Prim],
+    rain: bool,
+    base_drop: f64,
+}
+
+impl Caster<'_> {
+    /// The world's return for beam `ds` (sensor frame) among the primitives of column `col`
+    /// (None when dropped or nothing was hit), and whether the beam hit nothing at all.
+    fn world_return(
+        &self,
+        rng: &mut Rng,
+        ds: DVec3,
+        ring: usize,
+        col: &[u32],
+    ) -> (Option<([f32; 5], u32)>, bool) {
+        let (o, prims, base_drop) = (self.o, self.prims, self.base_drop);
+        let d = self.r * ds;
+        let (best, what, gnd) = self.cast(d, col);
+        let sky = what.is_none() && gnd.is_none();
+        let world_return: Option<([f32; 5], u32)> = if let Some((tp, pi)) = what {
+            let p = &prims[pi as usize];
+            let n = p.normal(o + d * tp);
+            let refl = reflectivity(p.surface);
+            surface_return(rng, ds, ring, tp, refl, n, d, p.obj, base_drop)
+        } else if let Some((n, g)) = gnd {
+            let refl = ground_reflectivity(g);
+            surface_return(rng, ds, ring, best, refl, n, d, u32::MAX, base_drop)
+        } else if self.rain && rng.chance(0.004) {
+            Some(rain_drop_return(rng, ds, ring))
+        } else {
+            None
+        };
+        (world_return, sky)
+    }
+
+    /// Nearest hit along global direction `d`: distance, primitive (distance, index) if a
+    /// primitive is nearest, ground (normal, kind) if the ground was hit.
+    fn cast(&self, d: DVec3, col: &[u32]) -> (f64, Option<PrimHit>, Option<GroundHit>) {
+        let o = self.o;
+        let mut best = LIDAR_MAX_RANGE_M;
+        let mut what: Option<(f64, u32)> = None;
+        let mut gnd: Option<(DVec3, Ground)> = None;
+        if let Some((tg, n, g)) = self.world.ground_hit(o, d, best) {
+            best = tg;
+            gnd = Some((n, g));
+        }
+        for &pi in col {
+            let p: &Prim = &self.prims[pi as usize];
+            if let Some(tp) = p.intersect(o, d, 0.3, best) {
+                best = tp;
+                what = Some((tp, pi));
             }
         }
+        (best, what, gnd)
     }
-    LidarSweep { points, objs }
+}
+
+/// Spurious return from a rain drop close to the sensor.
+fn rain_drop_return(rng: &mut Rng, ds: DVec3, ring: usize) -> ([f32; 5], u32) {
+    let rr = rng.range(1.5, 6.0);
+    let q = ds * rr;
+    (
+        [
+            q.x as f32,
+            q.y as f32,
+            q.z as f32,
+            rng.range(0.0, 3.0) as f32,
+            ring as f32,
+        ],
+        u32::MAX,
+    )
 }
 
 #[cfg(test)]
