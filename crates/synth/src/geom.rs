@@ -104,69 +104,11 @@ impl Prim {
     /// Nearest hit distance `t` in (t_min, t_max) of the ray o + t·d, if any.
     #[inline]
     pub fn intersect(&self, o: DVec3, d: DVec3, t_min: f64, t_max: f64) -> Option<f64> {
+        let ray = Ray { o, d, t_min, t_max };
         match self.shape {
-            Shape::Box { c, h, cos, sin } => {
-                let p = o - c;
-                let lo = DVec3::new(cos * p.x + sin * p.y, -sin * p.x + cos * p.y, p.z);
-                let ld = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
-                let inv = ld.recip();
-                let t1 = (-h - lo) * inv;
-                let t2 = (h - lo) * inv;
-                let tn = t1.min(t2).max_element();
-                let tf = t1.max(t2).min_element();
-                if tn <= tf && tn > t_min && tn < t_max {
-                    Some(tn)
-                } else {
-                    None
-                }
-            }
-            Shape::Cyl { c, r, z0, z1 } => {
-                let mut best: Option<f64> = None;
-                let px = o.x - c.x;
-                let py = o.y - c.y;
-                let a = d.x * d.x + d.y * d.y;
-                if a > 1e-12 {
-                    let b = px * d.x + py * d.y;
-                    let cc = px * px + py * py - r * r;
-                    let disc = b * b - a * cc;
-                    if disc >= 0.0 {
-                        let t = (-b - disc.sqrt()) / a;
-                        if t > t_min && t < t_max {
-                            let z = o.z + t * d.z;
-                            if z >= z0 && z <= z1 {
-                                best = Some(t);
-                            }
-                        }
-                    }
-                }
-                if d.z.abs() > 1e-12 {
-                    let t = (z1 - o.z) / d.z;
-                    if t > t_min && t < best.unwrap_or(t_max) {
-                        let x = px + t * d.x;
-                        let y = py + t * d.y;
-                        if x * x + y * y <= r * r {
-                            best = Some(t);
-                        }
-                    }
-                }
-                best
-            }
-            Shape::Sphere { c, r } => {
-                let p = o - c;
-                let b = p.dot(d);
-                let cc = p.length_squared() - r * r;
-                let a = d.length_squared();
-                let disc = b * b - a * cc;
-                if disc < 0.0 {
-                    return None;
-                }
-                let t = (-b - disc.sqrt()) / a;
-                if t > t_min && t < t_max {
-                    Some(t)
-                } else {
-                    None
-                }
-            }
+            Shape::Box { c, h, cos, sin } => box_hit(c, h, cos, sin, &ray),
+            Shape::Cyl { c, r, z0, z1 } => cyl_hit(c, r, z0, z1, &ray),
+            Shape::Sphere { c, r } => sphere_hit(c, r, &ray),
         }
     }
 
@@ -234,6 +176,92 @@ impl Prim {
             DVec3::new(a.x, b.y, b.z),
             DVec3::new(b.x, b.y, b.z),
         ]
+    }
+}
+
+/// A ray o + t·d and the open interval (t_min, t_max) of accepted hits.
+#[derive(Clone, Copy)]
+struct Ray {
+    o: DVec3,
+    d: DVec3,
+    t_min: f64,
+    t_max: f64,
+}
+
+/// Ray o + t·d against the box of centre `c`, half extents `h`, yaw (cos, sin): the entry
+/// distance in (t_min, t_max), if any (slab test in the box frame).
+#[inline]
+fn box_hit(c: DVec3, h: DVec3, cos: f64, sin: f64, ray: &Ray) -> Option<f64> {
+    let Ray { o, d, t_min, t_max } = *ray;
+    let p = o - c;
+    let lo = DVec3::new(cos * p.x + sin * p.y, -sin * p.x + cos * p.y, p.z);
+    let ld = DVec3::new(cos * d.x + sin * d.y, -sin * d.x + cos * d.y, d.z);
+    let inv = ld.recip();
+    let t1 = (-h - lo) * inv;
+    let t2 = (h - lo) * inv;
+    let tn = t1.min(t2).max_element();
+    let tf = t1.max(t2).min_element();
+    if tn <= tf && tn > t_min && tn < t_max {
+        Some(tn)
+    } else {
+        None
+    }
+}
+
+/// Ray o + t·d against the vertical cylinder of axis `c`, radius `r` over z ∈ [z0, z1]:
+/// the nearest hit of its side or its top in (t_min, t_max), if any.
+#[inline]
+fn cyl_hit(c: DVec2, r: f64, z0: f64, z1: f64, ray: &Ray) -> Option<f64> {
+    let Ray { o, d, t_min, t_max } = *ray;
+    let mut best: Option<f64> = None;
+    let px = o.x - c.x;
+    let py = o.y - c.y;
+    let a = d.x * d.x + d.y * d.y;
+    if a > 1e-12 {
+        let b = px * d.x + py * d.y;
+        let cc = px * px + py * py - r * r;
+        let disc = b * b - a * cc;
+        if disc >= 0.0 {
+            let t = (-b - disc.sqrt()) / a;
+            if t > t_min && t < t_max {
+                let z = o.z + t * d.z;
+                if z >= z0 && z <= z1 {
+                    best = Some(t);
+                }
+            }
+        }
+    }
+    if d.z.abs() > 1e-12 {
+        let t = (z1 - o.z) / d.z;
+        if t > t_min && t < best.unwrap_or(t_max) {
+            let x = px + t * d.x;
+            let y = py + t * d.y;
+            if x * x + y * y <= r * r {
+                best = Some(t);
+            }
+        }
+    }
+    best
+}
+
+/// Ray o + t·d against the sphere of centre `c`, radius `r`: the entry distance in
+/// (t_min, t_max), if any.
+#[inline]
+fn sphere_hit(c: DVec3, r: f64, ray: &Ray) -> Option<f64> {
+    let Ray { o, d, t_min, t_max } = *ray;
+    let p = o - c;
+    let b = p.dot(d);
+    let cc = p.length_squared() - r * r;
+    let a = d.length_squared();
+    let disc = b * b - a * cc;
+    if disc < 0.0 {
+        return None;
+    }
+    let t = (-b - disc.sqrt()) / a;
+    if t > t_min && t < t_max {
+        Some(t)
+    } else {
+        None
     }
 }
 
