@@ -24,6 +24,7 @@ use depthsense_data::error::TrainError;
 use depthsense_data::{partition, Dataset, Partition};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use depthsense_viz::table::{csv_num, md_num, md_or_missing, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -552,11 +553,6 @@ fn chart(r: &AblationResult) -> Result<Vec<u8>, TrainError> {
     ])?)
 }
 
-fn opt_f(x: Option<f64>, prec: usize) -> String {
-    x.filter(|v| v.is_finite())
-        .map_or(String::new(), |v| format!("{v:.prec$}"))
-}
-
 fn csv(r: &AblationResult) -> String {
     let mut s = String::from(
         "kind,variant,seed,condition,region,cap_m,n,n_images,delta1,delta1_std,rmse_m,rmse_std_m,\
@@ -583,7 +579,12 @@ fn csv(r: &AblationResult) -> String {
         }
     }
     for x in &r.summary {
-        let st = |s: &Option<Stat>| (opt_f(s.map(|s| s.mean), 6), opt_f(s.and_then(|s| s.std), 6));
+        let st = |s: &Option<Stat>| {
+            (
+                csv_num(s.map(|s| s.mean), 6),
+                csv_num(s.and_then(|s| s.std), 6),
+            )
+        };
         let (d, ds) = st(&x.delta1);
         let (rm, rs) = st(&x.rmse);
         let (a, as_) = st(&x.abs_rel);
@@ -593,7 +594,7 @@ fn csv(r: &AblationResult) -> String {
             x.variant,
             x.condition,
             x.region,
-            opt_f(Some(x.cap_m), 0),
+            csv_num(Some(x.cap_m), 0),
             x.n
         ));
     }
@@ -620,11 +621,19 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
         |m| m.abs_rel,
         |m| m.rmse_log,
     ];
-    let mut md = format!(
-        "## MER table: full image and low-height, cap {cap_m:.0} m (test scenes)\n\n\
-         | variant | region | n | δ1 | δ2 | δ3 | RMSE (m) | AbsRel | RMSE_log |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|\n"
-    );
+    let mut md =
+        format!("## MER table: full image and low-height, cap {cap_m:.0} m (test scenes)\n\n");
+    let mut t = MdTable::new(&[
+        ("variant", Align::Left),
+        ("region", Align::Left),
+        ("n", Align::Right),
+        ("δ1", Align::Right),
+        ("δ2", Align::Right),
+        ("δ3", Align::Right),
+        ("RMSE (m)", Align::Right),
+        ("AbsRel", Align::Right),
+        ("RMSE_log", Align::Right),
+    ]);
     for (name, _) in &r.models {
         for region in ["full", "lowheight"] {
             let rows: Vec<&depthsense_metrics::Row> = r
@@ -633,27 +642,22 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
                 .filter(|x| &x.variant == name)
                 .filter_map(|x| x.report.row("combined", region, cap_m))
                 .collect();
-            let cells: Vec<String> = cols
-                .iter()
-                .map(|g| {
-                    md_stat(&Stat::of(
-                        &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),
-                    ))
-                })
-                .collect();
-            md.push_str(&format!(
-                "| {name} | {region} | {} | {} |\n",
-                rows.len(),
-                cells.join(" | ")
-            ));
+            let mut cells = vec![name.clone(), region.to_string(), rows.len().to_string()];
+            cells.extend(cols.iter().map(|g| {
+                md_stat(&Stat::of(
+                    &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),
+                ))
+            }));
+            t.row(&cells);
         }
     }
+    md.push_str(&t.finish());
     md.push('\n');
     md
 }
 
 fn md_stat(s: &Option<Stat>) -> String {
-    s.map_or("–".into(), |s| s.fmt(3))
+    md_or_missing(s.map(|s| s.fmt(3)))
 }
 
 fn markdown(r: &AblationResult) -> String {
@@ -667,14 +671,24 @@ fn markdown(r: &AblationResult) -> String {
         seeds.join(", "),
         seeds.len()
     ));
-    md.push_str("| variant | fusion | attention | head | description |\n|---|---|---|---|---|\n");
+    let mut t = MdTable::new(&[
+        ("variant", Align::Left),
+        ("fusion", Align::Left),
+        ("attention", Align::Left),
+        ("head", Align::Left),
+        ("description", Align::Left),
+    ]);
     for (name, c) in &r.models {
         let desc = Variant::from_str(name).map_or("", |v| v.describe());
-        md.push_str(&format!(
-            "| {name} | {:?} | {} | {:?} | {desc} |\n",
-            c.fusion, c.attention, c.head
-        ));
+        t.row(&[
+            name.clone(),
+            format!("{:?}", c.fusion),
+            c.attention.to_string(),
+            format!("{:?}", c.head),
+            desc.to_string(),
+        ]);
     }
+    md.push_str(&t.finish());
     md.push('\n');
 
     if !r.verdicts.is_empty() {
@@ -699,53 +713,67 @@ fn markdown(r: &AblationResult) -> String {
         .find(|c| c.is_finite())
         .unwrap_or(o.eval.main_cap());
     for (region, title) in [("full", "Full image"), ("lowheight", "Low-height region")] {
-        md.push_str(&format!(
-            "## {title}, cap {cap:.0} m (test scenes)\n\n\
-             | variant | condition | n | δ1 | RMSE (m) | AbsRel | MAE (m) |\n\
-             |---|---|---:|---:|---:|---:|---:|\n"
-        ));
+        md.push_str(&format!("## {title}, cap {cap:.0} m (test scenes)\n\n"));
+        let mut t = MdTable::new(&[
+            ("variant", Align::Left),
+            ("condition", Align::Left),
+            ("n", Align::Right),
+            ("δ1", Align::Right),
+            ("RMSE (m)", Align::Right),
+            ("AbsRel", Align::Right),
+            ("MAE (m)", Align::Right),
+        ]);
         for x in r.summary.iter().filter(|x| x.region == region) {
-            md.push_str(&format!(
-                "| {} | {} | {} | {} | {} | {} | {} |\n",
-                x.variant,
-                x.condition,
-                x.n,
+            t.row(&[
+                x.variant.clone(),
+                x.condition.clone(),
+                x.n.to_string(),
                 md_stat(&x.delta1),
                 md_stat(&x.rmse),
                 md_stat(&x.abs_rel),
-                md_stat(&x.mae)
-            ));
+                md_stat(&x.mae),
+            ]);
         }
+        md.push_str(&t.finish());
         md.push('\n');
     }
 
     md.push_str(&mer_table(r, cap));
 
-    md.push_str(
-        "## Per run (combined, full image)\n\n\
-         | variant | seed | δ1 | RMSE (m) | AbsRel | MAE (m) | best val RMSE (m) | train s | eval s | this invocation |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
-    );
+    md.push_str("## Per run (combined, full image)\n\n");
+    let mut t = MdTable::new(&[
+        ("variant", Align::Left),
+        ("seed", Align::Right),
+        ("δ1", Align::Right),
+        ("RMSE (m)", Align::Right),
+        ("AbsRel", Align::Right),
+        ("MAE (m)", Align::Right),
+        ("best val RMSE (m)", Align::Right),
+        ("train s", Align::Right),
+        ("eval s", Align::Right),
+        ("this invocation", Align::Left),
+    ]);
     for (run, st) in r.runs.iter().zip(&r.status) {
         let h = run.headline();
-        let f = |g: fn(&RowValues) -> f64| h.map_or("–".into(), |x| format!("{:.3}", g(x)));
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {} |\n",
-            run.variant,
-            run.seed,
+        let f = |g: fn(&RowValues) -> f64| md_num(h.map(g), 3);
+        t.row(&[
+            run.variant.clone(),
+            run.seed.to_string(),
             f(|x| x.delta1),
             f(|x| x.rmse),
             f(|x| x.abs_rel),
             f(|x| x.mae),
-            opt_f(run.best_val_rmse, 3),
-            run.train_seconds,
-            run.eval_seconds,
+            // An empty cell when absent (this column's look since it was added).
+            csv_num(run.best_val_rmse, 3),
+            format!("{:.1}", run.train_seconds),
+            format!("{:.1}", run.eval_seconds),
             serde_json::to_value(st)
                 .ok()
                 .and_then(|v| v.as_str().map(String::from))
-                .unwrap_or_default()
-        ));
+                .unwrap_or_default(),
+        ]);
     }
+    md.push_str(&t.finish());
     md.push('\n');
 
     let p = &r.partition;

@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use depthsense_data::error::TrainError;
 use depthsense_model::{report::model_report, DepthNet, ModelConfig};
+use depthsense_viz::table::{Align, MdTable, MISSING};
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
@@ -152,23 +153,41 @@ pub fn markdown(r: &CostResult) -> String {
         r.machine.line(),
         r.threads
     ));
-    md.push_str("| preset | variant | params (M) | GMACs / image | ms / batch (mean) | ms / batch (min) |\n|---|---|---:|---:|---:|---:|\n");
+    let mut t = MdTable::new(&[
+        ("preset", Align::Left),
+        ("variant", Align::Left),
+        ("params (M)", Align::Right),
+        ("GMACs / image", Align::Right),
+        ("ms / batch (mean)", Align::Right),
+        ("ms / batch (min)", Align::Right),
+    ]);
     for x in &r.rows {
-        md.push_str(&format!(
-            "| {} | {} | {:.2} | {:.1} | {:.0} | {:.0} |\n",
-            x.preset,
-            x.variant,
-            x.params as f64 / 1e6,
-            x.macs_per_image as f64 / 1e9,
-            x.mean_ms_per_batch,
-            x.min_ms_per_batch
-        ));
+        t.row(&[
+            x.preset.clone(),
+            x.variant.clone(),
+            format!("{:.2}", x.params as f64 / 1e6),
+            format!("{:.1}", x.macs_per_image as f64 / 1e9),
+            format!("{:.0}", x.mean_ms_per_batch),
+            format!("{:.0}", x.min_ms_per_batch),
+        ]);
     }
-    md.push_str(&format!(
-        "| paper (RTX 3090) | late-sam | 68.40 (released) | – | {:.0} | – |\n| DORN (paper's figure) | – | – | – | {:.0} | – |\n",
-        PAPER_S_PER_BATCH3 * 1e3,
-        DORN_S_PER_BATCH3 * 1e3
-    ));
+    t.row(&[
+        "paper (RTX 3090)",
+        "late-sam",
+        "68.40 (released)",
+        MISSING,
+        &format!("{:.0}", PAPER_S_PER_BATCH3 * 1e3),
+        MISSING,
+    ]);
+    t.row(&[
+        "DORN (paper's figure)",
+        MISSING,
+        MISSING,
+        MISSING,
+        &format!("{:.0}", DORN_S_PER_BATCH3 * 1e3),
+        MISSING,
+    ]);
+    md.push_str(&t.finish());
     if let Some(c) = &o.command_line {
         md.push_str(&format!("\nCommand: `{c}`\n"));
     }

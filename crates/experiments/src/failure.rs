@@ -2,6 +2,7 @@
 //! scenarios. The failures themselves ([`RadarFailure`]) are applied by the loader:
 //! [`depthsense_data::radar_failure`].
 
+use depthsense_viz::table::{csv_quoted, csv_row, md_num, md_or_missing, Align, MdTable};
 use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
@@ -169,10 +170,6 @@ fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), TrainEr
     super::save(&out.join(FAILURE_PNG), &png)
 }
 
-fn fmt_opt(x: Option<f64>, prec: usize) -> String {
-    x.map_or("–".into(), |v| format!("{v:.prec$}"))
-}
-
 fn failure_markdown(r: &FailureResult) -> String {
     let e = &r.eval;
     let mut md = String::from("# Sensor failure (SPEC §10.8)\n\n");
@@ -186,7 +183,18 @@ fn failure_markdown(r: &FailureResult) -> String {
         e.eval.main_cap(),
         e.seed
     ));
-    md.push_str("| scenario | images | RMSE (m) | ΔRMSE (m) | MAE (m) | δ1 | AbsRel | RMSE day | RMSE night | RMSE rain |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    let mut t = MdTable::new(&[
+        ("scenario", Align::Left),
+        ("images", Align::Right),
+        ("RMSE (m)", Align::Right),
+        ("ΔRMSE (m)", Align::Right),
+        ("MAE (m)", Align::Right),
+        ("δ1", Align::Right),
+        ("AbsRel", Align::Right),
+        ("RMSE day", Align::Right),
+        ("RMSE night", Align::Right),
+        ("RMSE rain", Align::Right),
+    ]);
     let base = r
         .results
         .first()
@@ -194,24 +202,21 @@ fn failure_markdown(r: &FailureResult) -> String {
         .map(|x| x.rmse);
     for x in &r.results {
         let c = x.row("combined");
-        let cond = |n: &str| fmt_opt(x.row(n).map(|r| r.rmse), 3);
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
-            x.scenario.name,
-            c.map_or(0, |r| r.n_images),
-            fmt_opt(c.map(|r| r.rmse), 3),
-            match (c, base) {
-                (Some(c), Some(b)) => super::signed(c.rmse - b, 3),
-                _ => "–".into(),
-            },
-            fmt_opt(c.map(|r| r.mae), 3),
-            fmt_opt(c.map(|r| r.delta1), 3),
-            fmt_opt(c.map(|r| r.abs_rel), 3),
+        let cond = |n: &str| md_num(x.row(n).map(|r| r.rmse), 3);
+        t.row(&[
+            x.scenario.name.clone(),
+            c.map_or(0, |r| r.n_images).to_string(),
+            md_num(c.map(|r| r.rmse), 3),
+            md_or_missing(c.zip(base).map(|(c, b)| super::signed(c.rmse - b, 3))),
+            md_num(c.map(|r| r.mae), 3),
+            md_num(c.map(|r| r.delta1), 3),
+            md_num(c.map(|r| r.abs_rel), 3),
             cond("day"),
             cond("night"),
             cond("rain"),
-        ));
+        ]);
     }
+    md.push_str(&t.finish());
     md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
     if let Some(c) = &r.command_line {
         md.push_str(&format!("\nCommand: `{c}`\n"));
@@ -223,16 +228,15 @@ fn failure_csv(r: &FailureResult) -> String {
     let mut s = String::from("scenario,condition,n_images,rmse_m,mae_m,delta1,abs_rel\n");
     for x in &r.results {
         for row in x.rows.iter().filter(|r| r.region == "full") {
-            s.push_str(&format!(
-                "\"{}\",{},{},{:.6},{:.6},{:.6},{:.6}\n",
-                x.scenario.name,
-                row.condition,
-                row.n_images,
-                row.rmse,
-                row.mae,
-                row.delta1,
-                row.abs_rel
-            ));
+            s.push_str(&csv_row(&[
+                csv_quoted(&x.scenario.name),
+                row.condition.to_string(),
+                row.n_images.to_string(),
+                format!("{:.6}", row.rmse),
+                format!("{:.6}", row.mae),
+                format!("{:.6}", row.delta1),
+                format!("{:.6}", row.abs_rel),
+            ]));
         }
     }
     s

@@ -13,6 +13,7 @@ use std::path::Path;
 use depthsense_data::error::TrainError;
 use depthsense_eval::evaluate::EvalOptions;
 use depthsense_prep::radar_points::{PerturbAxis, Perturbation};
+use depthsense_viz::table::{csv_row, md_num, md_or_missing, Align, MdTable};
 use serde::{Deserialize, Serialize};
 
 use super::failure::RadarFailure;
@@ -239,27 +240,18 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
     Ok(depthsense_viz::plot::line_charts_png(&panels)?)
 }
 
-fn fmt_opt(x: Option<f64>, prec: usize) -> String {
-    x.map_or("–".into(), |v| format!("{v:.prec$}"))
-}
-
-fn md_row(x: &PerturbRow, base: Option<f64>) -> String {
+fn md_row(t: &mut MdTable, x: &PerturbRow, base: Option<f64>) {
     let c = x.combined();
-    format!(
-        "| {} | {} {} | {} | {} | {} | {} | {} | {} |\n",
-        x.axis,
-        x.magnitude,
-        x.unit,
-        c.map_or(0, |r| r.n_images),
-        fmt_opt(c.map(|r| r.rmse), 3),
-        match (c, base) {
-            (Some(c), Some(b)) => super::signed(c.rmse - b, 3),
-            _ => "–".into(),
-        },
-        fmt_opt(c.map(|r| r.mae), 3),
-        fmt_opt(c.map(|r| r.delta1), 3),
-        fmt_opt(c.map(|r| r.abs_rel), 3),
-    )
+    t.row(&[
+        x.axis.to_string(),
+        format!("{} {}", x.magnitude, x.unit),
+        c.map_or(0, |r| r.n_images).to_string(),
+        md_num(c.map(|r| r.rmse), 3),
+        md_or_missing(c.zip(base).map(|(c, b)| super::signed(c.rmse - b, 3))),
+        md_num(c.map(|r| r.mae), 3),
+        md_num(c.map(|r| r.delta1), 3),
+        md_num(c.map(|r| r.abs_rel), 3),
+    ]);
 }
 
 fn perturb_markdown(r: &PerturbResult) -> String {
@@ -277,12 +269,22 @@ fn perturb_markdown(r: &PerturbResult) -> String {
         e.eval.main_cap(),
         e.seed
     ));
-    md.push_str("| axis | magnitude | images | RMSE (m) | ΔRMSE (m) | MAE (m) | δ1 | AbsRel |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    let mut t = MdTable::new(&[
+        ("axis", Align::Left),
+        ("magnitude", Align::Right),
+        ("images", Align::Right),
+        ("RMSE (m)", Align::Right),
+        ("ΔRMSE (m)", Align::Right),
+        ("MAE (m)", Align::Right),
+        ("δ1", Align::Right),
+        ("AbsRel", Align::Right),
+    ]);
     let base = r.baseline.combined().map(|x| x.rmse);
-    md.push_str(&md_row(&r.baseline, base));
+    md_row(&mut t, &r.baseline, base);
     for x in &r.rows {
-        md.push_str(&md_row(x, base));
+        md_row(&mut t, x, base);
     }
+    md.push_str(&t.finish());
     md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
     if let Some(c) = &r.command_line {
         md.push_str(&format!("\nCommand: `{c}`\n"));
@@ -295,18 +297,17 @@ fn perturb_csv(r: &PerturbResult) -> String {
         String::from("axis,magnitude,unit,condition,n_images,rmse_m,mae_m,delta1,abs_rel\n");
     for x in std::iter::once(&r.baseline).chain(&r.rows) {
         for row in x.rows.iter().filter(|r| r.region == "full") {
-            s.push_str(&format!(
-                "{},{},{},{},{},{:.6},{:.6},{:.6},{:.6}\n",
-                x.axis,
-                x.magnitude,
-                x.unit,
-                row.condition,
-                row.n_images,
-                row.rmse,
-                row.mae,
-                row.delta1,
-                row.abs_rel
-            ));
+            s.push_str(&csv_row(&[
+                x.axis.to_string(),
+                x.magnitude.to_string(),
+                x.unit.to_string(),
+                row.condition.to_string(),
+                row.n_images.to_string(),
+                format!("{:.6}", row.rmse),
+                format!("{:.6}", row.mae),
+                format!("{:.6}", row.delta1),
+                format!("{:.6}", row.abs_rel),
+            ]));
         }
     }
     s

@@ -18,6 +18,7 @@ use depthsense_data::{partition, Dataset};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
 use depthsense_train::trainer::TrainOptions;
+use depthsense_viz::table::{csv_quoted, csv_row, md_or_missing, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -228,7 +229,7 @@ fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, TrainError> {
 }
 
 fn cell_stat(s: Option<Stat>) -> String {
-    s.map_or("–".into(), |s| s.fmt(3))
+    md_or_missing(s.map(|s| s.fmt(3)))
 }
 
 fn markdown(r: &ReducedDataResult) -> String {
@@ -252,19 +253,25 @@ fn markdown(r: &ReducedDataResult) -> String {
         ),
         ("Test δ1 per test condition", |x: &SummaryRow| x.delta1),
     ] {
-        md.push_str(&format!("### {title}\n\n| trained without | train samples | combined | day | night | rain |\n|---|---:|---:|---:|---:|---:|\n"));
+        md.push_str(&format!("### {title}\n\n"));
+        let mut t = MdTable::new(&[
+            ("trained without", Align::Left),
+            ("train samples", Align::Right),
+            ("combined", Align::Right),
+            ("day", Align::Right),
+            ("night", Align::Right),
+            ("rain", Align::Right),
+        ]);
         for c in &r.cells {
-            let cells: Vec<String> = CONDITIONS
-                .iter()
-                .map(|cond| cell_stat(stat_of(r, &c.name, cond, f)))
-                .collect();
-            md.push_str(&format!(
-                "| {} | {} | {} |\n",
-                c.name,
-                c.train_samples,
-                cells.join(" | ")
-            ));
+            let mut cells = vec![c.name.clone(), c.train_samples.to_string()];
+            cells.extend(
+                CONDITIONS
+                    .iter()
+                    .map(|cond| cell_stat(stat_of(r, &c.name, cond, f))),
+            );
+            t.row(&cells);
         }
+        md.push_str(&t.finish());
         md.push('\n');
     }
     md.push_str("### Withheld training scenes\n\n");
@@ -294,10 +301,16 @@ fn csv(r: &ReducedDataResult) -> String {
     let mut s = String::from("cell,seed,condition,n_images,delta1,rmse_m,abs_rel,mae_m\n");
     for run in &r.runs {
         for x in run.rows.iter().filter(|x| x.region == "full") {
-            s.push_str(&format!(
-                "\"{}\",{},{},{},{:.6},{:.6},{:.6},{:.6}\n",
-                run.variant, run.seed, x.condition, x.n_images, x.delta1, x.rmse, x.abs_rel, x.mae
-            ));
+            s.push_str(&csv_row(&[
+                csv_quoted(&run.variant),
+                run.seed.to_string(),
+                x.condition.to_string(),
+                x.n_images.to_string(),
+                format!("{:.6}", x.delta1),
+                format!("{:.6}", x.rmse),
+                format!("{:.6}", x.abs_rel),
+                format!("{:.6}", x.mae),
+            ]));
         }
     }
     s

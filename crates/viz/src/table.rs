@@ -1,0 +1,116 @@
+//! Tables as text: the one Markdown table writer and CSV row writer of every experiment, and the
+//! renderings of a value that is absent.
+//!
+//! Missing values, as the outputs have always shown them: [`MISSING`] ("–") in Markdown cells
+//! ([`md_num`], [`md_or_missing`]); an empty field in CSV ([`csv_num`], which also leaves
+//! non-finite values empty). A Markdown column may use the CSV rendering where an empty cell is
+//! its established look ([`csv_num`] in the ablation's "best val RMSE" column).
+
+/// A Markdown cell with no value.
+pub const MISSING: &str = "–";
+
+/// Column alignment of a Markdown table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Align {
+    Left,
+    Right,
+}
+
+/// A Markdown table: a header row, the separator row, then one line per row; every line is
+/// `| a | b |` and ends with a newline.
+#[derive(Debug, Clone)]
+pub struct MdTable {
+    text: String,
+    columns: usize,
+}
+
+impl MdTable {
+    /// A table with these column titles and alignments (`Left` → `---`, `Right` → `---:`).
+    pub fn new(columns: &[(&str, Align)]) -> Self {
+        let titles: Vec<&str> = columns.iter().map(|(t, _)| *t).collect();
+        let mut text = format!("| {} |\n|", titles.join(" | "));
+        for (_, a) in columns {
+            text.push_str(match a {
+                Align::Left => "---|",
+                Align::Right => "---:|",
+            });
+        }
+        text.push('\n');
+        Self {
+            text,
+            columns: columns.len(),
+        }
+    }
+
+    /// Append one row (as many cells as columns).
+    pub fn row<S: AsRef<str>>(&mut self, cells: &[S]) -> &mut Self {
+        debug_assert_eq!(cells.len(), self.columns, "cells of a Markdown row");
+        let cells: Vec<&str> = cells.iter().map(|c| c.as_ref()).collect();
+        self.text.push_str(&format!("| {} |\n", cells.join(" | ")));
+        self
+    }
+
+    /// The table's text.
+    pub fn finish(self) -> String {
+        self.text
+    }
+}
+
+/// `x` with `prec` decimals, or [`MISSING`] when absent (a present non-finite value prints as
+/// Rust formats it).
+pub fn md_num(x: Option<f64>, prec: usize) -> String {
+    md_or_missing(x.map(|v| format!("{v:.prec$}")))
+}
+
+/// The text, or [`MISSING`] when absent.
+pub fn md_or_missing(s: Option<String>) -> String {
+    s.unwrap_or_else(|| MISSING.to_string())
+}
+
+/// `x` with `prec` decimals, or an empty field when absent or not finite.
+pub fn csv_num(x: Option<f64>, prec: usize) -> String {
+    x.filter(|v| v.is_finite())
+        .map_or(String::new(), |v| format!("{v:.prec$}"))
+}
+
+/// A CSV field in double quotes (names that may hold commas; the names written here hold no
+/// double quotes, which are therefore not escaped).
+pub fn csv_quoted(s: &str) -> String {
+    format!("\"{s}\"")
+}
+
+/// A CSV line: the fields joined by commas, then a newline.
+pub fn csv_row<S: AsRef<str>>(fields: &[S]) -> String {
+    let f: Vec<&str> = fields.iter().map(|c| c.as_ref()).collect();
+    format!("{}\n", f.join(","))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn markdown_table_layout() {
+        let mut t = MdTable::new(&[("name", Align::Left), ("RMSE (m)", Align::Right)]);
+        t.row(&["a", "1.000"])
+            .row(&["b".to_string(), md_num(None, 3)]);
+        assert_eq!(
+            t.finish(),
+            "| name | RMSE (m) |\n|---|---:|\n| a | 1.000 |\n| b | – |\n"
+        );
+    }
+
+    #[test]
+    fn missing_values_per_format() {
+        assert_eq!(md_num(Some(1.23456), 3), "1.235");
+        assert_eq!(md_num(Some(f64::NAN), 1), "NaN");
+        assert_eq!(md_num(None, 3), "–");
+        assert_eq!(csv_num(Some(2.5), 2), "2.50");
+        assert_eq!(csv_num(Some(f64::INFINITY), 2), "");
+        assert_eq!(csv_num(None, 2), "");
+        assert_eq!(
+            csv_row(&[csv_quoted("a,b"), "1".into(), String::new()]),
+            "\"a,b\",1,\n"
+        );
+    }
+}
