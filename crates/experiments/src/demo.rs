@@ -20,8 +20,10 @@ use depthsense_metrics::Report;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
+use depthsense_prep::layout::IndexEntry;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
+use tch::Device;
 
 use depthsense_data::error::TrainError;
 use depthsense_eval::evaluate::write_tables;
@@ -190,111 +192,15 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     let out = &opts.out;
     // One demo per folder at a time, and an earlier one is replaced only when asked.
     let _writing = OutputLock::exclusive(out, "depthsense demo")?;
-    if let Some(what) = demo_in(out) {
-        if !opts.force {
-            return Err(TrainError::OutputExists {
-                dir: out.display().to_string(),
-                what,
-                advice:
-                    "replace it with `depthsense demo --force` (`make demo DEMO_ARGS=--force`) \
-                         or choose another --out"
-                        .into(),
-            });
-        }
-        eprintln!(
-            "--force: replacing {what} in {} (world/, prepared/, rgb/, fusion/, report/)",
-            out.display()
-        );
-        let report = out.join("report");
-        if report.exists() {
-            std::fs::remove_dir_all(&report).map_err(|e| TrainError::io(&report, e))?;
-        }
-    }
+    clear_earlier_demo(opts)?;
     let mut stages: Vec<(String, f64)> = vec![];
-
-    // 1. Synthesise.
     let t = Instant::now();
-    let world = out.join("world");
-    let mut scfg = depthsense_synth::SynthConfig::demo();
-    scfg.scenes = plan.scenes;
-    scfg.keyframes_per_scene = plan.keyframes_per_scene;
-    scfg.seed = opts.seed;
-    scfg.jobs = opts.jobs;
-    let pb = stage_bar(mp, "synth");
-    let synth = depthsense_synth::generate(&world, &scfg, &pb)
-        .map_err(|e| TrainError::Other(format!("synth: {e}")))?;
-    pb.finish_with_message(format!("{} keyframes", synth.keyframes));
+    let (world, scfg) = synthesise(opts, &plan, mp)?;
     stages.push(("synth".into(), t.elapsed().as_secs_f64()));
-
-    // 2. Prepare (--split all: synthetic scenes match no shipped split list).
     let t = Instant::now();
-    let prepared = out.join("prepared");
-    // The world was just regenerated: samples prepared from an earlier world (or by an older
-    // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
-    if prepared.exists() {
-        std::fs::remove_dir_all(&prepared).map_err(|e| TrainError::io(&prepared, e))?;
-    }
-    let popts = depthsense_prep::PrepareOptions {
-        dataroot: world.clone(),
-        version: scfg.version_name.clone(),
-        out: prepared.clone(),
-        split: "all".into(),
-        lidar_sweeps: plan.lidar_sweeps,
-        jobs: opts.jobs,
-        ..depthsense_prep::PrepareOptions::default()
-    };
-    let pb = stage_bar(mp, "prepare");
-    let ps = depthsense_prep::prepare(&popts, &pb)
-        .map_err(|e| TrainError::Other(format!("prepare: {e}")))?;
-    if !ps.failed.is_empty() {
-        return Err(TrainError::Data(format!(
-            "prepare failed for {} sample(s), first: {} ({})",
-            ps.failed.len(),
-            ps.failed[0].0,
-            ps.failed[0].1
-        )));
-    }
-    pb.finish_with_message(format!(
-        "{} prepared, {} cached",
-        ps.prepared, ps.skipped_existing
-    ));
+    let prepared = prepare_world(opts, &plan, &world, &scfg.version_name, mp)?;
     stages.push(("prepare".into(), t.elapsed().as_secs_f64()));
-
-    // 3. Train RGB-only and late fusion with the same seed.
-    let base_cfg = demo_model(&plan.preset)?;
-    let mut runs: Vec<(&str, PathBuf, f64, f64)> = vec![];
-    for (name, fusion) in [("rgb", Fusion::None), ("fusion", Fusion::Late)] {
-        let t = Instant::now();
-        let mut cfg = base_cfg.clone();
-        // The preset's head dropout (scaled with head width for small presets) and the paper's
-        // late fusion with the spatial attention module (SPEC §6).
-        cfg.dropout = plan.dropout;
-        cfg.fusion = fusion;
-        cfg.attention = plan.attention && fusion == Fusion::Late;
-        cfg.input_downscale = plan.input_downscale;
-        let topts = TrainOptions {
-            data: prepared.clone(),
-            out: out.join(name),
-            model: cfg,
-            epochs: plan.epochs,
-            batch_size: plan.batch_size,
-            lr: plan.lr,
-            seed: opts.seed,
-            device: opts.device.clone(),
-            jobs: opts.jobs,
-            max_batches_per_epoch: plan.max_batches_per_epoch,
-            max_val_samples: plan.max_val_samples,
-            val_every_scene: plan.val_every_scene,
-            force: opts.force,
-            ..TrainOptions::default()
-        };
-        let pb = stage_bar(mp, &format!("train {name}"));
-        let s = train(&topts, &pb)?;
-        pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
-        let initial = s.val.first().map_or(f64::NAN, |v| v.rmse);
-        runs.push((name, out.join(name), initial, s.best_val_rmse));
-        stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
-    }
+    let runs = train_both(opts, &plan, &prepared, mp, &mut stages)?;
 
     // 4. Evaluate both on the test scenes (never used for selection); pictures.
     let t = Instant::now();
@@ -310,89 +216,10 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     }
     let report_dir = out.join("report");
     std::fs::create_dir_all(&report_dir).map_err(|e| TrainError::io(&report_dir, e))?;
-    let pic_tokens: Vec<String> = subsample(&test, Some(opts.pictures.max(1)))
-        .iter()
-        .map(|e| e.sample_token.clone())
-        .collect();
-    let mut reports: Vec<(String, Report)> = vec![];
-    let pb = stage_bar(mp, "eval");
-    pb.set_length(2 * test.len() as u64);
-    for (name, dir, _, _) in &runs {
-        let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
-        let radar = radar_input_for(&loaded.config, None)?;
-        let load = LoadOptions {
-            radar: radar.unwrap_or_default(),
-            no_radar: radar.is_none(),
-            ..LoadOptions::default()
-        };
-        let rep = evaluate_net(
-            &loaded.net,
-            &ds,
-            &test,
-            &load,
-            &Default::default(),
-            plan.batch_size,
-            opts.jobs,
-            device,
-            &pb,
-            |batch, preds| {
-                let hw = batch.width * batch.height;
-                for (i, s) in batch.samples.iter().enumerate() {
-                    if pic_tokens.contains(&s.token) {
-                        write_pictures(
-                            &report_dir.join("samples").join(&s.token),
-                            name,
-                            &ds,
-                            &s.token,
-                            &preds[i * hw..(i + 1) * hw],
-                            &s.sparse_m,
-                            batch.width as u32,
-                            batch.height as u32,
-                        )?;
-                    }
-                }
-                Ok(())
-            },
-        )?;
-        reports.push((name.to_string(), rep));
-    }
-    pb.finish();
-    for token in &pic_tokens {
-        write_picture_row(&report_dir.join("samples").join(token))?;
-    }
+    let reports = evaluate_both(opts, &plan, &ds, &test, &runs, &report_dir, device, mp)?;
     let models: Vec<(&str, &Report)> = reports.iter().map(|(n, r)| (n.as_str(), r)).collect();
     write_tables(&report_dir, &models)?;
-    for (name, dir, _, _) in &runs {
-        let src = dir.join(depthsense_train::trainer::CURVES_FILE);
-        if src.exists() {
-            let dst = report_dir.join(format!("curves_{name}.png"));
-            std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
-        }
-    }
-    // Both runs on one picture: training loss (left) and validation RMSE (right).
-    let mut losses = vec![];
-    let mut val_series = vec![];
-    for (name, dir, _, _) in &runs {
-        let (l, val) = read_metrics(&dir.join(METRICS_FILE))?;
-        losses.push((name.to_string(), l));
-        val_series.push((
-            name.to_string(),
-            val.iter()
-                .map(|v| (v.iteration, v.rmse))
-                .collect::<Vec<_>>(),
-        ));
-    }
-    let left: Vec<(&str, &[(u64, f64)])> = losses
-        .iter()
-        .map(|(n, s)| (n.as_str(), s.as_slice()))
-        .collect();
-    let right: Vec<(&str, &[(u64, f64)])> = val_series
-        .iter()
-        .map(|(n, s)| (n.as_str(), s.as_slice()))
-        .collect();
-    let png = depthsense_viz::plot::curves_png(&left, &right)?;
-    let p = report_dir.join("val_rmse.png");
-    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
+    write_run_curves(&runs, &report_dir)?;
     stages.push(("eval".into(), t.elapsed().as_secs_f64()));
 
     let rmse = |name: &str| {
@@ -420,6 +247,243 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
     write_page(&report_dir, opts)?;
     Ok(summary)
+}
+
+/// An earlier demo in `out` is refused unless `--force`; with it, its report folder goes.
+fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), TrainError> {
+    let out = &opts.out;
+    if let Some(what) = demo_in(out) {
+        if !opts.force {
+            return Err(TrainError::OutputExists {
+                dir: out.display().to_string(),
+                what,
+                advice:
+                    "replace it with `depthsense demo --force` (`make demo DEMO_ARGS=--force`) \
+                         or choose another --out"
+                        .into(),
+            });
+        }
+        eprintln!(
+            "--force: replacing {what} in {} (world/, prepared/, rgb/, fusion/, report/)",
+            out.display()
+        );
+        let report = out.join("report");
+        if report.exists() {
+            std::fs::remove_dir_all(&report).map_err(|e| TrainError::io(&report, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// 1. Synthesise the world into OUT/world.
+fn synthesise(
+    opts: &DemoOptions,
+    plan: &DemoPlan,
+    mp: &MultiProgress,
+) -> Result<(PathBuf, depthsense_synth::SynthConfig), TrainError> {
+    let world = opts.out.join("world");
+    let mut scfg = depthsense_synth::SynthConfig::demo();
+    scfg.scenes = plan.scenes;
+    scfg.keyframes_per_scene = plan.keyframes_per_scene;
+    scfg.seed = opts.seed;
+    scfg.jobs = opts.jobs;
+    let pb = stage_bar(mp, "synth");
+    let synth = depthsense_synth::generate(&world, &scfg, &pb)
+        .map_err(|e| TrainError::Other(format!("synth: {e}")))?;
+    pb.finish_with_message(format!("{} keyframes", synth.keyframes));
+    Ok((world, scfg))
+}
+
+/// 2. Prepare (--split all: synthetic scenes match no shipped split list) into OUT/prepared.
+fn prepare_world(
+    opts: &DemoOptions,
+    plan: &DemoPlan,
+    world: &Path,
+    version: &str,
+    mp: &MultiProgress,
+) -> Result<PathBuf, TrainError> {
+    let prepared = opts.out.join("prepared");
+    // The world was just regenerated: samples prepared from an earlier world (or by an older
+    // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
+    if prepared.exists() {
+        std::fs::remove_dir_all(&prepared).map_err(|e| TrainError::io(&prepared, e))?;
+    }
+    let popts = depthsense_prep::PrepareOptions {
+        dataroot: world.to_path_buf(),
+        version: version.to_string(),
+        out: prepared.clone(),
+        split: "all".into(),
+        lidar_sweeps: plan.lidar_sweeps,
+        jobs: opts.jobs,
+        ..depthsense_prep::PrepareOptions::default()
+    };
+    let pb = stage_bar(mp, "prepare");
+    let ps = depthsense_prep::prepare(&popts, &pb)
+        .map_err(|e| TrainError::Other(format!("prepare: {e}")))?;
+    if !ps.failed.is_empty() {
+        return Err(TrainError::Data(format!(
+            "prepare failed for {} sample(s), first: {} ({})",
+            ps.failed.len(),
+            ps.failed[0].0,
+            ps.failed[0].1
+        )));
+    }
+    pb.finish_with_message(format!(
+        "{} prepared, {} cached",
+        ps.prepared, ps.skipped_existing
+    ));
+    Ok(prepared)
+}
+
+/// One trained run of the demo: name, folder, initial and best validation RMSE.
+type DemoRun = (&'static str, PathBuf, f64, f64);
+
+/// 3. Train RGB-only and late fusion with the same seed.
+fn train_both(
+    opts: &DemoOptions,
+    plan: &DemoPlan,
+    prepared: &Path,
+    mp: &MultiProgress,
+    stages: &mut Vec<(String, f64)>,
+) -> Result<Vec<DemoRun>, TrainError> {
+    let out = &opts.out;
+    let base_cfg = demo_model(&plan.preset)?;
+    let mut runs: Vec<DemoRun> = vec![];
+    for (name, fusion) in [("rgb", Fusion::None), ("fusion", Fusion::Late)] {
+        let t = Instant::now();
+        let mut cfg = base_cfg.clone();
+        // The preset's head dropout (scaled with head width for small presets) and the paper's
+        // late fusion with the spatial attention module (SPEC §6).
+        cfg.dropout = plan.dropout;
+        cfg.fusion = fusion;
+        cfg.attention = plan.attention && fusion == Fusion::Late;
+        cfg.input_downscale = plan.input_downscale;
+        let topts = TrainOptions {
+            data: prepared.to_path_buf(),
+            out: out.join(name),
+            model: cfg,
+            epochs: plan.epochs,
+            batch_size: plan.batch_size,
+            lr: plan.lr,
+            seed: opts.seed,
+            device: opts.device.clone(),
+            jobs: opts.jobs,
+            max_batches_per_epoch: plan.max_batches_per_epoch,
+            max_val_samples: plan.max_val_samples,
+            val_every_scene: plan.val_every_scene,
+            force: opts.force,
+            ..TrainOptions::default()
+        };
+        let pb = stage_bar(mp, &format!("train {name}"));
+        let s = train(&topts, &pb)?;
+        pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
+        let initial = s.val.first().map_or(f64::NAN, |v| v.rmse);
+        runs.push((name, out.join(name), initial, s.best_val_rmse));
+        stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
+    }
+    Ok(runs)
+}
+
+/// Both runs' best checkpoints on the test scenes, writing the sample pictures on the way.
+#[allow(clippy::too_many_arguments)]
+fn evaluate_both(
+    opts: &DemoOptions,
+    plan: &DemoPlan,
+    ds: &Dataset,
+    test: &[IndexEntry],
+    runs: &[DemoRun],
+    report_dir: &Path,
+    device: Device,
+    mp: &MultiProgress,
+) -> Result<Vec<(String, Report)>, TrainError> {
+    let pic_tokens: Vec<String> = subsample(test, Some(opts.pictures.max(1)))
+        .iter()
+        .map(|e| e.sample_token.clone())
+        .collect();
+    let mut reports: Vec<(String, Report)> = vec![];
+    let pb = stage_bar(mp, "eval");
+    pb.set_length(2 * test.len() as u64);
+    for (name, dir, _, _) in runs {
+        let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
+        let radar = radar_input_for(&loaded.config, None)?;
+        let load = LoadOptions {
+            radar: radar.unwrap_or_default(),
+            no_radar: radar.is_none(),
+            ..LoadOptions::default()
+        };
+        let rep = evaluate_net(
+            &loaded.net,
+            ds,
+            test,
+            &load,
+            &Default::default(),
+            plan.batch_size,
+            opts.jobs,
+            device,
+            &pb,
+            |batch, preds| {
+                let hw = batch.width * batch.height;
+                for (i, s) in batch.samples.iter().enumerate() {
+                    if pic_tokens.contains(&s.token) {
+                        write_pictures(
+                            &report_dir.join("samples").join(&s.token),
+                            name,
+                            ds,
+                            &s.token,
+                            &preds[i * hw..(i + 1) * hw],
+                            &s.sparse_m,
+                            batch.width as u32,
+                            batch.height as u32,
+                        )?;
+                    }
+                }
+                Ok(())
+            },
+        )?;
+        reports.push((name.to_string(), rep));
+    }
+    pb.finish();
+    for token in &pic_tokens {
+        write_picture_row(&report_dir.join("samples").join(token))?;
+    }
+    Ok(reports)
+}
+
+/// Each run's curves.png copied into the report, and both runs on one picture: training loss
+/// (left) and validation RMSE (right).
+fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainError> {
+    for (name, dir, _, _) in runs {
+        let src = dir.join(depthsense_train::trainer::CURVES_FILE);
+        if src.exists() {
+            let dst = report_dir.join(format!("curves_{name}.png"));
+            std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
+        }
+    }
+    // Both runs on one picture: training loss (left) and validation RMSE (right).
+    let mut losses = vec![];
+    let mut val_series = vec![];
+    for (name, dir, _, _) in runs {
+        let (l, val) = read_metrics(&dir.join(METRICS_FILE))?;
+        losses.push((name.to_string(), l));
+        val_series.push((
+            name.to_string(),
+            val.iter()
+                .map(|v| (v.iteration, v.rmse))
+                .collect::<Vec<_>>(),
+        ));
+    }
+    let left: Vec<(&str, &[(u64, f64)])> = losses
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let right: Vec<(&str, &[(u64, f64)])> = val_series
+        .iter()
+        .map(|(n, s)| (n.as_str(), s.as_slice()))
+        .collect();
+    let png = depthsense_viz::plot::curves_png(&left, &right)?;
+    let p = report_dir.join("val_rmse.png");
+    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
+    Ok(())
 }
 
 /// What `out` holds of an earlier demo, if anything.
