@@ -661,6 +661,23 @@ fn md_stat(s: &Option<Stat>) -> String {
 }
 
 fn markdown(r: &AblationResult) -> String {
+    let mut md = md_intro(r);
+    md.push_str(&md_verdicts(r));
+    let cap = r
+        .summary
+        .iter()
+        .map(|x| x.cap_m)
+        .find(|c| c.is_finite())
+        .unwrap_or(r.options.eval.main_cap());
+    md.push_str(&md_region_tables(r, cap));
+    md.push_str(&mer_table(r, cap));
+    md.push_str(&md_per_run(r));
+    md.push_str(&md_setup(r));
+    md
+}
+
+/// Title, what was run, and the variants' fields.
+fn md_intro(r: &AblationResult) -> String {
     let o = &r.options;
     let seeds: Vec<String> = o.seeds.iter().map(|s| s.to_string()).collect();
     let mut md = String::from("# Ablation: fusion variants and loss (SPEC §6, §10.1, §10.4)\n\n");
@@ -691,6 +708,12 @@ fn markdown(r: &AblationResult) -> String {
     md.push_str(&t.finish());
     md.push('\n');
 
+    md
+}
+
+/// The paired verdicts against rgb (empty without any).
+fn md_verdicts(r: &AblationResult) -> String {
+    let mut md = String::new();
     if !r.verdicts.is_empty() {
         md.push_str("## Verdicts vs rgb (combined, full image)\n\n");
         md.push_str(
@@ -706,12 +729,12 @@ fn markdown(r: &AblationResult) -> String {
         md.push('\n');
     }
 
-    let cap = r
-        .summary
-        .iter()
-        .map(|x| x.cap_m)
-        .find(|c| c.is_finite())
-        .unwrap_or(o.eval.main_cap());
+    md
+}
+
+/// Full image and low-height tables at `cap` m (test scenes).
+fn md_region_tables(r: &AblationResult, cap: f64) -> String {
+    let mut md = String::new();
     for (region, title) in [("full", "Full image"), ("lowheight", "Low-height region")] {
         md.push_str(&format!("## {title}, cap {cap:.0} m (test scenes)\n\n"));
         let mut t = MdTable::new(&[
@@ -738,8 +761,12 @@ fn markdown(r: &AblationResult) -> String {
         md.push('\n');
     }
 
-    md.push_str(&mer_table(r, cap));
+    md
+}
 
+/// Per run (combined, full image).
+fn md_per_run(r: &AblationResult) -> String {
+    let mut md = String::new();
     md.push_str("## Per run (combined, full image)\n\n");
     let mut t = MdTable::new(&[
         ("variant", Align::Left),
@@ -776,6 +803,13 @@ fn markdown(r: &AblationResult) -> String {
     md.push_str(&t.finish());
     md.push('\n');
 
+    md
+}
+
+/// Partition, model, metrics, machine, this invocation, files.
+fn md_setup(r: &AblationResult) -> String {
+    let o = &r.options;
+    let mut md = String::new();
     let p = &r.partition;
     md.push_str(&format!(
         "## Setup\n\n\
