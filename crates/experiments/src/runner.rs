@@ -372,95 +372,17 @@ pub fn train_and_test(
 ) -> Result<(RunRecord, RunStatus), TrainError> {
     let run = topts.out.clone();
     let seed = topts.seed;
-    let fp = fingerprint(topts)?;
     let eval_path = run.join(RUN_EVAL_FILE);
-    if eval_path.exists() {
-        let v = read_json(&eval_path)?;
-        let rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
-            path: eval_path.display().to_string(),
-            reason: e.to_string(),
-        })?;
-        if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
-            return Err(mismatch(&run, RUN_EVAL_FILE));
-        }
+    if let Some(rec) = finished_record(topts, eval)? {
         return Ok((rec, RunStatus::Skipped));
-    }
-    let cfg_path = run.join(CONFIG_FILE);
-    if cfg_path.exists() {
-        let stored = read_json(&cfg_path)?;
-        let stored_opts: TrainOptions =
-            serde_json::from_value(stored["train"].clone()).map_err(|e| TrainError::Parse {
-                path: cfg_path.display().to_string(),
-                reason: format!("train: {e}"),
-            })?;
-        if !same_json(&fingerprint(&stored_opts)?, &fp) {
-            return Err(mismatch(&run, CONFIG_FILE));
-        }
     }
     let name = format!("{label} seed{seed}");
     let pb = run_bar(mp, &name);
-    let (finished, earlier_secs) = training_finished(&run, topts.epochs);
-    let t = Instant::now();
-    let (status, train_seconds, best_val_rmse) = if finished {
-        let best = checkpoint::read_config(&run.join(BEST_CKPT))
-            .ok()
-            .and_then(|(_, extra)| extra["train_state"]["best_val_rmse"].as_f64());
-        (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
-    } else {
-        let resumed = topts.resume;
-        // A run of this experiment (its config matched above) that stopped before its first
-        // checkpoint starts over in its own folder.
-        let mut topts = topts.clone();
-        topts.force = !topts.resume && cfg_path.exists();
-        let s = train(&topts, &pb)?;
-        if s.interrupted || s.iterations_done < s.total_iterations {
-            return Err(TrainError::Other(format!(
-                "{}: training stopped at iteration {} of {}",
-                run.display(),
-                s.iterations_done,
-                s.total_iterations
-            )));
-        }
-        let status = if resumed {
-            RunStatus::Resumed
-        } else {
-            RunStatus::Trained
-        };
-        let best = s.best_val_rmse.is_finite().then_some(s.best_val_rmse);
-        (status, t.elapsed().as_secs_f64(), best)
-    };
+    let (status, train_seconds, best_val_rmse) = train_or_reuse(topts, &pb)?;
 
     // Test evaluation of the checkpoint selected on the validation scenes.
     let t = Instant::now();
-    let best = run.join(BEST_CKPT);
-    if !best.exists() {
-        return Err(TrainError::Data(format!(
-            "{}: missing — no epoch improved the validation RMSE (non-finite?)",
-            best.display()
-        )));
-    }
-    let loaded = checkpoint::load(&best, device)?;
-    let radar = radar_input_for(&loaded.config, None)?;
-    let load = LoadOptions {
-        radar: radar.unwrap_or_default(),
-        no_radar: radar.is_none(),
-        ..LoadOptions::default()
-    };
-    pb.set_length(test.len() as u64);
-    pb.set_position(0);
-    pb.set_message("test evaluation");
-    let report = evaluate_net(
-        &loaded.net,
-        ds,
-        test,
-        &load,
-        eval,
-        topts.batch_size,
-        topts.jobs,
-        device,
-        &pb,
-        |_, _| Ok(()),
-    )?;
+    let report = test_best(topts, eval, ds, test, device, &pb)?;
     let eval_seconds = t.elapsed().as_secs_f64();
     let rec = RunRecord {
         variant: label.to_string(),
@@ -483,4 +405,119 @@ pub fn train_and_test(
         rec.headline().map_or(f64::NAN, |r| r.rmse)
     ));
     Ok((rec, status))
+}
+
+/// The run's finished record (RUN/eval.json) when it exists and was made with these options;
+/// refuses a run folder whose record or config.json was made with other options.
+fn finished_record(
+    topts: &TrainOptions,
+    eval: &EvalConfig,
+) -> Result<Option<RunRecord>, TrainError> {
+    let run = &topts.out;
+    let fp = fingerprint(topts)?;
+    let eval_path = run.join(RUN_EVAL_FILE);
+    if eval_path.exists() {
+        let v = read_json(&eval_path)?;
+        let rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
+            path: eval_path.display().to_string(),
+            reason: e.to_string(),
+        })?;
+        if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
+            return Err(mismatch(run, RUN_EVAL_FILE));
+        }
+        return Ok(Some(rec));
+    }
+    let cfg_path = run.join(CONFIG_FILE);
+    if cfg_path.exists() {
+        let stored = read_json(&cfg_path)?;
+        let stored_opts: TrainOptions =
+            serde_json::from_value(stored["train"].clone()).map_err(|e| TrainError::Parse {
+                path: cfg_path.display().to_string(),
+                reason: format!("train: {e}"),
+            })?;
+        if !same_json(&fingerprint(&stored_opts)?, &fp) {
+            return Err(mismatch(run, CONFIG_FILE));
+        }
+    }
+    Ok(None)
+}
+
+/// Train (or resume) unless RUN/metrics.jsonl says training ended: (status, training seconds,
+/// best validation RMSE).
+fn train_or_reuse(
+    topts: &TrainOptions,
+    pb: &ProgressBar,
+) -> Result<(RunStatus, f64, Option<f64>), TrainError> {
+    let run = &topts.out;
+    let cfg_path = run.join(CONFIG_FILE);
+    let (finished, earlier_secs) = training_finished(run, topts.epochs);
+    let t = Instant::now();
+    Ok(if finished {
+        let best = checkpoint::read_config(&run.join(BEST_CKPT))
+            .ok()
+            .and_then(|(_, extra)| extra["train_state"]["best_val_rmse"].as_f64());
+        (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
+    } else {
+        let resumed = topts.resume;
+        // A run of this experiment (its config matched above) that stopped before its first
+        // checkpoint starts over in its own folder.
+        let mut topts = topts.clone();
+        topts.force = !topts.resume && cfg_path.exists();
+        let s = train(&topts, pb)?;
+        if s.interrupted || s.iterations_done < s.total_iterations {
+            return Err(TrainError::Other(format!(
+                "{}: training stopped at iteration {} of {}",
+                run.display(),
+                s.iterations_done,
+                s.total_iterations
+            )));
+        }
+        let status = if resumed {
+            RunStatus::Resumed
+        } else {
+            RunStatus::Trained
+        };
+        let best = s.best_val_rmse.is_finite().then_some(s.best_val_rmse);
+        (status, t.elapsed().as_secs_f64(), best)
+    })
+}
+
+/// The run's best checkpoint (selected on the validation scenes) on the test scenes.
+fn test_best(
+    topts: &TrainOptions,
+    eval: &EvalConfig,
+    ds: &Dataset,
+    test: &[IndexEntry],
+    device: tch::Device,
+    pb: &ProgressBar,
+) -> Result<Report, TrainError> {
+    let best = topts.out.join(BEST_CKPT);
+    if !best.exists() {
+        return Err(TrainError::Data(format!(
+            "{}: missing — no epoch improved the validation RMSE (non-finite?)",
+            best.display()
+        )));
+    }
+    let loaded = checkpoint::load(&best, device)?;
+    let radar = radar_input_for(&loaded.config, None)?;
+    let load = LoadOptions {
+        radar: radar.unwrap_or_default(),
+        no_radar: radar.is_none(),
+        ..LoadOptions::default()
+    };
+    pb.set_length(test.len() as u64);
+    pb.set_position(0);
+    pb.set_message("test evaluation");
+    evaluate_net(
+        &loaded.net,
+        ds,
+        test,
+        &load,
+        eval,
+        topts.batch_size,
+        topts.jobs,
+        device,
+        pb,
+        |_, _| Ok(()),
+    )
 }
