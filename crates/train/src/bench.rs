@@ -7,10 +7,11 @@ use std::time::Instant;
 use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
 use depthsense_model::{DepthNet, ModelConfig};
 use serde::{Deserialize, Serialize};
-use tch::{nn::VarStore, Kind};
+use tch::nn::VarStore;
 
 use crate::error::TrainError;
 use crate::sgd::Sgd;
+use crate::step::{forward_loss, step_precision};
 use crate::trainer::{radar_input_for, upload_batch};
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -131,17 +132,8 @@ pub fn bench_train(
             let b = b?;
             let t = Instant::now();
             let bt = upload_batch(&b, device);
-            // The same bf16 autocast as `train --amp` (issue 8 item 5: fp16 without
-            // loss scaling underflows the ordinal loss's per-pixel gradients).
-            let precision = if opts.amp {
-                crate::trainer::AMP_PRECISION
-            } else {
-                depthsense_model::precision::Precision::Fp32
-            };
-            let out = depthsense_model::precision::with_autocast(precision, || {
-                net.forward_t(&bt.image, &bt.radar, true)
-            });
-            let loss = net.loss_sparse(&out.to_kind(Kind::Float), &bt.target_m, &bt.sparse);
+            // The training step's forward and loss, as `train` runs them (bf16 with --amp).
+            let loss = forward_loss(&net, &bt, step_precision(opts.amp));
             sgd.zero_grad();
             loss.backward();
             sgd.step(1e-3);

@@ -4,6 +4,7 @@
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
 //! - [`upload`]: a batch onto the device (pinned host memory on CUDA);
 //! - [`metrics_log`]: RUN/metrics.jsonl — the one writer, reader and resume cut;
+//! - [`step`]: the training step's forward and loss (`train` and `bench train` share it);
 //! - [`validate`]: a network over samples into the metrics through the one scorer;
 //! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
 //!   (exact resume, [`optim_state`]);
@@ -18,6 +19,7 @@ pub mod metrics_log;
 pub mod optim_state;
 pub mod outputs;
 pub mod sgd;
+pub mod step;
 pub mod trainer;
 pub mod upload;
 pub mod validate;

@@ -33,10 +33,8 @@ pub use crate::outputs::{
 };
 pub use crate::upload::{batch_tensors, upload_batch, upload_inputs, BatchTensors};
 
-/// Autocast dtype of `train --amp` (bf16: fp16 without loss scaling underflows the ordinal
-/// loss's per-pixel gradients).
-pub const AMP_PRECISION: depthsense_model::precision::Precision =
-    depthsense_model::precision::Precision::Bf16;
+/// Autocast dtype of `train --amp` ([`crate::step`]).
+pub use crate::step::AMP_PRECISION;
 
 /// Everything a training run is made of. Defaults are the paper's (SPEC §8).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

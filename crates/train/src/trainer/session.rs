@@ -4,10 +4,10 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::step::{forward_loss, step_precision};
 use depthsense_data::{
     mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
 };
-use depthsense_model::precision::{with_autocast, Precision};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
@@ -18,7 +18,7 @@ use tch::{nn::VarStore, Device, Kind};
 use super::{
     all_finite, append_jsonl, evaluate_net, radar_input_for, read_metrics, save_ckpt, subsample,
     truncate_metrics, upload_batch, write_curves, State, TrainOptions, TrainSummary, ValRecord,
-    AMP_PRECISION, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
@@ -303,20 +303,11 @@ impl<'o> Trainer<'o> {
         let lr = self.lr_at(it);
         // Dropout draws depend only on (seed, iteration): exact resume.
         tch::manual_seed((mix64(opts.seed ^ mix64(it + 1)) >> 1) as i64);
-        // `--amp`: bf16 autocast (CUDA only). Not fp16: fp16 without loss scaling underflows the
-        // ≈1e-6 per-pixel gradients of the ordinal loss; bf16 has fp32's exponent range.
-        let precision = if opts.amp {
-            AMP_PRECISION
-        } else {
-            Precision::Fp32
-        };
+        let precision = step_precision(opts.amp);
         if let Some(d) = &self.dist {
             d.before_forward(opts.seed, it, batch.size)?;
         }
-        let out = with_autocast(precision, || self.net.forward_t(&bt.image, &bt.radar, true));
-        let loss = self
-            .net
-            .loss_sparse(&out.to_kind(Kind::Float), &bt.target_m, &bt.sparse);
+        let loss = forward_loss(&self.net, &bt, precision);
         let value = if self.loss_read_every() == 1 {
             let mut lv = loss.double_value(&[]);
             if let Some(d) = &self.dist {
