@@ -283,71 +283,97 @@ fn pcd_err(name: &str, reason: impl Into<String>) -> NuError {
 
 /// Parse the PCD header (up to and including the `DATA` line).
 pub fn parse_pcd_header(bytes: &[u8], name: &str) -> Result<PcdHeader> {
-    let mut pos = 0usize;
-    let mut fields: Vec<String> = Vec::new();
-    let mut sizes: Vec<usize> = Vec::new();
-    let mut types: Vec<char> = Vec::new();
-    let mut counts: Vec<usize> = Vec::new();
-    let mut width = None;
-    let mut height = None;
-    let mut points = None;
-    let mut data = None;
-    let parse_usize = |s: &str, what: &str| -> Result<usize> {
-        s.parse::<usize>()
-            .map_err(|_| pcd_err(name, format!("bad {what} value {s:?} in header")))
-    };
-    while data.is_none() {
-        if pos >= bytes.len() {
-            return Err(pcd_err(name, "header ends before a DATA line"));
+    let (raw, data_offset) = RawPcdHeader::read(bytes, name)?;
+    let fields = raw.checked_fields(name)?;
+    check_point_bytes(&fields, name)?;
+    let (width, height, points) = raw.checked_dimensions(name)?;
+    Ok(PcdHeader {
+        fields,
+        width,
+        height,
+        points,
+        data: raw.data.unwrap_or(PcdData::Binary),
+        data_offset,
+    })
+}
+
+/// The header's values as written, before they are checked against each other.
+#[derive(Default)]
+struct RawPcdHeader {
+    fields: Vec<String>,
+    sizes: Vec<usize>,
+    types: Vec<char>,
+    counts: Vec<usize>,
+    width: Option<usize>,
+    height: Option<usize>,
+    points: Option<usize>,
+    data: Option<PcdData>,
+}
+
+/// A header value that must be an unsigned integer.
+fn parse_header_usize(s: &str, what: &str, name: &str) -> Result<usize> {
+    s.parse::<usize>()
+        .map_err(|_| pcd_err(name, format!("bad {what} value {s:?} in header")))
+}
+
+impl RawPcdHeader {
+    /// Read header lines up to and including `DATA`; also returns the data section's offset.
+    fn read(bytes: &[u8], name: &str) -> Result<(RawPcdHeader, usize)> {
+        let mut raw = RawPcdHeader::default();
+        let mut pos = 0usize;
+        while raw.data.is_none() {
+            if pos >= bytes.len() {
+                return Err(pcd_err(name, "header ends before a DATA line"));
+            }
+            let end = bytes[pos..]
+                .iter()
+                .position(|&b| b == b'\n')
+                .map(|i| pos + i)
+                .unwrap_or(bytes.len());
+            let line = std::str::from_utf8(&bytes[pos..end])
+                .map_err(|_| pcd_err(name, "header is not text: not a PCD file?"))?
+                .trim();
+            pos = (end + 1).min(bytes.len());
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            raw.apply_line(line, name)?;
         }
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map(|i| pos + i)
-            .unwrap_or(bytes.len());
-        let line = std::str::from_utf8(&bytes[pos..end])
-            .map_err(|_| pcd_err(name, "header is not text: not a PCD file?"))?
-            .trim();
-        pos = (end + 1).min(bytes.len());
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
+        Ok((raw, pos))
+    }
+
+    /// Record one non-comment header line (`KEY values...`).
+    fn apply_line(&mut self, line: &str, name: &str) -> Result<()> {
         let mut it = line.split_whitespace();
         let key = it.next().unwrap_or("");
         let rest: Vec<&str> = it.collect();
+        let first = || rest.first().copied().unwrap_or("");
         match key {
             "VERSION" | "VIEWPOINT" => {}
-            "FIELDS" => fields = rest.iter().map(|s| s.to_string()).collect(),
+            "FIELDS" => self.fields = rest.iter().map(|s| s.to_string()).collect(),
             "SIZE" => {
-                sizes = rest
+                self.sizes = rest
                     .iter()
-                    .map(|s| parse_usize(s, "SIZE"))
+                    .map(|s| parse_header_usize(s, "SIZE", name))
                     .collect::<Result<_>>()?
             }
             "TYPE" => {
-                types = rest
+                self.types = rest
                     .iter()
-                    .map(|s| {
-                        let c = s.chars().next().unwrap_or('?');
-                        if s.len() == 1 && matches!(c, 'F' | 'I' | 'U') {
-                            Ok(c)
-                        } else {
-                            Err(pcd_err(name, format!("unknown PCD TYPE {s:?}")))
-                        }
-                    })
+                    .map(|s| parse_pcd_type(s, name))
                     .collect::<Result<_>>()?
             }
             "COUNT" => {
-                counts = rest
+                self.counts = rest
                     .iter()
-                    .map(|s| parse_usize(s, "COUNT"))
+                    .map(|s| parse_header_usize(s, "COUNT", name))
                     .collect::<Result<_>>()?
             }
-            "WIDTH" => width = Some(parse_usize(rest.first().unwrap_or(&""), "WIDTH")?),
-            "HEIGHT" => height = Some(parse_usize(rest.first().unwrap_or(&""), "HEIGHT")?),
-            "POINTS" => points = Some(parse_usize(rest.first().unwrap_or(&""), "POINTS")?),
+            "WIDTH" => self.width = Some(parse_header_usize(first(), "WIDTH", name)?),
+            "HEIGHT" => self.height = Some(parse_header_usize(first(), "HEIGHT", name)?),
+            "POINTS" => self.points = Some(parse_header_usize(first(), "POINTS", name)?),
             "DATA" => {
-                data = Some(match rest.first().copied() {
+                self.data = Some(match rest.first().copied() {
                     Some("ascii") => PcdData::Ascii,
                     Some("binary") => PcdData::Binary,
                     Some("binary_compressed") => PcdData::BinaryCompressed,
@@ -361,49 +387,100 @@ pub fn parse_pcd_header(bytes: &[u8], name: &str) -> Result<PcdHeader> {
                 ))
             }
         }
+        Ok(())
     }
-    if fields.is_empty() {
-        return Err(pcd_err(name, "header has no FIELDS"));
-    }
-    if counts.is_empty() {
-        counts = vec![1; fields.len()];
-    }
-    if sizes.len() != fields.len() || types.len() != fields.len() || counts.len() != fields.len() {
-        return Err(pcd_err(
-            name,
-            format!(
-                "unknown PCD field layout: {} FIELDS but {} SIZE, {} TYPE, {} COUNT entries",
-                fields.len(),
-                sizes.len(),
-                types.len(),
-                counts.len()
-            ),
-        ));
-    }
-    let mut out_fields = Vec::with_capacity(fields.len());
-    for i in 0..fields.len() {
-        let ok = match types[i] {
-            'F' => matches!(sizes[i], 4 | 8),
-            _ => matches!(sizes[i], 1 | 2 | 4 | 8),
+
+    /// FIELDS, SIZE, TYPE and COUNT zipped into fields, each a supported type and size.
+    fn checked_fields(&self, name: &str) -> Result<Vec<PcdField>> {
+        let fields = &self.fields;
+        if fields.is_empty() {
+            return Err(pcd_err(name, "header has no FIELDS"));
+        }
+        let ones;
+        let counts = if self.counts.is_empty() {
+            ones = vec![1; fields.len()];
+            &ones
+        } else {
+            &self.counts
         };
-        if !ok || counts[i] == 0 {
+        let (sizes, types) = (&self.sizes, &self.types);
+        if sizes.len() != fields.len()
+            || types.len() != fields.len()
+            || counts.len() != fields.len()
+        {
             return Err(pcd_err(
                 name,
                 format!(
-                    "unknown PCD field layout: field {:?} has TYPE {} SIZE {} COUNT {}",
-                    fields[i], types[i], sizes[i], counts[i]
+                    "unknown PCD field layout: {} FIELDS but {} SIZE, {} TYPE, {} COUNT entries",
+                    fields.len(),
+                    sizes.len(),
+                    types.len(),
+                    counts.len()
                 ),
             ));
         }
-        out_fields.push(PcdField {
-            name: fields[i].clone(),
-            size: sizes[i],
-            ty: types[i],
-            count: counts[i],
-        });
+        let mut out_fields = Vec::with_capacity(fields.len());
+        for i in 0..fields.len() {
+            let ok = match types[i] {
+                'F' => matches!(sizes[i], 4 | 8),
+                _ => matches!(sizes[i], 1 | 2 | 4 | 8),
+            };
+            if !ok || counts[i] == 0 {
+                return Err(pcd_err(
+                    name,
+                    format!(
+                        "unknown PCD field layout: field {:?} has TYPE {} SIZE {} COUNT {}",
+                        fields[i], types[i], sizes[i], counts[i]
+                    ),
+                ));
+            }
+            out_fields.push(PcdField {
+                name: fields[i].clone(),
+                size: sizes[i],
+                ty: types[i],
+                count: counts[i],
+            });
+        }
+        Ok(out_fields)
     }
+
+    /// WIDTH, HEIGHT (default 1) and POINTS (default WIDTH×HEIGHT), which must agree.
+    fn checked_dimensions(&self, name: &str) -> Result<(usize, usize, usize)> {
+        let width = self
+            .width
+            .ok_or_else(|| pcd_err(name, "header has no WIDTH"))?;
+        let height = self.height.unwrap_or(1);
+        let wh = width.checked_mul(height).ok_or_else(|| {
+            pcd_err(
+                name,
+                format!("header WIDTH×HEIGHT {width}×{height} overflows"),
+            )
+        })?;
+        let points = self.points.unwrap_or(wh);
+        if points != wh {
+            return Err(pcd_err(
+                name,
+                format!("header POINTS {points} disagrees with WIDTH×HEIGHT {width}×{height}"),
+            ));
+        }
+        Ok((width, height, points))
+    }
+}
+
+/// One TYPE entry: a single letter F, I or U.
+fn parse_pcd_type(s: &str, name: &str) -> Result<char> {
+    let c = s.chars().next().unwrap_or('?');
+    if s.len() == 1 && matches!(c, 'F' | 'I' | 'U') {
+        Ok(c)
+    } else {
+        Err(pcd_err(name, format!("unknown PCD TYPE {s:?}")))
+    }
+}
+
+/// Bytes per point must neither overflow nor exceed [`MAX_PCD_POINT_BYTES`].
+fn check_point_bytes(fields: &[PcdField], name: &str) -> Result<()> {
     let mut point_bytes = 0usize;
-    for f in &out_fields {
+    for f in fields {
         point_bytes = f
             .size
             .checked_mul(f.count)
@@ -419,29 +496,7 @@ pub fn parse_pcd_header(bytes: &[u8], name: &str) -> Result<PcdHeader> {
                 )
             })?;
     }
-    let width = width.ok_or_else(|| pcd_err(name, "header has no WIDTH"))?;
-    let height = height.unwrap_or(1);
-    let wh = width.checked_mul(height).ok_or_else(|| {
-        pcd_err(
-            name,
-            format!("header WIDTH×HEIGHT {width}×{height} overflows"),
-        )
-    })?;
-    let points = points.unwrap_or(wh);
-    if points != wh {
-        return Err(pcd_err(
-            name,
-            format!("header POINTS {points} disagrees with WIDTH×HEIGHT {width}×{height}"),
-        ));
-    }
-    Ok(PcdHeader {
-        fields: out_fields,
-        width,
-        height,
-        points,
-        data: data.unwrap_or(PcdData::Binary),
-        data_offset: pos,
-    })
+    Ok(())
 }
 
 fn read_scalar(b: &[u8], ty: char, size: usize) -> f64 {
@@ -539,26 +594,66 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u
 pub fn parse_pcd(bytes: &[u8], name: &str) -> Result<PcdCloud> {
     let header = parse_pcd_header(bytes, name)?;
     let n = header.points;
+    let (names, col_spec) = column_layout(&header);
+    let body = bytes.get(header.data_offset..).unwrap_or(&[]);
+    check_plausible_points(&header, body, names.len(), name)?;
+    let mut columns: Vec<Vec<f64>> = (0..names.len()).map(|_| Vec::with_capacity(n)).collect();
+    match header.data {
+        PcdData::Binary => read_binary_columns(&header, body, &col_spec, &mut columns, name)?,
+        PcdData::BinaryCompressed => read_compressed_columns(&header, body, &mut columns, name)?,
+        PcdData::Ascii => read_ascii_columns(n, body, &mut columns, name)?,
+    }
+    Ok(PcdCloud {
+        header,
+        names,
+        columns,
+    })
+}
+
+/// Where one value column lives in a binary point record.
+#[derive(Clone, Copy)]
+struct ColumnSpec {
+    ty: char,
+    size: usize,
+    /// Byte offset within the point.
+    offset: usize,
+}
+
+/// Column names (`name`, or `name_i` for COUNT > 1) and their places in a binary record.
+fn column_layout(header: &PcdHeader) -> (Vec<String>, Vec<ColumnSpec>) {
     let mut names = Vec::new();
-    let mut col_spec = Vec::new(); // (ty, size, byte offset within point, field index)
+    let mut col_spec = Vec::new();
     let mut off = 0;
-    for (fi, f) in header.fields.iter().enumerate() {
+    for f in &header.fields {
         for c in 0..f.count {
             names.push(if f.count == 1 {
                 f.name.clone()
             } else {
                 format!("{}_{c}", f.name)
             });
-            col_spec.push((f.ty, f.size, off, fi));
+            col_spec.push(ColumnSpec {
+                ty: f.ty,
+                size: f.size,
+                offset: off,
+            });
             off += f.size;
         }
     }
+    (names, col_spec)
+}
+
+/// The header's point count is checked against the data before any allocation depends on
+/// it (issue 10): at most one point per byte of data (per value in ascii).
+fn check_plausible_points(
+    header: &PcdHeader,
+    body: &[u8],
+    n_columns: usize,
+    name: &str,
+) -> Result<()> {
+    let n = header.points;
     let pb = header.point_bytes();
-    let body = bytes.get(header.data_offset..).unwrap_or(&[]);
-    // The header's point count is checked against the data before any allocation depends on
-    // it (issue 10): at most one point per byte of data (per value in ascii).
     let plausible = match header.data {
-        PcdData::Ascii => body.len() / (2 * names.len().max(1)) + 1,
+        PcdData::Ascii => body.len() / (2 * n_columns.max(1)) + 1,
         PcdData::Binary => body.len() / pb.max(1),
         PcdData::BinaryCompressed => body.len().saturating_mul(LZF_MAX_EXPANSION) / pb.max(1),
     };
@@ -572,104 +667,120 @@ pub fn parse_pcd(bytes: &[u8], name: &str) -> Result<PcdCloud> {
             ),
         ));
     }
-    let mut columns: Vec<Vec<f64>> = (0..names.len()).map(|_| Vec::with_capacity(n)).collect();
-    match header.data {
-        PcdData::Binary => {
-            let need = n.saturating_mul(pb);
-            if body.len() < need {
-                return Err(pcd_err(
-                    name,
-                    format!(
-                        "truncated: header promises {n} points × {pb} bytes of data, file has {} bytes",
-                        body.len()
-                    ),
-                ));
-            }
-            for p in 0..n {
-                let rec = &body[p * pb..(p + 1) * pb];
-                for (c, &(ty, size, o, _)) in col_spec.iter().enumerate() {
-                    columns[c].push(read_scalar(&rec[o..o + size], ty, size));
-                }
-            }
-        }
-        PcdData::BinaryCompressed => {
-            if body.len() < 8 {
-                return Err(pcd_err(name, "truncated: binary_compressed sizes missing"));
-            }
-            let csize = u32::from_le_bytes([body[0], body[1], body[2], body[3]]) as usize;
-            let usize_ = u32::from_le_bytes([body[4], body[5], body[6], body[7]]) as usize;
-            if Some(usize_) != n.checked_mul(pb) {
-                return Err(pcd_err(
-                    name,
-                    format!(
-                        "binary_compressed: uncompressed size {usize_} ≠ {n} points × {pb} bytes"
-                    ),
-                ));
-            }
-            if body.len() - 8 < csize {
-                return Err(pcd_err(
-                    name,
-                    format!(
-                        "truncated: compressed data of {csize} bytes promised, {} present",
-                        body.len() - 8
-                    ),
-                ));
-            }
-            let raw = lzf_decompress(&body[8..8 + csize], usize_)
-                .map_err(|e| pcd_err(name, format!("binary_compressed: {e}")))?;
-            // Structure-of-arrays: every field's values for all points, field after field.
-            let mut field_base = 0;
-            let mut c = 0;
-            for f in &header.fields {
-                for k in 0..f.count {
-                    for p in 0..n {
-                        let o = field_base + (p * f.count + k) * f.size;
-                        columns[c].push(read_scalar(&raw[o..o + f.size], f.ty, f.size));
-                    }
-                    c += 1;
-                }
-                field_base += n * f.size * f.count;
-            }
-        }
-        PcdData::Ascii => {
-            let text = std::str::from_utf8(body)
-                .map_err(|_| pcd_err(name, "ascii data is not valid text"))?;
-            let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-            for p in 0..n {
-                let line = lines.next().ok_or_else(|| {
-                    pcd_err(
-                        name,
-                        format!("truncated: header promises {n} points, ascii data has {p}"),
-                    )
-                })?;
-                let vals: Vec<&str> = line.split_whitespace().collect();
-                if vals.len() != names.len() {
-                    return Err(pcd_err(
-                        name,
-                        format!(
-                            "ascii point {p} has {} values, header needs {}",
-                            vals.len(),
-                            names.len()
-                        ),
-                    ));
-                }
-                for (c, v) in vals.iter().enumerate() {
-                    let x: f64 = match v.to_ascii_lowercase().as_str() {
-                        "nan" => f64::NAN,
-                        s => s.parse().map_err(|_| {
-                            pcd_err(name, format!("ascii point {p}: bad number {v:?}"))
-                        })?,
-                    };
-                    columns[c].push(x);
-                }
-            }
+    Ok(())
+}
+
+/// `DATA binary`: packed point records, one after the other.
+fn read_binary_columns(
+    header: &PcdHeader,
+    body: &[u8],
+    col_spec: &[ColumnSpec],
+    columns: &mut [Vec<f64>],
+    name: &str,
+) -> Result<()> {
+    let n = header.points;
+    let pb = header.point_bytes();
+    let need = n.saturating_mul(pb);
+    if body.len() < need {
+        return Err(pcd_err(
+            name,
+            format!(
+                "truncated: header promises {n} points × {pb} bytes of data, file has {} bytes",
+                body.len()
+            ),
+        ));
+    }
+    for p in 0..n {
+        let rec = &body[p * pb..(p + 1) * pb];
+        for (c, s) in col_spec.iter().enumerate() {
+            let o = s.offset;
+            columns[c].push(read_scalar(&rec[o..o + s.size], s.ty, s.size));
         }
     }
-    Ok(PcdCloud {
-        header,
-        names,
-        columns,
-    })
+    Ok(())
+}
+
+/// `DATA binary_compressed`: two u32 sizes, then LZF of the fields in structure-of-arrays.
+fn read_compressed_columns(
+    header: &PcdHeader,
+    body: &[u8],
+    columns: &mut [Vec<f64>],
+    name: &str,
+) -> Result<()> {
+    let n = header.points;
+    let pb = header.point_bytes();
+    if body.len() < 8 {
+        return Err(pcd_err(name, "truncated: binary_compressed sizes missing"));
+    }
+    let csize = u32::from_le_bytes([body[0], body[1], body[2], body[3]]) as usize;
+    let usize_ = u32::from_le_bytes([body[4], body[5], body[6], body[7]]) as usize;
+    if Some(usize_) != n.checked_mul(pb) {
+        return Err(pcd_err(
+            name,
+            format!("binary_compressed: uncompressed size {usize_} ≠ {n} points × {pb} bytes"),
+        ));
+    }
+    if body.len() - 8 < csize {
+        return Err(pcd_err(
+            name,
+            format!(
+                "truncated: compressed data of {csize} bytes promised, {} present",
+                body.len() - 8
+            ),
+        ));
+    }
+    let raw = lzf_decompress(&body[8..8 + csize], usize_)
+        .map_err(|e| pcd_err(name, format!("binary_compressed: {e}")))?;
+    // Structure-of-arrays: every field's values for all points, field after field.
+    let mut field_base = 0;
+    let mut c = 0;
+    for f in &header.fields {
+        for k in 0..f.count {
+            for p in 0..n {
+                let o = field_base + (p * f.count + k) * f.size;
+                columns[c].push(read_scalar(&raw[o..o + f.size], f.ty, f.size));
+            }
+            c += 1;
+        }
+        field_base += n * f.size * f.count;
+    }
+    Ok(())
+}
+
+/// `DATA ascii`: one line of whitespace-separated values per point (blank lines skipped).
+fn read_ascii_columns(n: usize, body: &[u8], columns: &mut [Vec<f64>], name: &str) -> Result<()> {
+    let text =
+        std::str::from_utf8(body).map_err(|_| pcd_err(name, "ascii data is not valid text"))?;
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    for p in 0..n {
+        let line = lines.next().ok_or_else(|| {
+            pcd_err(
+                name,
+                format!("truncated: header promises {n} points, ascii data has {p}"),
+            )
+        })?;
+        let vals: Vec<&str> = line.split_whitespace().collect();
+        if vals.len() != columns.len() {
+            return Err(pcd_err(
+                name,
+                format!(
+                    "ascii point {p} has {} values, header needs {}",
+                    vals.len(),
+                    columns.len()
+                ),
+            ));
+        }
+        for (c, v) in vals.iter().enumerate() {
+            let x: f64 = match v.to_ascii_lowercase().as_str() {
+                "nan" => f64::NAN,
+                s => s
+                    .parse()
+                    .map_err(|_| pcd_err(name, format!("ascii point {p}: bad number {v:?}")))?,
+            };
+            columns[c].push(x);
+        }
+    }
+    Ok(())
 }
 
 /// Radar points read from a `.pcd`, with non-finite points dropped and counted.
@@ -705,60 +816,80 @@ impl RadarScan {
 pub fn parse_radar_pcd(bytes: &[u8], name: &str) -> Result<RadarScan> {
     let header = parse_pcd_header(bytes, name)?;
     // Fast path: the exact nuScenes binary layout.
-    let is_nuscenes_layout = header.data == PcdData::Binary
+    if is_nuscenes_radar_layout(&header) {
+        return parse_radar_binary(bytes, &header, name);
+    }
+    radar_from_cloud(&parse_pcd(bytes, name)?, name)
+}
+
+/// Whether the header is exactly the nuScenes radar layout with `DATA binary`.
+fn is_nuscenes_radar_layout(header: &PcdHeader) -> bool {
+    header.data == PcdData::Binary
         && header.fields.len() == 18
         && header.fields.iter().enumerate().all(|(i, f)| {
             f.name == RADAR_FIELD_NAMES[i]
                 && f.size == RADAR_FIELD_SIZES[i]
                 && f.ty == RADAR_FIELD_TYPES[i]
                 && f.count == 1
-        });
+        })
+}
+
+/// The fast path: 43-byte nuScenes records read straight into [`RadarPoint`]s.
+fn parse_radar_binary(bytes: &[u8], header: &PcdHeader, name: &str) -> Result<RadarScan> {
     let mut scan = RadarScan::default();
-    if is_nuscenes_layout {
-        let n = header.points;
-        let body = bytes.get(header.data_offset..).unwrap_or(&[]);
-        let need = n.saturating_mul(RADAR_POINT_BYTES);
-        if body.len() < need {
-            return Err(pcd_err(
-                name,
-                format!(
-                    "truncated: header promises {n} points × 43 bytes of data, file has {} bytes",
-                    body.len()
-                ),
-            ));
-        }
-        scan.points.reserve(n);
-        for rec in body[..need].chunks_exact(RADAR_POINT_BYTES) {
-            let f = |o: usize| f32::from_le_bytes([rec[o], rec[o + 1], rec[o + 2], rec[o + 3]]);
-            let p = RadarPoint {
-                x: f(0),
-                y: f(4),
-                z: f(8),
-                dyn_prop: rec[12] as i8,
-                id: i16::from_le_bytes([rec[13], rec[14]]),
-                rcs: f(15),
-                vx: f(19),
-                vy: f(23),
-                vx_comp: f(27),
-                vy_comp: f(31),
-                is_quality_valid: rec[35] as i8,
-                ambig_state: rec[36] as i8,
-                x_rms: rec[37] as i8,
-                y_rms: rec[38] as i8,
-                invalid_state: rec[39] as i8,
-                pdh0: rec[40] as i8,
-                vx_rms: rec[41] as i8,
-                vy_rms: rec[42] as i8,
-            };
-            if p.x.is_finite() && p.y.is_finite() && p.z.is_finite() {
-                scan.points.push(p);
-            } else {
-                scan.nan_dropped += 1;
-            }
-        }
-        return Ok(scan);
+    let n = header.points;
+    let body = bytes.get(header.data_offset..).unwrap_or(&[]);
+    let need = n.saturating_mul(RADAR_POINT_BYTES);
+    if body.len() < need {
+        return Err(pcd_err(
+            name,
+            format!(
+                "truncated: header promises {n} points × 43 bytes of data, file has {} bytes",
+                body.len()
+            ),
+        ));
     }
-    let cloud = parse_pcd(bytes, name)?;
+    scan.points.reserve(n);
+    for rec in body[..need].chunks_exact(RADAR_POINT_BYTES) {
+        let p = radar_point_from_record(rec);
+        if p.x.is_finite() && p.y.is_finite() && p.z.is_finite() {
+            scan.points.push(p);
+        } else {
+            scan.nan_dropped += 1;
+        }
+    }
+    Ok(scan)
+}
+
+/// Decode one packed little-endian record of the nuScenes radar layout (43 bytes).
+#[inline]
+fn radar_point_from_record(rec: &[u8]) -> RadarPoint {
+    let f = |o: usize| f32::from_le_bytes([rec[o], rec[o + 1], rec[o + 2], rec[o + 3]]);
+    RadarPoint {
+        x: f(0),
+        y: f(4),
+        z: f(8),
+        dyn_prop: rec[12] as i8,
+        id: i16::from_le_bytes([rec[13], rec[14]]),
+        rcs: f(15),
+        vx: f(19),
+        vy: f(23),
+        vx_comp: f(27),
+        vy_comp: f(31),
+        is_quality_valid: rec[35] as i8,
+        ambig_state: rec[36] as i8,
+        x_rms: rec[37] as i8,
+        y_rms: rec[38] as i8,
+        invalid_state: rec[39] as i8,
+        pdh0: rec[40] as i8,
+        vx_rms: rec[41] as i8,
+        vy_rms: rec[42] as i8,
+    }
+}
+
+/// The general path: the 18 radar fields looked up by name in a generic cloud.
+fn radar_from_cloud(cloud: &PcdCloud, name: &str) -> Result<RadarScan> {
+    let mut scan = RadarScan::default();
     let mut idx = [0usize; 18];
     for (k, want) in RADAR_FIELD_NAMES.iter().enumerate() {
         idx[k] = cloud.names.iter().position(|n| n == want).ok_or_else(|| {
