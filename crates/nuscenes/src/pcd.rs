@@ -520,65 +520,19 @@ const LZF_MAX_EXPANSION: usize = 88;
 /// LZF decompression (the codec of PCD `binary_compressed`). Corrupt input is an error,
 /// never a panic; memory is bounded by the input length, whatever `out_len` claims.
 pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u8>, String> {
-    // One 3-byte back-reference yields at most 264 bytes: anything claiming more than that
-    // expansion is corrupt, and is refused before allocating `out_len` bytes.
-    let max_out = input.len().saturating_mul(LZF_MAX_EXPANSION);
-    if out_len > max_out {
-        return Err(format!(
-            "LZF header promises {out_len} bytes from {} compressed bytes (at most {max_out} possible)",
-            input.len()
-        ));
-    }
+    lzf_check_expansion(input.len(), out_len)?;
     let mut out = Vec::with_capacity(out_len);
     let mut i = 0;
     while i < input.len() {
         let ctrl = input[i] as usize;
         i += 1;
-        if ctrl < 32 {
-            let len = ctrl + 1;
-            if i + len > input.len() {
-                return Err("LZF literal run past the end of the input".into());
-            }
-            if out.len() + len > out_len {
-                return Err(format!(
-                    "LZF output longer than the {out_len} bytes the header promises"
-                ));
-            }
-            out.extend_from_slice(&input[i..i + len]);
-            i += len;
+        i = if ctrl < 32 {
+            lzf_literal_run(input, i, ctrl + 1, &mut out, out_len)?
         } else {
-            let mut len = ctrl >> 5;
-            if len == 7 {
-                if i >= input.len() {
-                    return Err("LZF back-reference truncated".into());
-                }
-                len += input[i] as usize;
-                i += 1;
-            }
-            len += 2;
-            if i >= input.len() {
-                return Err("LZF back-reference truncated".into());
-            }
-            let back = ((ctrl & 0x1f) << 8) + input[i] as usize + 1;
-            i += 1;
-            if back > out.len() {
-                return Err("LZF back-reference before the start of the output".into());
-            }
-            if out.len() + len > out_len {
-                return Err(format!(
-                    "LZF output longer than the {out_len} bytes the header promises"
-                ));
-            }
-            let start = out.len() - back;
-            for k in 0..len {
-                let b = out[start + k];
-                out.push(b);
-            }
-        }
+            lzf_back_reference(input, i, ctrl, &mut out, out_len)?
+        };
         if out.len() > out_len {
-            return Err(format!(
-                "LZF output longer than the {out_len} bytes the header promises"
-            ));
+            return Err(lzf_overrun(out_len));
         }
     }
     if out.len() != out_len {
@@ -588,6 +542,81 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u
         ));
     }
     Ok(out)
+}
+
+/// One 3-byte back-reference yields at most 264 bytes: anything claiming more than that
+/// expansion is corrupt, and is refused before allocating `out_len` bytes.
+fn lzf_check_expansion(input_len: usize, out_len: usize) -> std::result::Result<(), String> {
+    let max_out = input_len.saturating_mul(LZF_MAX_EXPANSION);
+    if out_len > max_out {
+        return Err(format!(
+            "LZF header promises {out_len} bytes from {input_len} compressed bytes (at most {max_out} possible)"
+        ));
+    }
+    Ok(())
+}
+
+/// The error of an LZF stream that outgrows its promised size.
+#[cold]
+fn lzf_overrun(out_len: usize) -> String {
+    format!("LZF output longer than the {out_len} bytes the header promises")
+}
+
+/// Copy a literal run of `len` bytes starting at `input[i]`; returns the next input position.
+#[inline]
+fn lzf_literal_run(
+    input: &[u8],
+    i: usize,
+    len: usize,
+    out: &mut Vec<u8>,
+    out_len: usize,
+) -> std::result::Result<usize, String> {
+    if i + len > input.len() {
+        return Err("LZF literal run past the end of the input".into());
+    }
+    if out.len() + len > out_len {
+        return Err(lzf_overrun(out_len));
+    }
+    out.extend_from_slice(&input[i..i + len]);
+    Ok(i + len)
+}
+
+/// Expand the back-reference whose control byte was `ctrl` (its operands start at
+/// `input[i]`); returns the next input position.
+#[inline]
+fn lzf_back_reference(
+    input: &[u8],
+    mut i: usize,
+    ctrl: usize,
+    out: &mut Vec<u8>,
+    out_len: usize,
+) -> std::result::Result<usize, String> {
+    let mut len = ctrl >> 5;
+    if len == 7 {
+        if i >= input.len() {
+            return Err("LZF back-reference truncated".into());
+        }
+        len += input[i] as usize;
+        i += 1;
+    }
+    len += 2;
+    if i >= input.len() {
+        return Err("LZF back-reference truncated".into());
+    }
+    let back = ((ctrl & 0x1f) << 8) + input[i] as usize + 1;
+    i += 1;
+    if back > out.len() {
+        return Err("LZF back-reference before the start of the output".into());
+    }
+    if out.len() + len > out_len {
+        return Err(lzf_overrun(out_len));
+    }
+    let start = out.len() - back;
+    for k in 0..len {
+        let b = out[start + k];
+        out.push(b);
+    }
+    Ok(i)
 }
 
 /// Parse any PCD v0.7 file (ascii, binary, binary_compressed) into f64 columns.
