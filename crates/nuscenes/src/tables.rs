@@ -778,64 +778,27 @@ where
     T: Send,
     F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
 {
-    use rayon::prelude::*;
     let path = src.path(name);
-    let (mut file, file_len) = match src.open(name)? {
-        Some(f) => f,
-        None if !required => return Ok(None),
-        None => {
-            return Err(NuError::io(
-                &path,
-                std::io::Error::new(std::io::ErrorKind::NotFound, "table file not found"),
-            ))
-        }
-    };
-    let json_err = |reason: String| NuError::Json {
-        path: path.display().to_string(),
-        reason,
+    let Some((mut file, file_len)) = open_table(src, name, required, &path)? else {
+        return Ok(None);
     };
     let mut st = ScanState::default();
     let mut out: Vec<T> = Vec::new();
     let mut cur = fill_and_scan(&mut file, &path, &[], &mut st, chunk_bytes, Vec::new())?;
-    // Reserve the whole table from the first chunk's row density (avoids regrowth copies),
-    // never more memory than the file has bytes (a hostile file of tiny rows would
-    // otherwise reserve gigabytes before its first row fails to parse).
-    if !cur.spans.is_empty() && cur.keep_from > 0 {
-        let est = (file_len as f64 * cur.spans.len() as f64
-            / cur.keep_from.min(cur.buf.len()) as f64
-            * 1.01) as usize;
-        let by_bytes = file_len as usize / std::mem::size_of::<T>().max(1);
-        out.reserve(est.min(by_bytes).min(100_000_000));
-    }
+    reserve_rows(&mut out, &cur, file_len);
     let mut spare: Vec<u8> = Vec::new();
     loop {
         let next_buf = std::mem::take(&mut spare);
         let tail: Vec<u8> = cur.buf[cur.keep_from.min(cur.buf.len())..].to_vec();
         if cur.eof && !tail.is_empty() {
-            return Err(json_err(format!(
-                "truncated: row {} is not complete",
-                st.row_no
-            )));
+            return Err(json_err(
+                &path,
+                format!("truncated: row {} is not complete", st.row_no),
+            ));
         }
         // Parse this chunk's rows while the next chunk is read and scanned.
         let (parsed, next) = rayon::join(
-            || -> std::result::Result<Vec<Vec<T>>, String> {
-                cur.spans
-                    .par_chunks(2048)
-                    .enumerate()
-                    .map(|(ci, chunk)| {
-                        chunk
-                            .iter()
-                            .enumerate()
-                            .map(|(k, &(a, b))| {
-                                parse(&cur.buf[a..b]).map_err(|e| {
-                                    format!("row {}: {e}", cur.first_row + ci * 2048 + k)
-                                })
-                            })
-                            .collect()
-                    })
-                    .collect()
-            },
+            || parse_chunk_rows(&cur, &parse),
             || {
                 if cur.eof {
                     None
@@ -851,7 +814,7 @@ where
                 }
             },
         );
-        for r in parsed.map_err(json_err)? {
+        for r in parsed.map_err(|reason| json_err(&path, reason))? {
             out.extend(r);
         }
         match next {
@@ -859,14 +822,85 @@ where
             Some(n) => spare = std::mem::replace(&mut cur, n?).buf,
         }
     }
-    if !st.finished {
-        return Err(json_err(if st.started {
-            format!("truncated: the list is not closed after {} rows", st.row_no)
-        } else {
-            "empty file: expected a JSON list".into()
-        }));
-    }
+    check_list_closed(&st, &path)?;
     Ok(Some(out))
+}
+
+/// A [`NuError::Json`] naming the table file.
+fn json_err(path: &Path, reason: String) -> NuError {
+    NuError::Json {
+        path: path.display().to_string(),
+        reason,
+    }
+}
+
+/// A reader over table `name` and its length; `None` when absent and not `required`.
+fn open_table<'s>(
+    src: &'s Source,
+    name: &str,
+    required: bool,
+    path: &Path,
+) -> Result<Option<(Box<dyn std::io::Read + Send + 's>, u64)>> {
+    match src.open(name)? {
+        Some(f) => Ok(Some(f)),
+        None if !required => Ok(None),
+        None => Err(NuError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "table file not found"),
+        )),
+    }
+}
+
+/// Reserve the whole table from the first chunk's row density (avoids regrowth copies),
+/// never more memory than the file has bytes (a hostile file of tiny rows would
+/// otherwise reserve gigabytes before its first row fails to parse).
+fn reserve_rows<T>(out: &mut Vec<T>, first: &Chunk, file_len: u64) {
+    if !first.spans.is_empty() && first.keep_from > 0 {
+        let est = (file_len as f64 * first.spans.len() as f64
+            / first.keep_from.min(first.buf.len()) as f64
+            * 1.01) as usize;
+        let by_bytes = file_len as usize / std::mem::size_of::<T>().max(1);
+        out.reserve(est.min(by_bytes).min(100_000_000));
+    }
+}
+
+/// Parse a chunk's rows in parallel (2048 rows a task), in file order; an error names the
+/// first failing row.
+fn parse_chunk_rows<T, F>(cur: &Chunk, parse: &F) -> std::result::Result<Vec<Vec<T>>, String>
+where
+    T: Send,
+    F: Fn(&[u8]) -> serde_json::Result<T> + Sync,
+{
+    use rayon::prelude::*;
+    cur.spans
+        .par_chunks(2048)
+        .enumerate()
+        .map(|(ci, chunk)| {
+            chunk
+                .iter()
+                .enumerate()
+                .map(|(k, &(a, b))| {
+                    parse(&cur.buf[a..b])
+                        .map_err(|e| format!("row {}: {e}", cur.first_row + ci * 2048 + k))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// At the end of the file the list must have been opened and closed.
+fn check_list_closed(st: &ScanState, path: &Path) -> Result<()> {
+    if !st.finished {
+        return Err(json_err(
+            path,
+            if st.started {
+                format!("truncated: the list is not closed after {} rows", st.row_no)
+            } else {
+                "empty file: expected a JSON list".into()
+            },
+        ));
+    }
+    Ok(())
 }
 
 /// Row scanner state carried across chunks (always outside rows between chunks).
@@ -896,26 +930,43 @@ fn fill_and_scan(
     chunk_bytes: usize,
     mut buf: Vec<u8>,
 ) -> Result<Chunk> {
+    let eof = fill_chunk(file, path, carry, chunk_bytes, &mut buf)?;
+    let first_row = st.row_no;
+    let (spans, keep_from) = scan_rows(&buf, st, path)?;
+    Ok(Chunk {
+        buf,
+        spans,
+        keep_from,
+        first_row,
+        eof,
+    })
+}
+
+/// Refill `buf` with `carry` and up to `chunk_bytes` more of `file`; true at end of file.
+fn fill_chunk(
+    file: &mut dyn std::io::Read,
+    path: &Path,
+    carry: &[u8],
+    chunk_bytes: usize,
+    buf: &mut Vec<u8>,
+) -> Result<bool> {
     use std::io::Read;
-    let json_err = |reason: String| NuError::Json {
-        path: path.display().to_string(),
-        reason,
-    };
     // Reuses the buffer of the chunk before last (no fresh pages to fault in).
     buf.clear();
     buf.reserve(carry.len() + chunk_bytes);
     buf.extend_from_slice(carry);
-    let mut eof = false;
     // Read without zero-filling: `take` + `read_to_end` appends into spare capacity.
     let want = chunk_bytes as u64;
     let n = (&mut *file)
         .take(want)
-        .read_to_end(&mut buf)
+        .read_to_end(buf)
         .map_err(|e| NuError::io(path, e))?;
-    if (n as u64) < want {
-        eof = true;
-    }
-    let first_row = st.row_no;
+    Ok((n as u64) < want)
+}
+
+/// Find the complete top-level rows of `buf` (spans of their bytes) and where the
+/// incomplete tail starts (`buf.len()` when none), advancing `st` past them.
+fn scan_rows(buf: &[u8], st: &mut ScanState, path: &Path) -> Result<(Vec<(usize, usize)>, usize)> {
     let mut spans: Vec<(usize, usize)> = Vec::new();
     let mut i = 0;
     let mut keep_from = buf.len();
@@ -923,10 +974,10 @@ fn fill_and_scan(
         let b = buf[i];
         if st.finished {
             if !b.is_ascii_whitespace() {
-                return Err(json_err(format!(
-                    "trailing characters after the list at row {}",
-                    st.row_no
-                )));
+                return Err(json_err(
+                    path,
+                    format!("trailing characters after the list at row {}", st.row_no),
+                ));
             }
             i += 1;
             continue;
@@ -935,68 +986,23 @@ fn fill_and_scan(
             match b {
                 b'[' => st.started = true,
                 b if b.is_ascii_whitespace() => {}
-                _ => return Err(json_err("expected a JSON list of table rows".into())),
+                _ => return Err(json_err(path, "expected a JSON list of table rows".into())),
             }
             i += 1;
             continue;
         }
         match b {
-            b'{' => {
-                // Only braces and strings matter for finding the end of an object.
-                let start = i;
-                let mut depth = 0usize;
-                let mut end = None;
-                while let Some(k) = memchr::memchr3(b'"', b'{', b'}', &buf[i..]) {
-                    i += k;
-                    match buf[i] {
-                        b'"' => {
-                            // Skip the string, honouring backslash escapes.
-                            i += 1;
-                            loop {
-                                match memchr::memchr2(b'"', b'\\', &buf[i.min(buf.len())..]) {
-                                    Some(k) if buf[i + k] == b'\\' => i += k + 2,
-                                    Some(k) => {
-                                        i += k + 1;
-                                        break;
-                                    }
-                                    None => {
-                                        i = buf.len() + 1;
-                                        break;
-                                    }
-                                }
-                                if i >= buf.len() {
-                                    break;
-                                }
-                            }
-                        }
-                        b'{' => {
-                            depth += 1;
-                            i += 1;
-                        }
-                        _ => {
-                            depth -= 1;
-                            i += 1;
-                            if depth == 0 {
-                                end = Some(i);
-                                break;
-                            }
-                        }
-                    }
-                    if i >= buf.len() {
-                        break;
-                    }
+            b'{' => match object_end(buf, i) {
+                Some(e) => {
+                    spans.push((i, e));
+                    st.row_no += 1;
+                    i = e;
                 }
-                match end {
-                    Some(e) => {
-                        spans.push((start, e));
-                        st.row_no += 1;
-                    }
-                    None => {
-                        keep_from = start;
-                        break;
-                    }
+                None => {
+                    keep_from = i;
+                    break;
                 }
-            }
+            },
             b']' => {
                 st.finished = true;
                 i += 1;
@@ -1004,20 +1010,63 @@ fn fill_and_scan(
             b',' => i += 1,
             b if b.is_ascii_whitespace() => i += 1,
             _ => {
-                return Err(json_err(format!(
-                    "row {}: expected an object, found {:?}",
-                    st.row_no, b as char
-                )))
+                return Err(json_err(
+                    path,
+                    format!(
+                        "row {}: expected an object, found {:?}",
+                        st.row_no, b as char
+                    ),
+                ))
             }
         }
     }
-    Ok(Chunk {
-        buf,
-        spans,
-        keep_from,
-        first_row,
-        eof,
-    })
+    Ok((spans, keep_from))
+}
+
+/// End (exclusive) of the object that opens at `buf[start]`, or `None` when it does not
+/// end within `buf`. Only braces and strings matter for finding the end of an object.
+#[inline]
+fn object_end(buf: &[u8], start: usize) -> Option<usize> {
+    let mut i = start;
+    let mut depth = 0usize;
+    while let Some(k) = memchr::memchr3(b'"', b'{', b'}', &buf[i..]) {
+        i += k;
+        match buf[i] {
+            b'"' => i = skip_string(buf, i + 1),
+            b'{' => {
+                depth += 1;
+                i += 1;
+            }
+            _ => {
+                depth -= 1;
+                i += 1;
+                if depth == 0 {
+                    return Some(i);
+                }
+            }
+        }
+        if i >= buf.len() {
+            break;
+        }
+    }
+    None
+}
+
+/// Skip a string whose first byte is `buf[i]` (after the opening quote), honouring
+/// backslash escapes: the position after the closing quote, or `≥ buf.len()` when the
+/// string does not end within `buf`.
+#[inline]
+fn skip_string(buf: &[u8], mut i: usize) -> usize {
+    loop {
+        match memchr::memchr2(b'"', b'\\', &buf[i.min(buf.len())..]) {
+            Some(k) if buf[i + k] == b'\\' => i += k + 2,
+            Some(k) => return i + k + 1,
+            None => return buf.len() + 1,
+        }
+        if i >= buf.len() {
+            return i;
+        }
+    }
 }
 
 fn read_table<'s>(
