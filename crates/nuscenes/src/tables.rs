@@ -643,6 +643,145 @@ struct RawNamed<'a> {
     name: std::borrow::Cow<'a, str>,
 }
 
+// ------------------------------------------------------------ raw rows → records
+
+impl RawScene<'_> {
+    /// The stored [`Scene`] of this parsed row.
+    fn into_record(self) -> Scene {
+        Scene {
+            token: Token::parse(self.token),
+            log_token: Token::parse(self.log_token),
+            nbr_samples: self.nbr_samples,
+            first_sample_token: opt_token(self.first_sample_token),
+            last_sample_token: opt_token(self.last_sample_token),
+            name: self.name.into_owned(),
+            description: self.description.into_owned(),
+        }
+    }
+}
+
+impl RawSample<'_> {
+    /// The stored [`Sample`] of this parsed row.
+    fn into_record(self) -> Sample {
+        Sample {
+            token: Token::parse(self.token),
+            timestamp_us: self.timestamp,
+            prev: opt_token(self.prev),
+            next: opt_token(self.next),
+            scene_token: Token::parse(self.scene_token),
+        }
+    }
+}
+
+impl RawSampleData<'_> {
+    /// The stored [`SampleData`] of this parsed row.
+    fn into_record(self) -> SampleData {
+        SampleData {
+            token: Token::parse_bytes(self.token),
+            sample_token: opt_token_b(self.sample_token),
+            ego_pose_token: Token::parse_bytes(self.ego_pose_token),
+            calibrated_sensor_token: Token::parse_bytes(self.calibrated_sensor_token),
+            timestamp_us: self.timestamp,
+            is_key_frame: self.is_key_frame,
+            width: self.width,
+            height: self.height,
+            filename: FileName::new(&self.filename),
+            prev: opt_token_b(self.prev),
+            next: opt_token_b(self.next),
+        }
+    }
+}
+
+impl RawCalib<'_> {
+    /// The stored [`CalibratedSensor`] of this parsed row.
+    fn into_record(self) -> CalibratedSensor {
+        let k = &self.camera_intrinsic;
+        let camera_intrinsic = if k.len() == 3 && k.iter().all(|row| row.len() == 3) {
+            Some([
+                [k[0][0], k[0][1], k[0][2]],
+                [k[1][0], k[1][1], k[1][2]],
+                [k[2][0], k[2][1], k[2][2]],
+            ])
+        } else {
+            None
+        };
+        CalibratedSensor {
+            token: Token::parse(self.token),
+            sensor_token: Token::parse(self.sensor_token),
+            translation: self.translation,
+            rotation: self.rotation,
+            camera_intrinsic,
+        }
+    }
+}
+
+impl RawEgo<'_> {
+    /// The stored [`EgoPose`] of this parsed row.
+    fn into_record(self) -> EgoPose {
+        EgoPose {
+            token: Token::parse_bytes(self.token),
+            timestamp_us: self.timestamp,
+            rotation: self.rotation,
+            translation: self.translation,
+        }
+    }
+}
+
+impl RawSensor<'_> {
+    /// The stored [`Sensor`] of this parsed row.
+    fn into_record(self) -> Sensor {
+        Sensor {
+            token: Token::parse(self.token),
+            channel: self.channel.into_owned(),
+            modality: self.modality.into_owned(),
+        }
+    }
+}
+
+impl RawLog<'_> {
+    /// The stored [`Log`] of this parsed row.
+    fn into_record(self) -> Log {
+        Log {
+            token: Token::parse(self.token),
+            logfile: self.logfile.into_owned(),
+            vehicle: self.vehicle.into_owned(),
+            date_captured: self.date_captured.into_owned(),
+            location: self.location.into_owned(),
+        }
+    }
+}
+
+impl RawAnn<'_> {
+    /// The stored [`SampleAnnotation`] of this parsed row.
+    fn into_record(self) -> SampleAnnotation {
+        SampleAnnotation {
+            token: Token::parse_bytes(self.token),
+            sample_token: Token::parse_bytes(self.sample_token),
+            instance_token: Token::parse_bytes(self.instance_token),
+            attribute_tokens: self
+                .attribute_tokens
+                .iter()
+                .map(|t| Token::parse_bytes(t))
+                .collect(),
+            translation: self.translation,
+            size: self.size,
+            rotation: self.rotation,
+            prev: opt_token_b(self.prev),
+            next: opt_token_b(self.next),
+        }
+    }
+}
+
+impl RawInstance<'_> {
+    /// The stored [`Instance`] of this parsed row.
+    fn into_record(self) -> Instance {
+        Instance {
+            token: Token::parse(self.token),
+            category_token: Token::parse(self.category_token),
+        }
+    }
+}
+
 /// Stream a JSON list, converting each borrowed row as it is parsed.
 fn parse_rows<'de, R, T, F>(bytes: &'de [u8], path: &Path, f: F) -> Result<Vec<T>>
 where
@@ -1218,49 +1357,15 @@ impl NuScenes {
     fn load_from(src: &Source, dataroot: &Path, version: &str) -> Result<NuScenes> {
         // The big tables are parsed chunk by chunk, rows in parallel.
         let sample_data = parse_table_chunked(src, "sample_data", true, |b| {
-            let r: RawSampleData = serde_json::from_slice(b)?;
-            Ok(SampleData {
-                token: Token::parse_bytes(r.token),
-                sample_token: opt_token_b(r.sample_token),
-                ego_pose_token: Token::parse_bytes(r.ego_pose_token),
-                calibrated_sensor_token: Token::parse_bytes(r.calibrated_sensor_token),
-                timestamp_us: r.timestamp,
-                is_key_frame: r.is_key_frame,
-                width: r.width,
-                height: r.height,
-                filename: FileName::new(&r.filename),
-                prev: opt_token_b(r.prev),
-                next: opt_token_b(r.next),
-            })
+            serde_json::from_slice::<RawSampleData>(b).map(RawSampleData::into_record)
         })?
         .unwrap_or_default();
         let ego_pose = parse_table_chunked(src, "ego_pose", true, |b| {
-            let r: RawEgo = serde_json::from_slice(b)?;
-            Ok(EgoPose {
-                token: Token::parse_bytes(r.token),
-                timestamp_us: r.timestamp,
-                rotation: r.rotation,
-                translation: r.translation,
-            })
+            serde_json::from_slice::<RawEgo>(b).map(RawEgo::into_record)
         })?
         .unwrap_or_default();
         let sample_annotation = parse_table_chunked(src, "sample_annotation", false, |b| {
-            let r: RawAnn = serde_json::from_slice(b)?;
-            Ok(SampleAnnotation {
-                token: Token::parse_bytes(r.token),
-                sample_token: Token::parse_bytes(r.sample_token),
-                instance_token: Token::parse_bytes(r.instance_token),
-                attribute_tokens: r
-                    .attribute_tokens
-                    .iter()
-                    .map(|t| Token::parse_bytes(t))
-                    .collect(),
-                translation: r.translation,
-                size: r.size,
-                rotation: r.rotation,
-                prev: opt_token_b(r.prev),
-                next: opt_token_b(r.next),
-            })
+            serde_json::from_slice::<RawAnn>(b).map(RawAnn::into_record)
         })?;
         let mut small = Self::load_small(src)?;
         small.sample_annotation = sample_annotation;
@@ -1278,62 +1383,17 @@ impl NuScenes {
             Ok(read_table(src, n, true)?.unwrap_or_default())
         };
         let (p, b) = need("scene")?;
-        let scene = parse_rows(&b, &p, |r: RawScene| Scene {
-            token: Token::parse(r.token),
-            log_token: Token::parse(r.log_token),
-            nbr_samples: r.nbr_samples,
-            first_sample_token: opt_token(r.first_sample_token),
-            last_sample_token: opt_token(r.last_sample_token),
-            name: r.name.into_owned(),
-            description: r.description.into_owned(),
-        })?;
+        let scene = parse_rows(&b, &p, RawScene::into_record)?;
         let (p, b) = need("sample")?;
-        let sample = parse_rows(&b, &p, |r: RawSample| Sample {
-            token: Token::parse(r.token),
-            timestamp_us: r.timestamp,
-            prev: opt_token(r.prev),
-            next: opt_token(r.next),
-            scene_token: Token::parse(r.scene_token),
-        })?;
+        let sample = parse_rows(&b, &p, RawSample::into_record)?;
         let (p, b) = need("calibrated_sensor")?;
-        let calibrated_sensor = parse_rows(&b, &p, |r: RawCalib| {
-            let k = &r.camera_intrinsic;
-            let camera_intrinsic = if k.len() == 3 && k.iter().all(|row| row.len() == 3) {
-                Some([
-                    [k[0][0], k[0][1], k[0][2]],
-                    [k[1][0], k[1][1], k[1][2]],
-                    [k[2][0], k[2][1], k[2][2]],
-                ])
-            } else {
-                None
-            };
-            CalibratedSensor {
-                token: Token::parse(r.token),
-                sensor_token: Token::parse(r.sensor_token),
-                translation: r.translation,
-                rotation: r.rotation,
-                camera_intrinsic,
-            }
-        })?;
+        let calibrated_sensor = parse_rows(&b, &p, RawCalib::into_record)?;
         let (p, b) = need("sensor")?;
-        let sensor = parse_rows(&b, &p, |r: RawSensor| Sensor {
-            token: Token::parse(r.token),
-            channel: r.channel.into_owned(),
-            modality: r.modality.into_owned(),
-        })?;
+        let sensor = parse_rows(&b, &p, RawSensor::into_record)?;
         let (p, b) = need("log")?;
-        let log = parse_rows(&b, &p, |r: RawLog| Log {
-            token: Token::parse(r.token),
-            logfile: r.logfile.into_owned(),
-            vehicle: r.vehicle.into_owned(),
-            date_captured: r.date_captured.into_owned(),
-            location: r.location.into_owned(),
-        })?;
+        let log = parse_rows(&b, &p, RawLog::into_record)?;
         let instance = match read_table(src, "instance", false)? {
-            Some((p, b)) => parse_rows(&b, &p, |r: RawInstance| Instance {
-                token: Token::parse(r.token),
-                category_token: Token::parse(r.category_token),
-            })?,
+            Some((p, b)) => parse_rows(&b, &p, RawInstance::into_record)?,
             None => Vec::new(),
         };
         let named = |n: &str| -> Result<Vec<(Token, String)>> {
