@@ -1437,46 +1437,11 @@ impl NuScenes {
             || (index_of(&s.sample), index_of(&s.calibrated_sensor)),
         );
         let sensor_idx = index_of(&s.sensor);
-        let mut sample_keyframes: TokenMap<Vec<(u32, u32)>> = TokenMap::default();
-        for (i, sd) in sample_data.iter().enumerate() {
-            if !sd.is_key_frame {
-                continue;
-            }
-            // Sensor row of the keyframe (through its calibrated sensor).
-            let sensor = calib_idx
-                .get(&s.calibrated_sensor, Keyed::key, sd.calibrated_sensor_token)
-                .and_then(|c| {
-                    sensor_idx.get(&s.sensor, Keyed::key, s.calibrated_sensor[c].sensor_token)
-                });
-            if let (Some(st), Some(si)) = (sd.sample_token, sensor) {
-                sample_keyframes
-                    .entry(st)
-                    .or_default()
-                    .push((si as u32, i as u32));
-            }
-        }
-        let mut scene_samples: TokenMap<Vec<u32>> = TokenMap::default();
-        for (i, smp) in s.sample.iter().enumerate() {
-            scene_samples
-                .entry(smp.scene_token)
-                .or_default()
-                .push(i as u32);
-        }
-        for v in scene_samples.values_mut() {
-            v.sort_by_key(|&i| (s.sample[i as usize].timestamp_us, i));
-        }
-        let mut sample_anns: TokenMap<Vec<u32>> = TokenMap::default();
-        let ann_idx = match &s.sample_annotation {
-            Some(a) => {
-                for (i, r) in a.iter().enumerate() {
-                    sample_anns
-                        .entry(r.sample_token)
-                        .or_default()
-                        .push(i as u32);
-                }
-                index_of(a)
-            }
-            None => RowIndex::default(),
+        let sample_keyframes = sample_keyframes(&sample_data, &s, &calib_idx, &sensor_idx);
+        let scene_samples = scene_samples(&s.sample);
+        let (sample_anns, ann_idx) = match &s.sample_annotation {
+            Some(a) => (sample_anns(a), index_of(a)),
+            None => (TokenMap::default(), RowIndex::default()),
         };
         NuScenes {
             dataroot: dataroot.to_path_buf(),
@@ -1655,6 +1620,62 @@ impl NuScenes {
             ("attribute", self.attribute.len()),
         ]
     }
+}
+
+/// sample → [(sensor row, keyframe sample_data row)], the sensor found through the
+/// keyframe's calibrated sensor; keyframes without a sample or sensor are left out.
+fn sample_keyframes(
+    sample_data: &[SampleData],
+    s: &Small,
+    calib_idx: &RowIndex,
+    sensor_idx: &RowIndex,
+) -> TokenMap<Vec<(u32, u32)>> {
+    let mut sample_keyframes: TokenMap<Vec<(u32, u32)>> = TokenMap::default();
+    for (i, sd) in sample_data.iter().enumerate() {
+        if !sd.is_key_frame {
+            continue;
+        }
+        // Sensor row of the keyframe (through its calibrated sensor).
+        let sensor = calib_idx
+            .get(&s.calibrated_sensor, Keyed::key, sd.calibrated_sensor_token)
+            .and_then(|c| {
+                sensor_idx.get(&s.sensor, Keyed::key, s.calibrated_sensor[c].sensor_token)
+            });
+        if let (Some(st), Some(si)) = (sd.sample_token, sensor) {
+            sample_keyframes
+                .entry(st)
+                .or_default()
+                .push((si as u32, i as u32));
+        }
+    }
+    sample_keyframes
+}
+
+/// scene → sample rows ordered by (timestamp, row).
+fn scene_samples(sample: &[Sample]) -> TokenMap<Vec<u32>> {
+    let mut scene_samples: TokenMap<Vec<u32>> = TokenMap::default();
+    for (i, smp) in sample.iter().enumerate() {
+        scene_samples
+            .entry(smp.scene_token)
+            .or_default()
+            .push(i as u32);
+    }
+    for v in scene_samples.values_mut() {
+        v.sort_by_key(|&i| (sample[i as usize].timestamp_us, i));
+    }
+    scene_samples
+}
+
+/// sample → annotation rows, in table order.
+fn sample_anns(anns: &[SampleAnnotation]) -> TokenMap<Vec<u32>> {
+    let mut sample_anns: TokenMap<Vec<u32>> = TokenMap::default();
+    for (i, r) in anns.iter().enumerate() {
+        sample_anns
+            .entry(r.sample_token)
+            .or_default()
+            .push(i as u32);
+    }
+    sample_anns
 }
 
 struct Small {
