@@ -53,6 +53,29 @@ impl std::str::FromStr for Protocol {
     }
 }
 
+impl Protocol {
+    /// The (GT, prediction) pair scored under `cap`, or `None` when the pixel is dropped:
+    /// `mask` drops GT > cap, `radarnet` GT ≥ cap, `clamp` clamps both to the cap.
+    #[inline]
+    fn capped(self, y: f64, p: f64, cap: f64) -> Option<(f64, f64)> {
+        match self {
+            Protocol::Mask => {
+                if y > cap {
+                    return None;
+                }
+                Some((y, p))
+            }
+            Protocol::Clamp => Some((y.min(cap), p.min(cap))),
+            Protocol::Radarnet => {
+                if y >= cap {
+                    return None;
+                }
+                Some((y, p))
+            }
+        }
+    }
+}
+
 /// How per-pixel errors are averaged (SPEC §9).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -365,6 +388,15 @@ impl Evaluator {
 
     /// Add one image to every row it belongs to.
     pub fn add(&mut self, img: &EvalImage<'_>) -> Result<(), MetricsError> {
+        self.check_sizes(img)?;
+        self.images_seen += 1;
+        let sums = self.image_sums(img);
+        self.add_image_sums(img, &sums);
+        Ok(())
+    }
+
+    /// Prediction, ground truth and low-height mask must have one value per pixel.
+    fn check_sizes(&self, img: &EvalImage<'_>) -> Result<(), MetricsError> {
         let n = img.gt_m.len();
         let mask_len = img.lowheight.map_or(n, |m| m.len());
         if img.pred_m.len() != n || mask_len != n {
@@ -375,8 +407,12 @@ impl Evaluator {
                 mask: mask_len,
             });
         }
-        self.images_seen += 1;
-        let (lo, hi) = (self.cfg.clip_min_m, self.cfg.clip_max_m);
+        Ok(())
+    }
+
+    /// The image's per-pixel sums, indexed `[region][cap]` (`region * ncaps + cap`).
+    fn image_sums(&self, img: &EvalImage<'_>) -> Vec<Sums> {
+        let n = img.gt_m.len();
         let ncaps = self.cfg.caps_m.len();
         // sums[region][cap]
         let mut sums = vec![Sums::default(); REGIONS.len() * ncaps];
@@ -385,29 +421,11 @@ impl Evaluator {
             if !(y.is_finite() && y > 0.0) {
                 continue;
             }
-            let p_raw = img.pred_m[i] as f64;
-            // A non-finite prediction counts as the far clip value: never silently dropped.
-            let p = match (p_raw.is_finite(), self.cfg.protocol) {
-                (false, _) => hi,
-                (true, Protocol::Radarnet) => p_raw,
-                (true, _) => p_raw.clamp(lo, hi),
-            };
+            let p = self.clipped_prediction(img.pred_m[i] as f64);
             let low = img.lowheight.is_some_and(|m| m[i]);
             for (c, &cap) in self.cfg.caps_m.iter().enumerate() {
-                let (yy, pp) = match self.cfg.protocol {
-                    Protocol::Mask => {
-                        if y > cap {
-                            continue;
-                        }
-                        (y, p)
-                    }
-                    Protocol::Clamp => (y.min(cap), p.min(cap)),
-                    Protocol::Radarnet => {
-                        if y >= cap {
-                            continue;
-                        }
-                        (y, p)
-                    }
+                let Some((yy, pp)) = self.cfg.protocol.capped(y, p, cap) else {
+                    continue;
                 };
                 sums[c].add_pixel(yy, pp);
                 if low {
@@ -415,6 +433,25 @@ impl Evaluator {
                 }
             }
         }
+        sums
+    }
+
+    /// The prediction as scored: clipped to the clip range (except under `radarnet`).
+    #[inline]
+    fn clipped_prediction(&self, p_raw: f64) -> f64 {
+        let (lo, hi) = (self.cfg.clip_min_m, self.cfg.clip_max_m);
+        // A non-finite prediction counts as the far clip value: never silently dropped.
+        match (p_raw.is_finite(), self.cfg.protocol) {
+            (false, _) => hi,
+            (true, Protocol::Radarnet) => p_raw,
+            (true, _) => p_raw.clamp(lo, hi),
+        }
+    }
+
+    /// Add an image's sums to its rows: combined and each of its conditions, full image,
+    /// and low-height when the image has a mask.
+    fn add_image_sums(&mut self, img: &EvalImage<'_>, sums: &[Sums]) {
+        let ncaps = self.cfg.caps_m.len();
         let mut conds: Vec<usize> = vec![0];
         for (k, name) in CONDITIONS.iter().enumerate().skip(1) {
             if img.conditions.contains(name) {
@@ -432,9 +469,7 @@ impl Evaluator {
                 }
             }
         }
-        Ok(())
     }
-
     /// All rows (condition × region × cap), including empty ones (zero images).
     pub fn finish(&self) -> Report {
         let mut rows = Vec::with_capacity(self.acc.len());
