@@ -311,6 +311,7 @@ struct RawPcdHeader {
 }
 
 /// A header value that must be an unsigned integer.
+#[inline]
 fn parse_header_usize(s: &str, what: &str, name: &str) -> Result<usize> {
     s.parse::<usize>()
         .map_err(|_| pcd_err(name, format!("bad {what} value {s:?} in header")))
@@ -468,6 +469,7 @@ impl RawPcdHeader {
 }
 
 /// One TYPE entry: a single letter F, I or U.
+#[inline]
 fn parse_pcd_type(s: &str, name: &str) -> Result<char> {
     let c = s.chars().next().unwrap_or('?');
     if s.len() == 1 && matches!(c, 'F' | 'I' | 'U') {
@@ -526,11 +528,43 @@ pub fn lzf_decompress(input: &[u8], out_len: usize) -> std::result::Result<Vec<u
     while i < input.len() {
         let ctrl = input[i] as usize;
         i += 1;
-        i = if ctrl < 32 {
-            lzf_literal_run(input, i, ctrl + 1, &mut out, out_len)?
+        if ctrl < 32 {
+            let len = ctrl + 1;
+            if i + len > input.len() {
+                return Err("LZF literal run past the end of the input".into());
+            }
+            if out.len() + len > out_len {
+                return Err(lzf_overrun(out_len));
+            }
+            out.extend_from_slice(&input[i..i + len]);
+            i += len;
         } else {
-            lzf_back_reference(input, i, ctrl, &mut out, out_len)?
-        };
+            let mut len = ctrl >> 5;
+            if len == 7 {
+                if i >= input.len() {
+                    return Err("LZF back-reference truncated".into());
+                }
+                len += input[i] as usize;
+                i += 1;
+            }
+            len += 2;
+            if i >= input.len() {
+                return Err("LZF back-reference truncated".into());
+            }
+            let back = ((ctrl & 0x1f) << 8) + input[i] as usize + 1;
+            i += 1;
+            if back > out.len() {
+                return Err("LZF back-reference before the start of the output".into());
+            }
+            if out.len() + len > out_len {
+                return Err(lzf_overrun(out_len));
+            }
+            let start = out.len() - back;
+            for k in 0..len {
+                let b = out[start + k];
+                out.push(b);
+            }
+        }
         if out.len() > out_len {
             return Err(lzf_overrun(out_len));
         }
@@ -560,63 +594,6 @@ fn lzf_check_expansion(input_len: usize, out_len: usize) -> std::result::Result<
 #[cold]
 fn lzf_overrun(out_len: usize) -> String {
     format!("LZF output longer than the {out_len} bytes the header promises")
-}
-
-/// Copy a literal run of `len` bytes starting at `input[i]`; returns the next input position.
-#[inline]
-fn lzf_literal_run(
-    input: &[u8],
-    i: usize,
-    len: usize,
-    out: &mut Vec<u8>,
-    out_len: usize,
-) -> std::result::Result<usize, String> {
-    if i + len > input.len() {
-        return Err("LZF literal run past the end of the input".into());
-    }
-    if out.len() + len > out_len {
-        return Err(lzf_overrun(out_len));
-    }
-    out.extend_from_slice(&input[i..i + len]);
-    Ok(i + len)
-}
-
-/// Expand the back-reference whose control byte was `ctrl` (its operands start at
-/// `input[i]`); returns the next input position.
-#[inline]
-fn lzf_back_reference(
-    input: &[u8],
-    mut i: usize,
-    ctrl: usize,
-    out: &mut Vec<u8>,
-    out_len: usize,
-) -> std::result::Result<usize, String> {
-    let mut len = ctrl >> 5;
-    if len == 7 {
-        if i >= input.len() {
-            return Err("LZF back-reference truncated".into());
-        }
-        len += input[i] as usize;
-        i += 1;
-    }
-    len += 2;
-    if i >= input.len() {
-        return Err("LZF back-reference truncated".into());
-    }
-    let back = ((ctrl & 0x1f) << 8) + input[i] as usize + 1;
-    i += 1;
-    if back > out.len() {
-        return Err("LZF back-reference before the start of the output".into());
-    }
-    if out.len() + len > out_len {
-        return Err(lzf_overrun(out_len));
-    }
-    let start = out.len() - back;
-    for k in 0..len {
-        let b = out[start + k];
-        out.push(b);
-    }
-    Ok(i)
 }
 
 /// Parse any PCD v0.7 file (ascii, binary, binary_compressed) into f64 columns.
