@@ -465,19 +465,12 @@ fn dense_lidar(
         payload: vec![0.0; keyframe.payload.len()],
         in_frame: keyframe.in_frame,
     };
-    let mut nan_dropped = 0u64;
-    let mut near_removed = 0u64;
-    let mut ego_body_removed = 0u64;
-    let mut moving_removed = 0u64;
-    let mut judged = maps::SweepCounts::default();
-    let mut sweeps_used = 1u64;
+    let mut tally = DenseTally {
+        sweeps_used: 1,
+        ..Default::default()
+    };
     if k > 0 {
-        let mut others: Vec<&SampleData> = nu
-            .sweeps_back(ks.lidar_sd, k + 1)
-            .into_iter()
-            .skip(1)
-            .collect();
-        others.extend(nu.sweeps_forward(ks.lidar_sd, k + 1).into_iter().skip(1));
+        let others = other_lidar_sweeps(nu, ks.lidar_sd, k);
         let surface = clock.project(|| maps::KeyframeSurface::new(&keyframe.depth_m));
         let t_lo = others.iter().map(|s| s.timestamp_us).min();
         let t_hi = others.iter().map(|s| s.timestamp_us).max();
@@ -488,65 +481,148 @@ fn dense_lidar(
         let cam_from_global = global_from_ego(nu, ks.cam_sd)?
             .compose(&ego_from_sensor(nu, ks.cam_sd)?)
             .inverse();
+        let frame = DenseFrame {
+            nu,
+            ks,
+            keyframe,
+            surface: &surface,
+            tracks: &tracks,
+            cam_from_global: &cam_from_global,
+        };
         for sw in others {
-            let p = nu.path_of(sw);
-            reading(&p);
-            let s = clock.decode(|| read_lidar_pcd_bin(&p))?;
-            let t = Instant::now();
-            nan_dropped += s.nan_dropped as u64;
-            let (points_sensor, near) = maps::remove_close(&s.points, maps::NEAR_SENSOR_M);
-            near_removed += near;
-            let ego_from_lidar = ego_from_sensor(nu, sw)?;
-            let global_from_sensor = global_from_ego(nu, sw)?.compose(&ego_from_lidar);
-            let e = ego_from_lidar.to_f32();
-            let g = global_from_sensor.to_f32();
-            let boxes: Vec<BoxAt> = tracks
-                .iter()
-                .filter_map(|tr| motion::box_at(tr, sw.timestamp_us, BOX_MARGIN_M))
-                .collect();
-            let mut points_global: Vec<[f32; 3]> = Vec::with_capacity(points_sensor.len());
-            for q in &points_sensor {
-                let p_ego = apply_f32(&e, *q);
-                if maps::EGO_BOX.contains(p_ego) {
-                    ego_body_removed += 1;
-                    continue;
-                }
-                let pg = apply_f32(&g, *q);
-                if boxes.iter().any(|b| b.contains(pg)) {
-                    moving_removed += 1;
-                } else {
-                    points_global.push(pg);
-                }
-            }
-            let c = maps::add_sweep_points(
-                &mut dense,
-                &keyframe.depth_m,
-                &surface,
-                &points_global,
-                &cam_from_global,
-                &ks.cam,
-            );
-            judged.in_frame += c.in_frame;
-            judged.on_keyframe_pixel += c.on_keyframe_pixel;
-            judged.hidden += c.hidden;
-            judged.free_space += c.free_space;
-            judged.kept += c.kept;
-            sweeps_used += 1;
-            clock.project_s += t.elapsed().as_secs_f64();
+            add_dense_sweep(&frame, sw, &mut dense, &mut tally, clock)?;
         }
     }
-    counts.insert("lidar_dense_sweeps".into(), sweeps_used);
+    record_dense_counts(counts, &tally, &dense);
+    Ok((dense, tally.nan_dropped))
+}
+
+/// The ±K lidar sweeps around the keyframe sweep (K back, then K forward; the keyframe's
+/// own sweep excluded).
+fn other_lidar_sweeps<'a>(
+    nu: &'a NuScenes,
+    lidar_sd: &'a SampleData,
+    k: usize,
+) -> Vec<&'a SampleData> {
+    let mut others: Vec<&SampleData> = nu
+        .sweeps_back(lidar_sd, k + 1)
+        .into_iter()
+        .skip(1)
+        .collect();
+    others.extend(nu.sweeps_forward(lidar_sd, k + 1).into_iter().skip(1));
+    others
+}
+
+/// What every other sweep of the dense target is judged against.
+struct DenseFrame<'a> {
+    nu: &'a NuScenes,
+    ks: &'a KeyframeSensors<'a>,
+    keyframe: &'a Raster,
+    surface: &'a maps::KeyframeSurface,
+    /// Tracks of the moving instances ([`moving_tracks`]).
+    tracks: &'a [Vec<TrackPoint>],
+    cam_from_global: &'a Rigid,
+}
+
+/// Running totals over the dense target's sweeps (its `meta.json` counts).
+#[derive(Debug, Default)]
+struct DenseTally {
+    nan_dropped: u64,
+    near_removed: u64,
+    ego_body_removed: u64,
+    moving_removed: u64,
+    judged: maps::SweepCounts,
+    sweeps_used: u64,
+}
+
+/// Read one other sweep, filter it (near sensor, ego body, moving boxes) and add what survives
+/// the keyframe-surface test to `dense`.
+fn add_dense_sweep(
+    f: &DenseFrame,
+    sw: &SampleData,
+    dense: &mut Raster,
+    tally: &mut DenseTally,
+    clock: &mut Clock,
+) -> Result<(), PrepError> {
+    let p = f.nu.path_of(sw);
+    reading(&p);
+    let s = clock.decode(|| read_lidar_pcd_bin(&p))?;
+    let t = Instant::now();
+    tally.nan_dropped += s.nan_dropped as u64;
+    let (points_sensor, near) = maps::remove_close(&s.points, maps::NEAR_SENSOR_M);
+    tally.near_removed += near;
+    let points_global = sweep_points_global(f, sw, &points_sensor, tally)?;
+    let c = maps::add_sweep_points(
+        dense,
+        &f.keyframe.depth_m,
+        f.surface,
+        &points_global,
+        f.cam_from_global,
+        &f.ks.cam,
+    );
+    tally.judged.in_frame += c.in_frame;
+    tally.judged.on_keyframe_pixel += c.on_keyframe_pixel;
+    tally.judged.hidden += c.hidden;
+    tally.judged.free_space += c.free_space;
+    tally.judged.kept += c.kept;
+    tally.sweeps_used += 1;
+    clock.project_s += t.elapsed().as_secs_f64();
+    Ok(())
+}
+
+/// A sweep's points (near-sensor returns already gone) in the global frame, less those inside
+/// the ego car's body box (in the sweep's ego frame) or a moving box at the sweep's time.
+fn sweep_points_global(
+    f: &DenseFrame,
+    sw: &SampleData,
+    points_sensor: &[[f32; 3]],
+    tally: &mut DenseTally,
+) -> Result<Vec<[f32; 3]>, PrepError> {
+    let ego_from_lidar = ego_from_sensor(f.nu, sw)?;
+    let global_from_sensor = global_from_ego(f.nu, sw)?.compose(&ego_from_lidar);
+    let e = ego_from_lidar.to_f32();
+    let g = global_from_sensor.to_f32();
+    let boxes: Vec<BoxAt> = f
+        .tracks
+        .iter()
+        .filter_map(|tr| motion::box_at(tr, sw.timestamp_us, BOX_MARGIN_M))
+        .collect();
+    let mut points_global: Vec<[f32; 3]> = Vec::with_capacity(points_sensor.len());
+    for q in points_sensor {
+        let p_ego = apply_f32(&e, *q);
+        if maps::EGO_BOX.contains(p_ego) {
+            tally.ego_body_removed += 1;
+            continue;
+        }
+        let pg = apply_f32(&g, *q);
+        if boxes.iter().any(|b| b.contains(pg)) {
+            tally.moving_removed += 1;
+        } else {
+            points_global.push(pg);
+        }
+    }
+    Ok(points_global)
+}
+
+/// The dense target's counts in `meta.json`.
+fn record_dense_counts(counts: &mut BTreeMap<String, u64>, tally: &DenseTally, dense: &Raster) {
+    counts.insert("lidar_dense_sweeps".into(), tally.sweeps_used);
     counts.insert("lidar_dense_pixels".into(), dense.valid());
-    counts.insert("lidar_dense_near_sensor_removed".into(), near_removed);
-    counts.insert("lidar_dense_ego_body_removed".into(), ego_body_removed);
-    counts.insert("lidar_dense_occluded_removed".into(), judged.hidden);
-    counts.insert("lidar_dense_free_space_removed".into(), judged.free_space);
+    counts.insert("lidar_dense_near_sensor_removed".into(), tally.near_removed);
+    counts.insert(
+        "lidar_dense_ego_body_removed".into(),
+        tally.ego_body_removed,
+    );
+    counts.insert("lidar_dense_occluded_removed".into(), tally.judged.hidden);
+    counts.insert(
+        "lidar_dense_free_space_removed".into(),
+        tally.judged.free_space,
+    );
     counts.insert(
         "lidar_dense_on_keyframe_pixel".into(),
-        judged.on_keyframe_pixel,
+        tally.judged.on_keyframe_pixel,
     );
-    counts.insert("lidar_moving_removed".into(), moving_removed);
-    Ok((dense, nan_dropped))
+    counts.insert("lidar_moving_removed".into(), tally.moving_removed);
 }
 
 /// Radar inputs of one sample.
@@ -559,6 +635,10 @@ struct RadarInputs {
     /// Requested channels without a keyframe in this sample.
     missing: Vec<String>,
     nan_dropped: u64,
+    /// Returns read that passed the filters (count `radar_points`).
+    points_read: u64,
+    /// Returns the filters removed (count `radar_filtered_out`).
+    filtered_out: u64,
 }
 
 /// Radar (SPEC §5): N sweeps of each chosen channel.
@@ -578,9 +658,10 @@ fn radar_inputs(
         cam_from_radar: BTreeMap::new(),
         missing: Vec::new(),
         nan_dropped: 0,
+        points_read: 0,
+        filtered_out: 0,
     };
-    let mut radar_points = 0u64;
-    let mut radar_filtered = 0u64;
+    let frame = RadarFrame { nu, ks, opts };
     for ch in &opts.radar_channels {
         let Some(kf) = nu.keyframe(sample.token, ch) else {
             out.missing.push(ch.clone());
@@ -592,27 +673,7 @@ fn radar_inputs(
             .into_iter()
             .enumerate()
         {
-            let p = nu.path_of(sw);
-            reading(&p);
-            let scan = clock.decode(|| read_radar_pcd(&p))?;
-            let t = Instant::now();
-            out.nan_dropped += scan.nan_dropped as u64;
-            let (pts, filtered_out) = scan.filtered(opts.radar_filters);
-            radar_filtered += filtered_out as u64;
-            radar_points += pts.len() as u64;
-            let dt = opts
-                .radar_velocity_compensation
-                .then(|| (ks.cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
-            let pos = maps::radar_positions(&pts, dt);
-            let tf = cam_from_sensor(nu, sw, ks.cam_sd)?;
-            if si == 0 {
-                out.cam_from_radar.insert(ch.clone(), tf.to_mat4());
-            }
-            let m = tf.to_f32();
-            let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
-            let origin_cam = tf.t.map(|v| v as f32);
-            out.points.push_sweep(ch, si, origin_cam, &points_cam);
-            clock.project_s += t.elapsed().as_secs_f64();
+            add_radar_sweep(&frame, ch, si, sw, &mut out, clock)?;
         }
     }
     // One rasterisation for every channel and sweep: the same function re-rasterises the
@@ -621,12 +682,55 @@ fn radar_inputs(
     let maps = out.points.rasterise();
     (out.raw, out.height) = (maps.raw, maps.height);
     clock.project_s += t.elapsed().as_secs_f64();
-    counts.insert("radar_points".into(), radar_points);
+    counts.insert("radar_points".into(), out.points_read);
     counts.insert("radar_in_image".into(), out.raw.in_frame);
     counts.insert("radar_raw_pixels".into(), out.raw.valid());
     counts.insert("radar_height_pixels".into(), out.height.valid());
-    counts.insert("radar_filtered_out".into(), radar_filtered);
+    counts.insert("radar_filtered_out".into(), out.filtered_out);
     Ok(out)
+}
+
+/// What every radar sweep of a sample is moved into the camera frame with.
+struct RadarFrame<'a> {
+    nu: &'a NuScenes,
+    ks: &'a KeyframeSensors<'a>,
+    opts: &'a PrepareOptions,
+}
+
+/// Read sweep `si` (0 = the keyframe sweep) of radar channel `ch`, filter it, and add its
+/// returns in the camera frame to `out.points` (the keyframe sweep's calibration goes to
+/// `out.cam_from_radar`).
+fn add_radar_sweep(
+    f: &RadarFrame,
+    ch: &str,
+    si: usize,
+    sw: &SampleData,
+    out: &mut RadarInputs,
+    clock: &mut Clock,
+) -> Result<(), PrepError> {
+    let (nu, ks, opts) = (f.nu, f.ks, f.opts);
+    let p = nu.path_of(sw);
+    reading(&p);
+    let scan = clock.decode(|| read_radar_pcd(&p))?;
+    let t = Instant::now();
+    out.nan_dropped += scan.nan_dropped as u64;
+    let (pts, filtered_out) = scan.filtered(opts.radar_filters);
+    out.filtered_out += filtered_out as u64;
+    out.points_read += pts.len() as u64;
+    let dt = opts
+        .radar_velocity_compensation
+        .then(|| (ks.cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
+    let pos = maps::radar_positions(&pts, dt);
+    let tf = cam_from_sensor(nu, sw, ks.cam_sd)?;
+    if si == 0 {
+        out.cam_from_radar.insert(ch.to_string(), tf.to_mat4());
+    }
+    let m = tf.to_f32();
+    let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
+    let origin_cam = tf.t.map(|v| v as f32);
+    out.points.push_sweep(ch, si, origin_cam, &points_cam);
+    clock.project_s += t.elapsed().as_secs_f64();
+    Ok(())
 }
 
 /// The settings recorded in `meta.json`.
