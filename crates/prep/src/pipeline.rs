@@ -765,15 +765,22 @@ fn sample_settings(
     })
 }
 
+/// Compute all maps of one sample and add its stage times to the run's.
 fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
-    let nu = job.nu;
-    let opts = job.opts;
     let mut clock = Clock::default();
-    let ks = keyframe_sensors(nu, sample)?;
-    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
-    let image_rgb = frame_image(nu, ks.cam_sd, &mut clock)?;
-    let kl = keyframe_lidar(nu, &ks, &mut counts, &mut clock)?;
-    #[cfg(test)]
+    let ks = keyframe_sensors(job.nu, sample)?;
+    let measured = measure(job, sample, &ks, &mut clock)?;
+    let maps = assemble(job.nu, job.opts, sample, &ks, measured)?;
+    if let Ok(mut tm) = job.times.lock() {
+        tm.decode_s += clock.decode_s;
+        tm.project_s += clock.project_s;
+    }
+    Ok(maps)
+}
+
+/// Unit tests: panic in a sample listed in [`PANIC_ON`].
+#[cfg(test)]
+fn inject_test_panic(sample: &Sample) {
     if PANIC_ON
         .lock()
         .map(|v| v.contains(&sample.token.to_string()))
@@ -781,31 +788,70 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
     {
         panic!("injected test panic");
     }
+}
+
+/// Outside unit tests no sample panics on purpose.
+#[cfg(not(test))]
+fn inject_test_panic(_sample: &Sample) {}
+
+/// Everything read and projected for one sample, before `meta.json` is put together.
+struct Measured {
+    image_rgb: Vec<u8>,
+    keyframe: KeyframeLidar,
+    dense: Raster,
+    radar: RadarInputs,
+    sd_tokens: BTreeMap<String, String>,
+    counts: BTreeMap<String, u64>,
+}
+
+/// Read and project the inputs of one sample: image, keyframe lidar, dense target, radar.
+fn measure(
+    job: &Job,
+    sample: &Sample,
+    ks: &KeyframeSensors,
+    clock: &mut Clock,
+) -> Result<Measured, PrepError> {
+    let nu = job.nu;
+    let opts = job.opts;
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    let image_rgb = frame_image(nu, ks.cam_sd, clock)?;
+    let kl = keyframe_lidar(nu, ks, &mut counts, clock)?;
+    inject_test_panic(sample);
     let (dense, dense_nan) = dense_lidar(
         nu,
         sample,
-        &ks,
+        ks,
         &kl.sparse,
         opts.lidar_sweeps,
         &mut counts,
-        &mut clock,
+        clock,
     )?;
     let mut sd_tokens = BTreeMap::new();
     sd_tokens.insert("CAM_FRONT".to_string(), ks.cam_sd.token.to_string());
     sd_tokens.insert("LIDAR_TOP".to_string(), ks.lidar_sd.token.to_string());
-    let radar = radar_inputs(
-        nu,
-        sample,
-        &ks,
-        opts,
-        &mut sd_tokens,
-        &mut counts,
-        &mut clock,
-    )?;
+    let radar = radar_inputs(nu, sample, ks, opts, &mut sd_tokens, &mut counts, clock)?;
     counts.insert(
         "nan_dropped".into(),
         kl.nan_dropped + dense_nan + radar.nan_dropped,
     );
+    Ok(Measured {
+        image_rgb,
+        keyframe: kl,
+        dense,
+        radar,
+        sd_tokens,
+        counts,
+    })
+}
+
+/// `meta.json` and the maps of one measured sample.
+fn assemble(
+    nu: &NuScenes,
+    opts: &PrepareOptions,
+    sample: &Sample,
+    ks: &KeyframeSensors,
+    m: Measured,
+) -> Result<SampleMaps, PrepError> {
     let scene = nu.get_scene(sample.scene_token, "sample", sample.token, "scene_token")?;
     let meta = SampleMeta {
         sample_token: sample.token.to_string(),
@@ -813,27 +859,23 @@ fn compute(job: &Job, sample: &Sample) -> Result<SampleMaps, PrepError> {
         scene_name: scene.name.clone(),
         conditions: conditions_of(&scene.description),
         timestamp_us: sample.timestamp_us,
-        sample_data_tokens: sd_tokens,
+        sample_data_tokens: m.sd_tokens,
         intrinsics_frame: ks.cam.frame_intrinsics(),
         intrinsics_full: ks.cam.intrinsics(),
-        cam_from_lidar: kl.cam_from_lidar.to_mat4(),
-        cam_from_radar: radar.cam_from_radar,
-        counts,
-        settings: sample_settings(nu, opts, &radar.missing),
+        cam_from_lidar: m.keyframe.cam_from_lidar.to_mat4(),
+        cam_from_radar: m.radar.cam_from_radar,
+        counts: m.counts,
+        settings: sample_settings(nu, opts, &m.radar.missing),
     };
-    if let Ok(mut tm) = job.times.lock() {
-        tm.decode_s += clock.decode_s;
-        tm.project_s += clock.project_s;
-    }
     Ok(SampleMaps {
         meta,
-        image_rgb,
-        lidar_sparse: kl.sparse.to_depth_map(),
-        lidar_dense: dense.to_depth_map(),
-        lowheight_mask: kl.lowheight_mask,
-        radar_raw: radar.raw.to_depth_map(),
-        radar_height: radar.height.to_depth_map(),
-        radar_points: radar.points,
+        image_rgb: m.image_rgb,
+        lidar_sparse: m.keyframe.sparse.to_depth_map(),
+        lidar_dense: m.dense.to_depth_map(),
+        lowheight_mask: m.keyframe.lowheight_mask,
+        radar_raw: m.radar.raw.to_depth_map(),
+        radar_height: m.radar.height.to_depth_map(),
+        radar_points: m.radar.points,
     })
 }
 
@@ -875,10 +917,23 @@ impl Drop for TempDirGuard {
 /// place. When another process completed the same sample meanwhile, this copy is dropped.
 fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Result<(), PrepError> {
     let t = Instant::now();
+    let files = encode_sample(maps)?;
+    let encode_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let res = write_sample_dir(out, &maps.meta.sample_token, &files);
+    if let Ok(mut tm) = times.lock() {
+        tm.encode_s += encode_s;
+        tm.write_s += t.elapsed().as_secs_f64();
+    }
+    res
+}
+
+/// The files of one sample folder (name, bytes), `meta.json` last.
+fn encode_sample(maps: &SampleMaps) -> Result<Vec<(&'static str, Vec<u8>)>, PrepError> {
     let fw = layout::FRAME_W;
     let fh = layout::FRAME_H;
     let depth = |m: &DepthMap| encode_png_fast(m).map_err(|e| PrepError::Other(e.to_string()));
-    let files: Vec<(&str, Vec<u8>)> = vec![
+    Ok(vec![
         (
             layout::IMAGE_FILE,
             encode_rgb_png(&maps.image_rgb, fw, fh, false)?,
@@ -896,49 +951,48 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
             layout::META_FILE,
             serde_json::to_vec_pretty(&maps.meta).map_err(|e| PrepError::Other(e.to_string()))?,
         ),
-    ];
-    let encode_s = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let final_dir = out.join(&maps.meta.sample_token);
+    ])
+}
+
+/// Write `files` into the sample's temporary folder and rename it to `out/<sample_token>`;
+/// the temporary folder is removed on every path but the rename.
+fn write_sample_dir(
+    out: &Path,
+    sample_token: &str,
+    files: &[(&str, Vec<u8>)],
+) -> Result<(), PrepError> {
+    let final_dir = out.join(sample_token);
     let mut guard = TempDirGuard {
-        path: out.join(crate::index::temp_dir_name(&maps.meta.sample_token)),
+        path: out.join(crate::index::temp_dir_name(sample_token)),
         committed: false,
     };
     let tmp = guard.path.clone();
-    let res = (|| -> Result<(), PrepError> {
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
-        }
-        std::fs::create_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
-        for (name, bytes) in &files {
-            let p = tmp.join(name);
-            std::fs::write(&p, bytes).map_err(|e| PrepError::io(&p, e))?;
-        }
-        let complete = |d: &Path| d.join(layout::META_FILE).is_file();
-        if complete(&final_dir) {
-            // Another process finished this sample meanwhile (same settings, same bytes).
-            return Ok(());
-        }
-        if final_dir.exists() {
-            // An incomplete directory (no meta.json) from an older run.
-            std::fs::remove_dir_all(&final_dir).map_err(|e| PrepError::io(&final_dir, e))?;
-        }
-        match std::fs::rename(&tmp, &final_dir) {
-            Ok(()) => {
-                guard.committed = true;
-                Ok(())
-            }
-            // Lost a race with another process that renamed its copy first.
-            Err(_) if complete(&final_dir) => Ok(()),
-            Err(e) => Err(PrepError::io(&final_dir, e)),
-        }
-    })();
-    drop(guard);
-    if let Ok(mut tm) = times.lock() {
-        tm.encode_s += encode_s;
-        tm.write_s += t.elapsed().as_secs_f64();
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
     }
-    res
+    std::fs::create_dir_all(&tmp).map_err(|e| PrepError::io(&tmp, e))?;
+    for (name, bytes) in files {
+        let p = tmp.join(name);
+        std::fs::write(&p, bytes).map_err(|e| PrepError::io(&p, e))?;
+    }
+    let complete = |d: &Path| d.join(layout::META_FILE).is_file();
+    if complete(&final_dir) {
+        // Another process finished this sample meanwhile (same settings, same bytes).
+        return Ok(());
+    }
+    if final_dir.exists() {
+        // An incomplete directory (no meta.json) from an older run.
+        std::fs::remove_dir_all(&final_dir).map_err(|e| PrepError::io(&final_dir, e))?;
+    }
+    match std::fs::rename(&tmp, &final_dir) {
+        Ok(()) => {
+            guard.committed = true;
+            Ok(())
+        }
+        // Lost a race with another process that renamed its copy first.
+        Err(_) if complete(&final_dir) => Ok(()),
+        Err(e) => Err(PrepError::io(&final_dir, e)),
+    }
 }
 
 thread_local! {
