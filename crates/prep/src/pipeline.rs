@@ -1089,40 +1089,13 @@ pub fn prepare_timed(
     let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
     let assignment = crate::splits::assign_splits(&nu)?;
     let selected = select_samples_in(&nu, &opts.split, &assignment)?;
-    let (samples, shard_info) = match opts.shard {
-        Some(sh) => {
-            let (samples, scenes) = shard_samples(&selected, sh);
-            (
-                samples,
-                Some(layout::ShardInfo {
-                    index: sh.index,
-                    count: sh.count,
-                    scenes,
-                }),
-            )
-        }
-        None => (selected, None),
-    };
+    let (samples, shard_info) = shard_selection(selected, opts.shard);
     progress.set_message(match opts.shard {
         Some(sh) => format!("{} split {} shard {sh}", opts.version, opts.split),
         None => format!("{} split {}", opts.version, opts.split),
     });
-    std::fs::create_dir_all(&opts.out).map_err(|e| PrepError::io(&opts.out, e))?;
-    // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
-    // may not write it meanwhile (README "Reliability").
-    let _writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
-    // Temporary folders of interrupted runs (never those of a running process).
-    crate::index::remove_stale_temp_dirs(&opts.out);
-    // One version and one set of map settings per output folder: every index there must
-    // agree before any work is done (and again when this run's entries are written).
-    let settings = settings_map(opts);
-    let mut indexed = false;
-    for p in crate::index::index_files(&opts.out)? {
-        if let Some(ix) = crate::index::read_index(&p)? {
-            crate::index::check_index(&p, &ix, &nu.version, &settings)?;
-            indexed |= !ix.settings.is_empty();
-        }
-    }
+    let _writing = open_output(opts)?;
+    let indexed = check_output_indexes(opts, &nu.version)?;
     let done = |s: &Sample| {
         opts.out
             .join(s.token.to_string())
@@ -1146,19 +1119,88 @@ pub fn prepare_timed(
         opts,
         times: &times,
     };
+    let results = prepare_all(&job, &todo, progress)?;
+    let (summary, ok) = summarise(&existing, results);
+    write_index(&nu, opts, &samples, &ok, &assignment, shard_info)?;
+    let t = times.into_inner().unwrap_or_default();
+    Ok((summary, t))
+}
+
+/// The samples of `--shard I/N` (all of `selected` without one) and the shard's record for
+/// its index.
+fn shard_selection(
+    selected: Vec<&Sample>,
+    shard: Option<Shard>,
+) -> (Vec<&Sample>, Option<layout::ShardInfo>) {
+    match shard {
+        Some(sh) => {
+            let (samples, scenes) = shard_samples(&selected, sh);
+            (
+                samples,
+                Some(layout::ShardInfo {
+                    index: sh.index,
+                    count: sh.count,
+                    scenes,
+                }),
+            )
+        }
+        None => (selected, None),
+    }
+}
+
+/// Create the output folder, take its shared lock (held while the returned guard lives) and
+/// remove the temporary folders of interrupted runs.
+fn open_output(opts: &PrepareOptions) -> Result<depthsense_nuscenes::lock::OutputLock, PrepError> {
+    std::fs::create_dir_all(&opts.out).map_err(|e| PrepError::io(&opts.out, e))?;
+    // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
+    // may not write it meanwhile (README "Reliability").
+    let writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
+    // Temporary folders of interrupted runs (never those of a running process).
+    crate::index::remove_stale_temp_dirs(&opts.out);
+    Ok(writing)
+}
+
+/// One version and one set of map settings per output folder: every index there must
+/// agree before any work is done (and again when this run's entries are written). Returns
+/// whether some index holds settings.
+fn check_output_indexes(opts: &PrepareOptions, version: &str) -> Result<bool, PrepError> {
+    let settings = settings_map(opts);
+    let mut indexed = false;
+    for p in crate::index::index_files(&opts.out)? {
+        if let Some(ix) = crate::index::read_index(&p)? {
+            crate::index::check_index(&p, &ix, version, &settings)?;
+            indexed |= !ix.settings.is_empty();
+        }
+    }
+    Ok(indexed)
+}
+
+/// One sample's token and how its preparation ended.
+type SampleResult = (Token, Result<(), PrepError>);
+
+/// Prepare `todo` on a pool of `opts.jobs` threads; each sample's result, in `todo`'s order.
+fn prepare_all(
+    job: &Job,
+    todo: &[&Sample],
+    progress: &indicatif::ProgressBar,
+) -> Result<Vec<SampleResult>, PrepError> {
     let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(opts.jobs)
+        .num_threads(job.opts.jobs)
         .build()
         .map_err(|e| PrepError::Other(format!("thread pool: {e}")))?;
-    let results: Vec<(Token, Result<(), PrepError>)> = pool.install(|| {
+    Ok(pool.install(|| {
         todo.par_iter()
             .map(|s| {
-                let r = prepare_one(&job, s);
+                let r = prepare_one(job, s);
                 progress.inc(1);
                 (s.token, r)
             })
             .collect()
-    });
+    }))
+}
+
+/// The run's summary and the tokens of its complete samples (the existing ones included).
+fn summarise(existing: &[&Sample], results: Vec<SampleResult>) -> (PrepareSummary, HashSet<Token>) {
     let mut summary = PrepareSummary {
         skipped_existing: existing.len(),
         ..Default::default()
@@ -1173,9 +1215,7 @@ pub fn prepare_timed(
             Err(e) => summary.failed.push((t.to_string(), e.to_string())),
         }
     }
-    write_index(&nu, opts, &samples, &ok, &assignment, shard_info)?;
-    let t = times.into_inner().unwrap_or_default();
-    Ok((summary, t))
+    (summary, ok)
 }
 
 /// `--shard I/N`: the I-th of N disjoint parts of the selected samples, by scene (scene j of
