@@ -205,6 +205,9 @@ pub struct MergeSummary {
     pub moved: usize,
 }
 
+/// One index file to merge: (source file, its folder, index).
+type Source = (PathBuf, PathBuf, PreparedIndex);
+
 /// `depthsense index merge OUT [DIR...]`: combine the shard indexes of `out` (and the
 /// `index.json` and shard indexes of each other folder in `others`, whose sample folders are
 /// moved into `out`) into `out/index.json`, which keeps its own entries. Refuses sources of
@@ -213,16 +216,55 @@ pub struct MergeSummary {
 /// lists are interleaved (scene j came from shard j mod N).
 pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
     std::fs::create_dir_all(out).map_err(|e| PrepError::output(out, e))?;
-    // Nobody else writes the folders while samples move and the index is rewritten.
-    let mut _writing = vec![OutputLock::exclusive(out, "depthsense index merge")?];
-    for o in others {
-        _writing.push(OutputLock::exclusive(o, "depthsense index merge")?);
-    }
+    let _writing = lock_folders(out, others)?;
     let _lock = lock_index(out)?;
     let target = out.join(layout::INDEX_FILE);
     let mut merged = read_index(&target)?.unwrap_or_default();
-    // (source file, its folder, index)
-    let mut sources: Vec<(PathBuf, PathBuf, PreparedIndex)> = Vec::new();
+    let sources = merge_sources(out, others, &target)?;
+    // One version and one set of settings across everything, the target included.
+    let (ref_path, ref_index) = if merged.settings.is_empty() && merged.version.is_empty() {
+        (sources[0].0.clone(), sources[0].2.clone())
+    } else {
+        (target.clone(), merged.clone())
+    };
+    check_sources_agree(&sources, &ref_path, &ref_index)?;
+    let shard_set = check_shard_set(out, &sources)?;
+    let mut summary = MergeSummary {
+        sources: sources.iter().map(|s| s.0.clone()).collect(),
+        ..Default::default()
+    };
+    summary.moved = move_sample_folders(out, &sources)?;
+    let ordered = merged_order(&sources, shard_set.as_ref());
+    let first = &sources[0].2;
+    merged.version = ref_index.version.clone();
+    merged.settings = ref_index.settings.clone();
+    merged.shard = None;
+    if merged.split_source.is_empty() {
+        merged.split_source = first.split_source.clone();
+        merged.train_scenes = first.train_scenes.clone();
+        merged.val_scenes = first.val_scenes.clone();
+        merged.test_scenes = first.test_scenes.clone();
+    }
+    merge_entries(&mut merged, ordered);
+    summary.samples = merged.samples.len();
+    write_index_file(&target, &merged)?;
+    Ok(summary)
+}
+
+/// Nobody else writes the folders while samples move and the index is rewritten: the
+/// exclusive locks of `out` and of every folder of `others`, held while the result lives.
+fn lock_folders(out: &Path, others: &[PathBuf]) -> Result<Vec<OutputLock>, PrepError> {
+    let mut writing = vec![OutputLock::exclusive(out, "depthsense index merge")?];
+    for o in others {
+        writing.push(OutputLock::exclusive(o, "depthsense index merge")?);
+    }
+    Ok(writing)
+}
+
+/// The index files to merge: the shard indexes of `out` (not `target`), then every index of
+/// each other folder; an error when there is none, or another folder holds none.
+fn merge_sources(out: &Path, others: &[PathBuf], target: &Path) -> Result<Vec<Source>, PrepError> {
+    let mut sources: Vec<Source> = Vec::new();
     for p in index_files(out)? {
         if p != target {
             if let Some(ix) = read_index(&p)? {
@@ -253,13 +295,17 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
             reason: "nothing to merge: no index.shard-*.json here and no other folder given".into(),
         });
     }
-    // One version and one set of settings across everything, the target included.
-    let (ref_path, ref_index) = if merged.settings.is_empty() && merged.version.is_empty() {
-        (sources[0].0.clone(), sources[0].2.clone())
-    } else {
-        (target.clone(), merged.clone())
-    };
-    for (p, _, ix) in &sources {
+    Ok(sources)
+}
+
+/// Every source has the reference's version and settings (`ref_path` is named beside the
+/// source that differs).
+fn check_sources_agree(
+    sources: &[Source],
+    ref_path: &Path,
+    ref_index: &PreparedIndex,
+) -> Result<(), PrepError> {
+    for (p, _, ix) in sources {
         if ix.version != ref_index.version {
             return Err(PrepError::VersionMismatch {
                 path: format!("{} (against {})", p.display(), ref_path.display()),
@@ -273,7 +319,17 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
             &ix.settings,
         )?;
     }
-    // Shard sets must be complete and of one N.
+    Ok(())
+}
+
+/// The shard set among the sources: N and, for each shard index, its position in `sources`.
+struct ShardSet {
+    count: usize,
+    source_of: BTreeMap<usize, usize>,
+}
+
+/// Shard sets must be complete and of one N; `None` when no source is a shard index.
+fn check_shard_set(out: &Path, sources: &[Source]) -> Result<Option<ShardSet>, PrepError> {
     let shard_counts: std::collections::BTreeSet<usize> = sources
         .iter()
         .filter_map(|(_, _, ix)| ix.shard.as_ref().map(|s| s.count))
@@ -295,25 +351,30 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
             }
         }
     }
-    if let Some(&n) = shard_counts.iter().next() {
-        let missing: Vec<usize> = (0..n).filter(|i| !shards.contains_key(i)).collect();
-        if !missing.is_empty() {
-            return Err(PrepError::Shard(format!(
-                "shards {missing:?} of {n} are missing (no {} for them); run them first",
-                missing
-                    .iter()
-                    .map(|i| layout::shard_index_file(*i, n))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            )));
-        }
-    }
-    let mut summary = MergeSummary {
-        sources: sources.iter().map(|s| s.0.clone()).collect(),
-        ..Default::default()
+    let Some(&n) = shard_counts.iter().next() else {
+        return Ok(None);
     };
-    // Move sample folders of other folders into `out`.
-    for (p, dir, ix) in &sources {
+    let missing: Vec<usize> = (0..n).filter(|i| !shards.contains_key(i)).collect();
+    if !missing.is_empty() {
+        return Err(PrepError::Shard(format!(
+            "shards {missing:?} of {n} are missing (no {} for them); run them first",
+            missing
+                .iter()
+                .map(|i| layout::shard_index_file(*i, n))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    Ok(Some(ShardSet {
+        count: n,
+        source_of: shards,
+    }))
+}
+
+/// Move sample folders of other folders into `out`; returns how many moved.
+fn move_sample_folders(out: &Path, sources: &[Source]) -> Result<usize, PrepError> {
+    let mut moved = 0;
+    for (p, dir, ix) in sources {
         if dir == out {
             continue;
         }
@@ -339,59 +400,57 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
                     dst.display()
                 ),
             })?;
-            summary.moved += 1;
+            moved += 1;
         }
     }
-    // Order: shards interleaved by scene, then other sources in file order.
+    Ok(moved)
+}
+
+/// Order: shards interleaved by scene, then other sources in file order.
+fn merged_order(sources: &[Source], shard_set: Option<&ShardSet>) -> Vec<IndexEntry> {
     let mut ordered: Vec<IndexEntry> = Vec::new();
-    if let Some(&n) = shard_counts.iter().next() {
-        let by_scene: Vec<HashMap<&str, Vec<&IndexEntry>>> = (0..n)
-            .map(|i| {
-                let mut m: HashMap<&str, Vec<&IndexEntry>> = HashMap::new();
-                for e in &sources[shards[&i]].2.samples {
-                    m.entry(e.scene_token.as_str()).or_default().push(e);
-                }
-                m
-            })
-            .collect();
-        let lists: Vec<&Vec<String>> = (0..n)
-            .map(|i| {
-                &sources[shards[&i]]
-                    .2
-                    .shard
-                    .as_ref()
-                    .expect("shard sources carry ShardInfo")
-                    .scenes
-            })
-            .collect();
-        let longest = lists.iter().map(|l| l.len()).max().unwrap_or(0);
-        for k in 0..longest {
-            for i in 0..n {
-                if let Some(scene) = lists[i].get(k) {
-                    if let Some(es) = by_scene[i].get(scene.as_str()) {
-                        ordered.extend(es.iter().map(|e| (*e).clone()));
-                    }
-                }
-            }
-        }
+    if let Some(set) = shard_set {
+        interleave_shards(sources, set, &mut ordered);
     }
     for (_, _, ix) in sources.iter().filter(|s| s.2.shard.is_none()) {
         ordered.extend(ix.samples.iter().cloned());
     }
-    let first = &sources[0].2;
-    merged.version = ref_index.version.clone();
-    merged.settings = ref_index.settings.clone();
-    merged.shard = None;
-    if merged.split_source.is_empty() {
-        merged.split_source = first.split_source.clone();
-        merged.train_scenes = first.train_scenes.clone();
-        merged.val_scenes = first.val_scenes.clone();
-        merged.test_scenes = first.test_scenes.clone();
+    ordered
+}
+
+/// The shards' entries as one unsharded run orders them: scene k of every shard in shard
+/// order, for k = 0, 1, … (scene j of the selection went to shard j mod N).
+fn interleave_shards(sources: &[Source], set: &ShardSet, ordered: &mut Vec<IndexEntry>) {
+    let (n, shards) = (set.count, &set.source_of);
+    let by_scene: Vec<HashMap<&str, Vec<&IndexEntry>>> = (0..n)
+        .map(|i| {
+            let mut m: HashMap<&str, Vec<&IndexEntry>> = HashMap::new();
+            for e in &sources[shards[&i]].2.samples {
+                m.entry(e.scene_token.as_str()).or_default().push(e);
+            }
+            m
+        })
+        .collect();
+    let lists: Vec<&Vec<String>> = (0..n)
+        .map(|i| {
+            &sources[shards[&i]]
+                .2
+                .shard
+                .as_ref()
+                .expect("shard sources carry ShardInfo")
+                .scenes
+        })
+        .collect();
+    let longest = lists.iter().map(|l| l.len()).max().unwrap_or(0);
+    for k in 0..longest {
+        for i in 0..n {
+            if let Some(scene) = lists[i].get(k) {
+                if let Some(es) = by_scene[i].get(scene.as_str()) {
+                    ordered.extend(es.iter().map(|e| (*e).clone()));
+                }
+            }
+        }
     }
-    merge_entries(&mut merged, ordered);
-    summary.samples = merged.samples.len();
-    write_index_file(&target, &merged)?;
-    Ok(summary)
 }
 
 #[cfg(test)]
