@@ -36,86 +36,15 @@ fn stats(name: &str, ty: &str, vals: impl Iterator<Item = f64>) -> Value {
 pub fn inspect(path: &Path) -> Result<Value, PrepError> {
     let name = path.display().to_string();
     if path.is_dir() {
-        let version = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let root = path.parent().unwrap_or(Path::new("."));
-        let nu = NuScenes::load(root, &version)?;
-        let tables: serde_json::Map<String, Value> = nu
-            .row_counts()
-            .into_iter()
-            .map(|(k, v)| (k.to_string(), json!(v)))
-            .collect();
-        let scenes: Vec<Value> = nu
-            .scene
-            .iter()
-            .map(|s| {
-                json!({
-                    "token": s.token.to_string(),
-                    "name": s.name,
-                    "description": s.description,
-                    "conditions": conditions_of(&s.description),
-                    "samples": nu.scene_samples(s.token).len(),
-                })
-            })
-            .collect();
-        return Ok(
-            json!({"path": name, "kind": "version", "version": version, "tables": tables, "scenes": scenes}),
-        );
+        return inspect_version(path, name);
     }
     let bytes = std::fs::read(path).map_err(|e| NuError::io(path, e))?;
     let lower = name.to_lowercase();
     if lower.ends_with(".pcd.bin") || lower.ends_with(".bin") {
-        if bytes.len() % 20 != 0 {
-            return Err(NuError::Pcd {
-                path: name,
-                reason: format!(
-                    "length {} is not a multiple of 20 bytes (5 float32 per point)",
-                    bytes.len()
-                ),
-            }
-            .into());
-        }
-        let n = bytes.len() / 20;
-        let val = |p: usize, k: usize| {
-            let o = p * 20 + 4 * k;
-            f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]) as f64
-        };
-        let fields: Vec<Value> = ["x", "y", "z", "intensity", "ring"]
-            .iter()
-            .enumerate()
-            .map(|(k, f)| stats(f, "F32", (0..n).map(|p| val(p, k))))
-            .collect();
-        return Ok(json!({"path": name, "kind": "lidar_pcd_bin", "points": n, "fields": fields}));
+        return inspect_lidar_bin(name, &bytes);
     }
     if lower.ends_with(".pcd") {
-        let c = parse_pcd(&bytes, &name)?;
-        let mut fields = Vec::new();
-        let mut col = 0;
-        for f in &c.header.fields {
-            let ty = format!(
-                "{}{}",
-                match f.ty {
-                    'F' => "F",
-                    'I' => "I",
-                    _ => "U",
-                },
-                f.size * 8
-            );
-            for _ in 0..f.count {
-                fields.push(stats(&c.names[col], &ty, c.columns[col].iter().copied()));
-                col += 1;
-            }
-        }
-        let data = match c.header.data {
-            PcdData::Ascii => "ascii",
-            PcdData::Binary => "binary",
-            PcdData::BinaryCompressed => "binary_compressed",
-        };
-        return Ok(
-            json!({"path": name, "kind": "pcd", "data": data, "points": c.header.points, "fields": fields}),
-        );
+        return inspect_pcd(name, &bytes);
     }
     let img = image::load_from_memory(&bytes).map_err(|e| NuError::Image {
         path: name.clone(),
@@ -123,6 +52,92 @@ pub fn inspect(path: &Path) -> Result<Value, PrepError> {
     })?;
     Ok(
         json!({"path": name, "kind": "image", "width": img.width(), "height": img.height(), "color": format!("{:?}", img.color())}),
+    )
+}
+
+/// A version folder: row counts and the scenes with their conditions.
+fn inspect_version(path: &Path, name: String) -> Result<Value, PrepError> {
+    let version = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let root = path.parent().unwrap_or(Path::new("."));
+    let nu = NuScenes::load(root, &version)?;
+    let tables: serde_json::Map<String, Value> = nu
+        .row_counts()
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), json!(v)))
+        .collect();
+    let scenes: Vec<Value> = nu
+        .scene
+        .iter()
+        .map(|s| {
+            json!({
+                "token": s.token.to_string(),
+                "name": s.name,
+                "description": s.description,
+                "conditions": conditions_of(&s.description),
+                "samples": nu.scene_samples(s.token).len(),
+            })
+        })
+        .collect();
+    Ok(
+        json!({"path": name, "kind": "version", "version": version, "tables": tables, "scenes": scenes}),
+    )
+}
+
+/// A lidar `.pcd.bin` (5 float32 per point): the statistics of each field.
+fn inspect_lidar_bin(name: String, bytes: &[u8]) -> Result<Value, PrepError> {
+    if !bytes.len().is_multiple_of(20) {
+        return Err(NuError::Pcd {
+            path: name,
+            reason: format!(
+                "length {} is not a multiple of 20 bytes (5 float32 per point)",
+                bytes.len()
+            ),
+        }
+        .into());
+    }
+    let n = bytes.len() / 20;
+    let val = |p: usize, k: usize| {
+        let o = p * 20 + 4 * k;
+        f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]) as f64
+    };
+    let fields: Vec<Value> = ["x", "y", "z", "intensity", "ring"]
+        .iter()
+        .enumerate()
+        .map(|(k, f)| stats(f, "F32", (0..n).map(|p| val(p, k))))
+        .collect();
+    Ok(json!({"path": name, "kind": "lidar_pcd_bin", "points": n, "fields": fields}))
+}
+
+/// A `.pcd` file: its data encoding, point count and the statistics of each field column.
+fn inspect_pcd(name: String, bytes: &[u8]) -> Result<Value, PrepError> {
+    let c = parse_pcd(bytes, &name)?;
+    let mut fields = Vec::new();
+    let mut col = 0;
+    for f in &c.header.fields {
+        let ty = format!(
+            "{}{}",
+            match f.ty {
+                'F' => "F",
+                'I' => "I",
+                _ => "U",
+            },
+            f.size * 8
+        );
+        for _ in 0..f.count {
+            fields.push(stats(&c.names[col], &ty, c.columns[col].iter().copied()));
+            col += 1;
+        }
+    }
+    let data = match c.header.data {
+        PcdData::Ascii => "ascii",
+        PcdData::Binary => "binary",
+        PcdData::BinaryCompressed => "binary_compressed",
+    };
+    Ok(
+        json!({"path": name, "kind": "pcd", "data": data, "points": c.header.points, "fields": fields}),
     )
 }
 
