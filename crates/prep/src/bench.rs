@@ -30,51 +30,88 @@ pub const TRAINVAL_ANNOTATIONS: u64 = 1_166_187;
 pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result<u64, PrepError> {
     let v = dir.join(version);
     std::fs::create_dir_all(&v).map_err(|e| PrepError::io(&v, e))?;
-    let n_sd = (TRAINVAL_SAMPLE_DATA as f64 * scale) as u64;
-    let n_samples = ((TRAINVAL_SAMPLES as f64 * scale) as u64).max(1);
-    let n_scenes = ((TRAINVAL_SCENES as f64 * scale) as u64).max(1);
-    let n_ann = (TRAINVAL_ANNOTATIONS as f64 * scale) as u64;
-    let n_calib = 10_200u64;
-    let mut total = 0u64;
-    let mut write =
-        |name: &str, n: u64, row: &mut dyn FnMut(u64, &mut Vec<u8>)| -> Result<(), PrepError> {
-            let p = v.join(format!("{name}.json"));
-            let f = std::fs::File::create(&p).map_err(|e| PrepError::io(&p, e))?;
-            let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
-            let mut buf = Vec::with_capacity(1024);
-            w.write_all(b"[\n").map_err(|e| PrepError::io(&p, e))?;
-            for i in 0..n {
-                buf.clear();
-                row(i, &mut buf);
-                if i + 1 < n {
-                    buf.extend_from_slice(b",\n");
-                }
-                w.write_all(&buf).map_err(|e| PrepError::io(&p, e))?;
-                total += buf.len() as u64;
+    let n = RowCounts {
+        sample_data: (TRAINVAL_SAMPLE_DATA as f64 * scale) as u64,
+        samples: ((TRAINVAL_SAMPLES as f64 * scale) as u64).max(1),
+        scenes: ((TRAINVAL_SCENES as f64 * scale) as u64).max(1),
+        annotations: (TRAINVAL_ANNOTATIONS as f64 * scale) as u64,
+    };
+    let mut w = TableWriter { dir: v, total: 0 };
+    write_sensor_tables(&mut w)?;
+    write_scene_tables(&mut w, &n)?;
+    write_sample_data_tables(&mut w, &n)?;
+    write_annotation_tables(&mut w, &n)?;
+    Ok(w.total)
+}
+
+/// Row counts of the generated tables that follow the scale.
+struct RowCounts {
+    sample_data: u64,
+    samples: u64,
+    scenes: u64,
+    annotations: u64,
+}
+
+/// Calibrated-sensor rows of the generated tables (not scaled).
+const GEN_CALIBRATIONS: u64 = 10_200;
+
+/// The 12 sensor channels of the generated tables (6 cameras, lidar, 5 radars).
+const GEN_CHANNELS: [&str; 12] = [
+    "CAM_FRONT",
+    "CAM_FRONT_RIGHT",
+    "CAM_FRONT_LEFT",
+    "CAM_BACK",
+    "CAM_BACK_LEFT",
+    "CAM_BACK_RIGHT",
+    "LIDAR_TOP",
+    "RADAR_FRONT",
+    "RADAR_FRONT_LEFT",
+    "RADAR_FRONT_RIGHT",
+    "RADAR_BACK_LEFT",
+    "RADAR_BACK_RIGHT",
+];
+
+/// Streams JSON tables into one version folder, counting the row bytes written.
+struct TableWriter {
+    dir: PathBuf,
+    total: u64,
+}
+
+impl TableWriter {
+    /// Write `dir/<name>.json`: a JSON array of `n` rows, row `i` written by `row(i, buf)`.
+    fn write(
+        &mut self,
+        name: &str,
+        n: u64,
+        row: &mut dyn FnMut(u64, &mut Vec<u8>),
+    ) -> Result<(), PrepError> {
+        let p = self.dir.join(format!("{name}.json"));
+        let f = std::fs::File::create(&p).map_err(|e| PrepError::io(&p, e))?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+        let mut buf = Vec::with_capacity(1024);
+        w.write_all(b"[\n").map_err(|e| PrepError::io(&p, e))?;
+        for i in 0..n {
+            buf.clear();
+            row(i, &mut buf);
+            if i + 1 < n {
+                buf.extend_from_slice(b",\n");
             }
-            w.write_all(b"\n]\n").map_err(|e| PrepError::io(&p, e))?;
-            w.flush().map_err(|e| PrepError::io(&p, e))
-        };
-    let channels = [
-        "CAM_FRONT",
-        "CAM_FRONT_RIGHT",
-        "CAM_FRONT_LEFT",
-        "CAM_BACK",
-        "CAM_BACK_LEFT",
-        "CAM_BACK_RIGHT",
-        "LIDAR_TOP",
-        "RADAR_FRONT",
-        "RADAR_FRONT_LEFT",
-        "RADAR_FRONT_RIGHT",
-        "RADAR_BACK_LEFT",
-        "RADAR_BACK_RIGHT",
-    ];
-    write("sensor", 12, &mut |i, b| {
+            w.write_all(&buf).map_err(|e| PrepError::io(&p, e))?;
+            self.total += buf.len() as u64;
+        }
+        w.write_all(b"\n]\n").map_err(|e| PrepError::io(&p, e))?;
+        w.flush().map_err(|e| PrepError::io(&p, e))
+    }
+}
+
+/// `sensor`, `calibrated_sensor` and `log`.
+fn write_sensor_tables(w: &mut TableWriter) -> Result<(), PrepError> {
+    w.write("sensor", 12, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "channel": "{}", "modality": "{}"}}"#,
             tok(1, i),
-            channels[i as usize],
+            GEN_CHANNELS[i as usize],
             if i < 6 {
                 "camera"
             } else if i == 6 {
@@ -84,7 +121,7 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             }
         );
     })?;
-    write("calibrated_sensor", n_calib, &mut |i, b| {
+    w.write("calibrated_sensor", GEN_CALIBRATIONS, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "sensor_token": "{}", "translation": [1.70079118954, 0.0159456324149, 1.51095763913], "rotation": [0.4998015430569128, -0.5030316162024876, 0.4997798114386805, -0.49737083824542755], "camera_intrinsic": {}}}"#,
@@ -97,14 +134,19 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             }
         );
     })?;
-    write("log", 68, &mut |i, b| {
+    w.write("log", 68, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "logfile": "n015-2018-07-24-11-22-45+0800", "vehicle": "n015", "date_captured": "2018-07-24", "location": "singapore-onenorth"}}"#,
             tok(3, i)
         );
     })?;
-    write("scene", n_scenes, &mut |i, b| {
+    Ok(())
+}
+
+/// `scene` and `sample` (40 samples per scene).
+fn write_scene_tables(w: &mut TableWriter, n: &RowCounts) -> Result<(), PrepError> {
+    w.write("scene", n.scenes, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "log_token": "{}", "nbr_samples": 40, "first_sample_token": "{}", "last_sample_token": "{}", "name": "scene-{:04}", "description": "{}"}}"#,
@@ -120,7 +162,7 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             }
         );
     })?;
-    write("sample", n_samples, &mut |i, b| {
+    w.write("sample", n.samples, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "timestamp": {}, "prev": "{}", "next": "{}", "scene_token": "{}"}}"#,
@@ -132,27 +174,32 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
                 tok(5, i - 1)
             },
             tok(5, i + 1),
-            tok(4, (i / 40) % n_scenes)
+            tok(4, (i / 40) % n.scenes)
         );
     })?;
-    write("sample_data", n_sd, &mut |i, b| {
+    Ok(())
+}
+
+/// `sample_data` (12 channels in turn, every sixth round a keyframe) and one `ego_pose` each.
+fn write_sample_data_tables(w: &mut TableWriter, n: &RowCounts) -> Result<(), PrepError> {
+    w.write("sample_data", n.sample_data, &mut |i, b| {
         let ch = (i % 12) as usize;
         let key = (i / 12) % 6 == 0;
         let _ = write!(
             b,
             r#"{{"token": "{}", "sample_token": "{}", "ego_pose_token": "{}", "calibrated_sensor_token": "{}", "timestamp": {}, "fileformat": "{}", "is_key_frame": {}, "height": {}, "width": {}, "filename": "{}/{}/n015-2018-07-24-11-22-45+0800__{}__{}.{}", "prev": "{}", "next": "{}"}}"#,
             tok(6, i),
-            tok(5, (i / 72) % n_samples),
+            tok(5, (i / 72) % n.samples),
             tok(7, i),
-            tok(2, i % n_calib),
+            tok(2, i % GEN_CALIBRATIONS),
             1532402927612460u64 + i * 3000,
             if ch < 6 { "jpg" } else { "pcd" },
             key,
             if ch < 6 { 900 } else { 0 },
             if ch < 6 { 1600 } else { 0 },
             if key { "samples" } else { "sweeps" },
-            channels[ch],
-            channels[ch],
+            GEN_CHANNELS[ch],
+            GEN_CHANNELS[ch],
             1532402927612460u64 + i * 3000,
             if ch < 6 {
                 "jpg"
@@ -169,7 +216,7 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             tok(6, i + 12)
         );
     })?;
-    write("ego_pose", n_sd, &mut |i, b| {
+    w.write("ego_pose", n.sample_data, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "timestamp": {}, "rotation": [0.5720063498929273, -0.0021434844534272707, 0.011564094980151613, -0.8201648693182716], "translation": [{}, {}, 0.0]}}"#,
@@ -179,14 +226,19 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             1181.197175631848 - (i % 997) as f64 * 0.07
         );
     })?;
-    write("category", 23, &mut |i, b| {
+    Ok(())
+}
+
+/// `category`, `attribute`, `instance` (18 annotations each) and `sample_annotation`.
+fn write_annotation_tables(w: &mut TableWriter, n: &RowCounts) -> Result<(), PrepError> {
+    w.write("category", 23, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "name": "vehicle.car.{i}", "description": "generated"}}"#,
             tok(8, i)
         );
     })?;
-    write("attribute", 8, &mut |i, b| {
+    w.write("attribute", 8, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "name": "{}", "description": "generated"}}"#,
@@ -203,8 +255,8 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             ][i as usize]
         );
     })?;
-    let n_inst = (n_ann / 18).max(1);
-    write("instance", n_inst, &mut |i, b| {
+    let n_inst = (n.annotations / 18).max(1);
+    w.write("instance", n_inst, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "category_token": "{}", "nbr_annotations": 18, "first_annotation_token": "{}", "last_annotation_token": "{}"}}"#,
@@ -214,12 +266,12 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             tok(11, i * 18 + 17)
         );
     })?;
-    write("sample_annotation", n_ann, &mut |i, b| {
+    w.write("sample_annotation", n.annotations, &mut |i, b| {
         let _ = write!(
             b,
             r#"{{"token": "{}", "sample_token": "{}", "instance_token": "{}", "visibility_token": "4", "attribute_tokens": ["{}"], "translation": [373.256, 1130.419, 0.8], "size": [0.621, 0.669, 1.642], "rotation": [0.9831098797903927, 0.0, 0.0, -0.18301629506281616], "prev": "{}", "next": "{}", "num_lidar_pts": 5, "num_radar_pts": 0}}"#,
             tok(11, i),
-            tok(5, (i / 34) % n_samples),
+            tok(5, (i / 34) % n.samples),
             tok(10, (i / 18) % n_inst),
             tok(9, i % 8),
             if i % 18 == 0 {
@@ -234,7 +286,7 @@ pub fn generate_trainval_tables(dir: &Path, version: &str, scale: f64) -> Result
             }
         );
     })?;
-    Ok(total)
+    Ok(())
 }
 
 /// Peak resident memory of this process (VmHWM), bytes; None off Linux.
