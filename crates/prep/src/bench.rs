@@ -343,34 +343,17 @@ pub fn build_fixture_world(
         ));
     }
     let nu = NuScenes::load(fixture, "v1.0-mini")?;
-    let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
-    let need = |ch: &str| {
-        nu.keyframe(st, ch).ok_or_else(|| {
-            PrepError::Other(format!(
-                "{}: fixture has no {ch} keyframe",
-                fixture.display()
-            ))
-        })
-    };
-    let (cam, lidar, radar) = (need("CAM_FRONT")?, need("LIDAR_TOP")?, need("RADAR_FRONT")?);
-    for (sd, sub) in [
-        (cam, "samples/CAM_FRONT"),
-        (lidar, "samples/LIDAR_TOP"),
-        (radar, "samples/RADAR_FRONT"),
-    ] {
-        let src = nu.path_of(sd);
-        let dst_dir = out.join(sub);
-        std::fs::create_dir_all(&dst_dir).map_err(|e| PrepError::io(&dst_dir, e))?;
-        let dst = out.join(&*sd.filename);
-        if !dst.exists() {
-            std::fs::copy(&src, &dst).map_err(|e| PrepError::io(&src, e))?;
-        }
-    }
-    let calib = |sd: &depthsense_nuscenes::tables::SampleData| {
-        nu.get_calibrated_sensor(sd.calibrated_sensor_token, "sample_data", sd.token, "cst")
-            .cloned()
-    };
-    let (cc, lc, rc) = (calib(cam)?, calib(lidar)?, calib(radar)?);
+    let [cam, lidar, radar] = fixture_keyframes(&nu, fixture)?;
+    copy_fixture_files(
+        &nu,
+        out,
+        [
+            (cam, "samples/CAM_FRONT"),
+            (lidar, "samples/LIDAR_TOP"),
+            (radar, "samples/RADAR_FRONT"),
+        ],
+    )?;
+    let [cc, lc, rc] = fixture_calibrations(&nu, [cam, lidar, radar])?;
     let ep = nu
         .get_ego_pose(
             lidar.ego_pose_token,
@@ -381,18 +364,107 @@ pub fn build_fixture_world(
         .clone();
     let v = out.join("v1.0-bench");
     std::fs::create_dir_all(&v).map_err(|e| PrepError::io(&v, e))?;
-    let yaw = |deg: f64| {
-        let h = deg.to_radians() / 2.0;
-        let q = rc.rotation;
-        let r = [h.cos(), 0.0, 0.0, h.sin()];
-        // q ⊗ r (w, x, y, z)
+    let (sensors, calibs) = bench_sensor_tables(&cc, &lc, &rc);
+    let mut ego = EgoDrive::new(&ep)?;
+    let chans = channel_chains(
+        [&cam.filename, &lidar.filename, &radar.filename],
+        lidar_sweeps_between,
+        radar_sweeps_between,
+    );
+    let sd_rows = sample_data_rows(&chans, samples, &mut ego);
+    let (scene, log) = scene_and_log_tables(samples);
+    write_json_tables(
+        &v,
         [
-            q[0] * r[0] - q[3] * r[3],
-            q[1] * r[0] + q[2] * r[3],
-            q[2] * r[0] - q[1] * r[3],
-            q[3] * r[0] + q[0] * r[3],
-        ]
+            ("sensor", sensors),
+            ("calibrated_sensor", calibs),
+            ("scene", scene),
+            ("log", log),
+            ("sample", json!(sample_rows(samples))),
+            ("sample_data", json!(sd_rows)),
+            ("ego_pose", json!(ego.rows)),
+        ],
+    )?;
+    Ok(out.to_path_buf())
+}
+
+/// The CAM_FRONT, LIDAR_TOP and RADAR_FRONT keyframes of the nuscenes-kf0 fixture's sample.
+fn fixture_keyframes<'a>(
+    nu: &'a NuScenes,
+    fixture: &Path,
+) -> Result<[&'a depthsense_nuscenes::tables::SampleData; 3], PrepError> {
+    let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
+    let need = |ch: &str| {
+        nu.keyframe(st, ch).ok_or_else(|| {
+            PrepError::Other(format!(
+                "{}: fixture has no {ch} keyframe",
+                fixture.display()
+            ))
+        })
     };
+    Ok([need("CAM_FRONT")?, need("LIDAR_TOP")?, need("RADAR_FRONT")?])
+}
+
+/// The calibrations of the fixture's keyframes, in their order.
+fn fixture_calibrations(
+    nu: &NuScenes,
+    keyframes: [&depthsense_nuscenes::tables::SampleData; 3],
+) -> Result<[depthsense_nuscenes::tables::CalibratedSensor; 3], PrepError> {
+    let calib = |sd: &depthsense_nuscenes::tables::SampleData| {
+        nu.get_calibrated_sensor(sd.calibrated_sensor_token, "sample_data", sd.token, "cst")
+            .cloned()
+    };
+    let [cam, lidar, radar] = keyframes;
+    Ok([calib(cam)?, calib(lidar)?, calib(radar)?])
+}
+
+/// The bench world's one scene (`samples` keyframes) and its log.
+fn scene_and_log_tables(samples: usize) -> (serde_json::Value, serde_json::Value) {
+    let scene = json!([{"token": tok(4, 0), "log_token": tok(3, 0), "nbr_samples": samples, "first_sample_token": tok(5, 0), "last_sample_token": tok(5, samples as u64 - 1), "name": "bench-0", "description": "Generated from the nuscenes-kf0 fixture"}]);
+    let log = json!([{"token": tok(3, 0), "logfile": "bench", "vehicle": "n015", "date_captured": "2018-07-24", "location": "singapore-onenorth"}]);
+    (scene, log)
+}
+
+/// Copy the fixture keyframe's files (sample data, folder under `out`) into `out`, unless
+/// already there.
+fn copy_fixture_files(
+    nu: &NuScenes,
+    out: &Path,
+    files: [(&depthsense_nuscenes::tables::SampleData, &str); 3],
+) -> Result<(), PrepError> {
+    for (sd, sub) in files {
+        let src = nu.path_of(sd);
+        let dst_dir = out.join(sub);
+        std::fs::create_dir_all(&dst_dir).map_err(|e| PrepError::io(&dst_dir, e))?;
+        let dst = out.join(&*sd.filename);
+        if !dst.exists() {
+            std::fs::copy(&src, &dst).map_err(|e| PrepError::io(&src, e))?;
+        }
+    }
+    Ok(())
+}
+
+/// The rotation `q` (w, x, y, z) followed by a yaw of `deg` degrees about the sensor's z axis.
+fn yawed(q: [f64; 4], deg: f64) -> [f64; 4] {
+    let h = deg.to_radians() / 2.0;
+    let r = [h.cos(), 0.0, 0.0, h.sin()];
+    // q ⊗ r (w, x, y, z)
+    [
+        q[0] * r[0] - q[3] * r[3],
+        q[1] * r[0] + q[2] * r[3],
+        q[2] * r[0] - q[1] * r[3],
+        q[3] * r[0] + q[0] * r[3],
+    ]
+}
+
+/// The bench world's `sensor` and `calibrated_sensor` tables: the fixture's camera, lidar and
+/// front radar, and two side radars with the front radar's calibration yawed by ±30°.
+fn bench_sensor_tables(
+    cc: &depthsense_nuscenes::tables::CalibratedSensor,
+    lc: &depthsense_nuscenes::tables::CalibratedSensor,
+    rc: &depthsense_nuscenes::tables::CalibratedSensor,
+) -> (serde_json::Value, serde_json::Value) {
+    let yaw = |deg: f64| yawed(rc.rotation, deg);
     let sensors = json!([
         {"token": tok(1, 0), "channel": "CAM_FRONT", "modality": "camera"},
         {"token": tok(1, 1), "channel": "LIDAR_TOP", "modality": "lidar"},
@@ -407,47 +479,77 @@ pub fn build_fixture_world(
         {"token": tok(2, 3), "sensor_token": tok(1, 3), "translation": [3.0, 0.6, 0.5], "rotation": yaw(30.0), "camera_intrinsic": []},
         {"token": tok(2, 4), "sensor_token": tok(1, 4), "translation": [3.0, -0.6, 0.5], "rotation": yaw(-30.0), "camera_intrinsic": []},
     ]);
-    let (rot, t0) = (ep.rotation, ep.translation);
-    let rm = depthsense_nuscenes::geometry::rotation_from_wxyz(rot, "fixture ego")?;
-    let fwd = [rm[0][0], rm[1][0], rm[2][0]];
-    let t_key = |k: usize| 1_600_000_000_000_000i64 + k as i64 * 500_000;
-    let mut sample_rows = Vec::new();
-    let mut sd_rows = Vec::new();
-    let mut ego_rows = Vec::new();
-    let mut next_id = 0u64;
-    let mut pose = |ts: i64, ego_rows: &mut Vec<serde_json::Value>| {
-        let d = (ts - t_key(0)) as f64 * 1e-6 * 10.0;
-        let id = tok(7, next_id);
-        next_id += 1;
-        ego_rows.push(json!({"token": id, "timestamp": ts, "rotation": rot, "translation": [t0[0] + fwd[0] * d, t0[1] + fwd[1] * d, t0[2]]}));
+    (sensors, calibs)
+}
+
+/// Timestamp of keyframe `k` of the bench world, µs (2 Hz).
+fn key_time_us(k: usize) -> i64 {
+    1_600_000_000_000_000i64 + k as i64 * 500_000
+}
+
+/// The ego's `ego_pose` rows: the fixture pose moved straight ahead at 10 m/s.
+struct EgoDrive {
+    rot: [f64; 4],
+    t0: [f64; 3],
+    fwd: [f64; 3],
+    rows: Vec<serde_json::Value>,
+    next_id: u64,
+}
+
+impl EgoDrive {
+    /// Start at the fixture's ego pose (forward = the first column of its rotation).
+    fn new(ep: &depthsense_nuscenes::tables::EgoPose) -> Result<EgoDrive, PrepError> {
+        let (rot, t0) = (ep.rotation, ep.translation);
+        let rm = depthsense_nuscenes::geometry::rotation_from_wxyz(rot, "fixture ego")?;
+        let fwd = [rm[0][0], rm[1][0], rm[2][0]];
+        Ok(EgoDrive {
+            rot,
+            t0,
+            fwd,
+            rows: Vec::new(),
+            next_id: 0,
+        })
+    }
+
+    /// Add the pose at `ts` (µs) and return its token.
+    fn pose(&mut self, ts: i64) -> String {
+        let (rot, t0, fwd) = (self.rot, self.t0, self.fwd);
+        let d = (ts - key_time_us(0)) as f64 * 1e-6 * 10.0;
+        let id = tok(7, self.next_id);
+        self.next_id += 1;
+        self.rows.push(json!({"token": id, "timestamp": ts, "rotation": rot, "translation": [t0[0] + fwd[0] * d, t0[1] + fwd[1] * d, t0[2]]}));
         id
-    };
-    // Channel chains: (channel, calib index, file, sweeps between keyframes, offset µs).
-    let chans: [(&str, u64, &str, usize, i64); 5] = [
-        ("CAM_FRONT", 0, &cam.filename, 0, -35_000),
-        ("LIDAR_TOP", 1, &lidar.filename, lidar_sweeps_between, 0),
-        (
-            "RADAR_FRONT",
-            2,
-            &radar.filename,
-            radar_sweeps_between,
-            16_000,
-        ),
-        (
-            "RADAR_FRONT_LEFT",
-            3,
-            &radar.filename,
-            radar_sweeps_between,
-            20_000,
-        ),
-        (
-            "RADAR_FRONT_RIGHT",
-            4,
-            &radar.filename,
-            radar_sweeps_between,
-            24_000,
-        ),
-    ];
+    }
+}
+
+/// Channel chain: (channel, calib index, file, sweeps between keyframes, offset µs).
+type ChannelChain<'a> = (&'static str, u64, &'a str, usize, i64);
+
+/// The bench world's channel chains; `files` = the camera, lidar and radar files.
+fn channel_chains(
+    files: [&str; 3],
+    lidar_sweeps_between: usize,
+    radar_sweeps_between: usize,
+) -> [ChannelChain<'_>; 5] {
+    let [cam, lidar, radar] = files;
+    [
+        ("CAM_FRONT", 0, cam, 0, -35_000),
+        ("LIDAR_TOP", 1, lidar, lidar_sweeps_between, 0),
+        ("RADAR_FRONT", 2, radar, radar_sweeps_between, 16_000),
+        ("RADAR_FRONT_LEFT", 3, radar, radar_sweeps_between, 20_000),
+        ("RADAR_FRONT_RIGHT", 4, radar, radar_sweeps_between, 24_000),
+    ]
+}
+
+/// The `sample_data` rows of every channel chain, chain after chain: `between` extra sweeps
+/// before the first keyframe (so that every keyframe has history), the keyframes with
+/// `between` sweeps between them, `between` after the last; one ego pose each.
+fn sample_data_rows(
+    chans: &[ChannelChain],
+    samples: usize,
+    ego: &mut EgoDrive,
+) -> Vec<serde_json::Value> {
+    let mut sd_rows = Vec::new();
     let mut sd_id = 0u64;
     for (ci, (_ch, calib, file, between, off)) in chans.iter().enumerate() {
         let per = between + 1;
@@ -458,7 +560,7 @@ pub fn build_fixture_world(
         let n = pre + total + pre;
         for j in 0..n {
             let k_rel = j as i64 - pre as i64;
-            let ts = t_key(0) + off + k_rel * 500_000 / per as i64;
+            let ts = key_time_us(0) + off + k_rel * 500_000 / per as i64;
             let key = k_rel >= 0
                 && (k_rel as usize).is_multiple_of(per)
                 && (k_rel as usize) / per < samples;
@@ -467,9 +569,9 @@ pub fn build_fixture_world(
             } else {
                 String::new()
             };
-            let ego = pose(ts, &mut ego_rows);
+            let ego_pose_token = ego.pose(ts);
             sd_rows.push(json!({
-                "token": tok(6, base + j as u64), "sample_token": sample, "ego_pose_token": ego,
+                "token": tok(6, base + j as u64), "sample_token": sample, "ego_pose_token": ego_pose_token,
                 "calibrated_sensor_token": tok(2, *calib), "timestamp": ts, "fileformat": if ci == 0 {"jpg"} else {"pcd"},
                 "is_key_frame": key, "height": if ci == 0 {900} else {0}, "width": if ci == 0 {1600} else {0},
                 "filename": file, "prev": if j == 0 { String::new() } else { tok(6, base + j as u64 - 1) },
@@ -478,20 +580,21 @@ pub fn build_fixture_world(
         }
         sd_id += n as u64;
     }
+    sd_rows
+}
+
+/// The `sample` rows: `samples` keyframes of one scene.
+fn sample_rows(samples: usize) -> Vec<serde_json::Value> {
+    let mut sample_rows = Vec::new();
     for k in 0..samples {
-        sample_rows.push(json!({"token": tok(5, k as u64), "timestamp": t_key(k), "prev": if k == 0 { String::new() } else { tok(5, k as u64 - 1) }, "next": if k + 1 == samples { String::new() } else { tok(5, k as u64 + 1) }, "scene_token": tok(4, 0)}));
+        sample_rows.push(json!({"token": tok(5, k as u64), "timestamp": key_time_us(k), "prev": if k == 0 { String::new() } else { tok(5, k as u64 - 1) }, "next": if k + 1 == samples { String::new() } else { tok(5, k as u64 + 1) }, "scene_token": tok(4, 0)}));
     }
-    let scene = json!([{"token": tok(4, 0), "log_token": tok(3, 0), "nbr_samples": samples, "first_sample_token": tok(5, 0), "last_sample_token": tok(5, samples as u64 - 1), "name": "bench-0", "description": "Generated from the nuscenes-kf0 fixture"}]);
-    let log = json!([{"token": tok(3, 0), "logfile": "bench", "vehicle": "n015", "date_captured": "2018-07-24", "location": "singapore-onenorth"}]);
-    for (name, val) in [
-        ("sensor", sensors),
-        ("calibrated_sensor", calibs),
-        ("scene", scene),
-        ("log", log),
-        ("sample", json!(sample_rows)),
-        ("sample_data", json!(sd_rows)),
-        ("ego_pose", json!(ego_rows)),
-    ] {
+    sample_rows
+}
+
+/// Write each (name, rows) as `v/<name>.json`.
+fn write_json_tables(v: &Path, tables: [(&str, serde_json::Value); 7]) -> Result<(), PrepError> {
+    for (name, val) in tables {
         let p = v.join(format!("{name}.json"));
         std::fs::write(
             &p,
@@ -499,7 +602,7 @@ pub fn build_fixture_world(
         )
         .map_err(|e| PrepError::io(&p, e))?;
     }
-    Ok(out.to_path_buf())
+    Ok(())
 }
 
 /// Projection + rasterisation of one keyframe (sparse lidar, low-height mask, keyframe
