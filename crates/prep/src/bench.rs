@@ -610,6 +610,43 @@ fn write_json_tables(v: &Path, tables: [(&str, serde_json::Value); 7]) -> Result
 /// over `reps` repetitions and the lidar/radar point counts.
 pub fn time_projection(fixture: &Path, reps: usize) -> Result<serde_json::Value, PrepError> {
     let nu = NuScenes::load(fixture, "v1.0-mini")?;
+    let kf = projection_keyframe(&nu, fixture)?;
+    let lidar = read_lidar_pcd_bin(&nu.path_of(kf.lidar_sd))?;
+    let radar = read_radar_pcd(&nu.path_of(kf.radar_sd))?;
+    let mut times = Vec::with_capacity(reps);
+    let mut sink = 0u64;
+    for _ in 0..reps.max(1) {
+        let t = Instant::now();
+        let check = project_keyframe_once(&nu, &kf, &lidar, &radar)?;
+        times.push(t.elapsed().as_secs_f64());
+        sink += check;
+    }
+    times.sort_by(|a, b| a.total_cmp(b));
+    Ok(json!({
+        "median_ms": times[times.len() / 2] * 1e3,
+        "min_ms": times[0] * 1e3,
+        "reps": times.len(),
+        "lidar_points": lidar.points.len(),
+        "radar_sweeps": 15,
+        "radar_points_per_sweep": radar.points.len(),
+        "checksum": sink,
+    }))
+}
+
+/// The nuscenes-kf0 keyframe that [`time_projection`] projects.
+struct ProjectionKeyframe<'a> {
+    cam_sd: &'a depthsense_nuscenes::tables::SampleData,
+    lidar_sd: &'a depthsense_nuscenes::tables::SampleData,
+    radar_sd: &'a depthsense_nuscenes::tables::SampleData,
+    /// CAM_FRONT at full resolution (1600x900).
+    cam: Camera,
+}
+
+/// The fixture's CAM_FRONT, LIDAR_TOP and RADAR_FRONT keyframes and camera model.
+fn projection_keyframe<'a>(
+    nu: &'a NuScenes,
+    fixture: &Path,
+) -> Result<ProjectionKeyframe<'a>, PrepError> {
     let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
     let miss = || {
         PrepError::Other(format!(
@@ -627,47 +664,48 @@ pub fn time_projection(fixture: &Path, reps: usize) -> Result<serde_json::Value,
         "calibrated_sensor_token",
     )?;
     let cam = Camera::from_intrinsic(&cs.camera_intrinsic.ok_or_else(miss)?, 1600, 900);
-    let lidar = read_lidar_pcd_bin(&nu.path_of(lidar_sd))?;
-    let radar = read_radar_pcd(&nu.path_of(radar_sd))?;
-    let mut times = Vec::with_capacity(reps);
+    Ok(ProjectionKeyframe {
+        cam_sd,
+        lidar_sd,
+        radar_sd,
+        cam,
+    })
+}
+
+/// One timed repetition of [`time_projection`]; returns a checksum of its results (so that
+/// nothing is optimised away).
+fn project_keyframe_once(
+    nu: &NuScenes,
+    kf: &ProjectionKeyframe,
+    lidar: &depthsense_nuscenes::pcd::LidarScan,
+    radar: &depthsense_nuscenes::pcd::RadarScan,
+) -> Result<u64, PrepError> {
+    let (cam_sd, lidar_sd, radar_sd, cam) = (kf.cam_sd, kf.lidar_sd, kf.radar_sd, &kf.cam);
     let mut sink = 0u64;
-    for _ in 0..reps.max(1) {
-        let t = Instant::now();
-        let pts: Vec<[f32; 3]> = lidar.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-        let c_l = cam_from_sensor(&nu, lidar_sd, cam_sd)?;
-        let e_l = ego_from_sensor(&nu, lidar_sd)?.to_f32();
-        let r = maps::project_points(&pts, &c_l, &cam, |i| {
-            depthsense_nuscenes::geometry::apply_f32(&e_l, pts[i])[2]
-        });
-        let mask = maps::lowheight_mask(&r);
-        // The keyframe surface that other sweeps are judged against (K > 0).
-        let surface = maps::KeyframeSurface::new(&r.depth_m);
-        sink += (surface.judge(400, 175, 10.0) == maps::Visibility::Hidden) as u64;
-        // 15 radar sweeps (5 sweeps × 3 channels) of the same file.
-        let (rp, _) = radar.filtered(true);
-        let c_r = cam_from_sensor(&nu, radar_sd, cam_sd)?.to_f32();
-        let mut raw = Raster::default();
-        let mut hm = Raster::default();
-        for _ in 0..15 {
-            let pc: Vec<[f32; 3]> = maps::radar_positions(&rp, None)
-                .iter()
-                .map(|q| depthsense_nuscenes::geometry::apply_f32(&c_r, *q))
-                .collect();
-            maps::radar_maps(&pc, &cam, &mut raw, &mut hm);
-        }
-        times.push(t.elapsed().as_secs_f64());
-        sink += mask[0] as u64 + raw.in_frame;
+    let pts: Vec<[f32; 3]> = lidar.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    let c_l = cam_from_sensor(nu, lidar_sd, cam_sd)?;
+    let e_l = ego_from_sensor(nu, lidar_sd)?.to_f32();
+    let r = maps::project_points(&pts, &c_l, cam, |i| {
+        depthsense_nuscenes::geometry::apply_f32(&e_l, pts[i])[2]
+    });
+    let mask = maps::lowheight_mask(&r);
+    // The keyframe surface that other sweeps are judged against (K > 0).
+    let surface = maps::KeyframeSurface::new(&r.depth_m);
+    sink += (surface.judge(400, 175, 10.0) == maps::Visibility::Hidden) as u64;
+    // 15 radar sweeps (5 sweeps × 3 channels) of the same file.
+    let (rp, _) = radar.filtered(true);
+    let c_r = cam_from_sensor(nu, radar_sd, cam_sd)?.to_f32();
+    let mut raw = Raster::default();
+    let mut hm = Raster::default();
+    for _ in 0..15 {
+        let pc: Vec<[f32; 3]> = maps::radar_positions(&rp, None)
+            .iter()
+            .map(|q| depthsense_nuscenes::geometry::apply_f32(&c_r, *q))
+            .collect();
+        maps::radar_maps(&pc, cam, &mut raw, &mut hm);
     }
-    times.sort_by(|a, b| a.total_cmp(b));
-    Ok(json!({
-        "median_ms": times[times.len() / 2] * 1e3,
-        "min_ms": times[0] * 1e3,
-        "reps": times.len(),
-        "lidar_points": lidar.points.len(),
-        "radar_sweeps": 15,
-        "radar_points_per_sweep": radar.points.len(),
-        "checksum": sink,
-    }))
+    sink += mask[0] as u64 + raw.in_frame;
+    Ok(sink)
 }
 
 /// Settings of `depthsense bench data`.
@@ -695,81 +733,101 @@ pub fn run_bench_data(cfg: &BenchDataConfig) -> Result<serde_json::Value, PrepEr
     res
 }
 
+/// The data benchmarks in `work`: table loading (unless skipped), projection of one
+/// keyframe, and `prepare` of the fixture world for each K.
 fn run_in(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepError> {
     let mut report = json!({
         "load_average_1min_at_start": load_average(),
         "machine": format!("{} logical cores", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)),
     });
     if !a.skip_tables {
-        eprintln!(
-            "generating trainval-sized tables (scale {}) …",
-            a.tables_scale
-        );
-        let t = Instant::now();
-        let bytes = generate_trainval_tables(work, "v1.0-gen", a.tables_scale)?;
-        let gen_s = t.elapsed().as_secs_f64();
-        let reset = reset_peak_rss();
-        let rss0 = peak_rss_bytes().unwrap_or(0);
-        let cpu0 = process_cpu_s().unwrap_or(0.0);
-        let t = Instant::now();
-        let nu = NuScenes::load(work, "v1.0-gen")?;
-        let load_s = t.elapsed().as_secs_f64();
-        let load_cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
-        let peak = peak_rss_bytes().unwrap_or(0);
-        let counts: serde_json::Map<String, serde_json::Value> = nu
-            .row_counts()
-            .into_iter()
-            .map(|(k, v)| (k.to_string(), json!(v)))
-            .collect();
-        drop(nu);
-        std::fs::remove_dir_all(work.join("v1.0-gen")).map_err(|e| PrepError::io(work, e))?;
-        report["tables"] = json!({
-            "json_bytes": bytes, "generate_s": gen_s, "load_s": load_s, "load_cpu_s": load_cpu_s,
-            "peak_rss_bytes": peak, "rss_before_load_bytes": rss0, "peak_reset_ok": reset,
-            "rows": counts,
-        });
-        eprintln!(
-            "tables: {load_s:.2} s, peak RSS {:.0} MB",
-            peak as f64 / 1e6
-        );
+        report["tables"] = bench_tables(a, work)?;
     }
     report["projection_one_keyframe"] = time_projection(&a.fixture, 50)?;
     let world = work.join("world");
     build_fixture_world(&a.fixture, &world, a.samples, 9, 6)?;
     let mut runs = Vec::new();
     for &k in &a.lidar_k {
-        let out = work.join(format!("prepared-k{k}"));
-        let opts = PrepareOptions {
-            dataroot: world.clone(),
-            version: "v1.0-bench".into(),
-            out: out.clone(),
-            lidar_sweeps: k,
-            radar_sweeps: 5,
-            jobs: a.jobs,
-            ..Default::default()
-        };
-        let cpu0 = process_cpu_s().unwrap_or(0.0);
-        let t = Instant::now();
-        let (s, times) = prepare_timed(&opts, &ProgressBar::hidden())?;
-        let secs = t.elapsed().as_secs_f64();
-        let cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
-        if let Some((t, r)) = s.failed.first() {
-            return Err(PrepError::Other(format!(
-                "bench prepare failed on {t}: {r}"
-            )));
-        }
-        eprintln!("prepare K={k}: {:.1} keyframes/s", s.prepared as f64 / secs);
-        let n = s.prepared.max(1) as f64;
-        runs.push(json!({
-            "lidar_sweeps_k": k, "radar_sweeps": 5, "radar_channels": 3,
-            "keyframes": s.prepared, "seconds": secs, "cpu_s": cpu_s, "keyframes_per_s": s.prepared as f64 / secs,
-            "per_keyframe_ms_summed_over_threads": {
-                "decode": times.decode_s / n * 1e3, "project": times.project_s / n * 1e3,
-                "encode": times.encode_s / n * 1e3, "write": times.write_s / n * 1e3,
-            },
-        }));
-        std::fs::remove_dir_all(&out).map_err(|e| PrepError::io(&out, e))?;
+        runs.push(bench_prepare(a, work, &world, k)?);
     }
     report["prepare"] = json!(runs);
     Ok(report)
+}
+
+/// Generate trainval-sized tables, time their loading (wall, CPU, peak memory), remove them.
+fn bench_tables(a: &BenchDataConfig, work: &Path) -> Result<serde_json::Value, PrepError> {
+    eprintln!(
+        "generating trainval-sized tables (scale {}) …",
+        a.tables_scale
+    );
+    let t = Instant::now();
+    let bytes = generate_trainval_tables(work, "v1.0-gen", a.tables_scale)?;
+    let gen_s = t.elapsed().as_secs_f64();
+    let reset = reset_peak_rss();
+    let rss0 = peak_rss_bytes().unwrap_or(0);
+    let cpu0 = process_cpu_s().unwrap_or(0.0);
+    let t = Instant::now();
+    let nu = NuScenes::load(work, "v1.0-gen")?;
+    let load_s = t.elapsed().as_secs_f64();
+    let load_cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
+    let peak = peak_rss_bytes().unwrap_or(0);
+    let counts: serde_json::Map<String, serde_json::Value> = nu
+        .row_counts()
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), json!(v)))
+        .collect();
+    drop(nu);
+    std::fs::remove_dir_all(work.join("v1.0-gen")).map_err(|e| PrepError::io(work, e))?;
+    let tables = json!({
+        "json_bytes": bytes, "generate_s": gen_s, "load_s": load_s, "load_cpu_s": load_cpu_s,
+        "peak_rss_bytes": peak, "rss_before_load_bytes": rss0, "peak_reset_ok": reset,
+        "rows": counts,
+    });
+    eprintln!(
+        "tables: {load_s:.2} s, peak RSS {:.0} MB",
+        peak as f64 / 1e6
+    );
+    Ok(tables)
+}
+
+/// `prepare` the fixture world `world` with K = `k` (5 radar sweeps): throughput and the time
+/// per stage; its output folder is removed afterwards.
+fn bench_prepare(
+    a: &BenchDataConfig,
+    work: &Path,
+    world: &Path,
+    k: usize,
+) -> Result<serde_json::Value, PrepError> {
+    let out = work.join(format!("prepared-k{k}"));
+    let opts = PrepareOptions {
+        dataroot: world.to_path_buf(),
+        version: "v1.0-bench".into(),
+        out: out.clone(),
+        lidar_sweeps: k,
+        radar_sweeps: 5,
+        jobs: a.jobs,
+        ..Default::default()
+    };
+    let cpu0 = process_cpu_s().unwrap_or(0.0);
+    let t = Instant::now();
+    let (s, times) = prepare_timed(&opts, &ProgressBar::hidden())?;
+    let secs = t.elapsed().as_secs_f64();
+    let cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
+    if let Some((t, r)) = s.failed.first() {
+        return Err(PrepError::Other(format!(
+            "bench prepare failed on {t}: {r}"
+        )));
+    }
+    eprintln!("prepare K={k}: {:.1} keyframes/s", s.prepared as f64 / secs);
+    let n = s.prepared.max(1) as f64;
+    let run = json!({
+        "lidar_sweeps_k": k, "radar_sweeps": 5, "radar_channels": 3,
+        "keyframes": s.prepared, "seconds": secs, "cpu_s": cpu_s, "keyframes_per_s": s.prepared as f64 / secs,
+        "per_keyframe_ms_summed_over_threads": {
+            "decode": times.decode_s / n * 1e3, "project": times.project_s / n * 1e3,
+            "encode": times.encode_s / n * 1e3, "write": times.write_s / n * 1e3,
+        },
+    });
+    std::fs::remove_dir_all(&out).map_err(|e| PrepError::io(&out, e))?;
+    Ok(run)
 }
