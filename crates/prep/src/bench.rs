@@ -11,8 +11,9 @@ use depthsense_nuscenes::tables::{NuScenes, Token};
 use indicatif::ProgressBar;
 use serde_json::json;
 
+use crate::error::PrepError;
 use crate::maps::{self, Raster};
-use crate::pipeline::{prepare_timed, PrepError, PrepareOptions};
+use crate::pipeline::{prepare_timed, PrepareOptions};
 
 fn tok(kind: u32, i: u64) -> String {
     format!("{:08x}{:024x}", kind, i)

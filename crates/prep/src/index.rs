@@ -20,8 +20,8 @@ use std::time::Duration;
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 
+use crate::error::PrepError;
 use crate::layout::{self, IndexEntry, PreparedIndex};
-use crate::pipeline::PrepError;
 
 /// How long to wait for another process's index lock.
 pub const LOCK_WAIT: Duration = Duration::from_secs(120);

@@ -7,8 +7,8 @@ use depthsense_nuscenes::tables::NuScenes;
 use depthsense_nuscenes::NuError;
 use serde_json::{json, Value};
 
+use crate::error::PrepError;
 use crate::layout::conditions_of;
-use crate::pipeline::PrepError;
 
 fn stats(name: &str, ty: &str, vals: impl Iterator<Item = f64>) -> Value {
     let (mut min, mut max, mut sum, mut n, mut nonfinite) =

@@ -19,8 +19,8 @@ use std::path::{Path, PathBuf};
 
 use depthsense_nuscenes::NuScenes;
 
+use crate::error::PrepError;
 use crate::layout::conditions_of;
-use crate::pipeline::PrepError;
 
 /// Folder of a dataroot's own split lists, inside the version folder.
 pub const DATAROOT_SPLITS_DIR: &str = "splits";
