@@ -1,7 +1,14 @@
 //! The DepthSense network, heads and losses on libtorch (SPEC §6–7).
 //!
 //! - [`ModelConfig`] with presets `paper`, `released`, `tiny` and per-field options;
-//! - [`DepthNet`]: `forward_t` → low-resolution head output, `loss`, `decode`;
+//! - [`DepthNet`] (`net`): `forward_t` → low-resolution head output, `loss`, `decode`,
+//!   assembled from the paper's boxes (SPEC §6), one module each (crate-private):
+//!   `encoder` (the ResNet RGB encoder, VarStore `rgb.`, and the radar branch's backbone),
+//!   `decoder` (the image decoder over C2..C4, `decoder.`), `radar_branch` (the radar branch
+//!   of late fusion, `radar.`, the high-resolution radar path, `radar_skip.`, and nearest-depth
+//!   pooling), `fusion` (early / late fusion and the CBAM spatial attention, `attention.`) and
+//!   `head` (the head convs, `head.`); `layers` holds their building blocks (conv, conv + BN,
+//!   initialisation, multiply-add counting);
 //! - [`ordinal`]: the exact and efficient ordinal loss/decoding, [`reference`]: the naive form;
 //! - [`checkpoint`]: safetensors + config JSON; [`weights`]: torchvision / released imports;
 //! - [`report`]: parameters per module and multiply-adds at 350x800;
@@ -10,8 +17,12 @@
 
 pub mod checkpoint;
 pub mod config;
+mod decoder;
 pub mod device;
+mod encoder;
 mod error;
+mod fusion;
+mod head;
 #[cfg(test)]
 mod init_tests;
 mod layers;
@@ -20,6 +31,7 @@ pub mod ordinal;
 pub mod pda;
 pub mod pickle;
 pub mod precision;
+mod radar_branch;
 pub mod reference;
 pub mod report;
 pub mod sid;
