@@ -1,7 +1,7 @@
 //! Importing PyTorch weights: torchvision ImageNet ResNets into the RGB encoder (SPEC §8) and
 //! the authors' released checkpoint into the `released` preset (SPEC §6.1).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt;
 use std::path::Path;
 
@@ -55,18 +55,9 @@ fn short_list(names: &[&str], max: usize) -> String {
     }
 }
 
-impl fmt::Display for LoadReport {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(
-            f,
-            "weights: {} tensors loaded, {} partly loaded, {} left random; file tensors: {} \
-             skipped, {} unused",
-            self.loaded.len(),
-            self.partial.len(),
-            self.left_random.len(),
-            self.skipped.len(),
-            self.unused.len()
-        )?;
+impl LoadReport {
+    /// The `loaded:` line (counts per group) and one `partly loaded:` line per tensor.
+    fn fmt_loaded(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let mut loaded: BTreeMap<String, usize> = BTreeMap::new();
         for k in &self.loaded {
             *loaded.entry(group_of(k)).or_default() += 1;
@@ -78,6 +69,11 @@ impl fmt::Display for LoadReport {
         for (k, how) in &self.partial {
             writeln!(f, "  partly loaded: {k} ({how})")?;
         }
+        Ok(())
+    }
+
+    /// The `left random:` lines.
+    fn fmt_left_random(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // Left random, one line per top-level part (rgb, decoder, radar, head): the modules
         // when few, else per group the modules or their count.
         let mut parts: BTreeMap<&str, BTreeMap<String, BTreeSet<&str>>> = BTreeMap::new();
@@ -115,6 +111,11 @@ impl fmt::Display for LoadReport {
                 tensors[top]
             )?;
         }
+        Ok(())
+    }
+
+    /// The `skipped (reason):` lines and the `unused file tensors:` line.
+    fn fmt_skipped_unused(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let mut reasons: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
         for (k, why) in &self.skipped {
             reasons.entry(why).or_default().push(k);
@@ -127,6 +128,24 @@ impl fmt::Display for LoadReport {
             writeln!(f, "  unused file tensors: {}", short_list(&u, 10))?;
         }
         Ok(())
+    }
+}
+
+impl fmt::Display for LoadReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "weights: {} tensors loaded, {} partly loaded, {} left random; file tensors: {} \
+             skipped, {} unused",
+            self.loaded.len(),
+            self.partial.len(),
+            self.left_random.len(),
+            self.skipped.len(),
+            self.unused.len()
+        )?;
+        self.fmt_loaded(f)?;
+        self.fmt_left_random(f)?;
+        self.fmt_skipped_unused(f)
     }
 }
 
@@ -152,23 +171,29 @@ fn input_channels_differ(vsz: &[i64], fsz: &[i64]) -> bool {
     vsz.len() == 4 && fsz.len() == 4 && vsz[0] == fsz[0] && vsz[2..] == fsz[2..] && vsz[1] != fsz[1]
 }
 
-/// Copies mapped file tensors into `vs`. `map` turns a file key into a network variable name
-/// (or a skip reason); `partial_ok(target, network shape, file shape)` allows a conv weight
-/// whose input channels differ to be filled partly (common input channels copied, the
-/// network's other input channels zeroed). Other shape mismatches are collected and reported
-/// all at once.
-fn import(
-    path: &Path,
-    vs: &VarStore,
+/// File tensors matched to network variables, before anything is copied.
+#[derive(Default)]
+struct ImportPlan {
+    /// The report so far: skipped and unused file tensors.
+    report: LoadReport,
+    /// Shape mismatches (reported all at once).
+    mismatches: Vec<ShapeMismatch>,
+    /// (variable, file tensor, partly).
+    assignments: Vec<(String, Tensor, bool)>,
+    /// Variables an assignment fills.
+    done: BTreeSet<String>,
+}
+
+/// Matches every file tensor to a network variable of `vars` through `map` and `partial_ok`
+/// (see [`import`]).
+fn plan_import(
+    vars: &HashMap<String, Tensor>,
     file: Vec<(String, Tensor)>,
     map: impl Fn(&str) -> Result<String, String>,
     partial_ok: impl Fn(&str, &[i64], &[i64]) -> bool,
-) -> Result<LoadReport, ModelError> {
-    let vars = vs.variables();
-    let mut report = LoadReport::default();
-    let mut mismatches = Vec::new();
-    let mut assignments: Vec<(String, Tensor, bool)> = Vec::new();
-    let mut done = BTreeSet::new();
+) -> ImportPlan {
+    let mut plan = ImportPlan::default();
+    let report = &mut plan.report;
     for (key, t) in file {
         if key.ends_with("num_batches_tracked") {
             report.skipped.push((key, "BN batch counter".into()));
@@ -187,19 +212,80 @@ fn import(
         };
         let (vsz, fsz) = (var.size(), t.size());
         if vsz == fsz {
-            assignments.push((target.clone(), t, false));
+            plan.assignments.push((target.clone(), t, false));
         } else if input_channels_differ(&vsz, &fsz) && partial_ok(&target, &vsz, &fsz) {
-            assignments.push((target.clone(), t, true));
+            plan.assignments.push((target.clone(), t, true));
         } else {
-            mismatches.push(ShapeMismatch {
+            plan.mismatches.push(ShapeMismatch {
                 name: format!("{target} (file: {key})"),
                 expected: vsz,
                 found: fsz,
             });
             continue;
         }
-        done.insert(target);
+        plan.done.insert(target);
     }
+    plan
+}
+
+/// Copies file tensor `src` into variable `name` (`var`), wholly or, when `partial`, the input
+/// channels both have (the network's others zeroed); records it in `report`.
+fn copy_into_var(
+    name: &str,
+    var: &Tensor,
+    src: &Tensor,
+    partial: bool,
+    report: &mut LoadReport,
+) -> Result<(), ModelError> {
+    let mut var = var.shallow_clone();
+    let src = src.to_kind(var.kind()).to_device(var.device());
+    if partial {
+        let (cv, cf) = (var.size()[1], src.size()[1]);
+        let c = cv.min(cf);
+        let how = if cv > cf {
+            let _ = var.f_zero_()?;
+            format!(
+                "file {:?} into network {:?}: input channels 0..{c} copied, \
+                 {c}..{cv} zeroed",
+                src.size(),
+                var.size()
+            )
+        } else {
+            format!(
+                "file {:?} into network {:?}: the file's first {c} of {cf} input \
+                 channels copied",
+                src.size(),
+                var.size()
+            )
+        };
+        var.f_narrow(1, 0, c)?.f_copy_(&src.f_narrow(1, 0, c)?)?;
+        report.partial.push((name.to_string(), how));
+    } else {
+        var.f_copy_(&src)?;
+        report.loaded.push(name.to_string());
+    }
+    Ok(())
+}
+
+/// Copies mapped file tensors into `vs`. `map` turns a file key into a network variable name
+/// (or a skip reason); `partial_ok(target, network shape, file shape)` allows a conv weight
+/// whose input channels differ to be filled partly (common input channels copied, the
+/// network's other input channels zeroed). Other shape mismatches are collected and reported
+/// all at once.
+fn import(
+    path: &Path,
+    vs: &VarStore,
+    file: Vec<(String, Tensor)>,
+    map: impl Fn(&str) -> Result<String, String>,
+    partial_ok: impl Fn(&str, &[i64], &[i64]) -> bool,
+) -> Result<LoadReport, ModelError> {
+    let vars = vs.variables();
+    let ImportPlan {
+        mut report,
+        mismatches,
+        assignments,
+        done,
+    } = plan_import(&vars, file, map, partial_ok);
     if !mismatches.is_empty() {
         return Err(ModelError::ShapeMismatch {
             path: path.to_path_buf(),
@@ -218,33 +304,7 @@ fn import(
     }
     tch::no_grad(|| -> Result<(), ModelError> {
         for (name, src, partial) in &assignments {
-            let mut var = vars[name].shallow_clone();
-            let src = src.to_kind(var.kind()).to_device(var.device());
-            if *partial {
-                let (cv, cf) = (var.size()[1], src.size()[1]);
-                let c = cv.min(cf);
-                let how = if cv > cf {
-                    let _ = var.f_zero_()?;
-                    format!(
-                        "file {:?} into network {:?}: input channels 0..{c} copied, \
-                         {c}..{cv} zeroed",
-                        src.size(),
-                        var.size()
-                    )
-                } else {
-                    format!(
-                        "file {:?} into network {:?}: the file's first {c} of {cf} input \
-                         channels copied",
-                        src.size(),
-                        var.size()
-                    )
-                };
-                var.f_narrow(1, 0, c)?.f_copy_(&src.f_narrow(1, 0, c)?)?;
-                report.partial.push((name.clone(), how));
-            } else {
-                var.f_copy_(&src)?;
-                report.loaded.push(name.clone());
-            }
+            copy_into_var(name, &vars[name], src, *partial, &mut report)?;
         }
         Ok(())
     })?;
