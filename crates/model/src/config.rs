@@ -489,6 +489,50 @@ fn parse_num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, ModelError> 
         .map_err(|_| ModelError::InvalidConfig(format!("{key}={v}: not a number")))
 }
 
+/// The value of an enum option: `v` (ASCII case ignored) looked up in `names`.
+fn parse_choice<T: Copy>(key: &str, v: &str, names: &[(&str, T)]) -> Result<T, ModelError> {
+    let lower = v.to_ascii_lowercase();
+    names
+        .iter()
+        .find(|(name, _)| *name == lower)
+        .map(|&(_, value)| value)
+        .ok_or_else(|| ModelError::InvalidConfig(format!("{key}={v}: unknown value")))
+}
+
+/// Values of `fusion`.
+const FUSION_NAMES: &[(&str, Fusion)] = &[
+    ("late", Fusion::Late),
+    ("early", Fusion::Early),
+    ("none", Fusion::None),
+    ("rgb", Fusion::None),
+];
+/// Values of `attention-gate`.
+const ATTENTION_GATE_NAMES: &[(&str, AttentionGate)] = &[
+    ("double", AttentionGate::Double),
+    ("bounded", AttentionGate::Bounded),
+];
+/// Values of `head` / `loss`.
+const HEAD_NAMES: &[(&str, HeadKind)] = &[
+    ("ordinal", HeadKind::Ordinal),
+    ("l1", HeadKind::L1),
+    ("l2", HeadKind::L2),
+];
+/// Values of `radar-branch`.
+const RADAR_BRANCH_NAMES: &[(&str, RadarBranchKind)] = &[
+    ("basic", RadarBranchKind::Basic),
+    ("bottleneck", RadarBranchKind::Bottleneck),
+];
+/// Values of `decoder`.
+const DECODER_NAMES: &[(&str, DecoderKind)] = &[
+    ("topdown", DecoderKind::Topdown),
+    ("released", DecoderKind::Released),
+];
+/// Values of `stem`.
+const STEM_NAMES: &[(&str, StemKind)] = &[
+    ("torchvision", StemKind::Torchvision),
+    ("deep", StemKind::Deep),
+];
+
 impl ModelConfig {
     /// Names accepted by [`ModelConfig::set_option`].
     pub const OPTION_KEYS: &'static [&'static str] = &[
@@ -524,35 +568,13 @@ impl ModelConfig {
     /// Sets one option by name (CLI `--set key=value`), then validates the config.
     pub fn set_option(&mut self, key: &str, value: &str) -> Result<(), ModelError> {
         let v = value.trim();
-        let lower = v.to_ascii_lowercase();
-        let enum_err = |k: &str| ModelError::InvalidConfig(format!("{k}={v}: unknown value"));
         match key.trim().replace('_', "-").as_str() {
             "backbone" | "backbone-depth" | "depth" => self.backbone_depth = parse_num(key, v)?,
             "width" | "backbone-width" => self.backbone_width = parse_num(key, v)?,
-            "fusion" => {
-                self.fusion = match lower.as_str() {
-                    "late" => Fusion::Late,
-                    "early" => Fusion::Early,
-                    "none" | "rgb" => Fusion::None,
-                    _ => return Err(enum_err(key)),
-                }
-            }
+            "fusion" => self.fusion = parse_choice(key, v, FUSION_NAMES)?,
             "attention" => self.attention = parse_bool(key, v)?,
-            "attention-gate" => {
-                self.attention_gate = match lower.as_str() {
-                    "double" => AttentionGate::Double,
-                    "bounded" => AttentionGate::Bounded,
-                    _ => return Err(enum_err(key)),
-                }
-            }
-            "head" | "loss" => {
-                self.head = match lower.as_str() {
-                    "ordinal" => HeadKind::Ordinal,
-                    "l1" => HeadKind::L1,
-                    "l2" => HeadKind::L2,
-                    _ => return Err(enum_err(key)),
-                }
-            }
+            "attention-gate" => self.attention_gate = parse_choice(key, v, ATTENTION_GATE_NAMES)?,
+            "head" | "loss" => self.head = parse_choice(key, v, HEAD_NAMES)?,
             "radar-channels" => self.radar_channels = parse_num(key, v)?,
             "radar-input" => {
                 self.radar_input = v.parse()?;
@@ -560,30 +582,12 @@ impl ModelConfig {
             }
             "radar-in-metres" | "radar-in-meters" => self.radar_in_metres = parse_bool(key, v)?,
             "clamp-logits" => self.clamp_logits = parse_bool(key, v)?,
-            "radar-branch" => {
-                self.radar_branch = match lower.as_str() {
-                    "basic" => RadarBranchKind::Basic,
-                    "bottleneck" => RadarBranchKind::Bottleneck,
-                    _ => return Err(enum_err(key)),
-                }
-            }
+            "radar-branch" => self.radar_branch = parse_choice(key, v, RADAR_BRANCH_NAMES)?,
             "radar-width" => self.radar_width = parse_num(key, v)?,
             "radar-out-channels" => self.radar_out_channels = parse_num(key, v)?,
-            "decoder" => {
-                self.decoder = match lower.as_str() {
-                    "topdown" => DecoderKind::Topdown,
-                    "released" => DecoderKind::Released,
-                    _ => return Err(enum_err(key)),
-                }
-            }
+            "decoder" => self.decoder = parse_choice(key, v, DECODER_NAMES)?,
             "decoder-channels" => self.decoder_channels = parse_num(key, v)?,
-            "stem" => {
-                self.stem = match lower.as_str() {
-                    "torchvision" => StemKind::Torchvision,
-                    "deep" => StemKind::Deep,
-                    _ => return Err(enum_err(key)),
-                }
-            }
+            "stem" => self.stem = parse_choice(key, v, STEM_NAMES)?,
             "head-channels" => self.head_channels = parse_num(key, v)?,
             "head-pre-dropout" => self.head_pre_dropout = parse_bool(key, v)?,
             "dropout" => self.dropout = parse_num(key, v)?,
