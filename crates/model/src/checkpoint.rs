@@ -107,9 +107,11 @@ pub fn safetensors_bytes(
     Ok(out)
 }
 
-/// Parses safetensors bytes: (tensors in file order of offsets, metadata). Every length and
-/// offset is checked, so truncated or foreign files give a clear error.
-pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError> {
+/// The JSON header of safetensors `bytes` and the data section after it.
+fn split_safetensors<'b>(
+    path: &Path,
+    bytes: &'b [u8],
+) -> Result<(serde_json::Map<String, serde_json::Value>, &'b [u8]), ModelError> {
     let bad = |m: String| ModelError::format(path, m);
     if bytes.len() < 8 {
         return Err(bad(format!(
@@ -127,7 +129,75 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
     let header: serde_json::Map<String, serde_json::Value> =
         serde_json::from_slice(&bytes[8..8 + n])
             .map_err(|e| bad(format!("not a safetensors file: header is not JSON ({e})")))?;
-    let data = &bytes[8 + n..];
+    Ok((header, &bytes[8 + n..]))
+}
+
+/// Tensor `name` of a safetensors header: its entry `v` checked against the `data` section.
+fn safetensors_tensor(
+    path: &Path,
+    name: &str,
+    v: &serde_json::Value,
+    data: &[u8],
+) -> Result<Tensor, ModelError> {
+    let bad = |m: String| ModelError::format(path, m);
+    let dtype = v.get("dtype").and_then(|d| d.as_str()).unwrap_or("");
+    let (kind, es) =
+        kind_of(dtype).ok_or_else(|| bad(format!("tensor {name}: unsupported dtype `{dtype}`")))?;
+    // Every dimension must be a non-negative integer; the element count and byte length
+    // are computed in checked arithmetic (issue 10: sizes come from the file).
+    let shape: Vec<i64> = v
+        .get("shape")
+        .and_then(|s| s.as_array())
+        .and_then(|a| {
+            a.iter()
+                .map(|x| x.as_i64().filter(|&d| d >= 0))
+                .collect::<Option<Vec<i64>>>()
+        })
+        .ok_or_else(|| {
+            bad(format!(
+                "tensor {name}: no shape, or a dimension that is not a non-negative integer"
+            ))
+        })?;
+    let offs: Vec<usize> = v
+        .get("data_offsets")
+        .and_then(|s| s.as_array())
+        .map(|a| {
+            a.iter()
+                .filter_map(|x| x.as_u64().map(|u| u as usize))
+                .collect()
+        })
+        .unwrap_or_default();
+    if offs.len() != 2 || offs[0] > offs[1] {
+        return Err(bad(format!("tensor {name}: bad data_offsets")));
+    }
+    let nbytes = shape
+        .iter()
+        .try_fold(es as u64, |a, &d| a.checked_mul(d as u64))
+        .ok_or_else(|| bad(format!("tensor {name}: shape {shape:?} overflows")))?;
+    if (offs[1] - offs[0]) as u64 != nbytes {
+        return Err(bad(format!(
+            "tensor {name}: {} bytes for shape {shape:?} {dtype}",
+            offs[1] - offs[0]
+        )));
+    }
+    if offs[1] > data.len() {
+        return Err(bad(format!(
+            "truncated: tensor {name} ends at byte {} of the data section but it holds only {} bytes",
+            offs[1],
+            data.len()
+        )));
+    }
+    Ok(Tensor::f_from_data_size(
+        &data[offs[0]..offs[1]],
+        &shape,
+        kind,
+    )?)
+}
+
+/// Parses safetensors bytes: (tensors in file order of offsets, metadata). Every length and
+/// offset is checked, so truncated or foreign files give a clear error.
+pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError> {
+    let (header, data) = split_safetensors(path, bytes)?;
     let mut meta = BTreeMap::new();
     let mut out = Vec::new();
     for (name, v) in &header {
@@ -139,54 +209,7 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
             }
             continue;
         }
-        let dtype = v.get("dtype").and_then(|d| d.as_str()).unwrap_or("");
-        let (kind, es) = kind_of(dtype)
-            .ok_or_else(|| bad(format!("tensor {name}: unsupported dtype `{dtype}`")))?;
-        // Every dimension must be a non-negative integer; the element count and byte length
-        // are computed in checked arithmetic (issue 10: sizes come from the file).
-        let shape: Vec<i64> = v
-            .get("shape")
-            .and_then(|s| s.as_array())
-            .and_then(|a| {
-                a.iter()
-                    .map(|x| x.as_i64().filter(|&d| d >= 0))
-                    .collect::<Option<Vec<i64>>>()
-            })
-            .ok_or_else(|| {
-                bad(format!(
-                    "tensor {name}: no shape, or a dimension that is not a non-negative integer"
-                ))
-            })?;
-        let offs: Vec<usize> = v
-            .get("data_offsets")
-            .and_then(|s| s.as_array())
-            .map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_u64().map(|u| u as usize))
-                    .collect()
-            })
-            .unwrap_or_default();
-        if offs.len() != 2 || offs[0] > offs[1] {
-            return Err(bad(format!("tensor {name}: bad data_offsets")));
-        }
-        let nbytes = shape
-            .iter()
-            .try_fold(es as u64, |a, &d| a.checked_mul(d as u64))
-            .ok_or_else(|| bad(format!("tensor {name}: shape {shape:?} overflows")))?;
-        if (offs[1] - offs[0]) as u64 != nbytes {
-            return Err(bad(format!(
-                "tensor {name}: {} bytes for shape {shape:?} {dtype}",
-                offs[1] - offs[0]
-            )));
-        }
-        if offs[1] > data.len() {
-            return Err(bad(format!(
-                "truncated: tensor {name} ends at byte {} of the data section but it holds only {} bytes",
-                offs[1],
-                data.len()
-            )));
-        }
-        let t = Tensor::f_from_data_size(&data[offs[0]..offs[1]], &shape, kind)?;
+        let t = safetensors_tensor(path, name, v, data)?;
         out.push((name.clone(), t));
     }
     Ok((out, meta))
