@@ -692,6 +692,45 @@ pub fn read_torch_bytes(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor
     }
 }
 
+/// Record `name` of a `torch.save` zip archive (`archive_len` bytes in all), read in full.
+fn read_record(
+    path: &Path,
+    zip: &mut zip::ZipArchive<std::io::Cursor<&[u8]>>,
+    archive_len: usize,
+    name: &str,
+) -> Result<Vec<u8>, ModelError> {
+    let mut e = zip
+        .by_name(name)
+        .map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
+    // The declared size is only a hint: never allocate more than deflate can produce
+    // from the archive, and never read past the declared size.
+    let declared = e.size();
+    let possible = (archive_len as u64).saturating_mul(1100);
+    if declared > possible {
+        return Err(ModelError::format(
+            path,
+            format!("record {name} claims {declared} bytes, more than a {archive_len} byte archive can hold"),
+        ));
+    }
+    let mut buf = Vec::with_capacity(declared.min(archive_len as u64) as usize);
+    (&mut e)
+        .take(declared.saturating_add(1))
+        .read_to_end(&mut buf)
+        .map_err(|e| {
+            ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
+        })?;
+    if buf.len() as u64 != declared {
+        return Err(ModelError::format(
+            path,
+            format!(
+                "record {name} holds {} bytes, its header says {declared}",
+                buf.len()
+            ),
+        ));
+    }
+    Ok(buf)
+}
+
 fn read_zip(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
     let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(|e| {
         ModelError::format(
@@ -707,41 +746,7 @@ fn read_zip(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelErr
             ModelError::format(path, "zip archive without data.pkl: not a torch.save file")
         })?;
     let prefix = pkl_name.trim_end_matches("data.pkl").to_string();
-    let mut read_entry = |name: &str| -> Result<Vec<u8>, ModelError> {
-        let mut e = zip
-            .by_name(name)
-            .map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
-        // The declared size is only a hint: never allocate more than deflate can produce
-        // from the archive, and never read past the declared size.
-        let declared = e.size();
-        let possible = (bytes.len() as u64).saturating_mul(1100);
-        if declared > possible {
-            return Err(ModelError::format(
-                path,
-                format!(
-                    "record {name} claims {declared} bytes, more than a {} byte archive can hold",
-                    bytes.len()
-                ),
-            ));
-        }
-        let mut buf = Vec::with_capacity(declared.min(bytes.len() as u64) as usize);
-        (&mut e)
-            .take(declared.saturating_add(1))
-            .read_to_end(&mut buf)
-            .map_err(|e| {
-                ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
-            })?;
-        if buf.len() as u64 != declared {
-            return Err(ModelError::format(
-                path,
-                format!(
-                    "record {name} holds {} bytes, its header says {declared}",
-                    buf.len()
-                ),
-            ));
-        }
-        Ok(buf)
-    };
+    let mut read_entry = |name: &str| read_record(path, &mut zip, bytes.len(), name);
     if let Ok(order) = read_entry(&format!("{prefix}byteorder")) {
         if order.trim_ascii() != b"little" {
             return Err(ModelError::format(
@@ -809,6 +814,43 @@ fn read_legacy(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, Model
     materialize(path, refs, &storages)
 }
 
+/// Checks the strided view `t` against a storage of `numel` elements, in checked
+/// arithmetic: every number here comes from the file (issue 10). Returns whether the view is
+/// empty, or why it is refused.
+fn check_view(t: &TensorRef, numel: usize) -> Result<bool, &'static str> {
+    if t.size.len() != t.stride.len() {
+        return Err("has sizes and strides of different lengths");
+    }
+    if t.offset < 0 || t.size.iter().any(|&s| s < 0) || t.stride.iter().any(|&s| s < 0) {
+        return Err("has a negative size, stride or offset");
+    }
+    let empty = t.size.contains(&0);
+    let view_numel = t
+        .size
+        .iter()
+        .try_fold(1i64, |a, &s| a.checked_mul(s))
+        .ok_or("has more elements than fit in 64 bits")?;
+    let last = t
+        .size
+        .iter()
+        .zip(&t.stride)
+        .try_fold(t.offset, |a, (&s, &st)| {
+            (s - 1)
+                .max(0)
+                .checked_mul(st)
+                .and_then(|x| a.checked_add(x))
+        })
+        .ok_or("overflows")?;
+    if !empty && last as u64 >= numel as u64 {
+        return Err("exceeds its storage (truncated?)");
+    }
+    // Stride-0 views would let a few bytes expand into any amount of memory.
+    if view_numel as u64 > (numel as u64).max(1 << 16) {
+        return Err("expands beyond its storage");
+    }
+    Ok(empty)
+}
+
 fn materialize(
     path: &Path,
     refs: Vec<(String, TensorRef)>,
@@ -832,9 +874,7 @@ fn materialize(
             )
         })?;
         let numel = data.len() / es;
-        // Bounds check of the strided view against the storage, in checked arithmetic: every
-        // number here comes from the file (issue 10).
-        let view_err = |why: &str| {
+        let empty = check_view(&t, numel).map_err(|why| {
             ModelError::format(
                 path,
                 format!(
@@ -842,37 +882,7 @@ fn materialize(
                     t.size, t.stride, t.offset
                 ),
             )
-        };
-        if t.size.len() != t.stride.len() {
-            return Err(view_err("has sizes and strides of different lengths"));
-        }
-        if t.offset < 0 || t.size.iter().any(|&s| s < 0) || t.stride.iter().any(|&s| s < 0) {
-            return Err(view_err("has a negative size, stride or offset"));
-        }
-        let empty = t.size.contains(&0);
-        let view_numel = t
-            .size
-            .iter()
-            .try_fold(1i64, |a, &s| a.checked_mul(s))
-            .ok_or_else(|| view_err("has more elements than fit in 64 bits"))?;
-        let last = t
-            .size
-            .iter()
-            .zip(&t.stride)
-            .try_fold(t.offset, |a, (&s, &st)| {
-                (s - 1)
-                    .max(0)
-                    .checked_mul(st)
-                    .and_then(|x| a.checked_add(x))
-            })
-            .ok_or_else(|| view_err("overflows"))?;
-        if !empty && last as u64 >= numel as u64 {
-            return Err(view_err("exceeds its storage (truncated?)"));
-        }
-        // Stride-0 views would let a few bytes expand into any amount of memory.
-        if view_numel as u64 > (numel as u64).max(1 << 16) {
-            return Err(view_err("expands beyond its storage"));
-        }
+        })?;
         let tensor = if empty {
             Tensor::f_zeros(&t.size, (kind, Device::Cpu))?
         } else {
@@ -919,6 +929,71 @@ impl PickleWriter {
         }
         self.op(b't');
     }
+    /// One state-dict entry: `name` → `_rebuild_tensor_v2` of storage `key` (class `st`,
+    /// `numel` elements), a contiguous view of `size`.
+    fn tensor_entry(&mut self, name: &str, key: &str, st: &str, numel: usize, size: &[i64]) {
+        let mut stride = vec![1i64; size.len()];
+        for d in (0..size.len().saturating_sub(1)).rev() {
+            stride[d] = stride[d + 1] * size[d + 1].max(1);
+        }
+        self.string(name);
+        self.global("torch._utils", "_rebuild_tensor_v2");
+        self.op(b'(');
+        self.op(b'(');
+        self.string("storage");
+        self.global("torch", st);
+        self.string(key);
+        self.string("cpu");
+        self.int(numel as i64);
+        self.op(b't');
+        self.op(b'Q');
+        self.int(0);
+        self.int_tuple(size);
+        self.int_tuple(&stride);
+        self.op(0x89);
+        self.global("collections", "OrderedDict");
+        self.op(b')');
+        self.op(b'R');
+        self.op(b't');
+        self.op(b'R');
+    }
+}
+
+/// The raw little-endian bytes of tensor `name` and its storage class name.
+fn storage_bytes(name: &str, t: &Tensor) -> Result<(Vec<u8>, &'static str), ModelError> {
+    let st = storage_name(t.kind()).ok_or_else(|| {
+        ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind()))
+    })?;
+    let numel = t.numel();
+    let es = t.kind().elt_size_in_bytes();
+    let mut buf = vec![0u8; numel * es];
+    t.f_copy_data_u8(&mut buf, numel)?;
+    Ok((buf, st))
+}
+
+/// The zip archive of a `torch.save` file: `archive/data.pkl`, `byteorder`, the storages
+/// `data/<i>` and `version`, stored uncompressed.
+fn torch_zip(path: &Path, pkl: &[u8], blobs: &[Vec<u8>]) -> Result<Vec<u8>, ModelError> {
+    let mut cursor = std::io::Cursor::new(Vec::new());
+    {
+        let mut z = zip::ZipWriter::new(&mut cursor);
+        let opts =
+            zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
+        let mut put = |name: &str, data: &[u8]| -> Result<(), ModelError> {
+            z.start_file(format!("archive/{name}"), opts)
+                .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
+            z.write_all(data).map_err(|e| ModelError::io(path, e))
+        };
+        put("data.pkl", pkl)?;
+        put("byteorder", b"little")?;
+        for (i, b) in blobs.iter().enumerate() {
+            put(&format!("data/{i}"), b)?;
+        }
+        put("version", b"3\n")?;
+        z.finish()
+            .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
+    }
+    Ok(cursor.into_inner())
 }
 
 /// Writes named tensors as a `torch.save`-compatible zip file holding an `OrderedDict` state
@@ -933,60 +1008,12 @@ pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Resu
     let mut blobs = Vec::new();
     for (i, (name, t)) in tensors.iter().enumerate() {
         let t = t.detach().to_device(Device::Cpu).contiguous();
-        let st = storage_name(t.kind()).ok_or_else(|| {
-            ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind()))
-        })?;
-        let numel = t.numel();
-        let es = t.kind().elt_size_in_bytes();
-        let mut buf = vec![0u8; numel * es];
-        t.f_copy_data_u8(&mut buf, numel)?;
-        let size = t.size();
-        let mut stride = vec![1i64; size.len()];
-        for d in (0..size.len().saturating_sub(1)).rev() {
-            stride[d] = stride[d + 1] * size[d + 1].max(1);
-        }
-        w.string(name);
-        w.global("torch._utils", "_rebuild_tensor_v2");
-        w.op(b'(');
-        w.op(b'(');
-        w.string("storage");
-        w.global("torch", st);
-        w.string(&i.to_string());
-        w.string("cpu");
-        w.int(numel as i64);
-        w.op(b't');
-        w.op(b'Q');
-        w.int(0);
-        w.int_tuple(&size);
-        w.int_tuple(&stride);
-        w.op(0x89);
-        w.global("collections", "OrderedDict");
-        w.op(b')');
-        w.op(b'R');
-        w.op(b't');
-        w.op(b'R');
+        let (buf, st) = storage_bytes(name, &t)?;
+        w.tensor_entry(name, &i.to_string(), st, t.numel(), &t.size());
         blobs.push(buf);
     }
     w.op(b'u');
     w.op(b'.');
-    let mut cursor = std::io::Cursor::new(Vec::new());
-    {
-        let mut z = zip::ZipWriter::new(&mut cursor);
-        let opts =
-            zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
-        let mut put = |name: &str, data: &[u8]| -> Result<(), ModelError> {
-            z.start_file(format!("archive/{name}"), opts)
-                .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
-            z.write_all(data).map_err(|e| ModelError::io(path, e))
-        };
-        put("data.pkl", &w.out)?;
-        put("byteorder", b"little")?;
-        for (i, b) in blobs.iter().enumerate() {
-            put(&format!("data/{i}"), b)?;
-        }
-        put("version", b"3\n")?;
-        z.finish()
-            .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
-    }
-    crate::checkpoint::write_atomic(path, cursor.get_ref())
+    let archive = torch_zip(path, &w.out, &blobs)?;
+    crate::checkpoint::write_atomic(path, &archive)
 }
