@@ -26,68 +26,72 @@ pub(crate) enum Decoder {
 
 impl Decoder {
     pub(crate) fn new(p: &P, kind: DecoderKind, cin: [i64; 3], ch: i64) -> Decoder {
+        let d = p.sub("decoder");
         match kind {
-            DecoderKind::Topdown => {
-                let d = p.sub("decoder");
-                let lat = |i: usize| {
-                    Conv::new(
-                        &d.sub(&format!("lateral{}", i + 2)),
-                        cin[i],
-                        ch,
-                        1,
-                        1,
-                        0,
-                        1,
-                        true,
-                    )
-                };
-                let sm = |i: usize| {
-                    Conv::new(
-                        &d.sub(&format!("smooth{}", i + 2)),
-                        ch,
-                        ch,
-                        3,
-                        1,
-                        1,
-                        1,
-                        true,
-                    )
-                };
-                Decoder::Topdown {
-                    lateral: [lat(0), lat(1), lat(2)],
-                    smooth: [sm(0), sm(1), sm(2)],
-                }
-            }
-            DecoderKind::Released => {
-                let d = p.sub("decoder");
-                let f = d.sub("fpn");
-                // P3 ← C2, P4 ← C3, P5 ← C4.
-                let lat = |i: usize| {
-                    Conv::new(
-                        &f.sub(&format!("P{}_1", i + 3)),
-                        cin[i],
-                        ch,
-                        1,
-                        1,
-                        0,
-                        1,
-                        true,
-                    )
-                };
-                let sm = |i: usize| {
-                    Conv::new(&f.sub(&format!("P{}_2", i + 3)), ch, ch, 3, 1, 1, 1, true)
-                };
-                let feat = [
-                    Conv::new(&d.sub("convfeat1"), ch, ch, 7, 4, 2, 1, false),
-                    Conv::new(&d.sub("convfeat2"), ch, ch, 3, 2, 1, 1, false),
-                    Conv::new(&d.sub("convfeat3"), ch, ch, 3, 1, 1, 1, false),
-                ];
-                Decoder::Released {
-                    lateral: [lat(0), lat(1), lat(2)],
-                    smooth: [sm(0), sm(1), sm(2)],
-                    feat,
-                }
-            }
+            DecoderKind::Topdown => Self::topdown(&d, cin, ch),
+            DecoderKind::Released => Self::released(&d, cin, ch),
+        }
+    }
+
+    /// The paper's decoder under `d` (`decoder.`): `lateral2..4`, `smooth2..4`.
+    fn topdown(d: &P, cin: [i64; 3], ch: i64) -> Decoder {
+        let lat = |i: usize| {
+            Conv::new(
+                &d.sub(&format!("lateral{}", i + 2)),
+                cin[i],
+                ch,
+                1,
+                1,
+                0,
+                1,
+                true,
+            )
+        };
+        let sm = |i: usize| {
+            Conv::new(
+                &d.sub(&format!("smooth{}", i + 2)),
+                ch,
+                ch,
+                3,
+                1,
+                1,
+                1,
+                true,
+            )
+        };
+        Decoder::Topdown {
+            lateral: [lat(0), lat(1), lat(2)],
+            smooth: [sm(0), sm(1), sm(2)],
+        }
+    }
+
+    /// The released decoder under `d` (`decoder.`): `fpn.P3_1..P5_2`, `convfeat1..3`.
+    fn released(d: &P, cin: [i64; 3], ch: i64) -> Decoder {
+        let f = d.sub("fpn");
+        // P3 ← C2, P4 ← C3, P5 ← C4.
+        let lat = |i: usize| {
+            Conv::new(
+                &f.sub(&format!("P{}_1", i + 3)),
+                cin[i],
+                ch,
+                1,
+                1,
+                0,
+                1,
+                true,
+            )
+        };
+        let sm = |i: usize| Conv::new(&f.sub(&format!("P{}_2", i + 3)), ch, ch, 3, 1, 1, 1, true);
+        // Created before the FPN convs (variable creation order = initialisation order).
+        let feat = [
+            Conv::new(&d.sub("convfeat1"), ch, ch, 7, 4, 2, 1, false),
+            Conv::new(&d.sub("convfeat2"), ch, ch, 3, 2, 1, 1, false),
+            Conv::new(&d.sub("convfeat3"), ch, ch, 3, 1, 1, 1, false),
+        ];
+        Decoder::Released {
+            lateral: [lat(0), lat(1), lat(2)],
+            smooth: [sm(0), sm(1), sm(2)],
+            feat,
         }
     }
 

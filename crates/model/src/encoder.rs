@@ -46,55 +46,24 @@ impl Block {
                 1,
             )
         });
+        // `conv{i}` + `bn{i}`: [cin, cout, k, stride, pad, dil].
+        let cb = |i: usize, [cin, cout, k, stride, pad, dil]: [i64; 6]| {
+            let (conv, bn) = (format!("conv{i}"), format!("bn{i}"));
+            ConvBn::new(&p.sub(&conv), &p.sub(&bn), cin, cout, k, stride, pad, dil)
+        };
         match kind {
             BlockKind::Basic => Block {
                 kind,
-                c1: ConvBn::new(
-                    &p.sub("conv1"),
-                    &p.sub("bn1"),
-                    cin,
-                    planes,
-                    3,
-                    stride,
-                    dil,
-                    dil,
-                ),
-                c2: ConvBn::new(
-                    &p.sub("conv2"),
-                    &p.sub("bn2"),
-                    planes,
-                    planes,
-                    3,
-                    1,
-                    dil,
-                    dil,
-                ),
+                c1: cb(1, [cin, planes, 3, stride, dil, dil]),
+                c2: cb(2, [planes, planes, 3, 1, dil, dil]),
                 c3: None,
                 down,
             },
             BlockKind::Bottleneck => Block {
                 kind,
-                c1: ConvBn::new(&p.sub("conv1"), &p.sub("bn1"), cin, planes, 1, 1, 0, 1),
-                c2: ConvBn::new(
-                    &p.sub("conv2"),
-                    &p.sub("bn2"),
-                    planes,
-                    planes,
-                    3,
-                    stride,
-                    dil,
-                    dil,
-                ),
-                c3: Some(ConvBn::new(
-                    &p.sub("conv3"),
-                    &p.sub("bn3"),
-                    planes,
-                    out,
-                    1,
-                    1,
-                    0,
-                    1,
-                )),
+                c1: cb(1, [cin, planes, 1, 1, 0, 1]),
+                c2: cb(2, [planes, planes, 3, stride, dil, dil]),
+                c3: Some(cb(3, [planes, out, 1, 1, 0, 1])),
                 down,
             },
         }
@@ -178,6 +147,17 @@ pub(crate) struct ResNet {
 
 impl ResNet {
     pub fn new(p: &P, s: &ResNetSpec) -> ResNet {
+        let (stem, cin) = Self::stem(p, s);
+        let (layers, channels) = Self::layers(p, s, cin);
+        ResNet {
+            stem,
+            layers,
+            channels,
+        }
+    }
+
+    /// The stem of `s` under `p` and its output channels.
+    fn stem(p: &P, s: &ResNetSpec) -> (Stem, i64) {
         let w = s.width;
         let cb = |i: usize, cin: i64, cout: i64, k: i64, st: i64, pad: i64| {
             ConvBn::new(
@@ -191,7 +171,7 @@ impl ResNet {
                 1,
             )
         };
-        let (stem, mut cin) = match s.stem {
+        match s.stem {
             StemKind::Torchvision => (Stem::Torchvision(cb(1, s.in_channels, w, 7, 2, 3)), w),
             // SPEC §6.1 image stem: 3x3/2 3→64, 3x3 64→64, 3x3 64→128.
             StemKind::Deep => (
@@ -212,7 +192,12 @@ impl ResNet {
                 ]),
                 2 * w,
             ),
-        };
+        }
+    }
+
+    /// layer1..layer4 of `s` under `p`, from `cin` stem channels, and the channels of C1..C4.
+    fn layers(p: &P, s: &ResNetSpec, mut cin: i64) -> (Vec<Vec<Block>>, [i64; 4]) {
+        let w = s.width;
         let mut layers = Vec::new();
         let mut channels = [0; 4];
         #[allow(clippy::needless_range_loop)] // li indexes four parallel arrays
@@ -235,11 +220,7 @@ impl ResNet {
             channels[li] = cin;
             layers.push(blocks);
         }
-        ResNet {
-            stem,
-            layers,
-            channels,
-        }
+        (layers, channels)
     }
 
     fn pool_geometry(&self) -> (i64, i64, i64) {
