@@ -138,6 +138,49 @@ impl<'a> Reader<'a> {
             self.take(8)?.try_into().map_err(|_| "short read")?,
         ))
     }
+    /// The string or bytes value of opcode `op`: BINUNICODE (`X`), SHORT_BINUNICODE,
+    /// BINUNICODE8, SHORT_BINSTRING (`U`), BINSTRING (`T`), BINBYTES (`B`), SHORT_BINBYTES (`C`).
+    fn string_op(&mut self, op: u8) -> Result<Value, String> {
+        if let b'X' | 0x8c | 0x8d = op {
+            let n = match op {
+                b'X' => self.u32()? as usize,
+                0x8c => self.u8()? as usize,
+                _ => usize::try_from(self.u64()?).unwrap_or(usize::MAX),
+            };
+            return Ok(Value::Str(
+                String::from_utf8_lossy(self.take(n)?).into_owned(),
+            ));
+        }
+        let n = if op == b'U' || op == b'C' {
+            self.u8()? as usize
+        } else {
+            self.u32()? as usize
+        };
+        let data = self.take(n)?.to_vec();
+        Ok(if op == b'U' || op == b'T' {
+            Value::Str(String::from_utf8_lossy(&data).into_owned())
+        } else {
+            Value::Bytes(data)
+        })
+    }
+    /// LONG1: a little-endian two's-complement integer of up to 8 bytes; wider ones (only the
+    /// legacy format's magic number is this wide) as bytes.
+    fn long1(&mut self) -> Result<Value, String> {
+        let n = self.u8()? as usize;
+        let b = self.take(n)?;
+        if n > 8 {
+            // only the legacy format's magic number is this wide
+            return Ok(Value::Bytes(b.to_vec()));
+        }
+        let mut v: i64 = 0;
+        for (i, x) in b.iter().enumerate() {
+            v |= (*x as i64) << (8 * i);
+        }
+        if n > 0 && n < 8 && b[n - 1] & 0x80 != 0 {
+            v -= 1i64 << (8 * n);
+        }
+        Ok(Value::Int(v))
+    }
     fn line(&mut self) -> Result<String, String> {
         let start = self.pos;
         while self.pos < self.b.len() && self.b[self.pos] != b'\n' {
@@ -360,6 +403,119 @@ impl Machine {
             _ => Ok(()),
         }
     }
+    /// STACK_GLOBAL: module and name strings → a global.
+    fn stack_global(&mut self) -> Result<(), String> {
+        let (n, _) = self.pop()?;
+        let (m, _) = self.pop()?;
+        match (m, n) {
+            (Value::Str(m), Value::Str(n)) => self.leaf(Value::Global(m, n)),
+            _ => Err("STACK_GLOBAL with non-string operands".into()),
+        }
+    }
+    /// BINPERSID: a `('storage', type, key, …)` tuple → a storage.
+    fn persistent_id(&mut self) -> Result<(), String> {
+        let (pid, _) = self.pop()?;
+        let items = match pid {
+            Value::Tuple(t) => t,
+            _ => return Err("persistent id is not a tuple".into()),
+        };
+        match (items.first(), items.get(1), items.get(2)) {
+            (Some(Value::Str(tag)), Some(sv), Some(Value::Str(key))) if tag == "storage" => {
+                let dtype = match sv {
+                    Value::Global(_, n) => n.clone(),
+                    Value::Str(s) => s.clone(),
+                    _ => "UntypedStorage".into(),
+                };
+                self.leaf(Value::Storage {
+                    dtype,
+                    key: key.clone(),
+                })
+            }
+            _ => Err("persistent id is not a ('storage', type, key, …) tuple".into()),
+        }
+    }
+    /// DICT: the key/value pairs above the topmost MARK → a dict.
+    fn dict(&mut self) -> Result<(), String> {
+        let (items, m) = self.pop_mark()?;
+        let mut d = Vec::new();
+        let mut it = items.into_iter();
+        while let (Some(k), Some(v)) = (it.next(), it.next()) {
+            d.push((k, v));
+        }
+        self.push(Value::Dict(d), m)
+    }
+    /// BUILD: the popped state into the object below it.
+    fn build(&mut self) -> Result<(), String> {
+        let (state_v, ms) = self.pop()?;
+        match self.last_mut() {
+            Some((Value::Object { state, .. }, m)) => {
+                **state = state_v;
+                m.absorb(ms);
+            }
+            Some(_) => {} // OrderedDict attributes (`_metadata`) etc.: ignored
+            None => return Err("BUILD on empty stack".into()),
+        }
+        self.check_top()
+    }
+    /// SETITEM: one popped key/value pair into the dict below it.
+    fn set_item(&mut self) -> Result<(), String> {
+        let (v, mv) = self.pop()?;
+        let (k, mk) = self.pop()?;
+        match self.last_mut() {
+            Some((Value::Dict(d), m)) => {
+                d.push((k, v));
+                m.absorb(mv);
+                m.absorb(mk);
+            }
+            _ => return Err("SETITEM on a non-dict".into()),
+        }
+        self.check_top()
+    }
+    /// SETITEMS: the key/value pairs above the topmost MARK into the dict below it.
+    fn set_items(&mut self) -> Result<(), String> {
+        let (items, mi) = self.pop_mark()?;
+        match self.last_mut() {
+            Some((Value::Dict(d), m)) => {
+                let mut it = items.into_iter();
+                while let (Some(k), Some(v)) = (it.next(), it.next()) {
+                    d.push((k, v));
+                }
+                m.absorb(Meta {
+                    depth: mi.depth.saturating_sub(1),
+                    weight: mi.weight,
+                });
+            }
+            _ => return Err("SETITEMS on a non-dict".into()),
+        }
+        self.check_top()
+    }
+    /// APPEND: one popped value onto the list below it.
+    fn append(&mut self) -> Result<(), String> {
+        let (v, mv) = self.pop()?;
+        match self.last_mut() {
+            Some((Value::List(l), m)) => {
+                l.push(v);
+                m.absorb(mv);
+            }
+            _ => return Err("APPEND on a non-list".into()),
+        }
+        self.check_top()
+    }
+    /// APPENDS (and ADDITEMS): the values above the topmost MARK onto the list below it.
+    fn appends(&mut self) -> Result<(), String> {
+        let (items, mi) = self.pop_mark()?;
+        match self.last_mut() {
+            Some((Value::List(l), m)) => {
+                l.extend(items);
+                m.absorb(Meta {
+                    depth: mi.depth.saturating_sub(1),
+                    weight: mi.weight,
+                });
+            }
+            _ => return Err("APPENDS on a non-list".into()),
+        }
+        self.check_top()
+    }
 }
 
 /// Parses one pickle starting at byte `start`; returns the value and the position after STOP.
@@ -422,88 +578,21 @@ pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), Str
                 st.charge(m)?;
                 st.push(v.clone(), m)?;
             }
-            b'X' | 0x8c | 0x8d => {
-                let n = match op {
-                    b'X' => r.u32()? as usize,
-                    0x8c => r.u8()? as usize,
-                    _ => usize::try_from(r.u64()?).unwrap_or(usize::MAX),
-                };
-                st.leaf(Value::Str(String::from_utf8_lossy(r.take(n)?).into_owned()))?;
-            }
-            b'U' | b'T' | b'B' | b'C' => {
-                let n = if op == b'U' || op == b'C' {
-                    r.u8()? as usize
-                } else {
-                    r.u32()? as usize
-                };
-                let data = r.take(n)?.to_vec();
-                st.leaf(if op == b'U' || op == b'T' {
-                    Value::Str(String::from_utf8_lossy(&data).into_owned())
-                } else {
-                    Value::Bytes(data)
-                })?;
-            }
+            b'X' | 0x8c | 0x8d | b'U' | b'T' | b'B' | b'C' => st.leaf(r.string_op(op)?)?,
             b'c' => {
                 let m = r.line()?;
                 let n = r.line()?;
                 st.leaf(Value::Global(m, n))?;
             }
-            0x93 => {
-                let (n, _) = st.pop()?;
-                let (m, _) = st.pop()?;
-                match (m, n) {
-                    (Value::Str(m), Value::Str(n)) => st.leaf(Value::Global(m, n))?,
-                    _ => return Err("STACK_GLOBAL with non-string operands".into()),
-                }
-            }
-            b'Q' => {
-                let (pid, _) = st.pop()?;
-                let items = match pid {
-                    Value::Tuple(t) => t,
-                    _ => return Err("persistent id is not a tuple".into()),
-                };
-                match (items.first(), items.get(1), items.get(2)) {
-                    (Some(Value::Str(tag)), Some(sv), Some(Value::Str(key)))
-                        if tag == "storage" =>
-                    {
-                        let dtype = match sv {
-                            Value::Global(_, n) => n.clone(),
-                            Value::Str(s) => s.clone(),
-                            _ => "UntypedStorage".into(),
-                        };
-                        st.leaf(Value::Storage {
-                            dtype,
-                            key: key.clone(),
-                        })?;
-                    }
-                    _ => {
-                        return Err("persistent id is not a ('storage', type, key, …) tuple".into())
-                    }
-                }
-            }
+            0x93 => st.stack_global()?,
+            b'Q' => st.persistent_id()?,
             b'J' => st.leaf(Value::Int(r.u32()? as i32 as i64))?,
             b'K' => st.leaf(Value::Int(r.u8()? as i64))?,
             b'M' => {
                 let b = r.take(2)?;
                 st.leaf(Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64))?;
             }
-            0x8a => {
-                let n = r.u8()? as usize;
-                let b = r.take(n)?;
-                if n > 8 {
-                    // only the legacy format's magic number is this wide
-                    st.leaf(Value::Bytes(b.to_vec()))?;
-                    continue;
-                }
-                let mut v: i64 = 0;
-                for (i, x) in b.iter().enumerate() {
-                    v |= (*x as i64) << (8 * i);
-                }
-                if n > 0 && n < 8 && b[n - 1] & 0x80 != 0 {
-                    v -= 1i64 << (8 * n);
-                }
-                st.leaf(Value::Int(v))?;
-            }
+            0x8a => st.leaf(r.long1()?)?,
             b'G' => {
                 let b = r.take(8)?;
                 st.leaf(Value::Float(f64::from_be_bytes(
@@ -522,88 +611,18 @@ pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), Str
                 let (items, m) = st.pop_mark()?;
                 st.push(Value::List(items), m)?;
             }
-            b'd' => {
-                let (items, m) = st.pop_mark()?;
-                let mut d = Vec::new();
-                let mut it = items.into_iter();
-                while let (Some(k), Some(v)) = (it.next(), it.next()) {
-                    d.push((k, v));
-                }
-                st.push(Value::Dict(d), m)?;
-            }
+            b'd' => st.dict()?,
             b'R' | 0x81 => {
                 let (args, ma) = st.pop()?;
                 let (callable, mc) = st.pop()?;
                 let m = Meta::around([&ma, &mc]);
                 st.push(reduce(callable, args)?, m)?;
             }
-            b'b' => {
-                let (state_v, ms) = st.pop()?;
-                match st.last_mut() {
-                    Some((Value::Object { state, .. }, m)) => {
-                        **state = state_v;
-                        m.absorb(ms);
-                    }
-                    Some(_) => {} // OrderedDict attributes (`_metadata`) etc.: ignored
-                    None => return Err("BUILD on empty stack".into()),
-                }
-                st.check_top()?;
-            }
-            b's' => {
-                let (v, mv) = st.pop()?;
-                let (k, mk) = st.pop()?;
-                match st.last_mut() {
-                    Some((Value::Dict(d), m)) => {
-                        d.push((k, v));
-                        m.absorb(mv);
-                        m.absorb(mk);
-                    }
-                    _ => return Err("SETITEM on a non-dict".into()),
-                }
-                st.check_top()?;
-            }
-            b'u' => {
-                let (items, mi) = st.pop_mark()?;
-                match st.last_mut() {
-                    Some((Value::Dict(d), m)) => {
-                        let mut it = items.into_iter();
-                        while let (Some(k), Some(v)) = (it.next(), it.next()) {
-                            d.push((k, v));
-                        }
-                        m.absorb(Meta {
-                            depth: mi.depth.saturating_sub(1),
-                            weight: mi.weight,
-                        });
-                    }
-                    _ => return Err("SETITEMS on a non-dict".into()),
-                }
-                st.check_top()?;
-            }
-            b'a' => {
-                let (v, mv) = st.pop()?;
-                match st.last_mut() {
-                    Some((Value::List(l), m)) => {
-                        l.push(v);
-                        m.absorb(mv);
-                    }
-                    _ => return Err("APPEND on a non-list".into()),
-                }
-                st.check_top()?;
-            }
-            b'e' | 0x90 => {
-                let (items, mi) = st.pop_mark()?;
-                match st.last_mut() {
-                    Some((Value::List(l), m)) => {
-                        l.extend(items);
-                        m.absorb(Meta {
-                            depth: mi.depth.saturating_sub(1),
-                            weight: mi.weight,
-                        });
-                    }
-                    _ => return Err("APPENDS on a non-list".into()),
-                }
-                st.check_top()?;
-            }
+            b'b' => st.build()?,
+            b's' => st.set_item()?,
+            b'u' => st.set_items()?,
+            b'a' => st.append()?,
+            b'e' | 0x90 => st.appends()?,
             b'0' => {
                 st.pop()?;
             }
