@@ -85,8 +85,6 @@ pub fn bench_train(
         opts.jobs
     };
 
-    // Loader alone.
-    progress.set_message("loader");
     let plan = |epoch| EpochPlan {
         entries: entries.clone(),
         batch_size: opts.batch_size,
@@ -97,19 +95,9 @@ pub fn bench_train(
         jobs,
         prefetch: 4,
     };
-    let t = Instant::now();
-    let mut images = 0usize;
-    let mut epoch = 0;
-    'outer: loop {
-        for b in Loader::start(&ds, &load, &plan(epoch))? {
-            images += b?.size;
-            if images >= opts.loader_batches * opts.batch_size {
-                break 'outer;
-            }
-        }
-        epoch += 1;
-    }
-    let loader_ips = images as f64 / t.elapsed().as_secs_f64();
+    // Loader alone.
+    progress.set_message("loader");
+    let (images, loader_ips) = time_loader(opts, &ds, &load, &plan)?;
     let first =
         depthsense_data::load_sample(&ds, &entries[0], &load, &mut depthsense_data::Rng::new(0))?;
     cfg.out_height = first.height as i64;
@@ -117,9 +105,62 @@ pub fn bench_train(
 
     // Training steps, with the loader running in the background as in `train`.
     progress.set_message("training steps");
+    let (timed_images, timed_secs, step_secs) =
+        time_steps(opts, &cfg, &ds, &load, &plan, device, progress)?;
+    Ok(serde_json::json!({
+        "benchmark": "train",
+        "device": depthsense_model::device::describe(device),
+        "preset": opts.preset,
+        "batch_size": opts.batch_size,
+        "frame": [first.width, first.height],
+        "amp": opts.amp && device.is_cuda(),
+        "amp_dtype": "bf16",
+        "train_images_per_s": timed_images as f64 / timed_secs.max(1e-9),
+        "train_step_seconds": step_secs,
+        "loader_images_per_s": loader_ips,
+        "loader_threads": jobs,
+        "loader_images": images,
+        "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
+        "torch_threads": tch::get_num_threads(),
+    }))
+}
+
+/// Images through the loader alone: (images, images per second).
+fn time_loader(
+    opts: &BenchTrainOptions,
+    ds: &Dataset,
+    load: &LoadOptions,
+    plan: &dyn Fn(u64) -> EpochPlan,
+) -> Result<(usize, f64), TrainError> {
+    let t = Instant::now();
+    let mut images = 0usize;
+    let mut epoch = 0;
+    'outer: loop {
+        for b in Loader::start(ds, load, &plan(epoch))? {
+            images += b?.size;
+            if images >= opts.loader_batches * opts.batch_size {
+                break 'outer;
+            }
+        }
+        epoch += 1;
+    }
+    Ok((images, images as f64 / t.elapsed().as_secs_f64()))
+}
+
+/// Warm-up, then timed training steps: (timed images, timed seconds, each step's seconds).
+#[allow(clippy::too_many_arguments)]
+fn time_steps(
+    opts: &BenchTrainOptions,
+    cfg: &ModelConfig,
+    ds: &Dataset,
+    load: &LoadOptions,
+    plan: &dyn Fn(u64) -> EpochPlan,
+    device: tch::Device,
+    progress: &indicatif::ProgressBar,
+) -> Result<(usize, f64, Vec<f64>), TrainError> {
     tch::manual_seed(0);
     let vs = VarStore::new(device);
-    let net = DepthNet::new(&vs.root(), &cfg)?;
+    let net = DepthNet::new(&vs.root(), cfg)?;
     let mut sgd = Sgd::new(&vs, 0.9, 1e-4);
     let mut done = 0usize;
     let mut timed_images = 0usize;
@@ -128,7 +169,7 @@ pub fn bench_train(
     let total = opts.warmup + opts.iterations.max(1);
     let mut epoch = 100;
     'train: loop {
-        for b in Loader::start(&ds, &load, &plan(epoch))? {
+        for b in Loader::start(ds, load, &plan(epoch))? {
             let b = b?;
             let t = Instant::now();
             let bt = upload_batch(&b, device);
@@ -152,20 +193,5 @@ pub fn bench_train(
         }
         epoch += 1;
     }
-    Ok(serde_json::json!({
-        "benchmark": "train",
-        "device": depthsense_model::device::describe(device),
-        "preset": opts.preset,
-        "batch_size": opts.batch_size,
-        "frame": [first.width, first.height],
-        "amp": opts.amp && device.is_cuda(),
-        "amp_dtype": "bf16",
-        "train_images_per_s": timed_images as f64 / timed_secs.max(1e-9),
-        "train_step_seconds": step_secs,
-        "loader_images_per_s": loader_ips,
-        "loader_threads": jobs,
-        "loader_images": images,
-        "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
-        "torch_threads": tch::get_num_threads(),
-    }))
+    Ok((timed_images, timed_secs, step_secs))
 }
