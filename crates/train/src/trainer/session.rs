@@ -87,26 +87,7 @@ impl<'o> Trainer<'o> {
     /// `opts.batch_size` is the global batch (see [`crate::distributed`]).
     pub fn with_dist(opts: &'o TrainOptions, mut dist: Option<Dist>) -> Result<Self, TrainError> {
         let started = Instant::now();
-        if opts.batch_size == 0 || opts.epochs == 0 {
-            return Err(TrainError::Config(
-                "batch size and epochs must be at least 1".into(),
-            ));
-        }
-        if !(0.0..=1.0).contains(&opts.train_radar_drop) {
-            return Err(TrainError::Config(format!(
-                "train radar drop {} is not a fraction in [0, 1]",
-                opts.train_radar_drop
-            )));
-        }
-        let (main, world) = dist
-            .as_ref()
-            .map_or((true, 1), |d| (d.is_main(), d.world_size()));
-        if !opts.batch_size.is_multiple_of(world) {
-            return Err(TrainError::Config(format!(
-                "the global batch size {} is not a multiple of the {world} ranks",
-                opts.batch_size
-            )));
-        }
+        let main = check_options(opts, dist.as_ref())?;
         // One writer per run folder, and a finished run is never replaced silently
         // (crate::outputs): refused unless --resume or --force.
         let lock = if main {
@@ -118,18 +99,7 @@ impl<'o> Trainer<'o> {
         };
         let device = depthsense_model::device::parse_device(&opts.device)?;
         depthsense_model::device::autotune_fixed_size(device);
-        let ds = Dataset::open(&opts.data)?;
-        let mut part = partition(&ds, opts.val_every_scene)?;
-        depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
-        if part.train.is_empty() || part.val.is_empty() {
-            return Err(TrainError::Data(format!(
-                "{}: {} training and {} validation samples ({}): need both",
-                opts.data.display(),
-                part.train.len(),
-                part.val.len(),
-                part.method
-            )));
-        }
+        let (ds, part) = open_partition(opts)?;
         let val_entries = subsample(&part.val, opts.max_val_samples);
         let run = opts.out.clone();
         std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
@@ -150,18 +120,7 @@ impl<'o> Trainer<'o> {
             }
             d.attach(&vs)?;
         }
-        let radar = radar_input_for(&cfg, opts.radar_input)?;
-        let load = LoadOptions {
-            radar: radar.unwrap_or_default(),
-            target: opts.target,
-            augment: opts.augment,
-            eval_maps: false,
-            no_radar: radar.is_none(),
-            radar_drop: 0.0,
-            seed: opts.seed,
-            failure: Default::default(),
-            train_radar_drop: opts.train_radar_drop,
-        };
+        let load = train_load_options(opts, &cfg)?;
         let full_batches = part.train.len() / opts.batch_size;
         let natural = if full_batches > 0 { full_batches } else { 1 };
         let bpe = opts
@@ -586,6 +545,64 @@ impl<'o> Trainer<'o> {
         }
         Ok(summary)
     }
+}
+
+/// The options every rank checks before touching the run folder; returns whether this is the
+/// main process (rank 0, or a single process).
+fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, TrainError> {
+    if opts.batch_size == 0 || opts.epochs == 0 {
+        return Err(TrainError::Config(
+            "batch size and epochs must be at least 1".into(),
+        ));
+    }
+    if !(0.0..=1.0).contains(&opts.train_radar_drop) {
+        return Err(TrainError::Config(format!(
+            "train radar drop {} is not a fraction in [0, 1]",
+            opts.train_radar_drop
+        )));
+    }
+    let (main, world) = dist.map_or((true, 1), |d| (d.is_main(), d.world_size()));
+    if !opts.batch_size.is_multiple_of(world) {
+        return Err(TrainError::Config(format!(
+            "the global batch size {} is not a multiple of the {world} ranks",
+            opts.batch_size
+        )));
+    }
+    Ok(main)
+}
+
+/// The prepared data and its partition, training scenes withheld (`--exclude`); both the
+/// training and the validation partition must hold samples.
+fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainError> {
+    let ds = Dataset::open(&opts.data)?;
+    let mut part = partition(&ds, opts.val_every_scene)?;
+    depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
+    if part.train.is_empty() || part.val.is_empty() {
+        return Err(TrainError::Data(format!(
+            "{}: {} training and {} validation samples ({}): need both",
+            opts.data.display(),
+            part.train.len(),
+            part.val.len(),
+            part.method
+        )));
+    }
+    Ok((ds, part))
+}
+
+/// What the training loader reads and how (SPEC §8 augmentation, `--train-radar-drop`).
+fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOptions, TrainError> {
+    let radar = radar_input_for(cfg, opts.radar_input)?;
+    Ok(LoadOptions {
+        radar: radar.unwrap_or_default(),
+        target: opts.target,
+        augment: opts.augment,
+        eval_maps: false,
+        no_radar: radar.is_none(),
+        radar_drop: 0.0,
+        seed: opts.seed,
+        failure: Default::default(),
+        train_radar_drop: opts.train_radar_drop,
+    })
 }
 
 /// The requested model config with the output resolution of the data's frames.
