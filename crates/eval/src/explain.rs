@@ -26,13 +26,15 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_data::error::TrainError;
 use depthsense_data::{normalise_image, Augment};
 use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
+use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_nuscenes::fsutil::write_atomic;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 
-use depthsense_data::error::TrainError;
+use crate::predict::PredictInput;
 
 /// Grad-CAM++ map of activations `a` `[C,h,w]` for gradients `g` = ∂S/∂A `[C,h,w]` → `[h,w]`
 /// (module docs; not normalised).
@@ -241,31 +243,11 @@ pub fn run_explain(
     let mut tiles: Vec<Vec<image::RgbImage>> = vec![];
     for dir in dirs {
         let input = crate::predict::input_from_prepared(dir)?;
-        let (w, h) = input.image.dimensions();
         let gt = input
             .gt
             .clone()
             .ok_or_else(|| TrainError::Data(format!("{}: no lidar GT", dir.display())))?;
-        let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
-            .view([1, 3, h as i64, w as i64])
-            .to_device(device);
-        let planes: Vec<f32> = match radar_input {
-            None => vec![0.0; (w * h) as usize],
-            Some(depthsense_data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
-            Some(depthsense_data::RadarInput::Height) => input.radar_height.depth_m.clone(),
-            Some(r) => {
-                return Err(TrainError::Config(format!(
-                    "explain supports the raw or height radar input, not {}",
-                    r.name()
-                )))
-            }
-        };
-        let radar = Tensor::from_slice(&planes)
-            .view([1, 1, h as i64, w as i64])
-            .to_device(device);
-        let gt_t = Tensor::from_slice(&gt.depth_m)
-            .view([h as i64, w as i64])
-            .to_device(device);
+        let (img, radar, gt_t) = sample_tensors(&input, &gt, radar_input, device)?;
         let states: &[bool] = if radar_input.is_some() {
             &[true, false]
         } else {
@@ -307,12 +289,6 @@ pub fn run_explain(
         }
         tiles.push(row_tiles);
     }
-    let grid = out.join("grid.png");
-    write_atomic(
-        &grid,
-        &depthsense_viz::plot::encode_rgb(&grid_image(&tiles))?,
-    )
-    .map_err(|e| TrainError::io(&grid, e))?;
     let r = ExplainResult {
         checkpoint: checkpoint.to_path_buf(),
         band,
@@ -320,12 +296,60 @@ pub fn run_explain(
         grid: PathBuf::from("grid.png"),
         command_line,
     };
-    let json = serde_json::to_string_pretty(&r).map_err(|e| TrainError::Other(e.to_string()))?;
+    write_results(out, &r, &tiles)?;
+    Ok(r)
+}
+
+/// One sample as the network sees it: image [1,3,H,W], radar [1,1,H,W] (raw or height map;
+/// zeros without radar) and lidar GT [H,W] metres, on `device`.
+fn sample_tensors(
+    input: &PredictInput,
+    gt: &DepthMap,
+    radar_input: Option<depthsense_data::RadarInput>,
+    device: Device,
+) -> Result<(Tensor, Tensor, Tensor), TrainError> {
+    let (w, h) = input.image.dimensions();
+    let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
+        .view([1, 3, h as i64, w as i64])
+        .to_device(device);
+    let planes: Vec<f32> = match radar_input {
+        None => vec![0.0; (w * h) as usize],
+        Some(depthsense_data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
+        Some(depthsense_data::RadarInput::Height) => input.radar_height.depth_m.clone(),
+        Some(r) => {
+            return Err(TrainError::Config(format!(
+                "explain supports the raw or height radar input, not {}",
+                r.name()
+            )))
+        }
+    };
+    let radar = Tensor::from_slice(&planes)
+        .view([1, 1, h as i64, w as i64])
+        .to_device(device);
+    let gt_t = Tensor::from_slice(&gt.depth_m)
+        .view([h as i64, w as i64])
+        .to_device(device);
+    Ok((img, radar, gt_t))
+}
+
+/// grid.png (every overlay, one row per sample), explain.json and explain.md.
+fn write_results(
+    out: &Path,
+    r: &ExplainResult,
+    tiles: &[Vec<image::RgbImage>],
+) -> Result<(), TrainError> {
+    let grid = out.join("grid.png");
+    write_atomic(
+        &grid,
+        &depthsense_viz::plot::encode_rgb(&grid_image(tiles))?,
+    )
+    .map_err(|e| TrainError::io(&grid, e))?;
+    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
     let jp = out.join("explain.json");
     write_atomic(&jp, json.as_bytes()).map_err(|e| TrainError::io(&jp, e))?;
     let mp = out.join("explain.md");
-    write_atomic(&mp, markdown(&r).as_bytes()).map_err(|e| TrainError::io(&mp, e))?;
-    Ok(r)
+    write_atomic(&mp, markdown(r).as_bytes()).map_err(|e| TrainError::io(&mp, e))?;
+    Ok(())
 }
 
 /// Tiles in rows (one row per sample), a heat colour bar (0 → 1, turbo) at the bottom.
