@@ -36,27 +36,62 @@ impl DistEnv {
     /// 20000 + `SLURM_JOB_ID` mod 10000 under Slurm (29500 otherwise), so concurrent jobs on a
     /// node do not collide.
     pub fn from_vars(get: impl Fn(&str) -> Option<String>) -> Result<Option<Self>, DistError> {
-        let get = |k: &str| get(k).filter(|v| !v.trim().is_empty());
-        let torchrun = get("WORLD_SIZE").is_some();
-        let slurm = !torchrun && get("SLURM_NTASKS").is_some();
+        let vars = Vars(get);
+        let torchrun = vars.get("WORLD_SIZE").is_some();
+        let slurm = !torchrun && vars.get("SLURM_NTASKS").is_some();
         if !torchrun && !slurm {
             return Ok(None);
         }
-        let num = |k: &str, v: String| -> Result<usize, DistError> {
-            v.trim().parse::<usize>().map_err(|_| DistError::Env {
-                var: k.to_string(),
-                reason: format!("{v:?} is not a non-negative integer"),
-            })
+        let (world_size, rank) = vars.world_size_and_rank()?;
+        let local_rank = match vars.pick("LOCAL_RANK", "SLURM_LOCALID") {
+            Some((k, v)) => num(&k, v)?,
+            None => 0,
         };
-        let pick = |primary: &str, fallback: &str| -> Option<(String, String)> {
-            get(primary)
-                .map(|v| (primary.to_string(), v))
-                .or_else(|| get(fallback).map(|v| (fallback.to_string(), v)))
-        };
-        let (wk, wv) = pick("WORLD_SIZE", "SLURM_NTASKS").ok_or_else(|| DistError::Env {
-            var: "WORLD_SIZE".into(),
-            reason: "not set".into(),
-        })?;
+        let master_addr = vars.master_addr(world_size)?;
+        let master_port = vars.master_port()?;
+        Ok(Some(DistEnv {
+            rank,
+            world_size,
+            local_rank,
+            master_addr,
+            master_port,
+            source: if torchrun { "torchrun" } else { "slurm" },
+            agent_store: vars
+                .get("TORCHELASTIC_USE_AGENT_STORE")
+                .is_some_and(|v| v.trim().eq_ignore_ascii_case("true")),
+            restart_count: vars
+                .get("TORCHELASTIC_RESTART_COUNT")
+                .and_then(|v| v.trim().parse().ok())
+                .unwrap_or(0),
+        }))
+    }
+}
+
+/// A variable source seen through [`DistEnv::from_vars`]'s rules: blank counts as unset.
+struct Vars<F: Fn(&str) -> Option<String>>(F);
+
+impl<F: Fn(&str) -> Option<String>> Vars<F> {
+    /// The value of `k`, `None` when unset or blank.
+    fn get(&self, k: &str) -> Option<String> {
+        (self.0)(k).filter(|v| !v.trim().is_empty())
+    }
+
+    /// `primary`'s value, else `fallback`'s, with the name of the variable that was read.
+    fn pick(&self, primary: &str, fallback: &str) -> Option<(String, String)> {
+        self.get(primary)
+            .map(|v| (primary.to_string(), v))
+            .or_else(|| self.get(fallback).map(|v| (fallback.to_string(), v)))
+    }
+
+    /// `(world_size, rank)` from WORLD_SIZE / SLURM_NTASKS and RANK / SLURM_PROCID:
+    /// at least one process, and the rank below the world size.
+    fn world_size_and_rank(&self) -> Result<(usize, usize), DistError> {
+        let (wk, wv) = self
+            .pick("WORLD_SIZE", "SLURM_NTASKS")
+            .ok_or_else(|| DistError::Env {
+                var: "WORLD_SIZE".into(),
+                reason: "not set".into(),
+            })?;
         let world_size = num(&wk, wv)?;
         if world_size == 0 {
             return Err(DistError::Env {
@@ -64,13 +99,15 @@ impl DistEnv {
                 reason: "must be at least 1".into(),
             });
         }
-        let (rk, rv) = pick("RANK", "SLURM_PROCID").ok_or_else(|| DistError::Env {
-            var: "RANK".into(),
-            reason: format!(
-                "not set but {wk}={world_size} is: every process needs its rank (launch with \
-                 torchrun, srun or `depthsense train --nproc N`)"
-            ),
-        })?;
+        let (rk, rv) = self
+            .pick("RANK", "SLURM_PROCID")
+            .ok_or_else(|| DistError::Env {
+                var: "RANK".into(),
+                reason: format!(
+                    "not set but {wk}={world_size} is: every process needs its rank (launch with \
+                     torchrun, srun or `depthsense train --nproc N`)"
+                ),
+            })?;
         let rank = num(&rk, rv)?;
         if rank >= world_size {
             return Err(DistError::Env {
@@ -78,13 +115,18 @@ impl DistEnv {
                 reason: format!("rank {rank} is not below {wk}={world_size}"),
             });
         }
-        let local_rank = match pick("LOCAL_RANK", "SLURM_LOCALID") {
-            Some((k, v)) => num(&k, v)?,
-            None => 0,
-        };
-        let master_addr = match get("MASTER_ADDR") {
+        Ok((world_size, rank))
+    }
+
+    /// MASTER_ADDR, else the first host of the Slurm node list, else loopback for a
+    /// one-process job.
+    fn master_addr(&self, world_size: usize) -> Result<String, DistError> {
+        Ok(match self.get("MASTER_ADDR") {
             Some(a) => a.trim().to_string(),
-            None => match get("SLURM_JOB_NODELIST").or_else(|| get("SLURM_NODELIST")) {
+            None => match self
+                .get("SLURM_JOB_NODELIST")
+                .or_else(|| self.get("SLURM_NODELIST"))
+            {
                 Some(list) => first_host(&list).ok_or_else(|| DistError::Env {
                     var: "MASTER_ADDR".into(),
                     reason: format!(
@@ -100,31 +142,33 @@ impl DistEnv {
                     })
                 }
             },
-        };
-        let master_port = match get("MASTER_PORT") {
+        })
+    }
+
+    /// MASTER_PORT, else 20000 + SLURM_JOB_ID mod 10000, else [`DEFAULT_PORT`].
+    fn master_port(&self) -> Result<u16, DistError> {
+        Ok(match self.get("MASTER_PORT") {
             Some(p) => p.trim().parse::<u16>().map_err(|_| DistError::Env {
                 var: "MASTER_PORT".into(),
                 reason: format!("{p:?} is not a port number"),
             })?,
-            None => match get("SLURM_JOB_ID").and_then(|j| j.trim().parse::<u64>().ok()) {
+            None => match self
+                .get("SLURM_JOB_ID")
+                .and_then(|j| j.trim().parse::<u64>().ok())
+            {
                 Some(job) => 20000 + (job % 10000) as u16,
                 None => DEFAULT_PORT,
             },
-        };
-        Ok(Some(DistEnv {
-            rank,
-            world_size,
-            local_rank,
-            master_addr,
-            master_port,
-            source: if torchrun { "torchrun" } else { "slurm" },
-            agent_store: get("TORCHELASTIC_USE_AGENT_STORE")
-                .is_some_and(|v| v.trim().eq_ignore_ascii_case("true")),
-            restart_count: get("TORCHELASTIC_RESTART_COUNT")
-                .and_then(|v| v.trim().parse().ok())
-                .unwrap_or(0),
-        }))
+        })
     }
+}
+
+/// Parse variable `k`'s value `v` as a non-negative integer.
+fn num(k: &str, v: String) -> Result<usize, DistError> {
+    v.trim().parse::<usize>().map_err(|_| DistError::Env {
+        var: k.to_string(),
+        reason: format!("{v:?} is not a non-negative integer"),
+    })
 }
 
 /// First host of a Slurm node list: `node[01-04,07],gpu3` → `node01`; `a,b` → `a`.
