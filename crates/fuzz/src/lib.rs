@@ -179,232 +179,271 @@ const TOKENS: [&str; 14] = [
 pub fn mutate(data: &mut Vec<u8>, others: &[Vec<u8>], text: bool, rng: &mut Rng) {
     let n = 1 + rng.below(8);
     for _ in 0..n {
-        let len = data.len();
-        match rng.below(if text { 12 } else { 10 }) {
-            0 if len > 0 => {
-                let i = rng.below(len);
-                data[i] ^= 1 << rng.below(8);
-            }
-            1 if len > 0 => {
-                let i = rng.below(len);
-                data[i] = rng.next_u64() as u8;
-            }
-            2 => {
-                let i = rng.below(len + 1);
-                data.insert(i, rng.next_u64() as u8);
-            }
-            3 if len > 0 => {
-                let i = rng.below(len);
-                let k = 1 + rng.below((len - i).min(64));
-                data.drain(i..i + k);
-            }
-            4 if len > 0 => {
-                // copy a chunk elsewhere (duplicates records, headers, opcodes)
-                let i = rng.below(len);
-                let k = 1 + rng.below((len - i).min(256));
-                let chunk = data[i..i + k].to_vec();
-                let at = rng.below(len + 1);
-                data.splice(at..at, chunk);
-            }
-            5 if !others.is_empty() => {
-                // splice: our head + another seed's tail
-                let o = &others[rng.below(others.len())];
-                let cut = rng.below(len + 1);
-                let from = rng.below(o.len() + 1);
-                data.truncate(cut);
-                data.extend_from_slice(&o[from..]);
-            }
-            6 | 7 if len > 0 => {
-                // an interesting integer over a binary field (1, 2, 4 or 8 bytes, LE or BE)
-                let w = [1usize, 2, 4, 8][rng.below(4)];
-                if len >= w {
-                    let i = rng.below(len - w + 1);
-                    let v = INTERESTING[rng.below(INTERESTING.len())]
-                        .wrapping_add(rng.below(3) as u64)
-                        .wrapping_sub(1);
-                    let b = if rng.chance(2) {
-                        v.to_le_bytes()
-                    } else {
-                        v.to_be_bytes()
-                    };
-                    let src = if rng.chance(2) { &b[..w] } else { &b[8 - w..] };
-                    data[i..i + w].copy_from_slice(src);
-                }
-            }
-            8 if len > 0 => {
-                let i = rng.below(len);
-                data.truncate(i);
-            }
-            9 => {
-                let t = TOKENS[rng.below(TOKENS.len())].as_bytes();
-                let i = rng.below(len + 1);
-                data.splice(i..i, t.iter().copied());
-            }
-            10 | 11 => {
-                // replace a decimal number (header values, JSON numbers) by an interesting one
-                let starts: Vec<usize> = (0..len)
-                    .filter(|&i| {
-                        data[i].is_ascii_digit() && (i == 0 || !data[i - 1].is_ascii_digit())
-                    })
-                    .take(4096)
-                    .collect();
-                if !starts.is_empty() {
-                    let s = starts[rng.below(starts.len())];
-                    let e = s + data[s..].iter().take_while(|b| b.is_ascii_digit()).count();
-                    let v = INTERESTING_TEXT[rng.below(INTERESTING_TEXT.len())];
-                    data.splice(s..e, v.bytes());
-                }
-            }
-            _ => {}
-        }
+        mutate_once(data, others, text, rng);
     }
     // Keep inputs small enough for millions of executions.
     data.truncate(1 << 20);
 }
 
+/// One mutation, drawn from 10 kinds (12 for text formats); a kind that does not apply to
+/// `data` (e.g. a bit flip of an empty input) leaves it unchanged.
+fn mutate_once(data: &mut Vec<u8>, others: &[Vec<u8>], text: bool, rng: &mut Rng) {
+    let len = data.len();
+    match rng.below(if text { 12 } else { 10 }) {
+        0 if len > 0 => {
+            let i = rng.below(len);
+            data[i] ^= 1 << rng.below(8);
+        }
+        1 if len > 0 => {
+            let i = rng.below(len);
+            data[i] = rng.next_u64() as u8;
+        }
+        2 => {
+            let i = rng.below(len + 1);
+            data.insert(i, rng.next_u64() as u8);
+        }
+        3 if len > 0 => {
+            let i = rng.below(len);
+            let k = 1 + rng.below((len - i).min(64));
+            data.drain(i..i + k);
+        }
+        4 if len > 0 => copy_chunk(data, rng),
+        5 if !others.is_empty() => splice_other(data, others, rng),
+        6 | 7 if len > 0 => write_interesting_int(data, rng),
+        8 if len > 0 => {
+            let i = rng.below(len);
+            data.truncate(i);
+        }
+        9 => {
+            let t = TOKENS[rng.below(TOKENS.len())].as_bytes();
+            let i = rng.below(len + 1);
+            data.splice(i..i, t.iter().copied());
+        }
+        10 | 11 => replace_decimal(data, rng),
+        _ => {}
+    }
+}
+
+/// Copy a chunk elsewhere (duplicates records, headers, opcodes); `data` is not empty.
+fn copy_chunk(data: &mut Vec<u8>, rng: &mut Rng) {
+    let len = data.len();
+    let i = rng.below(len);
+    let k = 1 + rng.below((len - i).min(256));
+    let chunk = data[i..i + k].to_vec();
+    let at = rng.below(len + 1);
+    data.splice(at..at, chunk);
+}
+
+/// Splice: our head + another seed's tail; `others` is not empty.
+fn splice_other(data: &mut Vec<u8>, others: &[Vec<u8>], rng: &mut Rng) {
+    let o = &others[rng.below(others.len())];
+    let cut = rng.below(data.len() + 1);
+    let from = rng.below(o.len() + 1);
+    data.truncate(cut);
+    data.extend_from_slice(&o[from..]);
+}
+
+/// An interesting integer over a binary field (1, 2, 4 or 8 bytes, LE or BE).
+fn write_interesting_int(data: &mut [u8], rng: &mut Rng) {
+    let len = data.len();
+    let w = [1usize, 2, 4, 8][rng.below(4)];
+    if len >= w {
+        let i = rng.below(len - w + 1);
+        let v = INTERESTING[rng.below(INTERESTING.len())]
+            .wrapping_add(rng.below(3) as u64)
+            .wrapping_sub(1);
+        let b = if rng.chance(2) {
+            v.to_le_bytes()
+        } else {
+            v.to_be_bytes()
+        };
+        let src = if rng.chance(2) { &b[..w] } else { &b[8 - w..] };
+        data[i..i + w].copy_from_slice(src);
+    }
+}
+
+/// Replace a decimal number (header values, JSON numbers) by an interesting one.
+fn replace_decimal(data: &mut Vec<u8>, rng: &mut Rng) {
+    let starts: Vec<usize> = (0..data.len())
+        .filter(|&i| data[i].is_ascii_digit() && (i == 0 || !data[i - 1].is_ascii_digit()))
+        .take(4096)
+        .collect();
+    if !starts.is_empty() {
+        let s = starts[rng.below(starts.len())];
+        let e = s + data[s..].iter().take_while(|b| b.is_ascii_digit()).count();
+        let v = INTERESTING_TEXT[rng.below(INTERESTING_TEXT.len())];
+        data.splice(s..e, v.bytes());
+    }
+}
+
 /// Seeds of one reader; `None` when it needs fixtures that are absent.
 pub fn seeds(reader: Reader, fixtures: &Path) -> Option<Vec<Vec<u8>>> {
-    let radar_files = || -> Vec<Vec<u8>> {
-        let mut out = Vec::new();
-        let mut paths: Vec<PathBuf> = std::fs::read_dir(fixtures.join("radar-front-mini"))
-            .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
-            .unwrap_or_default();
-        paths.sort();
-        if let Ok(rd) = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/RADAR_FRONT")) {
-            paths.extend(rd.filter_map(|e| e.ok().map(|e| e.path())));
-        }
-        for p in paths {
-            if let Ok(b) = std::fs::read(&p) {
-                out.push(b);
-            }
-        }
-        out
-    };
-    let radar_points = |files: &[Vec<u8>]| -> Vec<Vec<RadarPoint>> {
-        let mut v: Vec<Vec<RadarPoint>> = files
-            .iter()
-            .take(16)
-            .filter_map(|b| parse_radar_pcd(b, "seed").ok().map(|s| s.points))
-            .collect();
-        v.push(synthetic_points());
-        v.push(Vec::new());
-        v
-    };
     Some(match reader {
         Reader::PcdBinary => {
-            let f = radar_files();
+            let f = radar_files(fixtures);
             if f.is_empty() {
                 return None;
             }
             f
         }
-        Reader::PcdAscii => radar_points(&radar_files())
+        Reader::PcdAscii => radar_points(&radar_files(fixtures))
             .iter()
             .map(|pts| encode_radar_pcd_ascii(&pts[..pts.len().min(24)]))
             .collect(),
-        Reader::PcdBinaryCompressed => {
-            let mut v: Vec<Vec<u8>> = radar_points(&radar_files())
-                .iter()
-                .map(|pts| encode_radar_pcd_binary_compressed(pts))
-                .collect();
-            // a stream with real back-references: "ab" then copies
-            let pts = vec![RadarPoint::default(); 40];
-            let mut real = encode_radar_pcd_binary_compressed(&pts);
-            if let Some(h) = real
-                .windows(22)
-                .position(|w| w == b"DATA binary_compressed")
-            {
-                let body = h + 23;
-                let raw_len = 43 * 40;
-                let mut comp = vec![0u8, 0u8];
-                let mut left = raw_len - 1;
-                // one literal zero, then back-references of offset 1
-                while left > 0 {
-                    let l = left.min(264);
-                    if l < 3 {
-                        comp.push((l - 1) as u8);
-                        comp.extend(std::iter::repeat_n(0u8, l));
-                    } else if l <= 8 {
-                        comp.push(((l - 2) << 5) as u8);
-                        comp.push(0);
-                    } else {
-                        comp.push(7 << 5);
-                        comp.push((l - 9) as u8);
-                        comp.push(0);
-                    }
-                    left -= l;
-                }
-                real.truncate(body);
-                real.extend_from_slice(&(comp.len() as u32).to_le_bytes());
-                real.extend_from_slice(&(raw_len as u32).to_le_bytes());
-                real.extend_from_slice(&comp);
-                v.push(real);
-            }
-            v.push(encode_radar_pcd_binary(&synthetic_points()));
-            v
-        }
-        Reader::PcdBin => {
-            let p = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/LIDAR_TOP"))
-                .ok()?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .find(|p| p.to_string_lossy().ends_with(".pcd.bin"))?;
-            let full = std::fs::read(p).ok()?;
-            let mut v: Vec<Vec<u8>> = (0..8)
-                .map(|k| {
-                    let a = (k * 4099 * 20) % full.len().max(1);
-                    let a = a - a % 20;
-                    full[a..(a + 20 * 200).min(full.len())].to_vec()
-                })
-                .collect();
-            v.push(encode_lidar_pcd_bin(&[[1.0, f32::NAN, 0.0, 0.0, 0.0]]));
-            v
-        }
-        Reader::TableJson => {
-            let dir = fixtures.join("nuscenes-kf0/v1.0-mini");
-            let mut v = Vec::new();
-            for t in TABLES {
-                v.push(std::fs::read(dir.join(format!("{t}.json"))).ok()?);
-            }
-            // one seed = all tables joined by a NUL separator (mutations may hit any table)
-            vec![v.join(&b'\0')]
-        }
+        Reader::PcdBinaryCompressed => pcd_binary_compressed_seeds(fixtures),
+        Reader::PcdBin => pcd_bin_seeds(fixtures)?,
+        Reader::TableJson => table_json_seeds(fixtures)?,
         Reader::Pth => torch_seeds(),
         Reader::Pickle => torch_seeds()
             .iter()
             .filter_map(|b| inner_pickle(b))
             .collect(),
-        Reader::Safetensors => {
-            let mut meta = std::collections::BTreeMap::new();
-            meta.insert("config".to_string(), "{\"a\": 1}".to_string());
-            let tensors = vec![
-                (
-                    "w".to_string(),
-                    tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]).reshape([2, 3]),
-                ),
-                ("b".to_string(), tch::Tensor::from_slice(&[7i64, 8])),
-                (
-                    "s".to_string(),
-                    tch::Tensor::from_slice(&[1.5f64]).reshape([] as [i64; 0]),
-                ),
-            ];
-            vec![
-                safetensors_bytes(&tensors, &meta).ok()?,
-                safetensors_bytes(&tensors[..1], &Default::default()).ok()?,
-            ]
-        }
-        Reader::DepthPng => {
-            let mut v = Vec::new();
-            for (w, h) in [(7u32, 5u32), (16, 3), (1, 1), (33, 9)] {
-                let mut m = DepthMap::zeros(w, h);
-                for (i, d) in m.depth_m.iter_mut().enumerate() {
-                    *d = if i % 3 == 0 { 0.0 } else { i as f32 * 0.77 };
-                }
-                v.push(encode_png(&m).ok()?);
-                v.push(encode_png_fast(&m).ok()?);
-            }
-            v
-        }
+        Reader::Safetensors => safetensors_seeds()?,
+        Reader::DepthPng => depth_png_seeds()?,
     })
+}
+
+/// The radar `.pcd` files of the fixtures: `radar-front-mini` (sorted), then the kf0
+/// RADAR_FRONT samples; empty when the fixtures are absent.
+fn radar_files(fixtures: &Path) -> Vec<Vec<u8>> {
+    let mut out = Vec::new();
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(fixtures.join("radar-front-mini"))
+        .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    paths.sort();
+    if let Ok(rd) = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/RADAR_FRONT")) {
+        paths.extend(rd.filter_map(|e| e.ok().map(|e| e.path())));
+    }
+    for p in paths {
+        if let Ok(b) = std::fs::read(&p) {
+            out.push(b);
+        }
+    }
+    out
+}
+
+/// The points of the first 16 radar files that parse, plus a synthetic cloud and an empty one.
+fn radar_points(files: &[Vec<u8>]) -> Vec<Vec<RadarPoint>> {
+    let mut v: Vec<Vec<RadarPoint>> = files
+        .iter()
+        .take(16)
+        .filter_map(|b| parse_radar_pcd(b, "seed").ok().map(|s| s.points))
+        .collect();
+    v.push(synthetic_points());
+    v.push(Vec::new());
+    v
+}
+
+/// The radar points re-encoded with LZF, a stream with real back-references, and one
+/// uncompressed binary file.
+fn pcd_binary_compressed_seeds(fixtures: &Path) -> Vec<Vec<u8>> {
+    let mut v: Vec<Vec<u8>> = radar_points(&radar_files(fixtures))
+        .iter()
+        .map(|pts| encode_radar_pcd_binary_compressed(pts))
+        .collect();
+    if let Some(real) = back_reference_seed() {
+        v.push(real);
+    }
+    v.push(encode_radar_pcd_binary(&synthetic_points()));
+    v
+}
+
+/// A stream with real back-references: "ab" then copies.
+fn back_reference_seed() -> Option<Vec<u8>> {
+    let pts = vec![RadarPoint::default(); 40];
+    let mut real = encode_radar_pcd_binary_compressed(&pts);
+    let h = real
+        .windows(22)
+        .position(|w| w == b"DATA binary_compressed")?;
+    let body = h + 23;
+    let raw_len = 43 * 40;
+    let mut comp = vec![0u8, 0u8];
+    let mut left = raw_len - 1;
+    // one literal zero, then back-references of offset 1
+    while left > 0 {
+        let l = left.min(264);
+        if l < 3 {
+            comp.push((l - 1) as u8);
+            comp.extend(std::iter::repeat_n(0u8, l));
+        } else if l <= 8 {
+            comp.push(((l - 2) << 5) as u8);
+            comp.push(0);
+        } else {
+            comp.push(7 << 5);
+            comp.push((l - 9) as u8);
+            comp.push(0);
+        }
+        left -= l;
+    }
+    real.truncate(body);
+    real.extend_from_slice(&(comp.len() as u32).to_le_bytes());
+    real.extend_from_slice(&(raw_len as u32).to_le_bytes());
+    real.extend_from_slice(&comp);
+    Some(real)
+}
+
+/// Eight 200-point slices of the first kf0 LIDAR_TOP scan, plus a one-point scan with a NaN.
+fn pcd_bin_seeds(fixtures: &Path) -> Option<Vec<Vec<u8>>> {
+    let p = std::fs::read_dir(fixtures.join("nuscenes-kf0/samples/LIDAR_TOP"))
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| p.to_string_lossy().ends_with(".pcd.bin"))?;
+    let full = std::fs::read(p).ok()?;
+    let mut v: Vec<Vec<u8>> = (0..8)
+        .map(|k| {
+            let a = (k * 4099 * 20) % full.len().max(1);
+            let a = a - a % 20;
+            full[a..(a + 20 * 200).min(full.len())].to_vec()
+        })
+        .collect();
+    v.push(encode_lidar_pcd_bin(&[[1.0, f32::NAN, 0.0, 0.0, 0.0]]));
+    Some(v)
+}
+
+/// The kf0 tables of [`TABLES`] as one seed.
+fn table_json_seeds(fixtures: &Path) -> Option<Vec<Vec<u8>>> {
+    let dir = fixtures.join("nuscenes-kf0/v1.0-mini");
+    let mut v = Vec::new();
+    for t in TABLES {
+        v.push(std::fs::read(dir.join(format!("{t}.json"))).ok()?);
+    }
+    // one seed = all tables joined by a NUL separator (mutations may hit any table)
+    Some(vec![v.join(&b'\0')])
+}
+
+/// Two checkpoints from the safetensors writer: three dtypes with metadata, one tensor without.
+fn safetensors_seeds() -> Option<Vec<Vec<u8>>> {
+    let mut meta = std::collections::BTreeMap::new();
+    meta.insert("config".to_string(), "{\"a\": 1}".to_string());
+    let tensors = vec![
+        (
+            "w".to_string(),
+            tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]).reshape([2, 3]),
+        ),
+        ("b".to_string(), tch::Tensor::from_slice(&[7i64, 8])),
+        (
+            "s".to_string(),
+            tch::Tensor::from_slice(&[1.5f64]).reshape([] as [i64; 0]),
+        ),
+    ];
+    Some(vec![
+        safetensors_bytes(&tensors, &meta).ok()?,
+        safetensors_bytes(&tensors[..1], &Default::default()).ok()?,
+    ])
+}
+
+/// Four small depth maps (a third of the pixels without depth), each through both encoders.
+fn depth_png_seeds() -> Option<Vec<Vec<u8>>> {
+    let mut v = Vec::new();
+    for (w, h) in [(7u32, 5u32), (16, 3), (1, 1), (33, 9)] {
+        let mut m = DepthMap::zeros(w, h);
+        for (i, d) in m.depth_m.iter_mut().enumerate() {
+            *d = if i % 3 == 0 { 0.0 } else { i as f32 * 0.77 };
+        }
+        v.push(encode_png(&m).ok()?);
+        v.push(encode_png_fast(&m).ok()?);
+    }
+    Some(v)
 }
 
 const TABLES: [&str; 7] = [
@@ -607,17 +646,13 @@ pub fn fuzz_reader(reader: Reader, cfg: &Config) -> ReaderStats {
         reader: reader.name(),
         ..Default::default()
     };
-    let Some(seeds) = seeds(reader, &cfg.fixtures) else {
-        st.skipped = Some(format!(
-            "fixtures absent at {} (needed for its seeds)",
-            cfg.fixtures.display()
-        ));
-        return st;
+    let seeds = match reader_seeds(reader, cfg) {
+        Ok(seeds) => seeds,
+        Err(why) => {
+            st.skipped = Some(why);
+            return st;
+        }
     };
-    if seeds.is_empty() {
-        st.skipped = Some("no seeds".into());
-        return st;
-    }
     st.seeds = seeds.len();
     let mut rng = Rng::new(cfg.seed ^ (reader as u64).wrapping_mul(0x1234_5678_9abc_def1));
     let t0 = Instant::now();
@@ -637,52 +672,89 @@ pub fn fuzz_reader(reader: Reader, cfg: &Config) -> ReaderStats {
         let t = Instant::now();
         let r = std::panic::catch_unwind(AssertUnwindSafe(|| execute(reader, &input, hint)));
         let dt = t.elapsed();
-        st.execs += 1;
-        st.slowest_exec_ms = st.slowest_exec_ms.max(dt.as_secs_f64() * 1e3);
-        let mut bad = None;
-        match r {
-            Ok(Outcome::Accepted) => st.accepted += 1,
-            Ok(Outcome::Rejected) => st.rejected += 1,
-            Err(_) => {
-                st.crashes += 1;
-                let msg = LAST_PANIC
-                    .with(|p| p.borrow_mut().take())
-                    .unwrap_or_else(|| "panic".into());
-                if st.first_crash.is_none() {
-                    st.first_crash = Some(msg);
-                }
-                bad = Some("crash");
-            }
-        }
-        if dt > cfg.hang {
-            st.hangs += 1;
-            bad = Some("hang");
-        }
-        if let (Some(kind), Some(dir)) = (bad, &cfg.crash_dir) {
-            if st.saved.len() < 100 {
-                let _ = std::fs::create_dir_all(dir);
-                let p = dir.join(format!("{}-{kind}-{:016x}.bin", reader.name(), fnv(&input)));
-                if std::fs::write(&p, &input).is_ok() {
-                    st.saved.push(p.display().to_string());
-                }
-            }
+        if let (Some(kind), Some(dir)) = (st.record(r.ok(), dt, cfg.hang), &cfg.crash_dir) {
+            st.save_input(dir, kind, &input);
         }
         if cfg.progress_s > 0.0 && last_progress.elapsed().as_secs_f64() >= cfg.progress_s {
             last_progress = Instant::now();
-            let s = t0.elapsed().as_secs_f64();
-            eprintln!(
-                "{}: {} execs ({:.0}/s), {} crashes, {} hangs",
-                reader.name(),
-                st.execs,
-                st.execs as f64 / s,
-                st.crashes,
-                st.hangs
-            );
-            let _ = std::io::stderr().flush();
+            st.print_progress(t0);
         }
     }
     st.seconds = t0.elapsed().as_secs_f64();
     st
+}
+
+/// The seeds of `reader`, or why it is skipped (fixtures absent, no seeds).
+fn reader_seeds(reader: Reader, cfg: &Config) -> Result<Vec<Vec<u8>>, String> {
+    let Some(seeds) = seeds(reader, &cfg.fixtures) else {
+        return Err(format!(
+            "fixtures absent at {} (needed for its seeds)",
+            cfg.fixtures.display()
+        ));
+    };
+    if seeds.is_empty() {
+        return Err("no seeds".into());
+    }
+    Ok(seeds)
+}
+
+impl ReaderStats {
+    /// Count one execution that took `dt` (`outcome`: `None` when it panicked); the kind
+    /// of a bad input ("crash" or "hang", a hang winning), `None` for a good one.
+    fn record(
+        &mut self,
+        outcome: Option<Outcome>,
+        dt: Duration,
+        hang: Duration,
+    ) -> Option<&'static str> {
+        self.execs += 1;
+        self.slowest_exec_ms = self.slowest_exec_ms.max(dt.as_secs_f64() * 1e3);
+        let mut bad = None;
+        match outcome {
+            Some(Outcome::Accepted) => self.accepted += 1,
+            Some(Outcome::Rejected) => self.rejected += 1,
+            None => {
+                self.crashes += 1;
+                let msg = LAST_PANIC
+                    .with(|p| p.borrow_mut().take())
+                    .unwrap_or_else(|| "panic".into());
+                if self.first_crash.is_none() {
+                    self.first_crash = Some(msg);
+                }
+                bad = Some("crash");
+            }
+        }
+        if dt > hang {
+            self.hangs += 1;
+            bad = Some("hang");
+        }
+        bad
+    }
+
+    /// Save a bad input under `dir` as `<reader>-<kind>-<fnv>.bin` (at most 100 per reader).
+    fn save_input(&mut self, dir: &Path, kind: &str, input: &[u8]) {
+        if self.saved.len() < 100 {
+            let _ = std::fs::create_dir_all(dir);
+            let p = dir.join(format!("{}-{kind}-{:016x}.bin", self.reader, fnv(input)));
+            if std::fs::write(&p, input).is_ok() {
+                self.saved.push(p.display().to_string());
+            }
+        }
+    }
+
+    /// The progress line on stderr: executions, their rate since `t0`, crashes, hangs.
+    fn print_progress(&self, t0: Instant) {
+        let s = t0.elapsed().as_secs_f64();
+        eprintln!(
+            "{}: {} execs ({:.0}/s), {} crashes, {} hangs",
+            self.reader,
+            self.execs,
+            self.execs as f64 / s,
+            self.crashes,
+            self.hangs
+        );
+        let _ = std::io::stderr().flush();
+    }
 }
 
 fn fnv(b: &[u8]) -> u64 {
