@@ -35,7 +35,16 @@ fn parse_num(s: &str) -> Option<f64> {
 }
 
 fn main() -> ExitCode {
-    let mut cfg = Config {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match parse_args(&args) {
+        Ok((cfg, out)) => fuzz_and_report(&cfg, out),
+        Err(code) => code,
+    }
+}
+
+/// The defaults of every option (see [`HELP`]).
+fn default_config() -> Config {
+    Config {
         readers: Reader::ALL.to_vec(),
         execs: 100_000,
         seconds: f64::INFINITY,
@@ -44,63 +53,72 @@ fn main() -> ExitCode {
         crash_dir: Some(PathBuf::from("fuzz-crashes")),
         hang: Duration::from_millis(1000),
         progress_s: 30.0,
-    };
+    }
+}
+
+/// The run's settings and `--out`; `Err`: exit now with this status (help printed, or a bad
+/// argument reported with the help).
+fn parse_args(args: &[String]) -> Result<(Config, Option<PathBuf>), ExitCode> {
+    let mut cfg = default_config();
     let mut out: Option<PathBuf> = None;
-    let args: Vec<String> = std::env::args().skip(1).collect();
     let mut i = 0;
     while i < args.len() {
-        let a = args[i].as_str();
         let val = args.get(i + 1).cloned().unwrap_or_default();
-        let bad = |what: &str| {
-            eprintln!("depthsense-fuzz: bad value {val:?} for {what}\n\n{HELP}");
-            ExitCode::from(2)
-        };
-        match a {
-            "-h" | "--help" => {
-                println!("{HELP}");
-                return ExitCode::SUCCESS;
-            }
-            "--readers" => {
-                let mut rs = Vec::new();
-                for n in val.split(',').filter(|s| !s.is_empty()) {
-                    match Reader::from_name(n) {
-                        Some(r) => rs.push(r),
-                        None => return bad("--readers"),
-                    }
-                }
-                cfg.readers = rs;
-            }
-            "--execs" => match parse_num(&val) {
-                Some(v) => cfg.execs = v as u64,
-                None => return bad("--execs"),
-            },
-            "--seconds" => match parse_num(&val) {
-                Some(v) => cfg.seconds = v,
-                None => return bad("--seconds"),
-            },
-            "--seed" => match val.parse() {
-                Ok(v) => cfg.seed = v,
-                Err(_) => return bad("--seed"),
-            },
-            "--fixtures" => cfg.fixtures = PathBuf::from(&val),
-            "--crashes" => cfg.crash_dir = Some(PathBuf::from(&val)),
-            "--hang-ms" => match parse_num(&val) {
-                Some(v) => cfg.hang = Duration::from_secs_f64(v / 1e3),
-                None => return bad("--hang-ms"),
-            },
-            "--out" => out = Some(PathBuf::from(&val)),
-            "--progress" => match parse_num(&val) {
-                Some(v) => cfg.progress_s = v,
-                None => return bad("--progress"),
-            },
-            other => {
-                eprintln!("depthsense-fuzz: unknown argument {other:?}\n\n{HELP}");
-                return ExitCode::from(2);
-            }
-        }
+        apply_option(&mut cfg, &mut out, &args[i], &val)?;
         i += 2;
     }
-    let (stats, report) = run(&cfg);
+    Ok((cfg, out))
+}
+
+/// Apply option `a` with value `val` (every option but `-h` takes one).
+fn apply_option(
+    cfg: &mut Config,
+    out: &mut Option<PathBuf>,
+    a: &str,
+    val: &str,
+) -> Result<(), ExitCode> {
+    let bad = |what: &str| {
+        eprintln!("depthsense-fuzz: bad value {val:?} for {what}\n\n{HELP}");
+        ExitCode::from(2)
+    };
+    match a {
+        "-h" | "--help" => {
+            println!("{HELP}");
+            return Err(ExitCode::SUCCESS);
+        }
+        "--readers" => {
+            let mut rs = Vec::new();
+            for n in val.split(',').filter(|s| !s.is_empty()) {
+                match Reader::from_name(n) {
+                    Some(r) => rs.push(r),
+                    None => return Err(bad("--readers")),
+                }
+            }
+            cfg.readers = rs;
+        }
+        "--execs" => cfg.execs = parse_num(val).ok_or_else(|| bad("--execs"))? as u64,
+        "--seconds" => cfg.seconds = parse_num(val).ok_or_else(|| bad("--seconds"))?,
+        "--seed" => cfg.seed = val.parse().map_err(|_| bad("--seed"))?,
+        "--fixtures" => cfg.fixtures = PathBuf::from(val),
+        "--crashes" => cfg.crash_dir = Some(PathBuf::from(val)),
+        "--hang-ms" => {
+            let v = parse_num(val).ok_or_else(|| bad("--hang-ms"))?;
+            cfg.hang = Duration::from_secs_f64(v / 1e3);
+        }
+        "--out" => *out = Some(PathBuf::from(val)),
+        "--progress" => cfg.progress_s = parse_num(val).ok_or_else(|| bad("--progress"))?,
+        other => {
+            eprintln!("depthsense-fuzz: unknown argument {other:?}\n\n{HELP}");
+            return Err(ExitCode::from(2));
+        }
+    }
+    Ok(())
+}
+
+/// Fuzz, print the skipped readers (stderr) and the JSON report (stdout, and `out`); exit 1
+/// when any reader crashed or hung, 2 when `out` cannot be written.
+fn fuzz_and_report(cfg: &Config, out: Option<PathBuf>) -> ExitCode {
+    let (stats, report) = run(cfg);
     for s in &stats {
         if let Some(why) = &s.skipped {
             eprintln!("skipped {}: {why}", s.reader);
