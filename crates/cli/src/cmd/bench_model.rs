@@ -195,106 +195,154 @@ fn inputs(
     }
 }
 
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let cfg = ModelConfig::resolve(&args.preset)?.with_options(&args.set)?;
-    let dev = device::parse_device(&args.device)?;
-    if let Some(n) = args.threads {
-        tch::set_num_threads(n);
-    }
-    if dev.is_cuda() {
-        tch::Cuda::cudnn_set_benchmark(args.cudnn_benchmark);
-    }
-    tch::manual_seed(0);
-    let mem_baseline = gpu_used_total_mib(dev);
-    let mut vs = nn::VarStore::new(dev);
-    let net = DepthNet::new(&vs.root(), &cfg)?;
-    // libtorch 2.11's CPU backward crashed (heap corruption) with channels-last weights at
-    // 175x400 in our tests, so the layout is only used on CUDA, where NHWC is cuDNN's fast path.
-    let channels_last_on = args.channels_last && dev.is_cuda();
-    if args.channels_last && !channels_last_on {
-        eprintln!(
-            "note: --channels-last is only used on CUDA; running NCHW on {}",
-            device::describe(dev)
-        );
-    }
-    if channels_last_on {
-        vs_to_channels_last(&vs);
-    }
-    let rep = report::model_report(&vs, &net, args.height, args.width);
-    let prec = if dev.is_cuda() {
-        args.precision
-    } else {
-        Precision::Fp32
-    };
-    if prec != args.precision {
-        eprintln!(
-            "note: --precision {:?} needs CUDA; running fp32 on {}",
-            args.precision,
-            device::describe(dev)
-        );
-    }
-    let (h, w) = (args.height, args.width);
-    let mut res = Results {
-        config: cfg.name.clone(),
-        device: device::describe(dev),
-        gpu: if dev.is_cuda() {
-            nvidia_smi(&["--query-gpu=name", "--format=csv,noheader"])
-        } else {
-            None
-        },
-        precision: format!("{prec:?}").to_lowercase(),
-        channels_last: channels_last_on,
-        cudnn_benchmark: args.cudnn_benchmark && dev.is_cuda(),
-        height: h,
-        width: w,
-        params: rep.total_params,
-        macs_per_image: rep.total_macs,
-        threads: tch::get_num_threads(),
-        warmup: args.warmup,
-        repeats: args.repeats,
-        forward: None,
-        forward_decode: None,
-        train_step: None,
-        precision_check: None,
-    };
+/// The network under test and what every phase shares.
+struct Bench {
+    cfg: ModelConfig,
+    dev: Device,
+    vs: nn::VarStore,
+    net: DepthNet,
+    /// Device-wide used GPU memory (MiB) before this process touched CUDA.
+    mem_baseline: Option<u64>,
+    /// Channels-last layout in use (asked for, and on CUDA).
+    channels_last: bool,
+    /// The arithmetic in use (fp32 off CUDA).
+    prec: Precision,
+    params: i64,
+    macs_per_image: u64,
+    height: i64,
+    width: i64,
+    warmup: usize,
+    repeats: usize,
+}
 
-    if args.batch_forward > 0 {
-        let (img, radar, _) = inputs(&cfg, args.batch_forward, h, w, dev, channels_last_on);
-        let _guard = tch::no_grad_guard();
-        let mut t = time_it(dev, args.warmup, args.repeats, args.batch_forward, || {
-            let _ = with_autocast(prec, || net.forward_t(&img, &radar, false));
-        });
-        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
-        res.forward = Some(t);
-        let mut t = time_it(dev, args.warmup, args.repeats, args.batch_forward, || {
-            let _ = with_autocast(prec, || {
-                net.decode_to(&net.forward_t(&img, &radar, false), h, w)
-            });
-        });
-        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
-        res.forward_decode = Some(t);
-        if prec != Precision::Fp32 && cfg.head == HeadKind::Ordinal {
-            let z32 = net.forward_t(&img, &radar, false);
-            let zmp =
-                with_autocast(prec, || net.forward_t(&img, &radar, false)).to_kind(Kind::Float);
-            let l32 = depthsense_model::ordinal::ordinal_levels(&z32, h, w, cfg.align_corners);
-            let lmp = depthsense_model::ordinal::ordinal_levels(&zmp, h, w, cfg.align_corners);
-            let diff = (l32 - lmp).abs();
-            let n = diff.numel() as f64;
-            let more_than_one = diff.gt(1).sum(Kind::Int64).int64_value(&[]) as f64 / n;
-            let any = diff.gt(0).sum(Kind::Int64).int64_value(&[]) as f64 / n;
-            res.precision_check = Some(serde_json::json!({
-                "frac_pixels_level_moved_gt_1": more_than_one,
-                "frac_pixels_level_moved": any,
-                "target_frac_gt_1": 0.001,
-                "ok": more_than_one <= 0.001,
-                "note": "random weights and inputs; re-check on a trained checkpoint"
-            }));
+impl Bench {
+    /// Resolve the network and device, set libtorch up, build the network (seed 0) in the
+    /// layout and precision this device supports (a note on stderr for each one refused).
+    fn new(args: &Args) -> anyhow::Result<Bench> {
+        let cfg = ModelConfig::resolve(&args.preset)?.with_options(&args.set)?;
+        let dev = device::parse_device(&args.device)?;
+        if let Some(n) = args.threads {
+            tch::set_num_threads(n);
+        }
+        if dev.is_cuda() {
+            tch::Cuda::cudnn_set_benchmark(args.cudnn_benchmark);
+        }
+        tch::manual_seed(0);
+        let mem_baseline = gpu_used_total_mib(dev);
+        let vs = nn::VarStore::new(dev);
+        let net = DepthNet::new(&vs.root(), &cfg)?;
+        let channels_last = use_channels_last(args.channels_last, dev, &vs);
+        let rep = report::model_report(&vs, &net, args.height, args.width);
+        let prec = precision_on(args.precision, dev);
+        Ok(Bench {
+            cfg,
+            dev,
+            vs,
+            net,
+            mem_baseline,
+            channels_last,
+            prec,
+            params: rep.total_params,
+            macs_per_image: rep.total_macs,
+            height: args.height,
+            width: args.width,
+            warmup: args.warmup,
+            repeats: args.repeats,
+        })
+    }
+
+    /// The results before any phase ran.
+    fn results(&self, args: &Args) -> Results {
+        let dev = self.dev;
+        Results {
+            config: self.cfg.name.clone(),
+            device: device::describe(dev),
+            gpu: if dev.is_cuda() {
+                nvidia_smi(&["--query-gpu=name", "--format=csv,noheader"])
+            } else {
+                None
+            },
+            precision: format!("{:?}", self.prec).to_lowercase(),
+            channels_last: self.channels_last,
+            cudnn_benchmark: args.cudnn_benchmark && dev.is_cuda(),
+            height: self.height,
+            width: self.width,
+            params: self.params,
+            macs_per_image: self.macs_per_image,
+            threads: tch::get_num_threads(),
+            warmup: self.warmup,
+            repeats: self.repeats,
+            forward: None,
+            forward_decode: None,
+            train_step: None,
+            precision_check: None,
         }
     }
 
-    if args.batch_train > 0 {
-        let (img, radar, target) = inputs(&cfg, args.batch_train, h, w, dev, channels_last_on);
+    /// Random inputs of `batch` images in this bench's size and layout.
+    fn inputs(&self, batch: i64) -> (Tensor, Tensor, Tensor) {
+        inputs(
+            &self.cfg,
+            batch,
+            self.height,
+            self.width,
+            self.dev,
+            self.channels_last,
+        )
+    }
+
+    /// [`time_it`] with this bench's warm-up and repeats, then the GPU memory.
+    fn time(&self, batch: i64, f: impl FnMut()) -> Timing {
+        let mut t = time_it(self.dev, self.warmup, self.repeats, batch, f);
+        t.gpu_memory_mib = gpu_memory_mib(self.dev, self.mem_baseline);
+        t
+    }
+
+    /// The forward phases (head output, and decoded to full resolution) and, under mixed
+    /// precision with the ordinal head, the check against fp32.
+    fn forward(&self, batch: i64, res: &mut Results) {
+        let (net, prec, (h, w)) = (&self.net, self.prec, (self.height, self.width));
+        let (img, radar, _) = self.inputs(batch);
+        let _guard = tch::no_grad_guard();
+        res.forward = Some(self.time(batch, || {
+            let _ = with_autocast(prec, || net.forward_t(&img, &radar, false));
+        }));
+        res.forward_decode = Some(self.time(batch, || {
+            let _ = with_autocast(prec, || {
+                net.decode_to(&net.forward_t(&img, &radar, false), h, w)
+            });
+        }));
+        if prec != Precision::Fp32 && self.cfg.head == HeadKind::Ordinal {
+            res.precision_check = Some(self.precision_check(&img, &radar));
+        }
+    }
+
+    /// Mixed precision vs fp32 on the same input: the fraction of pixels whose decoded level
+    /// moves by more than one bin, and by any amount.
+    fn precision_check(&self, img: &Tensor, radar: &Tensor) -> serde_json::Value {
+        let (net, cfg, (h, w)) = (&self.net, &self.cfg, (self.height, self.width));
+        let z32 = net.forward_t(img, radar, false);
+        let zmp =
+            with_autocast(self.prec, || net.forward_t(img, radar, false)).to_kind(Kind::Float);
+        let l32 = depthsense_model::ordinal::ordinal_levels(&z32, h, w, cfg.align_corners);
+        let lmp = depthsense_model::ordinal::ordinal_levels(&zmp, h, w, cfg.align_corners);
+        let diff = (l32 - lmp).abs();
+        let n = diff.numel() as f64;
+        let more_than_one = diff.gt(1).sum(Kind::Int64).int64_value(&[]) as f64 / n;
+        let any = diff.gt(0).sum(Kind::Int64).int64_value(&[]) as f64 / n;
+        serde_json::json!({
+            "frac_pixels_level_moved_gt_1": more_than_one,
+            "frac_pixels_level_moved": any,
+            "target_frac_gt_1": 0.001,
+            "ok": more_than_one <= 0.001,
+            "note": "random weights and inputs; re-check on a trained checkpoint"
+        })
+    }
+
+    /// The training-step phase: forward, loss, backward and an SGD step.
+    fn train_step(&self, batch: i64) -> anyhow::Result<Timing> {
+        let (net, prec) = (&self.net, self.prec);
+        let (img, radar, target) = self.inputs(batch);
         // SPEC §8 optimiser: SGD, momentum 0.9, weight decay 1e-4.
         let mut opt = nn::Sgd {
             momentum: 0.9,
@@ -302,20 +350,74 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             wd: 1e-4,
             nesterov: false,
         }
-        .build(&vs, 1e-3)?;
-        let mut t = time_it(dev, args.warmup, args.repeats, args.batch_train, || {
+        .build(&self.vs, 1e-3)?;
+        Ok(self.time(batch, || {
             opt.zero_grad();
             let loss = with_autocast(prec, || {
                 net.loss(&net.forward_t(&img, &radar, true), &target)
             });
             loss.backward();
             opt.step();
-        });
-        t.gpu_memory_mib = gpu_memory_mib(dev, mem_baseline);
-        res.train_step = Some(t);
+        }))
     }
-    vs.freeze();
+}
 
+/// Whether the channels-last layout is used (asked for, on CUDA); converts `vs` when it is.
+fn use_channels_last(asked: bool, dev: Device, vs: &nn::VarStore) -> bool {
+    // libtorch 2.11's CPU backward crashed (heap corruption) with channels-last weights at
+    // 175x400 in our tests, so the layout is only used on CUDA, where NHWC is cuDNN's fast path.
+    let channels_last_on = asked && dev.is_cuda();
+    if asked && !channels_last_on {
+        eprintln!(
+            "note: --channels-last is only used on CUDA; running NCHW on {}",
+            device::describe(dev)
+        );
+    }
+    if channels_last_on {
+        vs_to_channels_last(vs);
+    }
+    channels_last_on
+}
+
+/// The arithmetic used on `dev`: `asked` on CUDA, fp32 elsewhere (with a note).
+fn precision_on(asked: Precision, dev: Device) -> Precision {
+    let prec = if dev.is_cuda() {
+        asked
+    } else {
+        Precision::Fp32
+    };
+    if prec != asked {
+        eprintln!(
+            "note: --precision {:?} needs CUDA; running fp32 on {}",
+            asked,
+            device::describe(dev)
+        );
+    }
+    prec
+}
+
+pub fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let mut bench = Bench::new(&args)?;
+    let mut res = bench.results(&args);
+    if args.batch_forward > 0 {
+        bench.forward(args.batch_forward, &mut res);
+    }
+    if args.batch_train > 0 {
+        res.train_step = Some(bench.train_step(args.batch_train)?);
+    }
+    bench.vs.freeze();
+    print_results(&res);
+    if let Some(path) = &args.out {
+        let text = serde_json::to_string_pretty(&res)?;
+        depthsense_model::checkpoint::write_atomic(path, text.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The results on stdout: the set-up line, a table of the phases, the precision check.
+fn print_results(res: &Results) {
     println!(
         "{} on {}{} ({}, channels-last {}, cudnn.benchmark {}), {}x{}, {:.2} M params, {:.1} G MACs/image, {} threads",
         res.config,
@@ -324,8 +426,8 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         res.precision,
         res.channels_last,
         res.cudnn_benchmark,
-        h,
-        w,
+        res.height,
+        res.width,
         res.params as f64 / 1e6,
         res.macs_per_image as f64 / 1e9,
         res.threads
@@ -353,11 +455,4 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(p) = &res.precision_check {
         println!("precision check vs fp32: {p}");
     }
-    if let Some(path) = &args.out {
-        let text = serde_json::to_string_pretty(&res)?;
-        depthsense_model::checkpoint::write_atomic(path, text.as_bytes())
-            .with_context(|| format!("writing {}", path.display()))?;
-        eprintln!("wrote {}", path.display());
-    }
-    Ok(ExitCode::SUCCESS)
 }
