@@ -9,7 +9,7 @@ use depthsense_data::{RadarInput, TargetKind};
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
-use depthsense_train::trainer::{train, train_distributed, TrainOptions};
+use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
@@ -210,23 +210,49 @@ pub fn progress_bar(prefix: &str) -> ProgressBar {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let timeout = Duration::from_secs(a.dist_timeout.max(1));
     if let Some(n) = a.nproc {
-        // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
-        if !a.resume && !a.force {
-            depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
-        }
-        // Another writer fails us here, at once (taken and released: rank 0 holds it next).
-        drop(depthsense_nuscenes::lock::OutputLock::exclusive(
-            &a.out,
-            "depthsense train",
-        )?);
-        distributed::launch_local(
-            n,
-            &worker_args(),
-            a.master_port,
-            timeout + Duration::from_secs(30),
-        )?;
-        return Ok(ExitCode::SUCCESS);
+        return launch_workers(&a, n, timeout);
     }
+    let dist = DistArgs {
+        sync_bn: a.sync_bn,
+        bucket_mb: a.bucket_mb,
+        check_replicas: a.check_replicas,
+        timeout,
+    };
+    let out = a.out.clone();
+    let model = model_config(&a)?;
+    let opts = train_options(a, model)?;
+    let Some((s, pb)) = train_this_process(opts, &dist)? else {
+        // a rank other than 0: rank 0 reports
+        return Ok(ExitCode::SUCCESS);
+    };
+    pb.finish();
+    print_summary(&s, &out);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
+/// (each this command without `--nproc`) and wait for them.
+fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
+    // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
+    if !a.resume && !a.force {
+        depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
+    }
+    // Another writer fails us here, at once (taken and released: rank 0 holds it next).
+    drop(depthsense_nuscenes::lock::OutputLock::exclusive(
+        &a.out,
+        "depthsense train",
+    )?);
+    distributed::launch_local(
+        n,
+        &worker_args(),
+        a.master_port,
+        timeout + Duration::from_secs(30),
+    )?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The preset with the command line's model options applied, `--set` last.
+fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
     let mut model = ModelConfig::preset(&a.config)?;
     if let Some(f) = &a.fusion {
         model.fusion = parse_fusion(f)?;
@@ -247,8 +273,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         // The radar input fixes the channel count (mer: raw + 6 MER = 7, SPEC §5).
         model.set_option("radar-input", r)?;
     }
-    let model = model.with_options(&a.set)?;
-    let mut opts = TrainOptions {
+    Ok(model.with_options(&a.set)?)
+}
+
+/// The trainer's options from the command line and the resolved `model`.
+fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
+    Ok(TrainOptions {
         data: a.data,
         out: a.out.clone(),
         model,
@@ -295,47 +325,64 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             aggregate: a.aggregate.parse::<Aggregate>()?,
             ..EvalConfig::default()
         },
-    };
-    let (s, pb) = match DistEnv::from_env()? {
+    })
+}
+
+/// The data-parallel options of the command line.
+struct DistArgs {
+    sync_bn: bool,
+    bucket_mb: f64,
+    check_replicas: bool,
+    /// Rendezvous and collective timeout.
+    timeout: Duration,
+}
+
+/// Train in this process: alone, or as one rank of the job the environment describes.
+/// `None` on ranks other than 0 (they print nothing).
+fn train_this_process(
+    mut opts: TrainOptions,
+    d: &DistArgs,
+) -> anyhow::Result<Option<(TrainSummary, ProgressBar)>> {
+    let env = match DistEnv::from_env()? {
         None => {
-            if a.sync_bn {
+            if d.sync_bn {
                 eprintln!("note: --sync-bn has no effect in a single process");
             }
             let pb = progress_bar("train");
-            (train(&opts, &pb)?, pb)
+            return Ok(Some((train(&opts, &pb)?, pb)));
         }
-        Some(env) => {
-            opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
-            let device = depthsense_model::device::parse_device(&opts.device)?;
-            let dopts = DistOptions {
-                sync_bn: a.sync_bn,
-                bucket_bytes: (a.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
-                check_replicas: a.check_replicas,
-            };
-            let who = format!("rank {} of {}", env.rank, env.world_size);
-            let dist = Dist::from_env(dopts, device, timeout)
-                .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
-                .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
-            let pb = if env.rank == 0 {
-                progress_bar("train")
-            } else {
-                ProgressBar::hidden()
-            };
-            let s =
-                train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
-            if env.rank != 0 {
-                return Ok(ExitCode::SUCCESS);
-            }
-            (s, pb)
-        }
+        Some(env) => env,
     };
-    pb.finish();
+    opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let dopts = DistOptions {
+        sync_bn: d.sync_bn,
+        bucket_bytes: (d.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
+        check_replicas: d.check_replicas,
+    };
+    let who = format!("rank {} of {}", env.rank, env.world_size);
+    let dist = Dist::from_env(dopts, device, d.timeout)
+        .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
+        .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
+    let pb = if env.rank == 0 {
+        progress_bar("train")
+    } else {
+        ProgressBar::hidden()
+    };
+    let s = train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
+    if env.rank != 0 {
+        return Ok(None);
+    }
+    Ok(Some((s, pb)))
+}
+
+/// The run's summary on stderr: iterations, times, validation RMSE over the whole history.
+fn print_summary(s: &TrainSummary, out: &std::path::Path) {
     // The whole history (a resumed run's summary only holds its own epochs).
-    let history = depthsense_train::trainer::read_metrics(
-        &a.out.join(depthsense_train::trainer::METRICS_FILE),
-    )
-    .map(|(_, v)| v)
-    .unwrap_or_else(|_| s.val.clone());
+    let history =
+        depthsense_train::trainer::read_metrics(&out.join(depthsense_train::trainer::METRICS_FILE))
+            .map(|(_, v)| v)
+            .unwrap_or_else(|_| s.val.clone());
     let first = history.first().map_or(f64::NAN, |v| v.rmse);
     let last = history.last().map_or(f64::NAN, |v| v.rmse);
     eprintln!(
@@ -362,6 +409,5 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             s.iterations_done
         );
     }
-    eprintln!("run directory: {}", a.out.display());
-    Ok(ExitCode::SUCCESS)
+    eprintln!("run directory: {}", out.display());
 }
