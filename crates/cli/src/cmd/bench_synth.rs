@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use depthsense_synth::{SynthConfig, Weather};
+use depthsense_synth::{StageTimes, SynthConfig, SynthSummary, Weather};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -47,6 +47,16 @@ fn cpu_seconds() -> Option<f64> {
     Some((ut + st) / 100.0)
 }
 
+/// A generated world with its timings.
+struct TimedWorld {
+    /// Where it was generated (removed by then unless --keep).
+    root: PathBuf,
+    summary: SynthSummary,
+    wall_s: f64,
+    /// Process CPU seconds of the generation (`None` off Linux).
+    cpu_s: Option<f64>,
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let cfg = SynthConfig {
         scenes: a.scenes,
@@ -55,6 +65,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         jobs: a.jobs,
         ..SynthConfig::default()
     };
+    let world = generate_timed(&a, &cfg)?;
+    let stages = if a.profile_frames > 0 {
+        Some(depthsense_synth::profile_stages(a.seed, a.profile_frames)?)
+    } else {
+        None
+    };
+    let report = report_json(&a, &world, stages);
+    let text = serde_json::to_string_pretty(&report)?;
+    depthsense_nuscenes::fsutil::write_atomic(&a.out, text.as_bytes())
+        .with_context(|| format!("writing {}", a.out.display()))?;
+    println!("{text}");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Generate the world under --work (or the temp dir), timed; removed afterwards unless --keep.
+fn generate_timed(a: &Args, cfg: &SynthConfig) -> anyhow::Result<TimedWorld> {
     let base = a.work.clone().unwrap_or_else(std::env::temp_dir);
     std::fs::create_dir_all(&base).with_context(|| format!("creating {}", base.display()))?;
     let root = base.join(format!("depthsense-bench-synth-{}", std::process::id()));
@@ -67,9 +93,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let cpu0 = cpu_seconds();
     let t = Instant::now();
-    let s = depthsense_synth::generate(&root, &cfg, &pb)?;
-    let wall = t.elapsed().as_secs_f64();
-    let cpu = match (cpu0, cpu_seconds()) {
+    let summary = depthsense_synth::generate(&root, cfg, &pb)?;
+    let wall_s = t.elapsed().as_secs_f64();
+    let cpu_s = match (cpu0, cpu_seconds()) {
         (Some(a), Some(b)) => Some(b - a),
         _ => None,
     };
@@ -77,11 +103,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if !a.keep {
         std::fs::remove_dir_all(&root).with_context(|| format!("removing {}", root.display()))?;
     }
-    let stages = if a.profile_frames > 0 {
-        Some(depthsense_synth::profile_stages(a.seed, a.profile_frames)?)
-    } else {
-        None
-    };
+    Ok(TimedWorld {
+        root,
+        summary,
+        wall_s,
+        cpu_s,
+    })
+}
+
+/// The JSON report: machine, configuration, world size, throughput and stage times.
+fn report_json(a: &Args, world: &TimedWorld, stages: Option<StageTimes>) -> serde_json::Value {
+    let s = &world.summary;
+    let wall = world.wall_s;
     let threads = if a.jobs == 0 {
         std::thread::available_parallelism()
             .map(|n| n.get())
@@ -89,7 +122,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         a.jobs
     };
-    let report = serde_json::json!({
+    serde_json::json!({
         "benchmark": "synth",
         "machine": {
             "threads": threads,
@@ -113,15 +146,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         "files": s.files,
         "bytes": s.bytes,
         "wall_s": wall,
-        "process_cpu_s": cpu,
+        "process_cpu_s": world.cpu_s,
         "keyframes_per_s": s.keyframes as f64 / wall,
         "target": "10 scenes x 20 keyframes in < 120 s on 2 cores",
         "stages_single_thread_ms": stages,
-        "kept": if a.keep { Some(root.display().to_string()) } else { None },
-    });
-    let text = serde_json::to_string_pretty(&report)?;
-    depthsense_nuscenes::fsutil::write_atomic(&a.out, text.as_bytes())
-        .with_context(|| format!("writing {}", a.out.display()))?;
-    println!("{text}");
-    Ok(ExitCode::SUCCESS)
+        "kept": if a.keep { Some(world.root.display().to_string()) } else { None },
+    })
 }
