@@ -1,10 +1,10 @@
 //! `depthsense synth`: generate the synthetic nuScenes-format world.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
-use depthsense_synth::{SynthConfig, Weather};
+use depthsense_synth::{SynthConfig, SynthSummary, Weather};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -68,6 +68,28 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
             out.display()
         );
     }
+    let cfg = synth_config(&args)?;
+    let pb = indicatif::ProgressBar::new(0);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template(
+            "synth {bar:40} {pos}/{len} frames  {elapsed_precise} (eta {eta})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let s = depthsense_synth::generate(&out, &cfg, &pb)
+        .with_context(|| format!("generating the synthetic world into {}", out.display()))?;
+    pb.finish_and_clear();
+    print_summary(&s, &out, &cfg.version_name);
+    if let Some(sheet) = &args.contact_sheet {
+        depthsense_synth::contact_sheet(&out, &cfg.version_name, sheet)?;
+        println!("contact sheet: {}", sheet.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The world's configuration: the demo preset or --scenes/--keyframes-per-scene, with the
+/// seed, condition mix, version name and threads of the command line.
+fn synth_config(args: &Args) -> anyhow::Result<SynthConfig> {
     let mut cfg = if args.demo {
         SynthConfig::demo()
     } else {
@@ -81,16 +103,11 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     cfg.conditions = SynthConfig::parse_conditions(&args.conditions)?;
     cfg.version_name = args.version_name.clone();
     cfg.jobs = args.jobs;
-    let pb = indicatif::ProgressBar::new(0);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template(
-            "synth {bar:40} {pos}/{len} frames  {elapsed_precise} (eta {eta})",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    let s = depthsense_synth::generate(&out, &cfg, &pb)
-        .with_context(|| format!("generating the synthetic world into {}", out.display()))?;
-    pb.finish_and_clear();
+    Ok(cfg)
+}
+
+/// What was generated, where, and the `prepare` command that comes next (stdout).
+fn print_summary(s: &SynthSummary, out: &Path, version_name: &str) {
     let per_s = s.keyframes as f64 / s.seconds.max(1e-9);
     println!(
         "{} scenes ({} day, {} night, {} rain), {} keyframes, {} sample_data, {:.1} MB in {:.1} s ({:.2} keyframes/s incl. all sweeps)",
@@ -104,15 +121,10 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         s.seconds,
         per_s
     );
-    println!("dataroot: {}  version: {}", out.display(), cfg.version_name);
+    println!("dataroot: {}  version: {}", out.display(), version_name);
     println!(
         "next: depthsense prepare --dataroot {} --version {} --split all --out <prepared>",
         out.display(),
-        cfg.version_name
+        version_name
     );
-    if let Some(sheet) = &args.contact_sheet {
-        depthsense_synth::contact_sheet(&out, &cfg.version_name, sheet)?;
-        println!("contact sheet: {}", sheet.display());
-    }
-    Ok(ExitCode::SUCCESS)
 }
