@@ -6,8 +6,10 @@ use std::process::ExitCode;
 
 use depthsense_eval::evaluate::load_model;
 use depthsense_eval::predict::{
-    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, OUTPUT_FILES,
+    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, PredictInput,
+    OUTPUT_FILES,
 };
+use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_train::outputs::refuse_existing;
 use depthsense_train::trainer::radar_input_for;
 
@@ -131,7 +133,32 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(data) = a.data.clone() {
         return run_dataset(&a, &data);
     }
-    let mut input = if let Some(dir) = &a.sample {
+    let mut input = read_input(&a)?;
+    let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
+    refuse_existing(&files, a.force, "predict")?;
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
+    if let Some(r) = &load_report {
+        eprint!("{}: {r}", a.checkpoint.display());
+    }
+    let radar = radar_input_for(&loaded.config, None)?;
+    if let Some(ck) = &a.mer_checkpoint {
+        let pda = depthsense_model::pda::load(ck, device)?;
+        depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
+    }
+    let depth = predict(&loaded.net, &input, radar, device)?;
+    let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
+    print_summary(&input, &depth);
+    for f in files {
+        println!("{}", f.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The one input of the command line: a prepared sample, a sample token of a dataroot (its
+/// maps computed like `prepare` does), or raw files.
+fn read_input(a: &Args) -> anyhow::Result<PredictInput> {
+    Ok(if let Some(dir) = &a.sample {
         input_from_prepared(dir)?
     } else if let Some(token) = &a.token {
         let dataroot = a
@@ -153,21 +180,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
     } else {
         anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
-    };
-    let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
-    refuse_existing(&files, a.force, "predict")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
-    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
-    if let Some(r) = &load_report {
-        eprint!("{}: {r}", a.checkpoint.display());
-    }
-    let radar = radar_input_for(&loaded.config, None)?;
-    if let Some(ck) = &a.mer_checkpoint {
-        let pda = depthsense_model::pda::load(ck, device)?;
-        depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
-    }
-    let depth = predict(&loaded.net, &input, radar, device)?;
-    let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
+    })
+}
+
+/// The prediction's size, mean depth and radar pixels, and its RMSE against the lidar
+/// ground truth where the input has one (stderr).
+fn print_summary(input: &PredictInput, depth: &DepthMap) {
     let valid: Vec<f32> = depth.depth_m.iter().copied().filter(|d| *d > 0.0).collect();
     let mean = valid.iter().map(|d| *d as f64).sum::<f64>() / valid.len().max(1) as f64;
     eprintln!(
@@ -192,8 +210,4 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    for f in files {
-        println!("{}", f.display());
-    }
-    Ok(ExitCode::SUCCESS)
 }
