@@ -6,7 +6,9 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_experiments::ablation::{run_ablation, AblationOptions, Variant, MD_FILE, PNG_FILE};
+use depthsense_experiments::ablation::{
+    run_ablation, AblationOptions, AblationResult, Variant, MD_FILE, PNG_FILE,
+};
 use depthsense_experiments::runner::RunSettings;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use indicatif::MultiProgress;
@@ -416,6 +418,16 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
+    let opts = ablation_options(a)?;
+    let mp = MultiProgress::new();
+    let r = run_ablation(&opts, &mp)?;
+    print_ablation(&r, &opts);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The ablation's options: variants (empty names skipped), seeds (--seed-list, else
+/// 0..--seeds) and the test protocol and aggregation.
+fn ablation_options(a: AblationArgs) -> anyhow::Result<AblationOptions> {
     let variants = a
         .variants
         .iter()
@@ -426,7 +438,7 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
         Some(l) => l,
         None => (0..a.seeds).collect(),
     };
-    let opts = AblationOptions {
+    Ok(AblationOptions {
         run: a.run.settings(),
         out: a.out,
         variants,
@@ -437,9 +449,12 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
             ..EvalConfig::default()
         },
         command_line: command_line(),
-    };
-    let mp = MultiProgress::new();
-    let r = run_ablation(&opts, &mp)?;
+    })
+}
+
+/// The combined test metrics per variant and the verdicts (stdout), then what was run and
+/// where the report is (stderr).
+fn print_ablation(r: &AblationResult, opts: &AblationOptions) {
     println!(
         "{:<10} {:>3}  {:>17}  {:>17}  {:>17}",
         "variant", "n", "test RMSE (m)", "δ1", "AbsRel"
@@ -475,5 +490,4 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
         opts.out.join(MD_FILE).display(),
         opts.out.join(PNG_FILE).display()
     );
-    Ok(ExitCode::SUCCESS)
 }
