@@ -523,119 +523,27 @@ pub fn load_sample(
     }
     let rgb = decode_rgb(&dir.join(IMAGE_FILE))?;
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);
-    let aug = if opts.augment {
-        Augment::draw(rng)
+    let draws = SampleDraws::draw(opts, rng);
+    let image = normalise_image(&rgb, &draws.aug);
+
+    let target_m = read_target(&dir, opts.target, w, h)?;
+    let (radar, radar_channels) = if opts.no_radar {
+        (Vec::new(), 0)
     } else {
-        Augment::NONE
+        let maps = read_radar_maps(&dir, w, h)?;
+        let (raw, height) = corrupt_radar(&dir, entry, opts, draws.train_drop, maps)?;
+        (
+            radar_planes(&dir, opts.radar, &raw, &height)?,
+            opts.radar.channels(),
+        )
     };
-    // Drawn after the SPEC §8 augmentation so that its draws are those of runs without it.
-    let train_drop = (opts.train_radar_drop > 0.0 && !opts.no_radar)
-        .then(|| (rng.range(0.0, opts.train_radar_drop), rng.next_u64()));
-
-    let mut image = normalise_image(&rgb, &aug);
-    let plane = w * h;
-
-    // Target.
-    let dense_path = dir.join(LIDAR_DENSE_FILE);
-    let sparse_path = dir.join(LIDAR_SPARSE_FILE);
-    let target_path = match opts.target {
-        TargetKind::Dense if dense_path.exists() => dense_path,
-        _ => sparse_path.clone(),
+    let (sparse_m, lowheight) = if opts.eval_maps {
+        read_eval_maps(&dir, w, h)?
+    } else {
+        (Vec::new(), Vec::new())
     };
-    let target = read_depth(&target_path)?;
-    check_size(&target, w, h, &target_path)?;
-    let mut target_m = target.depth_m;
 
-    // Radar.
-    let mut radar = Vec::new();
-    let mut radar_channels = 0;
-    if !opts.no_radar {
-        let raw_path = dir.join(RADAR_RAW_FILE);
-        let height_path = dir.join(RADAR_HEIGHT_FILE);
-        let mut raw = read_depth(&raw_path)?;
-        check_size(&raw, w, h, &raw_path)?;
-        let mut height = read_depth(&height_path)?;
-        check_size(&height, w, h, &height_path)?;
-        let failure_seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
-        let meta = match opts.failure.is_active() {
-            true => Some(read_meta(&dir)?),
-            false => None,
-        };
-        // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
-        if opts.radar == RadarInput::Mer && opts.failure.perturb.is_some() {
-            return Err(TrainError::Config(
-                "a calibration perturbation of MER inputs would need `mer apply` on the \
-                 perturbed maps: not supported (use a raw / height-extended model)"
-                    .into(),
-            ));
-        }
-        if let Some(meta) = &meta {
-            if let Some((r, hm)) = opts.failure.reraster(&dir, meta, failure_seed)? {
-                check_size(&r, w, h, &raw_path)?;
-                (raw, height) = (r, hm);
-            }
-        }
-        if opts.radar_drop > 0.0 {
-            let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
-            drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
-        }
-        if let Some((fraction, seed)) = train_drop {
-            drop_radar(&mut raw, Some(&mut height), fraction, seed);
-        }
-        if let Some(meta) = &meta {
-            opts.failure
-                .apply(&mut raw, &mut height, meta, failure_seed)?;
-        }
-        match opts.radar {
-            RadarInput::Height => radar.extend_from_slice(&height.depth_m),
-            RadarInput::Raw => radar.extend_from_slice(&raw.depth_m),
-            RadarInput::RawHeight => {
-                radar.extend_from_slice(&raw.depth_m);
-                radar.extend_from_slice(&height.depth_m);
-            }
-            RadarInput::Mer => mer_planes(&dir, &raw, &mut radar)?,
-        }
-        radar_channels = opts.radar.channels();
-    }
-
-    let mut sparse_m = Vec::new();
-    let mut lowheight = Vec::new();
-    if opts.eval_maps {
-        let s = read_depth(&sparse_path)?;
-        check_size(&s, w, h, &sparse_path)?;
-        sparse_m = s.depth_m;
-        let mpath = dir.join(LOWHEIGHT_MASK_FILE);
-        if mpath.exists() {
-            let m = decode_rgb_luma(&mpath)?;
-            if m.len() != w * h {
-                return Err(TrainError::Data(format!(
-                    "{}: mask has {} pixels, expected {}",
-                    mpath.display(),
-                    m.len(),
-                    w * h
-                )));
-            }
-            lowheight = m;
-        }
-    }
-
-    if aug.flip {
-        for c in 0..3 {
-            flip_rows(&mut image[c * plane..(c + 1) * plane], w);
-        }
-        for c in 0..radar_channels {
-            flip_rows(&mut radar[c * plane..(c + 1) * plane], w);
-        }
-        flip_rows(&mut target_m, w);
-        if !sparse_m.is_empty() {
-            flip_rows(&mut sparse_m, w);
-        }
-        if !lowheight.is_empty() {
-            flip_rows(&mut lowheight, w);
-        }
-    }
-
-    Ok(Sample {
+    let mut sample = Sample {
         token: entry.sample_token.clone(),
         conditions: entry.conditions.clone(),
         width: w,
@@ -646,8 +554,185 @@ pub fn load_sample(
         target_m,
         sparse_m,
         lowheight,
-        flipped: aug.flip,
+        flipped: draws.aug.flip,
+    };
+    if draws.aug.flip {
+        flip_sample(&mut sample);
+    }
+    Ok(sample)
+}
+
+/// The draws of one sample from its random stream, in stream order.
+struct SampleDraws {
+    /// SPEC §8 augmentation ([`Augment::NONE`] without `augment`: no draw).
+    aug: Augment,
+    /// Training radar drop: (fraction, seed), drawn only when `train_radar_drop` is on.
+    train_drop: Option<(f64, u64)>,
+}
+
+impl SampleDraws {
+    /// Augmentation first, then the training radar drop.
+    fn draw(opts: &LoadOptions, rng: &mut Rng) -> Self {
+        let aug = if opts.augment {
+            Augment::draw(rng)
+        } else {
+            Augment::NONE
+        };
+        // Drawn after the SPEC §8 augmentation so that its draws are those of runs without it.
+        let train_drop = (opts.train_radar_drop > 0.0 && !opts.no_radar)
+            .then(|| (rng.range(0.0, opts.train_radar_drop), rng.next_u64()));
+        Self { aug, train_drop }
+    }
+}
+
+/// The training target (metres): the dense map when asked for and present, else the sparse.
+fn read_target(dir: &Path, kind: TargetKind, w: usize, h: usize) -> Result<Vec<f32>, TrainError> {
+    let dense_path = dir.join(LIDAR_DENSE_FILE);
+    let sparse_path = dir.join(LIDAR_SPARSE_FILE);
+    let target_path = match kind {
+        TargetKind::Dense if dense_path.exists() => dense_path,
+        _ => sparse_path,
+    };
+    let target = read_depth(&target_path)?;
+    check_size(&target, w, h, &target_path)?;
+    Ok(target.depth_m)
+}
+
+/// A sample's stored radar maps, checked against the image size.
+struct RadarMaps {
+    raw: DepthMap,
+    height: DepthMap,
+    /// Path of the raw map (named in size errors of re-rasterised maps).
+    raw_path: PathBuf,
+    width: usize,
+    height_px: usize,
+}
+
+/// Read the raw and height-extended radar maps of a sample.
+fn read_radar_maps(dir: &Path, w: usize, h: usize) -> Result<RadarMaps, TrainError> {
+    let raw_path = dir.join(RADAR_RAW_FILE);
+    let height_path = dir.join(RADAR_HEIGHT_FILE);
+    let raw = read_depth(&raw_path)?;
+    check_size(&raw, w, h, &raw_path)?;
+    let height = read_depth(&height_path)?;
+    check_size(&height, w, h, &height_path)?;
+    Ok(RadarMaps {
+        raw,
+        height,
+        raw_path,
+        width: w,
+        height_px: h,
     })
+}
+
+/// Radar corruption in the loader's order: failure re-rasterisation, `radar_drop`, the
+/// training drop, then the failure modes (SPEC §10.7/§10.8) → (raw, height).
+fn corrupt_radar(
+    dir: &Path,
+    entry: &IndexEntry,
+    opts: &LoadOptions,
+    train_drop: Option<(f64, u64)>,
+    maps: RadarMaps,
+) -> Result<(DepthMap, DepthMap), TrainError> {
+    let RadarMaps {
+        mut raw,
+        mut height,
+        raw_path,
+        width: w,
+        height_px: h,
+    } = maps;
+    let failure_seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
+    let meta = match opts.failure.is_active() {
+        true => Some(read_meta(dir)?),
+        false => None,
+    };
+    // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
+    if opts.radar == RadarInput::Mer && opts.failure.perturb.is_some() {
+        return Err(TrainError::Config(
+            "a calibration perturbation of MER inputs would need `mer apply` on the \
+             perturbed maps: not supported (use a raw / height-extended model)"
+                .into(),
+        ));
+    }
+    if let Some(meta) = &meta {
+        if let Some((r, hm)) = opts.failure.reraster(dir, meta, failure_seed)? {
+            check_size(&r, w, h, &raw_path)?;
+            (raw, height) = (r, hm);
+        }
+    }
+    if opts.radar_drop > 0.0 {
+        let seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xd20b;
+        drop_radar(&mut raw, Some(&mut height), opts.radar_drop, seed);
+    }
+    if let Some((fraction, seed)) = train_drop {
+        drop_radar(&mut raw, Some(&mut height), fraction, seed);
+    }
+    if let Some(meta) = &meta {
+        opts.failure
+            .apply(&mut raw, &mut height, meta, failure_seed)?;
+    }
+    Ok((raw, height))
+}
+
+/// The network's radar planes [C, H, W] for input `radar` from the (corrupted) maps.
+fn radar_planes(
+    dir: &Path,
+    radar: RadarInput,
+    raw: &DepthMap,
+    height: &DepthMap,
+) -> Result<Vec<f32>, TrainError> {
+    let mut planes = Vec::new();
+    match radar {
+        RadarInput::Height => planes.extend_from_slice(&height.depth_m),
+        RadarInput::Raw => planes.extend_from_slice(&raw.depth_m),
+        RadarInput::RawHeight => {
+            planes.extend_from_slice(&raw.depth_m);
+            planes.extend_from_slice(&height.depth_m);
+        }
+        RadarInput::Mer => mer_planes(dir, raw, &mut planes)?,
+    }
+    Ok(planes)
+}
+
+/// The evaluation maps: sparse GT (metres) and the low-height mask (empty when absent).
+fn read_eval_maps(dir: &Path, w: usize, h: usize) -> Result<(Vec<f32>, Vec<bool>), TrainError> {
+    let sparse_path = dir.join(LIDAR_SPARSE_FILE);
+    let s = read_depth(&sparse_path)?;
+    check_size(&s, w, h, &sparse_path)?;
+    let mut lowheight = Vec::new();
+    let mpath = dir.join(LOWHEIGHT_MASK_FILE);
+    if mpath.exists() {
+        let m = decode_rgb_luma(&mpath)?;
+        if m.len() != w * h {
+            return Err(TrainError::Data(format!(
+                "{}: mask has {} pixels, expected {}",
+                mpath.display(),
+                m.len(),
+                w * h
+            )));
+        }
+        lowheight = m;
+    }
+    Ok((s.depth_m, lowheight))
+}
+
+/// SPEC §8 horizontal flip of every map of a sample (image, radar, target, eval maps).
+fn flip_sample(s: &mut Sample) {
+    let w = s.width;
+    let plane = s.width * s.height;
+    for c in 0..3 {
+        flip_rows(&mut s.image[c * plane..(c + 1) * plane], w);
+    }
+    for c in 0..s.radar_channels {
+        flip_rows(&mut s.radar[c * plane..(c + 1) * plane], w);
+    }
+    flip_rows(&mut s.target_m, w);
+    if !s.sparse_m.is_empty() {
+        flip_rows(&mut s.sparse_m, w);
+    }
+    if !s.lowheight.is_empty() {
+        flip_rows(&mut s.lowheight, w);
+    }
 }
 
 /// [3, H, W] ImageNet-normalised planes of an RGB image, after the colour jitter of `aug`
