@@ -215,19 +215,8 @@ fn every_nth(scenes: &[String], every: usize) -> Vec<String> {
 /// Deterministic; the scene names of val and test are recorded.
 pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
     let names = ds.split_names();
-    let build = |method: String,
-                 train: Vec<IndexEntry>,
-                 val: Vec<IndexEntry>,
-                 test: Vec<IndexEntry>| Partition {
-        method,
-        val_scenes: scene_names(&val),
-        test_scenes: scene_names(&test),
-        train,
-        val,
-        test,
-    };
     if names.contains("train") && names.contains("val") {
-        return Ok(build(
+        return Ok(Partition::of_sets(
             "splits (train / val / test of index.json)".into(),
             ds.split("train"),
             ds.split("val"),
@@ -235,21 +224,52 @@ pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
         ));
     }
     if names.contains("train") {
-        let train_all = ds.split("train");
-        let val_scenes = every_nth(&scene_names(&train_all), every);
-        let (val, train): (Vec<_>, Vec<_>) = train_all
-            .into_iter()
-            .partition(|e| val_scenes.contains(&e.scene_name));
-        return Ok(build(
-            format!(
-                "train split, every {}th training scene by name held out for validation",
-                every.max(2)
-            ),
+        return Ok(partition_train_split(ds, every));
+    }
+    partition_scene_modulo(ds, every)
+}
+
+impl Partition {
+    /// The partition of these three sets, with their scene names recorded.
+    fn of_sets(
+        method: String,
+        train: Vec<IndexEntry>,
+        val: Vec<IndexEntry>,
+        test: Vec<IndexEntry>,
+    ) -> Partition {
+        Partition {
+            method,
+            val_scenes: scene_names(&val),
+            test_scenes: scene_names(&test),
             train,
             val,
-            ds.split("test"),
-        ));
+            test,
+        }
     }
+}
+
+/// Mode 2 of [`partition`]: a `train` split but no `val`; every `every`-th training scene by
+/// name is validation, `test` is the `test` split.
+fn partition_train_split(ds: &Dataset, every: usize) -> Partition {
+    let train_all = ds.split("train");
+    let val_scenes = every_nth(&scene_names(&train_all), every);
+    let (val, train): (Vec<_>, Vec<_>) = train_all
+        .into_iter()
+        .partition(|e| val_scenes.contains(&e.scene_name));
+    Partition::of_sets(
+        format!(
+            "train split, every {}th training scene by name held out for validation",
+            every.max(2)
+        ),
+        train,
+        val,
+        ds.split("test"),
+    )
+}
+
+/// Mode 3 of [`partition`]: no split lists; test and validation scenes by position modulo
+/// `every` among the scenes sorted by name.
+fn partition_scene_modulo(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
     let mut scenes = ds.scenes();
     scenes.sort();
     if scenes.len() < 3 {
@@ -260,21 +280,7 @@ pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
         )));
     }
     let every = every.max(3);
-    let mut test_scenes: Vec<String> = Vec::new();
-    let mut val_scenes: Vec<String> = Vec::new();
-    for (i, s) in scenes.iter().enumerate() {
-        if i % every == every - 1 {
-            test_scenes.push(s.clone());
-        } else if i % every == every - 2 {
-            val_scenes.push(s.clone());
-        }
-    }
-    if test_scenes.is_empty() {
-        test_scenes.push(scenes[scenes.len() - 1].clone());
-    }
-    if val_scenes.is_empty() {
-        val_scenes.push(scenes[scenes.len() - 2].clone());
-    }
+    let (val_scenes, test_scenes) = modulo_val_test_scenes(&scenes, every);
     let of = |set: &[String]| -> Vec<IndexEntry> {
         ds.index
             .samples
@@ -290,7 +296,7 @@ pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
         .filter(|e| !val_scenes.contains(&e.scene_name) && !test_scenes.contains(&e.scene_name))
         .cloned()
         .collect();
-    Ok(build(
+    Ok(Partition::of_sets(
         format!(
             "scene-modulo (no split lists: of the scenes sorted by name, every {every}th is test, \
              the one before it validation)"
@@ -299,6 +305,27 @@ pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
         of(&val_scenes),
         of(&test_scenes),
     ))
+}
+
+/// (validation, test) scenes of sorted `scenes` (at least 3): positions ≡ every−2 and
+/// ≡ every−1 (mod `every`), the second-last and last scene when that picks none.
+fn modulo_val_test_scenes(scenes: &[String], every: usize) -> (Vec<String>, Vec<String>) {
+    let mut test_scenes: Vec<String> = Vec::new();
+    let mut val_scenes: Vec<String> = Vec::new();
+    for (i, s) in scenes.iter().enumerate() {
+        if i % every == every - 1 {
+            test_scenes.push(s.clone());
+        } else if i % every == every - 2 {
+            val_scenes.push(s.clone());
+        }
+    }
+    if test_scenes.is_empty() {
+        test_scenes.push(scenes[scenes.len() - 1].clone());
+    }
+    if val_scenes.is_empty() {
+        val_scenes.push(scenes[scenes.len() - 2].clone());
+    }
+    (val_scenes, test_scenes)
 }
 
 /// One decoded, augmented, normalised sample (CPU, channel-major).
