@@ -901,39 +901,14 @@ impl Loader {
         if plan.batch_size == 0 {
             return Err(TrainError::Config("batch size must be at least 1".into()));
         }
-        let order = epoch_order(plan.entries.len(), opts.seed, plan.epoch, plan.shuffle);
-        let mut groups: Vec<Vec<usize>> =
-            order.chunks(plan.batch_size).map(|c| c.to_vec()).collect();
-        if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
-            groups.pop();
-        }
-        if world > 1 {
-            for g in groups.iter_mut() {
-                let n = g.len();
-                if n < world {
-                    return Err(TrainError::Config(format!(
-                        "a batch of {n} sample(s) cannot be shared by {world} ranks"
-                    )));
-                }
-                *g = g[rank * n / world..(rank + 1) * n / world].to_vec();
-            }
-        }
+        let groups = batch_groups(opts, plan, rank, world)?;
         let batches = groups.len();
         let groups: Vec<(usize, Vec<usize>)> = groups
             .into_iter()
             .enumerate()
             .skip(plan.skip_batches)
             .collect();
-        let jobs = if plan.jobs == 0 {
-            std::thread::available_parallelism().map_or(2, |n| n.get())
-        } else {
-            plan.jobs
-        };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(jobs)
-            .thread_name(|i| format!("loader-{i}"))
-            .build()
-            .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))?;
+        let pool = loader_pool(plan.jobs)?;
         let (tx, rx) = sync_channel(plan.prefetch.max(1));
         let ds = ds.clone();
         let opts = opts.clone();
@@ -966,6 +941,48 @@ impl Loader {
             batches,
         })
     }
+}
+
+/// The epoch's batches as sample positions: the epoch order in chunks of `plan.batch_size`
+/// (the last incomplete one dropped with `drop_last`), each cut to rank `rank`'s slice of
+/// `world`.
+fn batch_groups(
+    opts: &LoadOptions,
+    plan: &EpochPlan,
+    rank: usize,
+    world: usize,
+) -> Result<Vec<Vec<usize>>, TrainError> {
+    let order = epoch_order(plan.entries.len(), opts.seed, plan.epoch, plan.shuffle);
+    let mut groups: Vec<Vec<usize>> = order.chunks(plan.batch_size).map(|c| c.to_vec()).collect();
+    if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
+        groups.pop();
+    }
+    if world > 1 {
+        for g in groups.iter_mut() {
+            let n = g.len();
+            if n < world {
+                return Err(TrainError::Config(format!(
+                    "a batch of {n} sample(s) cannot be shared by {world} ranks"
+                )));
+            }
+            *g = g[rank * n / world..(rank + 1) * n / world].to_vec();
+        }
+    }
+    Ok(groups)
+}
+
+/// The decoding thread pool: `jobs` threads (0 = all cores).
+fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, TrainError> {
+    let jobs = if jobs == 0 {
+        std::thread::available_parallelism().map_or(2, |n| n.get())
+    } else {
+        jobs
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(jobs)
+        .thread_name(|i| format!("loader-{i}"))
+        .build()
+        .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))
 }
 
 impl Iterator for Loader {
