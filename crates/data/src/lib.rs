@@ -1013,9 +1013,7 @@ pub fn write_toy_dataset(
     h: u32,
     seed: u64,
 ) -> Result<(), TrainError> {
-    use depthsense_nuscenes::depth_png::encode_png;
     use depthsense_nuscenes::fsutil::write_atomic;
-    use depthsense_prep::layout::SampleMeta;
     let mut index = PreparedIndex {
         version: "v1.0-toy".into(),
         samples: vec![],
@@ -1028,90 +1026,15 @@ pub fn write_toy_dataset(
             let token = format!("toy{s:03}{k:03}{:016x}", rng.next_u64());
             let dir = root.join(&token);
             std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
-            let horizon = h as f32 * 0.3;
             let offset = rng.range(0.8, 1.25) as f32;
-            let mut dense = DepthMap::zeros(w, h);
-            let mut sparse = DepthMap::zeros(w, h);
-            let mut raw = DepthMap::zeros(w, h);
-            let mut height = DepthMap::zeros(w, h);
-            let mut low = image::GrayImage::new(w, h);
-            let mut img = image::RgbImage::new(w, h);
-            for v in 0..h {
-                for u in 0..w {
-                    let i = (v * w + u) as usize;
-                    let d = if (v as f32) > horizon {
-                        (offset * 4.0 * h as f32 / (v as f32 - horizon + 1.0)).min(79.0)
-                    } else {
-                        79.0
-                    };
-                    dense.depth_m[i] = d;
-                    if (u + v) % 3 == 0 {
-                        sparse.depth_m[i] = d;
-                        if v as f32 > h as f32 * 0.6 {
-                            low.put_pixel(u, v, image::Luma([255]));
-                        }
-                    }
-                    let g = (255.0 * (1.0 - d / 80.0)) as u8;
-                    let night = cond == Condition::Night;
-                    img.put_pixel(
-                        u,
-                        v,
-                        image::Rgb([
-                            if night { g / 3 } else { g },
-                            ((u * 7) % 255) as u8 / 2 + g / 2,
-                            if night { 20 } else { 128 },
-                        ]),
-                    );
-                }
-            }
-            for _ in 0..4 {
-                let u = (rng.uniform() * w as f64) as u32 % w;
-                let v = (h as f64 * rng.range(0.5, 0.95)) as u32 % h;
-                let d = dense.depth_m[(v * w + u) as usize];
-                raw.depth_m[(v * w + u) as usize] = d;
-                for vv in v.saturating_sub(6)..(v + 2).min(h) {
-                    height.depth_m[(vv * w + u) as usize] = d;
-                }
-            }
-            let enc = |m: &DepthMap| encode_png(m).map_err(|e| TrainError::Data(e.to_string()));
-            let write = |name: &str, bytes: &[u8]| {
-                let p = dir.join(name);
-                write_atomic(&p, bytes).map_err(|e| TrainError::io(&p, e))
-            };
-            write(LIDAR_DENSE_FILE, &enc(&dense)?)?;
-            write(LIDAR_SPARSE_FILE, &enc(&sparse)?)?;
-            write(RADAR_RAW_FILE, &enc(&raw)?)?;
-            write(RADAR_HEIGHT_FILE, &enc(&height)?)?;
-            let mut buf = std::io::Cursor::new(Vec::new());
-            img.write_to(&mut buf, image::ImageFormat::Png)
-                .map_err(|e| TrainError::Data(e.to_string()))?;
-            write(IMAGE_FILE, buf.get_ref())?;
-            let mut buf = std::io::Cursor::new(Vec::new());
-            low.write_to(&mut buf, image::ImageFormat::Png)
-                .map_err(|e| TrainError::Data(e.to_string()))?;
-            write(LOWHEIGHT_MASK_FILE, buf.get_ref())?;
-            let f = w as f64;
-            let meta = SampleMeta {
-                sample_token: token.clone(),
-                scene_token: format!("scene{s:04}"),
-                scene_name: format!("toy-{s:04}"),
-                conditions: vec![cond],
-                timestamp_us: (s * 1000 + k) as i64,
-                sample_data_tokens: Default::default(),
-                intrinsics_frame: [[f, 0.0, f / 2.0], [0.0, f, h as f64 / 2.0], [0.0, 0.0, 1.0]],
-                intrinsics_full: [
-                    [2.0 * f, 0.0, f],
-                    [0.0, 2.0 * f, h as f64 + 200.0],
-                    [0.0, 0.0, 1.0],
-                ],
-                cam_from_lidar: identity4(),
-                cam_from_radar: Default::default(),
-                counts: Default::default(),
-                settings: serde_json::json!({"toy": true}),
-            };
+            let mut maps = ToyMaps::ground(w, h, offset, cond);
+            maps.add_radar(&mut rng);
+            maps.write(&dir)?;
+            let meta = toy_meta(&token, s, k, cond, w, h);
             let meta_bytes =
                 serde_json::to_vec_pretty(&meta).map_err(|e| TrainError::Data(e.to_string()))?;
-            write(META_FILE, &meta_bytes)?;
+            let p = dir.join(META_FILE);
+            write_atomic(&p, &meta_bytes).map_err(|e| TrainError::io(&p, e))?;
             index.samples.push(IndexEntry {
                 sample_token: token.clone(),
                 scene_token: format!("scene{s:04}"),
@@ -1125,6 +1048,132 @@ pub fn write_toy_dataset(
     let p = root.join(INDEX_FILE);
     let bytes = serde_json::to_vec_pretty(&index).map_err(|e| TrainError::Data(e.to_string()))?;
     write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))
+}
+
+/// The maps and image of one toy sample (see [`write_toy_dataset`]).
+struct ToyMaps {
+    dense: DepthMap,
+    sparse: DepthMap,
+    raw: DepthMap,
+    height: DepthMap,
+    low: image::GrayImage,
+    img: image::RgbImage,
+}
+
+impl ToyMaps {
+    /// The ground plane (depth scaled by `offset`, growing towards the horizon at 0.3·h),
+    /// every third pixel as sparse GT, the low-height mask below 0.6·h and the image of the
+    /// depth (darker at night); no radar yet.
+    fn ground(w: u32, h: u32, offset: f32, cond: Condition) -> ToyMaps {
+        let horizon = h as f32 * 0.3;
+        let mut m = ToyMaps {
+            dense: DepthMap::zeros(w, h),
+            sparse: DepthMap::zeros(w, h),
+            raw: DepthMap::zeros(w, h),
+            height: DepthMap::zeros(w, h),
+            low: image::GrayImage::new(w, h),
+            img: image::RgbImage::new(w, h),
+        };
+        for v in 0..h {
+            for u in 0..w {
+                let i = (v * w + u) as usize;
+                let d = if (v as f32) > horizon {
+                    (offset * 4.0 * h as f32 / (v as f32 - horizon + 1.0)).min(79.0)
+                } else {
+                    79.0
+                };
+                m.dense.depth_m[i] = d;
+                if (u + v) % 3 == 0 {
+                    m.sparse.depth_m[i] = d;
+                    if v as f32 > h as f32 * 0.6 {
+                        m.low.put_pixel(u, v, image::Luma([255]));
+                    }
+                }
+                let g = (255.0 * (1.0 - d / 80.0)) as u8;
+                let night = cond == Condition::Night;
+                m.img.put_pixel(
+                    u,
+                    v,
+                    image::Rgb([
+                        if night { g / 3 } else { g },
+                        ((u * 7) % 255) as u8 / 2 + g / 2,
+                        if night { 20 } else { 128 },
+                    ]),
+                );
+            }
+        }
+        m
+    }
+
+    /// Four radar returns at the true depth, each with a height strip 6 px up and 1 down.
+    fn add_radar(&mut self, rng: &mut Rng) {
+        let (w, h) = (self.dense.width, self.dense.height);
+        for _ in 0..4 {
+            let u = (rng.uniform() * w as f64) as u32 % w;
+            let v = (h as f64 * rng.range(0.5, 0.95)) as u32 % h;
+            let d = self.dense.depth_m[(v * w + u) as usize];
+            self.raw.depth_m[(v * w + u) as usize] = d;
+            for vv in v.saturating_sub(6)..(v + 2).min(h) {
+                self.height.depth_m[(vv * w + u) as usize] = d;
+            }
+        }
+    }
+
+    /// Write the four depth maps, the image and the low-height mask into `dir`.
+    fn write(&self, dir: &Path) -> Result<(), TrainError> {
+        use depthsense_nuscenes::depth_png::encode_png;
+        use depthsense_nuscenes::fsutil::write_atomic;
+        let enc = |m: &DepthMap| encode_png(m).map_err(|e| TrainError::Data(e.to_string()));
+        let write = |name: &str, bytes: &[u8]| {
+            let p = dir.join(name);
+            write_atomic(&p, bytes).map_err(|e| TrainError::io(&p, e))
+        };
+        write(LIDAR_DENSE_FILE, &enc(&self.dense)?)?;
+        write(LIDAR_SPARSE_FILE, &enc(&self.sparse)?)?;
+        write(RADAR_RAW_FILE, &enc(&self.raw)?)?;
+        write(RADAR_HEIGHT_FILE, &enc(&self.height)?)?;
+        let mut buf = std::io::Cursor::new(Vec::new());
+        self.img
+            .write_to(&mut buf, image::ImageFormat::Png)
+            .map_err(|e| TrainError::Data(e.to_string()))?;
+        write(IMAGE_FILE, buf.get_ref())?;
+        let mut buf = std::io::Cursor::new(Vec::new());
+        self.low
+            .write_to(&mut buf, image::ImageFormat::Png)
+            .map_err(|e| TrainError::Data(e.to_string()))?;
+        write(LOWHEIGHT_MASK_FILE, buf.get_ref())
+    }
+}
+
+/// `meta.json` of toy sample `k` of scene `s`: training-frame intrinsics with f = w at the
+/// image centre, a full-resolution camera twice as large, identity lidar extrinsic.
+fn toy_meta(
+    token: &str,
+    s: usize,
+    k: usize,
+    cond: Condition,
+    w: u32,
+    h: u32,
+) -> depthsense_prep::layout::SampleMeta {
+    let f = w as f64;
+    depthsense_prep::layout::SampleMeta {
+        sample_token: token.to_string(),
+        scene_token: format!("scene{s:04}"),
+        scene_name: format!("toy-{s:04}"),
+        conditions: vec![cond],
+        timestamp_us: (s * 1000 + k) as i64,
+        sample_data_tokens: Default::default(),
+        intrinsics_frame: [[f, 0.0, f / 2.0], [0.0, f, h as f64 / 2.0], [0.0, 0.0, 1.0]],
+        intrinsics_full: [
+            [2.0 * f, 0.0, f],
+            [0.0, 2.0 * f, h as f64 + 200.0],
+            [0.0, 0.0, 1.0],
+        ],
+        cam_from_lidar: identity4(),
+        cam_from_radar: Default::default(),
+        counts: Default::default(),
+        settings: serde_json::json!({"toy": true}),
+    }
 }
 
 pub(crate) fn identity4() -> [[f64; 4]; 4] {
