@@ -51,12 +51,82 @@ fn plot_err<E: std::fmt::Debug>(e: E) -> VizError {
     VizError(format!("plotting failed: {e:?}"))
 }
 
-fn panel(
-    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+/// A plotters drawing area on a bitmap buffer.
+type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// A chart with f64 axes on a bitmap buffer.
+type Chart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// A chart builder on `area` with `margin` px margins: with `text`, the caption `title`
+/// (18 pt) and label areas of `label_px` (x, y) px; without, 4 px label areas.
+fn chart_builder<'a, 'b>(
+    area: &'a Area<'b>,
     title: &str,
-    series: &[Series<'_>],
     text: bool,
+    margin: u32,
+    label_px: (u32, u32),
+) -> ChartBuilder<'a, 'static, BitMapBackend<'b>> {
+    let mut b = ChartBuilder::on(area);
+    b.margin(margin);
+    if text {
+        b.caption(title, ("sans-serif", 18))
+            .x_label_area_size(label_px.0)
+            .y_label_area_size(label_px.1);
+    } else {
+        b.x_label_area_size(4).y_label_area_size(4);
+    }
+    b
+}
+
+/// Draw series `i` (colour `COLOURS[i]`, 2 px line) with dots at its points when `dots`;
+/// with `text`, register its legend entry `name`.
+fn draw_line(
+    chart: &mut Chart<'_, '_>,
+    i: usize,
+    name: &str,
+    data: Vec<(f64, f64)>,
+    text: bool,
+    dots: bool,
 ) -> Result<(), VizError> {
+    let c = COLOURS[i % COLOURS.len()];
+    let line = chart
+        .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
+        .map_err(plot_err)?;
+    if text {
+        line.label(name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
+    }
+    if dots {
+        chart
+            .draw_series(data.iter().map(|&p| Circle::new(p, 3, c.filled())))
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// The legend of the registered series (at `position`, plotters' default when `None`).
+fn draw_legend<'a, 'b: 'a>(
+    chart: &mut Chart<'a, 'b>,
+    position: Option<SeriesLabelPosition>,
+) -> Result<(), VizError> {
+    let mut labels = chart.configure_series_labels();
+    if let Some(p) = position {
+        labels.position(p);
+    }
+    labels
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(plot_err)
+}
+
+/// Axis ranges of a curves panel: x from 0 (or the first iteration) to at least 1 past it,
+/// y over the finite values (0..1 when none, at least 1 tall) padded by 5 %.
+fn curve_ranges(series: &[Series<'_>]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let pts: Vec<(f64, f64)> = series
         .iter()
         .flat_map(|(_, s)| s.iter().map(|&(x, y)| (x as f64, y)))
@@ -77,17 +147,13 @@ fn panel(
         y1 = y0 + 1.0;
     }
     let pad = (y1 - y0) * 0.05;
-    let mut b = ChartBuilder::on(area);
-    b.margin(12);
-    if text {
-        b.caption(title, ("sans-serif", 18))
-            .x_label_area_size(30)
-            .y_label_area_size(50);
-    } else {
-        b.x_label_area_size(4).y_label_area_size(4);
-    }
-    let mut chart = b
-        .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+    (x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+}
+
+fn panel(area: &Area<'_>, title: &str, series: &[Series<'_>], text: bool) -> Result<(), VizError> {
+    let (xs, ys) = curve_ranges(series);
+    let mut chart = chart_builder(area, title, text, 12, (30, 50))
+        .build_cartesian_2d(xs, ys)
         .map_err(plot_err)?;
     let mut mesh = chart.configure_mesh();
     if text {
@@ -100,32 +166,16 @@ fn panel(
     }
     mesh.draw().map_err(plot_err)?;
     for (i, (name, s)) in series.iter().enumerate() {
-        let c = COLOURS[i % COLOURS.len()];
         let data: Vec<(f64, f64)> = s
             .iter()
             .filter(|(_, y)| y.is_finite())
             .map(|&(x, y)| (x as f64, y))
             .collect();
-        let line = chart
-            .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
-            .map_err(plot_err)?;
-        if text {
-            line.label(*name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
-        }
-        if data.len() < 60 {
-            chart
-                .draw_series(data.iter().map(|&p| Circle::new(p, 3, c.filled())))
-                .map_err(plot_err)?;
-        }
+        let dots = data.len() < 60;
+        draw_line(&mut chart, i, name, data, text, dots)?;
     }
     if text {
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_err)?;
+        draw_legend(&mut chart, None)?;
     }
     Ok(())
 }
