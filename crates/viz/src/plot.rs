@@ -296,39 +296,34 @@ pub struct BarPanel<'a> {
     pub y_label: &'a str,
 }
 
-fn bar_panel(
-    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    p: &BarPanel<'_>,
-    text: bool,
-) -> Result<(), VizError> {
-    let n = p.labels.len().min(p.means.len());
-    let err = |i: usize| {
-        p.stds
-            .get(i)
-            .copied()
-            .filter(|s| s.is_finite())
-            .unwrap_or(0.0)
-    };
+/// Half-length of bar `i`'s error bar (0 when absent or not finite).
+fn bar_err(p: &BarPanel<'_>, i: usize) -> f64 {
+    p.stds
+        .get(i)
+        .copied()
+        .filter(|s| s.is_finite())
+        .unwrap_or(0.0)
+}
+
+/// Top of a bar panel's y axis: 12 % above the highest finite bar plus its error bar (1 when
+/// there is none above 0).
+fn bar_top(p: &BarPanel<'_>, n: usize) -> f64 {
     let mut y1 = 0.0f64;
     for i in 0..n {
         if p.means[i].is_finite() {
-            y1 = y1.max(p.means[i] + err(i).abs());
+            y1 = y1.max(p.means[i] + bar_err(p, i).abs());
         }
     }
     if y1 <= 0.0 {
         y1 = 1.0;
     }
-    let y1 = y1 * 1.12;
-    let mut b = ChartBuilder::on(area);
-    b.margin(14);
-    if text {
-        b.caption(p.title, ("sans-serif", 18))
-            .x_label_area_size(34)
-            .y_label_area_size(56);
-    } else {
-        b.x_label_area_size(4).y_label_area_size(4);
-    }
-    let mut chart = b
+    y1 * 1.12
+}
+
+fn bar_panel(area: &Area<'_>, p: &BarPanel<'_>, text: bool) -> Result<(), VizError> {
+    let n = p.labels.len().min(p.means.len());
+    let y1 = bar_top(p, n);
+    let mut chart = chart_builder(area, p.title, text, 14, (34, 56))
         .build_cartesian_2d(0.0f64..n.max(1) as f64, 0.0f64..y1)
         .map_err(plot_err)?;
     let mut mesh = chart.configure_mesh();
@@ -344,58 +339,76 @@ fn bar_panel(
         if !m.is_finite() {
             continue;
         }
-        let c = COLOURS[i % COLOURS.len()];
-        let (x0, x1) = (i as f64 + 0.15, i as f64 + 0.85);
-        chart
-            .draw_series(std::iter::once(Rectangle::new(
-                [(x0, 0.0), (x1, m)],
-                c.mix(0.8).filled(),
-            )))
-            .map_err(plot_err)?;
-        let s = err(i).abs();
-        if s > 0.0 {
-            let xc = i as f64 + 0.5;
-            let (lo, hi) = ((m - s).max(0.0), m + s);
-            let style = BLACK.stroke_width(2);
-            chart
-                .draw_series([
-                    PathElement::new(vec![(xc, lo), (xc, hi)], style),
-                    PathElement::new(vec![(xc - 0.12, lo), (xc + 0.12, lo)], style),
-                    PathElement::new(vec![(xc - 0.12, hi), (xc + 0.12, hi)], style),
-                ])
-                .map_err(plot_err)?;
-        }
+        let s = bar_err(p, i).abs();
+        draw_bar(&mut chart, i, m, s)?;
         if text {
-            // Variant name under the bar (drawn on the panel: outside the plotting area).
-            let (px, py) = chart.backend_coord(&(i as f64 + 0.5, 0.0));
-            let base = area.get_base_pixel();
-            let style = ("sans-serif", 15).into_font().color(&BLACK).pos(
-                plotters::style::text_anchor::Pos::new(
-                    plotters::style::text_anchor::HPos::Center,
-                    plotters::style::text_anchor::VPos::Top,
-                ),
-            );
-            area.draw(&Text::new(
-                p.labels[i].to_string(),
-                (px - base.0, py - base.1 + 6),
-                style,
-            ))
-            .map_err(plot_err)?;
-            let above = ("sans-serif", 13).into_font().color(&BLACK).pos(
-                plotters::style::text_anchor::Pos::new(
-                    plotters::style::text_anchor::HPos::Center,
-                    plotters::style::text_anchor::VPos::Bottom,
-                ),
-            );
-            chart
-                .draw_series(std::iter::once(Text::new(
-                    format!("{m:.3}"),
-                    (i as f64 + 0.5, m + s + 0.015 * y1),
-                    above,
-                )))
-                .map_err(plot_err)?;
+            // The value sits just above the error bar.
+            let value_y = m + s + 0.015 * y1;
+            draw_bar_text(area, &mut chart, p.labels[i], i, m, value_y)?;
         }
     }
+    Ok(())
+}
+
+/// Bar `i` of height `m` (colour `COLOURS[i]`) with a ± `s` error bar (none when `s` is 0).
+fn draw_bar(chart: &mut Chart<'_, '_>, i: usize, m: f64, s: f64) -> Result<(), VizError> {
+    let c = COLOURS[i % COLOURS.len()];
+    let (x0, x1) = (i as f64 + 0.15, i as f64 + 0.85);
+    chart
+        .draw_series(std::iter::once(Rectangle::new(
+            [(x0, 0.0), (x1, m)],
+            c.mix(0.8).filled(),
+        )))
+        .map_err(plot_err)?;
+    if s > 0.0 {
+        let xc = i as f64 + 0.5;
+        let (lo, hi) = ((m - s).max(0.0), m + s);
+        let style = BLACK.stroke_width(2);
+        chart
+            .draw_series([
+                PathElement::new(vec![(xc, lo), (xc, hi)], style),
+                PathElement::new(vec![(xc - 0.12, lo), (xc + 0.12, lo)], style),
+                PathElement::new(vec![(xc - 0.12, hi), (xc + 0.12, hi)], style),
+            ])
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// The label of bar `i` under it and its value `m` (3 decimals) at height `value_y`.
+fn draw_bar_text(
+    area: &Area<'_>,
+    chart: &mut Chart<'_, '_>,
+    label: &str,
+    i: usize,
+    m: f64,
+    value_y: f64,
+) -> Result<(), VizError> {
+    use plotters::style::text_anchor::{HPos, Pos, VPos};
+    // Variant name under the bar (drawn on the panel: outside the plotting area).
+    let (px, py) = chart.backend_coord(&(i as f64 + 0.5, 0.0));
+    let base = area.get_base_pixel();
+    let style = ("sans-serif", 15)
+        .into_font()
+        .color(&BLACK)
+        .pos(Pos::new(HPos::Center, VPos::Top));
+    area.draw(&Text::new(
+        label.to_string(),
+        (px - base.0, py - base.1 + 6),
+        style,
+    ))
+    .map_err(plot_err)?;
+    let value_style = ("sans-serif", 13)
+        .into_font()
+        .color(&BLACK)
+        .pos(Pos::new(HPos::Center, VPos::Bottom));
+    chart
+        .draw_series(std::iter::once(Text::new(
+            format!("{m:.3}"),
+            (i as f64 + 0.5, value_y),
+            value_style,
+        )))
+        .map_err(plot_err)?;
     Ok(())
 }
 
@@ -552,11 +565,9 @@ pub struct LinePanel<'a> {
     pub series: &'a [(&'a str, Vec<(f64, f64)>)],
 }
 
-fn line_panel(
-    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
-    p: &LinePanel<'_>,
-    text: bool,
-) -> Result<(), VizError> {
+/// Axis ranges of a line panel: the finite points' extent (0..1 each when none, at least
+/// 1e-6 wide), y padded by 8 %.
+fn line_ranges(p: &LinePanel<'_>) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let pts = p.series.iter().flat_map(|(_, s)| s.iter());
     let finite: Vec<(f64, f64)> = pts
         .filter(|(x, y)| x.is_finite() && y.is_finite())
@@ -578,17 +589,13 @@ fn line_panel(
     x1 = x1.max(x0 + 1e-6);
     y1 = y1.max(y0 + 1e-6);
     let pad = (y1 - y0) * 0.08;
-    let mut b = ChartBuilder::on(area);
-    b.margin(14);
-    if text {
-        b.caption(p.title, ("sans-serif", 18))
-            .x_label_area_size(36)
-            .y_label_area_size(56);
-    } else {
-        b.x_label_area_size(4).y_label_area_size(4);
-    }
-    let mut chart = b
-        .build_cartesian_2d(x0..x1, (y0 - pad)..(y1 + pad))
+    (x0..x1, (y0 - pad)..(y1 + pad))
+}
+
+fn line_panel(area: &Area<'_>, p: &LinePanel<'_>, text: bool) -> Result<(), VizError> {
+    let (xs, ys) = line_ranges(p);
+    let mut chart = chart_builder(area, p.title, text, 14, (36, 56))
+        .build_cartesian_2d(xs, ys)
         .map_err(plot_err)?;
     let mut mesh = chart.configure_mesh();
     if text {
@@ -598,27 +605,11 @@ fn line_panel(
     }
     mesh.draw().map_err(plot_err)?;
     for (i, (name, s)) in p.series.iter().enumerate() {
-        let c = COLOURS[i % COLOURS.len()];
         let data: Vec<(f64, f64)> = s.iter().filter(|(_, y)| y.is_finite()).copied().collect();
-        let line = chart
-            .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
-            .map_err(plot_err)?;
-        if text {
-            line.label(*name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
-        }
-        chart
-            .draw_series(data.iter().map(|&q| Circle::new(q, 3, c.filled())))
-            .map_err(plot_err)?;
+        draw_line(&mut chart, i, name, data, text, true)?;
     }
     if text {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(plot_err)?;
+        draw_legend(&mut chart, Some(SeriesLabelPosition::UpperLeft))?;
     }
     Ok(())
 }
