@@ -476,54 +476,124 @@ pub fn picture_row_png(
         return Err(VizError("picture row: no panels".into()));
     }
     let text = fonts_available();
-    let cw = panels
-        .iter()
-        .map(|(_, p)| p.width())
-        .max()
-        .unwrap_or(1)
-        .max(1);
-    let ch = panels
-        .iter()
-        .map(|(_, p)| p.height())
-        .max()
-        .unwrap_or(1)
-        .max(1);
-    let n = panels.len() as u32;
-    let rows = if n > 3 && n * cw > 2400 { 2 } else { 1 };
-    let cols = n.div_ceil(rows);
-    let (gap, cap_h) = (8u32, if text { 26u32 } else { 4 });
-    let bar_h = 18u32;
-    let tick_h = if text { 40u32 } else { 8 };
-    let w = cols * cw + (cols + 1) * gap;
-    let grid_h = rows * (cap_h + ch) + (rows + 1) * gap;
-    let h = grid_h + bar_h + tick_h + gap;
-    let mut canvas = image::RgbImage::from_pixel(w, h, image::Rgb([255, 255, 255]));
-    let mut origins = vec![];
-    for (i, (_, p)) in panels.iter().enumerate() {
-        let (r, c) = (i as u32 / cols, i as u32 % cols);
-        let x = gap + c * (cw + gap) + (cw - p.width()) / 2;
-        let y = gap + r * (cap_h + ch + gap) + cap_h + (ch - p.height()) / 2;
-        image::imageops::replace(&mut canvas, p, x as i64, y as i64);
-        origins.push((gap + c * (cw + gap), gap + r * (cap_h + ch + gap)));
+    let g = PictureGrid::new(panels, text);
+    let mut canvas = image::RgbImage::from_pixel(g.w, g.h, image::Rgb([255, 255, 255]));
+    let origins = g.paste_panels(&mut canvas, panels);
+    g.draw_colour_bar(&mut canvas, max_m);
+    if text {
+        canvas = g.draw_text(canvas, panels, &origins, max_m)?;
     }
-    // Colour bar: the colorize_depth map itself, sampled at pixel centres.
-    let (bx0, bw) = (gap + cw / 8, (w - 2 * gap - cw / 4).max(2));
-    let by0 = grid_h;
-    let ramp: Vec<f32> = (0..bw)
-        .map(|x| (x as f32 + 0.5) / bw as f32 * max_m)
-        .collect();
-    let bar = colorize_depth(&ramp, bw, 1, max_m);
-    for y in 0..bar_h {
-        for x in 0..bw {
-            canvas.put_pixel(bx0 + x, by0 + y, *bar.get_pixel(x, 0));
+    encode_rgb(&canvas)
+}
+
+/// Layout of a [`picture_row_png`] picture (pixels): cells of the largest panel size in
+/// `rows` × `cols`, each with a caption strip above, then the colour bar and its ticks.
+struct PictureGrid {
+    /// Cell width and height.
+    cw: u32,
+    ch: u32,
+    cols: u32,
+    gap: u32,
+    /// Caption strip above each cell.
+    cap_h: u32,
+    bar_h: u32,
+    /// Picture size.
+    w: u32,
+    h: u32,
+    /// Height of the panel grid (the colour bar starts there).
+    grid_h: u32,
+    /// Colour bar left edge and width.
+    bx0: u32,
+    bw: u32,
+}
+
+impl PictureGrid {
+    fn new(panels: &[(&str, image::RgbImage)], text: bool) -> PictureGrid {
+        let cw = panels
+            .iter()
+            .map(|(_, p)| p.width())
+            .max()
+            .unwrap_or(1)
+            .max(1);
+        let ch = panels
+            .iter()
+            .map(|(_, p)| p.height())
+            .max()
+            .unwrap_or(1)
+            .max(1);
+        let n = panels.len() as u32;
+        let rows = if n > 3 && n * cw > 2400 { 2 } else { 1 };
+        let cols = n.div_ceil(rows);
+        let (gap, cap_h) = (8u32, if text { 26u32 } else { 4 });
+        let bar_h = 18u32;
+        let tick_h = if text { 40u32 } else { 8 };
+        let w = cols * cw + (cols + 1) * gap;
+        let grid_h = rows * (cap_h + ch) + (rows + 1) * gap;
+        let h = grid_h + bar_h + tick_h + gap;
+        let (bx0, bw) = (gap + cw / 8, (w - 2 * gap - cw / 4).max(2));
+        PictureGrid {
+            cw,
+            ch,
+            cols,
+            gap,
+            cap_h,
+            bar_h,
+            w,
+            h,
+            grid_h,
+            bx0,
+            bw,
         }
     }
-    if text {
+
+    /// Paste each panel centred in its cell; the top-left corners of the cells (captions).
+    fn paste_panels(
+        &self,
+        canvas: &mut image::RgbImage,
+        panels: &[(&str, image::RgbImage)],
+    ) -> Vec<(u32, u32)> {
+        let (cw, ch, gap, cap_h) = (self.cw, self.ch, self.gap, self.cap_h);
+        let mut origins = vec![];
+        for (i, (_, p)) in panels.iter().enumerate() {
+            let (r, c) = (i as u32 / self.cols, i as u32 % self.cols);
+            let x = gap + c * (cw + gap) + (cw - p.width()) / 2;
+            let y = gap + r * (cap_h + ch + gap) + cap_h + (ch - p.height()) / 2;
+            image::imageops::replace(canvas, p, x as i64, y as i64);
+            origins.push((gap + c * (cw + gap), gap + r * (cap_h + ch + gap)));
+        }
+        origins
+    }
+
+    /// Colour bar: the colorize_depth map itself, sampled at pixel centres.
+    fn draw_colour_bar(&self, canvas: &mut image::RgbImage, max_m: f32) {
+        let (bx0, bw, by0) = (self.bx0, self.bw, self.grid_h);
+        let ramp: Vec<f32> = (0..bw)
+            .map(|x| (x as f32 + 0.5) / bw as f32 * max_m)
+            .collect();
+        let bar = colorize_depth(&ramp, bw, 1, max_m);
+        for y in 0..self.bar_h {
+            for x in 0..bw {
+                canvas.put_pixel(bx0 + x, by0 + y, *bar.get_pixel(x, 0));
+            }
+        }
+    }
+
+    /// The captions at the cell `origins`, the colour bar's 5 ticks with their labels (metres)
+    /// and its "depth (m)" title, drawn on `canvas`.
+    fn draw_text(
+        &self,
+        canvas: image::RgbImage,
+        panels: &[(&str, image::RgbImage)],
+        origins: &[(u32, u32)],
+        max_m: f32,
+    ) -> Result<image::RgbImage, VizError> {
+        let (w, h) = (self.w, self.h);
+        let (bx0, bw, by0, bar_h) = (self.bx0, self.bw, self.grid_h, self.bar_h);
         let mut buf = canvas.into_raw();
         {
             let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
             let cap_style = ("sans-serif", 20).into_font().color(&BLACK);
-            for ((name, _), (x, y)) in panels.iter().zip(&origins) {
+            for ((name, _), (x, y)) in panels.iter().zip(origins) {
                 root.draw(&Text::new(
                     name.to_string(),
                     (*x as i32 + 2, *y as i32 + 3),
@@ -551,10 +621,9 @@ pub fn picture_row_png(
             .map_err(plot_err)?;
             root.present().map_err(plot_err)?;
         }
-        canvas = image::RgbImage::from_raw(w, h, buf)
-            .ok_or_else(|| VizError("picture buffer has the wrong size".into()))?;
+        image::RgbImage::from_raw(w, h, buf)
+            .ok_or_else(|| VizError("picture buffer has the wrong size".into()))
     }
-    encode_rgb(&canvas)
 }
 
 /// One panel of [`line_charts_png`]: named series of (x, y) points, one colour each.
