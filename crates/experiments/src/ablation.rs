@@ -24,7 +24,7 @@ use depthsense_data::error::TrainError;
 use depthsense_data::{partition, Dataset, Partition};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use depthsense_viz::table::{csv_num, md_num, md_or_missing, Align, MdTable};
+use depthsense_viz::table::{csv_num, md_num, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -644,7 +644,7 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
                 .collect();
             let mut cells = vec![name.clone(), region.to_string(), rows.len().to_string()];
             cells.extend(cols.iter().map(|g| {
-                md_stat(&Stat::of(
+                Stat::md_cell(Stat::of(
                     &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),
                 ))
             }));
@@ -654,10 +654,6 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
     md.push_str(&t.finish());
     md.push('\n');
     md
-}
-
-fn md_stat(s: &Option<Stat>) -> String {
-    md_or_missing(s.map(|s| s.fmt(3)))
 }
 
 fn markdown(r: &AblationResult) -> String {
@@ -751,10 +747,10 @@ fn md_region_tables(r: &AblationResult, cap: f64) -> String {
                 x.variant.clone(),
                 x.condition.clone(),
                 x.n.to_string(),
-                md_stat(&x.delta1),
-                md_stat(&x.rmse),
-                md_stat(&x.abs_rel),
-                md_stat(&x.mae),
+                Stat::md_cell(x.delta1),
+                Stat::md_cell(x.rmse),
+                Stat::md_cell(x.abs_rel),
+                Stat::md_cell(x.mae),
             ]);
         }
         md.push_str(&t.finish());

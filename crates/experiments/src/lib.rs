@@ -44,6 +44,11 @@ impl Stat {
         Some(Stat { mean, std, n })
     }
 
+    /// A Markdown cell: "4.123 ± 0.051" with 3 decimals, or "–" when there is no value.
+    pub fn md_cell(s: Option<Stat>) -> String {
+        depthsense_viz::table::md_or_missing(s.map(|s| s.fmt(3)))
+    }
+
     /// "4.123 ± 0.051" (std "–" when n < 2), values with `prec` decimals.
     pub fn fmt(&self, prec: usize) -> String {
         match self.std {

@@ -18,7 +18,7 @@ use depthsense_data::{partition, Dataset};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
 use depthsense_train::trainer::TrainOptions;
-use depthsense_viz::table::{csv_quoted, csv_row, md_or_missing, Align, MdTable};
+use depthsense_viz::table::{csv_quoted, csv_row, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -228,10 +228,6 @@ fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, TrainError> {
     Ok(depthsense_viz::plot::bar_charts_png(&panels)?)
 }
 
-fn cell_stat(s: Option<Stat>) -> String {
-    md_or_missing(s.map(|s| s.fmt(3)))
-}
-
 fn markdown(r: &ReducedDataResult) -> String {
     let o = &r.options;
     let mut md = String::from("# Reduced training data (SPEC §10.5)\n\n");
@@ -267,7 +263,7 @@ fn markdown(r: &ReducedDataResult) -> String {
             cells.extend(
                 CONDITIONS
                     .iter()
-                    .map(|cond| cell_stat(stat_of(r, &c.name, cond, f))),
+                    .map(|cond| Stat::md_cell(stat_of(r, &c.name, cond, f))),
             );
             t.row(&cells);
         }
