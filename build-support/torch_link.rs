@@ -1,4 +1,5 @@
-// Shared by the build scripts of every crate that links libtorch (model, train, cli).
+// Shared by the build scripts of every crate that links libtorch (each also depends on
+// torch-sys directly, for DEP_TCH_LIBTORCH_LIB below).
 // `include!`d, not a crate: build scripts cannot share code otherwise.
 //
 // Two link facts (see DEVELOPERS.md / README "Set-up"):
@@ -9,6 +10,11 @@
 //    `LD_LIBRARY_PATH` on the machine that built them.
 
 fn torch_lib_dir() -> Option<std::path::PathBuf> {
+    // torch-sys (`links = "tch"`) already found libtorch and passes its lib dir to the build
+    // scripts of crates that depend on it directly: no second Python start (~2 s a crate).
+    if let Some(dir) = std::env::var_os("DEP_TCH_LIBTORCH_LIB") {
+        return Some(std::path::PathBuf::from(dir));
+    }
     println!("cargo:rerun-if-env-changed=VIRTUAL_ENV");
     println!("cargo:rerun-if-env-changed=LIBTORCH");
     if let Ok(libtorch) = std::env::var("LIBTORCH") {
