@@ -10,8 +10,11 @@
 //! RUN/best.safetensors     highest validation AUC
 //! ```
 //! Optimiser: Adam with poly learning-rate decay ([`depthsense_train::adam`]), whose state is saved, so
-//! that `--resume` continues exactly from the last finished epoch.
+//! that `--resume` continues exactly from the last finished epoch. The run is a
+//! [`Learner`] driven by the training engine's loop ([`depthsense_train::learner::fit`]), with
+//! its run-folder lock and checkpointer.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -22,7 +25,7 @@ use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_train::adam::Adam;
-use depthsense_train::outputs::claim_run_folder;
+use depthsense_train::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use depthsense_train::sgd::poly_lr;
 use depthsense_train::trainer::{
     append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
@@ -304,8 +307,8 @@ struct Run<'o> {
     bpe: u64,
     /// The run folder's lock, held while the run writes there.
     _lock: OutputLock,
-    /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors.
-    optim_matches: bool,
+    /// RUN/last.safetensors with its optimiser state.
+    ckpt: Checkpointer,
 }
 
 impl<'o> Run<'o> {
@@ -328,8 +331,7 @@ impl<'o> Run<'o> {
             )));
         }
         // One writer per run folder; a run there is refused unless --resume or --force.
-        let lock = OutputLock::exclusive(&opts.out, "depthsense mer train")?;
-        claim_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
+        let lock = lock_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
         let jobs = match opts.jobs {
             0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
             j => j,
@@ -353,7 +355,7 @@ impl<'o> Run<'o> {
             pool,
             bpe,
             _lock: lock,
-            optim_matches,
+            ckpt: Checkpointer::new(&opts.out, optim_matches),
         };
         run.write_config(&part)?;
         Ok(run)
@@ -379,14 +381,23 @@ impl<'o> Run<'o> {
         write_atomic(&p, text.as_bytes()).map_err(|e| TrainError::io(&p, e))
     }
 
+    /// What a checkpoint stores beside the weights: the run's state and options.
+    fn checkpoint_extra(&self) -> serde_json::Value {
+        serde_json::json!({"train_state": self.state, "mer_train": self.opts})
+    }
+
     fn save(&self, name: &str) -> Result<(), TrainError> {
-        let extra = serde_json::json!({"train_state": self.state, "mer_train": self.opts});
-        pda::save(&self.path(name), &self.vs, &self.opts.pda, &extra)?;
+        pda::save(
+            &self.path(name),
+            &self.vs,
+            &self.opts.pda,
+            &self.checkpoint_extra(),
+        )?;
         Ok(())
     }
 
     /// One epoch of SGD steps; returns the mean loss.
-    fn epoch(&mut self, epoch: u64, progress: &ProgressBar) -> Result<f64, TrainError> {
+    fn run_epoch(&mut self, epoch: u64, progress: &ProgressBar) -> Result<f64, TrainError> {
         let o = self.opts;
         let order = epoch_order(self.train.len(), o.seed, epoch, true);
         let total = self.bpe * o.epochs as u64;
@@ -431,7 +442,7 @@ impl<'o> Run<'o> {
         Ok(sum / n.max(1) as f64)
     }
 
-    fn validate(&self, epoch: u64) -> Result<MerValRecord, TrainError> {
+    fn validate_at(&self, epoch: u64) -> Result<MerValRecord, TrainError> {
         let mut v = validate_pda(
             &self.net,
             &self.ds,
@@ -446,7 +457,7 @@ impl<'o> Run<'o> {
     }
 
     fn end_epoch(&mut self, epoch: u64, loss: f64) -> Result<MerValRecord, TrainError> {
-        let v = self.validate(epoch + 1)?;
+        let v = self.validate_at(epoch + 1)?;
         self.state.epoch = epoch + 1;
         let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
         if improved {
@@ -454,12 +465,12 @@ impl<'o> Run<'o> {
         }
         // The optimiser state's predecessor is kept until the checkpoint is written
         // (optim_state::rotate): a kill anywhere leaves a resumable pair.
-        let optim = self.path(LAST_OPTIM);
-        depthsense_train::optim_state::rotate(&optim, self.optim_matches)?;
-        self.optim_matches = false;
-        self.sgd.save(&optim, self.state.iteration)?;
-        self.save(LAST_CKPT)?;
-        self.optim_matches = true;
+        let extra = self.checkpoint_extra();
+        let (vs, pda_cfg, iteration) = (&self.vs, &self.opts.pda, self.state.iteration);
+        self.ckpt.save_last(
+            |optim| self.sgd.save(optim, iteration),
+            |last| Ok(pda::save(last, vs, pda_cfg, &extra)?),
+        )?;
         if improved || !self.path(BEST_CKPT).exists() {
             self.save(BEST_CKPT)?;
         }
@@ -545,6 +556,47 @@ pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
     write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
 }
 
+impl Learner for Run<'_> {
+    type Val = MerValRecord;
+
+    fn iteration(&self) -> u64 {
+        self.state.iteration
+    }
+
+    fn total_iterations(&self) -> u64 {
+        self.bpe * self.opts.epochs as u64
+    }
+
+    fn epochs_left(&self) -> Range<u64> {
+        self.state.epoch..self.opts.epochs as u64
+    }
+
+    fn validation(&mut self, epoch: u64) -> Result<MerValRecord, TrainError> {
+        self.validate_at(epoch)
+    }
+
+    fn log(&self, record: &serde_json::Value) -> Result<(), TrainError> {
+        append_jsonl(&self.path(METRICS_FILE), record)
+    }
+
+    fn train_epoch(
+        &mut self,
+        epoch: u64,
+        progress: &ProgressBar,
+    ) -> Result<EpochEnd<MerValRecord>, TrainError> {
+        let loss = self.run_epoch(epoch, progress)?;
+        progress.set_message(format!(
+            "epoch {}/{}: validating",
+            epoch + 1,
+            self.opts.epochs
+        ));
+        Ok(EpochEnd {
+            val: Some(self.end_epoch(epoch, loss)?),
+            stop: false,
+        })
+    }
+}
+
 /// Train the PDA network (see the module docs for RUN/).
 pub fn train_pda(
     opts: &MerTrainOptions,
@@ -552,26 +604,10 @@ pub fn train_pda(
 ) -> Result<MerTrainSummary, TrainError> {
     let started = Instant::now();
     let mut run = Run::new(opts)?;
-    progress.set_length(run.bpe * opts.epochs as u64);
-    progress.set_position(run.state.iteration);
-    let mut val = vec![];
-    if run.state.iteration == 0 {
-        progress.set_message("validating the initial network");
-        let v = run.validate(0)?;
-        append_jsonl(
-            &run.path(METRICS_FILE),
-            &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
-        )?;
-        val.push(v);
-    }
-    for epoch in run.state.epoch..opts.epochs as u64 {
-        let loss = run.epoch(epoch, progress)?;
-        progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
-        val.push(run.end_epoch(epoch, loss)?);
-    }
+    let fitted = fit(&mut run, progress)?;
     Ok(MerTrainSummary {
         run_dir: opts.out.clone(),
-        val,
+        val: fitted.val,
         best_auc: run.state.best_auc.unwrap_or(f64::NAN),
         parameters: pda::parameter_count(&run.vs),
         iterations: run.state.iteration,

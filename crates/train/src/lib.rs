@@ -15,6 +15,7 @@
 pub mod adam;
 pub mod bench;
 pub mod distributed;
+pub mod learner;
 pub mod metrics_log;
 pub mod optim_state;
 pub mod outputs;

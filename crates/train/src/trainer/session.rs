@@ -1,5 +1,6 @@
 //! One training run as a [`Trainer`]: `new` (data, partition, network — fresh or resumed —
-//! and RUN/config.json), `validate`, `step`, `end_epoch`, `checkpoint`; [`train`] drives it.
+//! and RUN/config.json), `validate`, `step`, `end_epoch`, `checkpoint`; it is the
+//! [`Learner`] that [`crate::learner::fit`] drives ([`train`], [`train_distributed`]).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -13,6 +14,7 @@ use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use indicatif::ProgressBar;
+use std::ops::Range;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
@@ -22,8 +24,8 @@ use super::{
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
+use crate::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use crate::optim_state;
-use crate::outputs::claim_run_folder;
 use crate::sgd::{warmup_poly_lr, Sgd};
 
 /// A training run in progress.
@@ -52,9 +54,10 @@ pub struct Trainer<'o> {
     dist: Option<Dist>,
     /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
     _lock: Option<OutputLock>,
-    /// Whether RUN/last.optim.safetensors belongs to RUN/last.safetensors (false after a resume
-    /// from the `.prev` state: the newer file is stale).
-    optim_matches: bool,
+    /// RUN/last.safetensors with its optimiser state.
+    ckpt: Checkpointer,
+    /// (iteration, loss) of every step of this invocation.
+    losses: Vec<(u64, f64)>,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -91,9 +94,12 @@ impl<'o> Trainer<'o> {
         // One writer per run folder, and a finished run is never replaced silently
         // (crate::outputs): refused unless --resume or --force.
         let lock = if main {
-            let l = OutputLock::exclusive(&opts.out, "depthsense train")?;
-            claim_run_folder(&opts.out, "train", opts.resume, opts.force)?;
-            Some(l)
+            Some(lock_run_folder(
+                &opts.out,
+                "train",
+                opts.resume,
+                opts.force,
+            )?)
         } else {
             None
         };
@@ -138,7 +144,7 @@ impl<'o> Trainer<'o> {
             state,
             sgd,
             load,
-            run,
+            run: run.clone(),
             bpe,
             total: bpe * opts.epochs as u64,
             started,
@@ -147,7 +153,8 @@ impl<'o> Trainer<'o> {
             val_secs: 0.0,
             dist,
             _lock: lock,
-            optim_matches,
+            ckpt: Checkpointer::new(&run, optim_matches),
+            losses: vec![],
         };
         if main {
             trainer.write_config()?;
@@ -308,7 +315,6 @@ impl<'o> Trainer<'o> {
         &mut self,
         epoch: u64,
         acc: &mut EpochLosses,
-        summary: &mut TrainSummary,
         progress: &ProgressBar,
     ) -> Result<(), TrainError> {
         if acc.pending.is_empty() {
@@ -326,7 +332,7 @@ impl<'o> Trainer<'o> {
             }
             acc.sum += lv;
             acc.n += 1;
-            summary.losses.push((p.iteration, lv));
+            self.losses.push((p.iteration, lv));
             if self.is_main() {
                 append_jsonl(
                     &self.path(METRICS_FILE),
@@ -363,16 +369,11 @@ impl<'o> Trainer<'o> {
         if !self.is_main() {
             return Ok(());
         }
-        // Optimiser state first, the previous one kept beside it until the checkpoint is
-        // written: a kill anywhere leaves a state that belongs to RUN/last.safetensors
-        // (optim_state::rotate / load_matching).
-        let optim = self.path(LAST_OPTIM);
-        optim_state::rotate(&optim, self.optim_matches)?;
-        self.optim_matches = false;
-        self.sgd.save(&optim, state.iteration)?;
-        save_ckpt(&last, &self.vs, &self.cfg, state, self.opts)?;
-        self.optim_matches = true;
-        Ok(())
+        // Optimiser state first, the previous one kept until the checkpoint is written.
+        self.ckpt.save_last(
+            |optim| self.sgd.save(optim, state.iteration),
+            |last| save_ckpt(last, &self.vs, &self.cfg, state, self.opts),
+        )
     }
 
     /// Epoch end: validate, checkpoint (best when improved), log, plot.
@@ -416,13 +417,13 @@ impl<'o> Trainer<'o> {
         Ok(v)
     }
 
-    /// Runs one epoch's batches. Returns true when `stop_after` interrupted it.
+    /// Runs one epoch's batches and closes it (validation, checkpoints, epoch record);
+    /// `stop` when `stop_after` interrupted it or was reached at its end.
     fn run_epoch(
         &mut self,
         epoch: u64,
-        summary: &mut TrainSummary,
         progress: &ProgressBar,
-    ) -> Result<bool, TrainError> {
+    ) -> Result<EpochEnd<ValRecord>, TrainError> {
         let opts = self.opts;
         let skip = (self.state.iteration - epoch * self.bpe) as usize;
         let plan = EpochPlan {
@@ -473,34 +474,38 @@ impl<'o> Trainer<'o> {
             let periodic = opts.checkpoint_every > 0 && it.is_multiple_of(opts.checkpoint_every);
             // Losses are read (and checked) before anything is written.
             if acc.pending.len() >= every || epoch_end || stop_here || periodic {
-                self.read_losses(epoch, &mut acc, summary, progress)?;
+                self.read_losses(epoch, &mut acc, progress)?;
             }
             if !epoch_end && (stop_here || periodic) {
                 self.state.epoch = epoch;
                 self.checkpoint()?;
                 if stop_here {
-                    return Ok(true);
+                    return Ok(EpochEnd {
+                        val: None,
+                        stop: true,
+                    });
                 }
             }
         }
-        self.read_losses(epoch, &mut acc, summary, progress)?;
+        self.read_losses(epoch, &mut acc, progress)?;
         progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
         let v = self.end_epoch(epoch, acc.sum, acc.n)?;
-        summary.val.push(v);
-        Ok(opts.stop_after == Some(self.state.iteration))
+        Ok(EpochEnd {
+            val: Some(v),
+            stop: opts.stop_after == Some(self.state.iteration),
+        })
     }
 
     /// Trains to the end (or to `stop_after`).
     pub fn run(mut self, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
-        progress.set_length(self.total);
-        progress.set_position(self.state.iteration);
-        let mut summary = TrainSummary {
+        let fitted = fit(&mut self, progress)?;
+        let summary = TrainSummary {
             run_dir: self.run.clone(),
-            losses: vec![],
-            val: vec![],
+            losses: std::mem::take(&mut self.losses),
+            val: fitted.val,
             iterations_done: self.state.iteration,
             total_iterations: self.total,
-            interrupted: false,
+            interrupted: fitted.interrupted,
             best_val_rmse: self.state.best_val_rmse.unwrap_or(f64::INFINITY),
             train_images_per_s: 0.0,
             train_seconds: 0.0,
@@ -508,24 +513,6 @@ impl<'o> Trainer<'o> {
             seconds: 0.0,
             partition: self.part.clone(),
         };
-        if self.state.iteration == 0 {
-            progress.set_message("validating the initial network");
-            let v = self.validate_timed(0)?;
-            if self.is_main() {
-                append_jsonl(
-                    &self.path(METRICS_FILE),
-                    &serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}),
-                )?;
-            }
-            summary.val.push(v);
-        }
-        let start_epoch = self.state.iteration / self.bpe;
-        for epoch in start_epoch..self.opts.epochs as u64 {
-            if self.run_epoch(epoch, &mut summary, progress)? {
-                summary.interrupted = true;
-                break;
-            }
-        }
         self.finish(summary)
     }
 
@@ -544,6 +531,41 @@ impl<'o> Trainer<'o> {
             d.barrier()?;
         }
         Ok(summary)
+    }
+}
+
+impl Learner for Trainer<'_> {
+    type Val = ValRecord;
+
+    fn iteration(&self) -> u64 {
+        self.state.iteration
+    }
+
+    fn total_iterations(&self) -> u64 {
+        self.total
+    }
+
+    fn epochs_left(&self) -> Range<u64> {
+        self.state.iteration / self.bpe..self.opts.epochs as u64
+    }
+
+    fn validation(&mut self, epoch: u64) -> Result<ValRecord, TrainError> {
+        self.validate_timed(epoch)
+    }
+
+    fn log(&self, record: &serde_json::Value) -> Result<(), TrainError> {
+        if self.is_main() {
+            append_jsonl(&self.path(METRICS_FILE), record)?;
+        }
+        Ok(())
+    }
+
+    fn train_epoch(
+        &mut self,
+        epoch: u64,
+        progress: &ProgressBar,
+    ) -> Result<EpochEnd<ValRecord>, TrainError> {
+        self.run_epoch(epoch, progress)
     }
 }
 
