@@ -456,9 +456,7 @@ pub fn write_tables_with_command(
 ) -> Result<(), TrainError> {
     std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
     let mut md = tables::markdown_report(models);
-    if let Some(c) = command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(command_line));
     let csv = tables::csv_report(models);
     let json = serde_json::json!({
         "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),

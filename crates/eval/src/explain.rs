@@ -405,9 +405,9 @@ fn markdown(r: &ExplainResult) -> String {
          (turbo).\n",
         r.grid.display()
     ));
-    if let Some(c) = &r.command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(
+        r.command_line.as_deref(),
+    ));
     md
 }
 

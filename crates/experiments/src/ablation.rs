@@ -22,9 +22,9 @@ use std::time::Instant;
 
 use depthsense_data::error::TrainError;
 use depthsense_data::{partition, Dataset, Partition};
+use depthsense_metrics::table::{csv_num, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use depthsense_viz::table::{csv_num, md_num, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 

@@ -13,8 +13,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use depthsense_data::error::TrainError;
+use depthsense_metrics::table::{Align, MdTable, MISSING};
 use depthsense_model::{report::model_report, DepthNet, ModelConfig};
-use depthsense_viz::table::{Align, MdTable, MISSING};
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
@@ -188,9 +188,9 @@ pub fn markdown(r: &CostResult) -> String {
         MISSING,
     ]);
     md.push_str(&t.finish());
-    if let Some(c) = &o.command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(
+        o.command_line.as_deref(),
+    ));
     md
 }
 

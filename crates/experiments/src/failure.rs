@@ -2,7 +2,9 @@
 //! scenarios. The failures themselves ([`RadarFailure`]) are applied by the loader:
 //! [`depthsense_data::radar_failure`].
 
-use depthsense_viz::table::{csv_quoted, csv_row, md_num, md_or_missing, Align, MdTable};
+use depthsense_metrics::table::{csv_quoted, csv_row, md_num, Align, MdTable};
+
+use crate::runner::RowValues;
 use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
@@ -201,26 +203,17 @@ fn failure_markdown(r: &FailureResult) -> String {
         .and_then(|x| x.row("combined"))
         .map(|x| x.rmse);
     for x in &r.results {
-        let c = x.row("combined");
         let cond = |n: &str| md_num(x.row(n).map(|r| r.rmse), 3);
-        t.row(&[
-            x.scenario.name.clone(),
-            c.map_or(0, |r| r.n_images).to_string(),
-            md_num(c.map(|r| r.rmse), 3),
-            md_or_missing(c.zip(base).map(|(c, b)| super::signed(c.rmse - b, 3))),
-            md_num(c.map(|r| r.mae), 3),
-            md_num(c.map(|r| r.delta1), 3),
-            md_num(c.map(|r| r.abs_rel), 3),
-            cond("day"),
-            cond("night"),
-            cond("rain"),
-        ]);
+        let mut cells = vec![x.scenario.name.clone()];
+        cells.extend(RowValues::scenario_md_cells(x.row("combined"), base));
+        cells.extend([cond("day"), cond("night"), cond("rain")]);
+        t.row(&cells);
     }
     md.push_str(&t.finish());
     md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
-    if let Some(c) = &r.command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(
+        r.command_line.as_deref(),
+    ));
     md
 }
 

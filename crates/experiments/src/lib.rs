@@ -46,7 +46,7 @@ impl Stat {
 
     /// A Markdown cell: "4.123 ± 0.051" with 3 decimals, or "–" when there is no value.
     pub fn md_cell(s: Option<Stat>) -> String {
-        depthsense_viz::table::md_or_missing(s.map(|s| s.fmt(3)))
+        depthsense_metrics::table::md_or_missing(s.map(|s| s.fmt(3)))
     }
 
     /// "4.123 ± 0.051" (std "–" when n < 2), values with `prec` decimals.

@@ -12,8 +12,8 @@ use std::path::Path;
 
 use depthsense_data::error::TrainError;
 use depthsense_eval::evaluate::EvalOptions;
+use depthsense_metrics::table::{csv_row, Align, MdTable};
 use depthsense_prep::radar_points::{PerturbAxis, Perturbation};
-use depthsense_viz::table::{csv_row, md_num, md_or_missing, Align, MdTable};
 use serde::{Deserialize, Serialize};
 
 use super::failure::RadarFailure;
@@ -241,17 +241,9 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
 }
 
 fn md_row(t: &mut MdTable, x: &PerturbRow, base: Option<f64>) {
-    let c = x.combined();
-    t.row(&[
-        x.axis.to_string(),
-        format!("{} {}", x.magnitude, x.unit),
-        c.map_or(0, |r| r.n_images).to_string(),
-        md_num(c.map(|r| r.rmse), 3),
-        md_or_missing(c.zip(base).map(|(c, b)| super::signed(c.rmse - b, 3))),
-        md_num(c.map(|r| r.mae), 3),
-        md_num(c.map(|r| r.delta1), 3),
-        md_num(c.map(|r| r.abs_rel), 3),
-    ]);
+    let mut cells = vec![x.axis.to_string(), format!("{} {}", x.magnitude, x.unit)];
+    cells.extend(RowValues::scenario_md_cells(x.combined(), base));
+    t.row(&cells);
 }
 
 fn perturb_markdown(r: &PerturbResult) -> String {
@@ -286,9 +278,9 @@ fn perturb_markdown(r: &PerturbResult) -> String {
     }
     md.push_str(&t.finish());
     md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
-    if let Some(c) = &r.command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(
+        r.command_line.as_deref(),
+    ));
     md
 }
 

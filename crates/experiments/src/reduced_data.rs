@@ -15,10 +15,10 @@ use std::time::Instant;
 
 use depthsense_data::error::TrainError;
 use depthsense_data::{partition, Dataset};
+use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
 use depthsense_train::trainer::TrainOptions;
-use depthsense_viz::table::{csv_quoted, csv_row, Align, MdTable};
 use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
@@ -287,9 +287,9 @@ fn markdown(r: &ReducedDataResult) -> String {
         r.machine.line(),
         r.total_seconds
     ));
-    if let Some(c) = &o.command_line {
-        md.push_str(&format!("\nCommand: `{c}`\n"));
-    }
+    md.push_str(&depthsense_metrics::table::md_command_line(
+        o.command_line.as_deref(),
+    ));
     md
 }
 

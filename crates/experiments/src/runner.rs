@@ -133,6 +133,26 @@ pub struct RowValues {
     pub mae: f64,
 }
 
+impl RowValues {
+    /// The Markdown cells of a scenario of a one-checkpoint experiment (`failure`, `perturb`)
+    /// from its combined row: images, RMSE (m), ΔRMSE (m) against `base_rmse`, MAE (m), δ1,
+    /// AbsRel — missing values as [`depthsense_metrics::table::MISSING`].
+    pub fn scenario_md_cells(row: Option<&RowValues>, base_rmse: Option<f64>) -> [String; 6] {
+        use depthsense_metrics::table::{md_num, md_or_missing};
+        [
+            row.map_or(0, |r| r.n_images).to_string(),
+            md_num(row.map(|r| r.rmse), 3),
+            md_or_missing(
+                row.zip(base_rmse)
+                    .map(|(c, b)| super::signed(c.rmse - b, 3)),
+            ),
+            md_num(row.map(|r| r.mae), 3),
+            md_num(row.map(|r| r.delta1), 3),
+            md_num(row.map(|r| r.abs_rel), 3),
+        ]
+    }
+}
+
 /// One run (variant × seed): stored as `RUN/eval.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunRecord {

@@ -1,5 +1,8 @@
 //! Depth metrics and report tables (SPEC §9, §10). Pure Rust, no torch.
 //!
+//! [`table`] is the one Markdown table / CSV row writer (the paper tables of [`tables`] and
+//! every experiment's), with one rendering of a missing value per format.
+//!
 //! One accumulator, [`Evaluator`], computes every metric for every report row; training
 //! validation and `depthsense eval` both go through it. Rows are
 //! condition (combined / day / night / rain) × region (full image / low-height) × cap
@@ -15,6 +18,7 @@
 //! - aggregation `image` (default, RadarNet): metrics per image, then the mean over images that
 //!   have at least one valid pixel; `pooled` (DORN): one mean over all valid pixels.
 
+pub mod table;
 pub mod tables;
 
 use serde::{Deserialize, Serialize};

@@ -79,6 +79,22 @@ pub fn csv_quoted(s: &str) -> String {
     format!("\"{s}\"")
 }
 
+/// The paragraph that closes an output's Markdown with the command that made it (nothing when
+/// it is not known): `\nCommand: `…`\n`.
+pub fn md_command_line(command: Option<&str>) -> String {
+    command.map_or(String::new(), |c| format!("\nCommand: `{c}`\n"))
+}
+
+/// A CSV field as RFC 4180 writes it: in double quotes (inner quotes doubled) when it holds a
+/// comma, a double quote or a newline, else as is.
+pub fn csv_field(s: &str) -> String {
+    if s.contains(',') || s.contains('"') || s.contains('\n') {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
 /// A CSV line: the fields joined by commas, then a newline.
 pub fn csv_row<S: AsRef<str>>(fields: &[S]) -> String {
     let f: Vec<&str> = fields.iter().map(|c| c.as_ref()).collect();
@@ -112,5 +128,13 @@ mod tests {
             csv_row(&[csv_quoted("a,b"), "1".into(), String::new()]),
             "\"a,b\",1,\n"
         );
+        assert_eq!(
+            md_command_line(Some("depthsense eval")),
+            "\nCommand: `depthsense eval`\n"
+        );
+        assert_eq!(md_command_line(None), "");
+        assert_eq!(csv_field("plain"), "plain");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
     }
 }

@@ -2,6 +2,7 @@
 
 use serde::Serialize;
 
+use crate::table::{csv_field, csv_row, Align, MdTable, MISSING};
 use crate::{Report, Row, CONDITIONS};
 
 /// A rendered table: a title, a header and string cells.
@@ -13,39 +14,29 @@ pub struct Table {
 }
 
 impl Table {
+    /// `### title`, a blank line, then the table: the first two columns (model, cap or
+    /// condition) left-aligned, the numbers right-aligned.
     pub fn to_markdown(&self) -> String {
-        let mut s = format!("### {}\n\n", self.title);
-        s.push_str(&format!("| {} |\n", self.header.join(" | ")));
-        s.push_str(&format!(
-            "|{}\n",
-            self.header
-                .iter()
-                .enumerate()
-                .map(|(i, _)| if i < 2 { "---|" } else { "---:|" })
-                .collect::<String>()
-        ));
+        let columns: Vec<(&str, Align)> = self
+            .header
+            .iter()
+            .enumerate()
+            .map(|(i, h)| (h.as_str(), if i < 2 { Align::Left } else { Align::Right }))
+            .collect();
+        let mut t = MdTable::new(&columns);
         for r in &self.rows {
-            s.push_str(&format!("| {} |\n", r.join(" | ")));
+            t.row(r);
         }
-        s
+        format!("### {}\n\n{}", self.title, t.finish())
     }
 
-    /// CSV with a header line; fields containing a comma or quote are quoted.
+    /// CSV with a header line; fields containing a comma, quote or newline are quoted.
     pub fn to_csv(&self) -> String {
-        fn field(f: &str) -> String {
-            if f.contains(',') || f.contains('"') || f.contains('\n') {
-                format!("\"{}\"", f.replace('"', "\"\""))
-            } else {
-                f.to_string()
-            }
-        }
-        let mut s = String::new();
-        let line = |cells: &[String]| cells.iter().map(|c| field(c)).collect::<Vec<_>>().join(",");
-        s.push_str(&line(&self.header));
-        s.push('\n');
+        let line =
+            |cells: &[String]| csv_row(&cells.iter().map(|c| csv_field(c)).collect::<Vec<_>>());
+        let mut s = line(&self.header);
         for r in &self.rows {
             s.push_str(&line(r));
-            s.push('\n');
         }
         s
     }
@@ -64,10 +55,10 @@ fn empty_or<F: Fn(&Row) -> Vec<String>>(r: Option<&Row>, n: usize, f: F) -> Vec<
         Some(r) if r.n_images > 0 => f(r),
         Some(r) => {
             let mut v = counts(r).to_vec();
-            v.extend(std::iter::repeat_n("–".to_string(), n));
+            v.extend(std::iter::repeat_n(MISSING.to_string(), n));
             v
         }
-        None => std::iter::repeat_n("–".to_string(), n + 2).collect(),
+        None => std::iter::repeat_n(MISSING.to_string(), n + 2).collect(),
     }
 }
 
