@@ -69,7 +69,7 @@ if [ -n "$MAKE_BUNDLE" ]; then
   mkdir -p "$B"
   rm -rf "$B/prepared"
   cp "$SRC_BIN" "$B/depthsense.tmp" && strip "$B/depthsense.tmp" && mv "$B/depthsense.tmp" "$B/depthsense"
-  cp "$REPO/scripts/gpu-check.sh" "$REPO/scripts/torch_reference.py" "$B/"
+  cp "$REPO/scripts/gpu-check.sh" "$REPO/scripts/torch_reference.py" "$REPO/python/depthsense_torch.py" "$B/"
   chmod +x "$B/gpu-check.sh" "$B/depthsense"
   # A small world: 10 scenes × 5 keyframes (val/test scenes held out by the loader's rule),
   # prepared like the demo (K = 2 lidar sweeps for the dense target).

@@ -21,7 +21,7 @@ fn python() -> Option<PathBuf> {
     depthsense_testkit::python_with_torch()
 }
 
-const PRESETS: [&str; 3] = ["released", "paper", "tiny"];
+const PRESETS: [&str; 4] = ["released", "paper", "tiny", "tiny-wide"];
 
 /// (preset, params, macs_per_image) from the Python reference (one process for all presets), or
 /// None (skip) without torch.
@@ -80,7 +80,7 @@ fn torch_reference_builds_our_presets_parameter_for_parameter() {
     assert_eq!(names, PRESETS, "one row per preset, in order");
     for (preset, params, macs) in counts {
         let preset = preset.as_str();
-        let cfg = ModelConfig::preset(preset).unwrap();
+        let cfg = ModelConfig::demo_preset(preset).unwrap();
         let vs = nn::VarStore::new(Device::Cpu);
         let net = DepthNet::new(&vs.root(), &cfg).unwrap();
         let rep = report::model_report(&vs, &net, 350, 800);
@@ -166,13 +166,26 @@ fn torch_reference_computes_what_depthnet_computes() {
     let tiny_double = ModelConfig::tiny()
         .with_options(&["attention-gate=double"])
         .unwrap();
-    for cfg in [
+    // RGB only, the regression heads, and MER's 7 radar channels.
+    let tiny_with = |o: &str| ModelConfig::tiny().with_options(&[o]).unwrap();
+    let small = [
+        tiny_with("fusion=none"),
+        tiny_with("head=l1"),
+        tiny_with("head=l2"),
+        tiny_with("radar-input=mer"),
+    ];
+    for mut cfg in [
         ModelConfig::tiny(),
         tiny_radar,
         tiny_double,
         released,
         early,
-    ] {
+    ]
+    .into_iter()
+    .chain(small)
+    {
+        // Depth is decoded at the input's size here.
+        (cfg.out_height, cfg.out_width) = (h, w);
         tch::manual_seed(3);
         let vs = nn::VarStore::new(Device::Cpu);
         let net = DepthNet::new(&vs.root(), &cfg).unwrap();
@@ -235,5 +248,41 @@ fn torch_reference_computes_what_depthnet_computes() {
         );
         // Not a constant map: the comparison means something.
         assert!(ours.std(true).double_value(&[]) > 1e-3 * scale);
+        assert_same_depth(&cfg, &net.decode(&ours), &d.join("depth.f32"));
     }
+}
+
+/// The deployment contract's depth (python/depthsense_torch.py `DepthSense`, image in [0, 1])
+/// against `DepthNet::decode`: within 1 mm on ≥ 99.9 % of the pixels and within one SID bin
+/// everywhere (a difference in the last bits of z may move a level where z_k ≈ 0).
+fn assert_same_depth(cfg: &ModelConfig, ours: &Tensor, theirs: &Path) {
+    let bytes = std::fs::read(theirs).unwrap();
+    let theirs: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let ours = Vec::<f32>::try_from(ours.flatten(0, -1)).unwrap();
+    assert_eq!(ours.len(), theirs.len(), "{}: depth sizes", cfg.name);
+    let sid = &cfg.sid;
+    let bin = ((sid.beta_m / sid.alpha_m).ln() / sid.bins as f64).exp() - 1.0;
+    let mut close = 0;
+    for (&a, &b) in ours.iter().zip(&theirs) {
+        let diff = (a as f64 - b as f64).abs();
+        close += usize::from(diff <= 1e-3);
+        let one_bin = (a.max(b) as f64 + sid.decode_offset_m) * bin * 1.01 + 1e-3;
+        assert!(diff <= one_bin, "{}: depth {a} vs {b} m", cfg.name);
+    }
+    // Not a constant map: many levels (or metres) occur.
+    let mut distinct: Vec<u32> = ours.iter().map(|x| x.to_bits()).collect();
+    distinct.sort_unstable();
+    distinct.dedup();
+    assert!(distinct.len() >= 10, "{}: {} depth values", cfg.name, distinct.len());
+    let share = close as f64 / ours.len() as f64;
+    eprintln!(
+        "{}: {} depth values, within 1 mm on {:.4} % of the pixels",
+        cfg.name,
+        distinct.len(),
+        100.0 * share
+    );
+    assert!(share >= 0.999, "{}: {share}", cfg.name);
 }
