@@ -11,7 +11,9 @@ SHELL := /bin/bash
 PYTHON ?= python3
 TORCH_VERSION := 2.11.0
 VENV := $(CURDIR)/.venv
-STAMP := $(VENV)/.depthsense-setup-$(TORCH_VERSION)
+# Bumped when the package list changes, so that an existing .venv gets the new packages.
+SETUP_VERSION := 2
+STAMP := $(VENV)/.depthsense-setup-$(TORCH_VERSION)-$(SETUP_VERSION)
 
 export VIRTUAL_ENV := $(VENV)
 export PATH := $(VENV)/bin:$(PATH)
@@ -25,10 +27,13 @@ BIN := target/release/depthsense
 all: build
 
 # The venv: torch (libtorch + CUDA runtime wheels; runs on CPU-only machines too),
-# numpy, and the official nuScenes devkit used by the format check of the synthetic world.
+# numpy, the official nuScenes devkit used by the format check of the synthetic world, and
+# onnx + onnxruntime for `depthsense export` (its ONNX check and tests). One pip call, so that
+# onnx's ml_dtypes is resolved against the devkit's numpy < 2 (a later, separate install of
+# onnx upgrades numpy to 2 and breaks the devkit).
 $(STAMP):
 	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
-	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" numpy nuscenes-devkit
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime
 	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
 	@touch $@
 

@@ -34,6 +34,8 @@ enum Command {
     Eval(cmd::eval::Args),
     /// Predict depth for a prepared sample, a sample token, or raw files.
     Predict(cmd::predict::Args),
+    /// A trained network as ONNX, TorchScript or a PyTorch state dict, with a sidecar JSON.
+    Export(cmd::export::Args),
     /// Synthesise a world, prepare, train, evaluate and write a report, end to end.
     Demo(cmd::demo::Args),
     /// Experiments of the paper built from training runs (ablation: variants × seeds).
@@ -61,6 +63,7 @@ fn run() -> anyhow::Result<ExitCode> {
         Command::Train(a) => cmd::train::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Predict(a) => cmd::predict::run(a),
+        Command::Export(a) => cmd::export::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Experiment(a) => cmd::experiment::run(a),
         Command::Explain(a) => cmd::explain::run(a),

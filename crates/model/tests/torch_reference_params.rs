@@ -272,11 +272,17 @@ fn assert_same_depth(cfg: &ModelConfig, ours: &Tensor, theirs: &Path) {
         let one_bin = (a.max(b) as f64 + sid.decode_offset_m) * bin * 1.01 + 1e-3;
         assert!(diff <= one_bin, "{}: depth {a} vs {b} m", cfg.name);
     }
-    // Not a constant map: many levels (or metres) occur.
+    // Not a constant map: several levels (or metres) occur (the weights are random: 9 to 24
+    // levels seen).
     let mut distinct: Vec<u32> = ours.iter().map(|x| x.to_bits()).collect();
     distinct.sort_unstable();
     distinct.dedup();
-    assert!(distinct.len() >= 10, "{}: {} depth values", cfg.name, distinct.len());
+    assert!(
+        distinct.len() >= 5,
+        "{}: {} depth values",
+        cfg.name,
+        distinct.len()
+    );
     let share = close as f64 / ours.len() as f64;
     eprintln!(
         "{}: {} depth values, within 1 mm on {:.4} % of the pixels",

@@ -7,6 +7,7 @@ pub mod demo;
 pub mod eval;
 pub mod experiment;
 pub mod explain;
+pub mod export;
 pub mod index;
 pub mod inspect;
 pub mod mer;

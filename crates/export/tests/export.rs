@@ -1,0 +1,434 @@
+//! `depthsense export` (issue 25): the exported graph run outside depthsense — onnxruntime on the
+//! CPU, `torch.jit.load`, and the `pytorch` state dict in python/depthsense_torch.py — gives the
+//! depth `depthsense predict` gives for the same input (|Δ| ≤ 1 mm on ≥ 99.9 % of the pixels,
+//! within one SID bin everywhere), for the tiny preset of each variant (late, early, RGB-only,
+//! L1 head, MER's 7 radar channels) at a small frame, and at the full 350x800 frame with a
+//! dynamic batch (one file for N = 1 and N = 4). The sidecar round-trips; bad inputs are clear
+//! errors that write nothing. Skips (counted) without the workspace `.venv`'s torch, onnx and
+//! onnxruntime; `make test` installs them and requires them.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use depthsense_eval::predict::{predict, PredictInput};
+use depthsense_export::{
+    export, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision, Sidecar,
+};
+use depthsense_model::{checkpoint, DepthNet, ModelConfig, RadarInput};
+use depthsense_nuscenes::depth_png::DepthMap;
+use tch::{nn, Device, Tensor};
+
+fn python() -> Option<PathBuf> {
+    depthsense_testkit::python_with(
+        &["torch", "numpy", "onnx", "onnxruntime"],
+        depthsense_testkit::REQUIRE_TORCH,
+    )
+}
+
+/// Random BatchNorm statistics and a non-zero attention conv, so the depth map varies.
+fn randomise(vs: &nn::VarStore) {
+    tch::no_grad(|| {
+        for (name, mut v) in vs.variables() {
+            let r = Tensor::rand_like(&v);
+            if name.ends_with("running_var") {
+                v.copy_(&(r * 0.7 + 0.8));
+            } else if name.ends_with("running_mean") || name.contains("attention") {
+                v.copy_(&((r - 0.5) * 0.2));
+            }
+        }
+    })
+}
+
+/// A tiny checkpoint of `cfg` with random weights.
+fn checkpoint_of(cfg: &ModelConfig, dir: &Path, seed: i64) -> PathBuf {
+    tch::manual_seed(seed);
+    let vs = nn::VarStore::new(Device::Cpu);
+    DepthNet::new(&vs.root(), cfg).unwrap();
+    randomise(&vs);
+    let p = dir.join(format!("{}.safetensors", cfg_tag(cfg)));
+    checkpoint::save(&p, &vs, cfg, &serde_json::Value::Null).unwrap();
+    p
+}
+
+fn cfg_tag(cfg: &ModelConfig) -> String {
+    format!(
+        "{}-{:?}-{:?}-{}-{}x{}",
+        cfg.name,
+        cfg.fusion,
+        cfg.head,
+        cfg.radar_input.name(),
+        cfg.out_width,
+        cfg.out_height
+    )
+    .to_lowercase()
+}
+
+/// A sample as `predict` takes it: an RGB image and sparse radar maps (3 % of the pixels), MER
+/// maps too.
+fn sample(w: u32, h: u32, seed: u64) -> PredictInput {
+    let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let n = (w * h) as usize;
+    let image = image::RgbImage::from_fn(w, h, |x, y| {
+        let base = (x * 255 / w.max(1)) as f64;
+        image::Rgb([
+            (base * 0.7 + next() * 70.0) as u8,
+            ((y * 255 / h.max(1)) as f64 * 0.8 + next() * 50.0) as u8,
+            (next() * 255.0) as u8,
+        ])
+    });
+    let mut sparse = |p: f64| -> DepthMap {
+        let depth_m = (0..n)
+            .map(|_| {
+                if next() < p {
+                    (2.0 + next() * 60.0) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        DepthMap {
+            width: w,
+            height: h,
+            depth_m,
+        }
+    };
+    let radar_raw = sparse(0.03);
+    let radar_height = sparse(0.06);
+    let mer_depth = sparse(0.1);
+    let mer_conf = DepthMap {
+        width: w,
+        height: h,
+        depth_m: mer_depth
+            .depth_m
+            .iter()
+            .map(|&d| {
+                if d > 0.0 {
+                    0.45 + 0.55 * (d / 62.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
+    };
+    PredictInput {
+        name: format!("sample-{seed}"),
+        image,
+        radar_raw,
+        radar_height,
+        gt: None,
+        mer: Some((mer_depth, mer_conf)),
+    }
+}
+
+/// The radar planes `predict` feeds for `input` (channels in the sidecar's order).
+fn radar_planes(input: &PredictInput, kind: Option<RadarInput>) -> Vec<f32> {
+    match kind {
+        None => vec![],
+        Some(RadarInput::Height) => input.radar_height.depth_m.clone(),
+        Some(RadarInput::Raw) => input.radar_raw.depth_m.clone(),
+        Some(RadarInput::RawHeight) => [
+            input.radar_raw.depth_m.clone(),
+            input.radar_height.depth_m.clone(),
+        ]
+        .concat(),
+        Some(RadarInput::Mer) => {
+            let (d, c) = input.mer.as_ref().unwrap();
+            let mut v = input.radar_raw.depth_m.clone();
+            v.extend(depthsense_data::mer_maps::derive_channels(
+                &d.depth_m, &c.depth_m,
+            ));
+            v
+        }
+    }
+}
+
+fn write_f32(p: &Path, v: &[f32]) {
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    std::fs::write(p, bytes).unwrap();
+}
+
+fn read_f32(p: &Path) -> Vec<f32> {
+    std::fs::read(p)
+        .unwrap()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect()
+}
+
+/// One run of an exported model outside depthsense: `model` (of `format`) on `inputs`.
+struct Job<'a> {
+    format: Format,
+    model: PathBuf,
+    inputs: &'a [PredictInput],
+    kind: Option<RadarInput>,
+    dir: tempfile::TempDir,
+}
+
+impl<'a> Job<'a> {
+    fn new(
+        format: Format,
+        model: &Path,
+        inputs: &'a [PredictInput],
+        kind: Option<RadarInput>,
+    ) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = inputs[0].image.dimensions();
+        let plane = (w * h) as usize;
+        let image: Vec<f32> = inputs
+            .iter()
+            .flat_map(|s| {
+                let mut v = vec![0f32; 3 * plane];
+                for (i, px) in s.image.pixels().enumerate() {
+                    for c in 0..3 {
+                        v[c * plane + i] = px.0[c] as f32 / 255.0;
+                    }
+                }
+                v
+            })
+            .collect();
+        let radar: Vec<f32> = inputs.iter().flat_map(|s| radar_planes(s, kind)).collect();
+        write_f32(&dir.path().join("image.f32"), &image);
+        write_f32(&dir.path().join("radar.f32"), &radar);
+        Self {
+            format,
+            model: model.to_path_buf(),
+            inputs,
+            kind,
+            dir,
+        }
+    }
+
+    fn json(&self) -> serde_json::Value {
+        let (w, h) = self.inputs[0].image.dimensions();
+        let c = self.kind.map_or(0, |k| k.channels());
+        serde_json::json!({"format": self.format.name(), "model": self.model, "dir": self.dir.path(),
+                           "shape": [self.inputs.len(), c, h, w]})
+    }
+
+    /// The depth per input, as the job wrote it.
+    fn depth(&self) -> Vec<Vec<f32>> {
+        let (w, h) = self.inputs[0].image.dimensions();
+        let all = read_f32(&self.dir.path().join("depth.f32"));
+        assert_eq!(all.len(), self.inputs.len() * (w * h) as usize);
+        all.chunks((w * h) as usize).map(<[f32]>::to_vec).collect()
+    }
+}
+
+/// Runs `jobs` in one Python process (tests/run_exported.py).
+fn run_outside(py: &Path, jobs: &[Job]) {
+    let list = tempfile::NamedTempFile::new().unwrap();
+    let v: Vec<serde_json::Value> = jobs.iter().map(Job::json).collect();
+    std::fs::write(list.path(), serde_json::to_string(&v).unwrap()).unwrap();
+    let out = Command::new(py)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/run_exported.py"))
+        .arg(list.path())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "run_exported.py: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Every job's depth against `predict` on the same input.
+fn compare(jobs: &[Job], net: &DepthNet, cfg: &ModelConfig) {
+    for job in jobs {
+        for (i, (input, theirs)) in job.inputs.iter().zip(job.depth()).enumerate() {
+            let ours = predict(net, input, job.kind, Device::Cpu).unwrap();
+            let what = format!(
+                "{} {} N={} #{i}",
+                cfg_tag(cfg),
+                job.format.name(),
+                job.inputs.len()
+            );
+            assert_same_depth(&what, cfg, &ours.depth_m, &theirs);
+        }
+    }
+}
+
+/// |Δ| ≤ 1 mm on ≥ 99.9 % of the pixels and within one SID bin everywhere.
+fn assert_same_depth(what: &str, cfg: &ModelConfig, ours: &[f32], theirs: &[f32]) {
+    assert_eq!(ours.len(), theirs.len(), "{what}");
+    let sid = &cfg.sid;
+    let bin = ((sid.beta_m / sid.alpha_m).ln() / sid.bins as f64).exp() - 1.0;
+    let mut close = 0usize;
+    for (&a, &b) in ours.iter().zip(theirs) {
+        let diff = (a as f64 - b as f64).abs();
+        close += usize::from(diff <= 1e-3);
+        let one_bin = (a.max(b) as f64 + sid.decode_offset_m) * bin * 1.01 + 1e-3;
+        assert!(diff <= one_bin, "{what}: depth {a} vs {b} m");
+    }
+    let share = close as f64 / ours.len() as f64;
+    let mut distinct: Vec<u32> = ours.iter().map(|x| x.to_bits()).collect();
+    distinct.sort_unstable();
+    distinct.dedup();
+    eprintln!(
+        "{what}: {} depth values, within 1 mm on {:.4} %",
+        distinct.len(),
+        100.0 * share
+    );
+    assert!(distinct.len() >= 5, "{what}: a near-constant map");
+    assert!(share >= 0.999, "{what}: {share}");
+}
+
+fn options(ckpt: &Path, format: Format, out: &Path, py: &Path) -> ExportOptions {
+    ExportOptions {
+        checkpoint: ckpt.to_path_buf(),
+        config: None,
+        set: vec![],
+        format,
+        out: out.to_path_buf(),
+        batch: Batch::Dynamic,
+        precision: Precision::Fp32,
+        force: false,
+        python: Some(py.to_path_buf()),
+    }
+}
+
+/// Exports `cfg` in `formats` and checks each against `predict` on two samples.
+fn check_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) {
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = checkpoint_of(cfg, dir.path(), 3);
+    let (w, h) = (cfg.out_width as u32, cfg.out_height as u32);
+    let kind = depthsense_train::trainer::radar_input_for(cfg, None).unwrap();
+    let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
+    let inputs: Vec<PredictInput> = (0..2).map(|i| sample(w, h, 10 + i)).collect();
+    let mut jobs = vec![];
+    for &format in formats {
+        let out = dir.path().join(format!("model.{}", format.name()));
+        let done = export(&options(&ckpt, format, &out, py)).unwrap();
+        let side: Sidecar =
+            serde_json::from_str(&std::fs::read_to_string(sidecar_path(&out)).unwrap()).unwrap();
+        assert_eq!(side, done.info, "the sidecar round-trips");
+        assert_eq!(&side.model_config, cfg);
+        assert_eq!(side.format, format.name());
+        assert_eq!(
+            side.radar_channels.len(),
+            kind.map_or(0, |k| k.channels()),
+            "{:?}",
+            side.radar_channels
+        );
+        assert_eq!(side.inputs.len(), 1 + usize::from(kind.is_some()));
+        jobs.push(Job::new(format, &out, &inputs, kind));
+    }
+    run_outside(py, &jobs);
+    compare(&jobs, &loaded.net, cfg);
+}
+
+#[test]
+fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
+    let Some(py) = python() else { return };
+    let small = |o: &[&str]| {
+        let mut all = vec!["out-height=64", "out-width=128"];
+        all.extend_from_slice(o);
+        ModelConfig::tiny().with_options(&all).unwrap()
+    };
+    let both = [Format::Onnx, Format::TorchScript];
+    // The `pytorch` state dict in python/depthsense_torch.py: once (the module is checked for
+    // every option by crates/model/tests/torch_reference_params.rs).
+    check_variant(
+        &py,
+        &small(&[]),
+        &[Format::Onnx, Format::TorchScript, Format::PyTorch],
+    );
+    for cfg in [
+        small(&["fusion=early", "attention=off"]),
+        small(&["fusion=none"]),
+        small(&["head=l1"]),
+        small(&["radar-input=mer"]),
+    ] {
+        check_variant(&py, &cfg, &both);
+    }
+}
+
+#[test]
+fn one_file_serves_n_1_and_n_4_at_the_full_frame() {
+    let Some(py) = python() else { return };
+    let cfg = ModelConfig::tiny();
+    assert_eq!((cfg.out_width, cfg.out_height), (800, 350));
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = checkpoint_of(&cfg, dir.path(), 5);
+    let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
+    let kind = Some(RadarInput::Height);
+    let one: Vec<PredictInput> = vec![sample(800, 350, 0)];
+    let four: Vec<PredictInput> = (1..5).map(|i| sample(800, 350, i)).collect();
+    let mut jobs = vec![];
+    for format in [Format::Onnx, Format::TorchScript] {
+        let out = dir.path().join(format!("tiny.{}", format.name()));
+        export(&options(&ckpt, format, &out, &py)).unwrap();
+        jobs.push(Job::new(format, &out, &one, kind));
+        jobs.push(Job::new(format, &out, &four, kind));
+    }
+    run_outside(&py, &jobs);
+    compare(&jobs, &loaded.net, &cfg);
+}
+
+#[test]
+fn bad_inputs_are_clear_errors_and_write_nothing() {
+    let Some(py) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = ModelConfig::tiny()
+        .with_options(&["out-height=64", "out-width=128"])
+        .unwrap();
+    let ckpt = checkpoint_of(&cfg, dir.path(), 1);
+    let out = dir.path().join("m.onnx");
+    let nothing_written = |what: &str| {
+        let names: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| !n.ends_with(".safetensors"))
+            .collect();
+        assert!(names.is_empty(), "{what}: left {names:?}");
+    };
+    // an unknown architecture
+    let mut o = options(&ckpt, Format::Onnx, &out, &py);
+    o.config = Some("no-such-preset".into());
+    let e = export(&o).unwrap_err().to_string();
+    assert!(e.contains("no-such-preset"), "{e}");
+    nothing_written("unknown preset");
+    // a config that does not fit the checkpoint
+    let mut o = options(&ckpt, Format::Onnx, &out, &py);
+    o.set = vec!["backbone=34".into()];
+    let e = export(&o).unwrap_err();
+    assert!(matches!(e, ExportError::Load(_)), "{e}");
+    nothing_written("config does not fit");
+    // an unwritable destination: the error names it
+    let bad = dir.path().join("no/such/folder/m.onnx");
+    let e = export(&options(&ckpt, Format::Onnx, &bad, &py))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no/such/folder/m.onnx"), "{e}");
+    nothing_written("unwritable");
+    // a Python without torch: the error names the Python and the out file; nothing left
+    let e = export(&options(&ckpt, Format::Onnx, &out, Path::new("/bin/false")))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("/bin/false") && e.contains("m.onnx"), "{e}");
+    nothing_written("python failed");
+    // fp16 is refused (not silently wrong)
+    let mut o = options(&ckpt, Format::TorchScript, &out, &py);
+    o.precision = Precision::Fp16;
+    let e = export(&o).unwrap_err().to_string();
+    assert!(e.contains("fp16"), "{e}");
+    nothing_written("fp16");
+    // an existing --out is refused without --force, and replaced with it
+    export(&options(&ckpt, Format::Onnx, &out, &py)).unwrap();
+    let before = std::fs::read(&out).unwrap();
+    std::fs::write(&out, b"the user's file").unwrap();
+    let e = export(&options(&ckpt, Format::Onnx, &out, &py))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("m.onnx") && e.contains("--force"), "{e}");
+    assert_eq!(std::fs::read(&out).unwrap(), b"the user's file");
+    let mut o = options(&ckpt, Format::Onnx, &out, &py);
+    o.force = true;
+    export(&o).unwrap();
+    assert_eq!(std::fs::read(&out).unwrap().len(), before.len());
+}
