@@ -432,3 +432,28 @@ fn bad_inputs_are_clear_errors_and_write_nothing() {
     export(&o).unwrap();
     assert_eq!(std::fs::read(&out).unwrap().len(), before.len());
 }
+
+/// The `paper` preset (ResNet-101, 57 M parameters) with random weights at batch 2, full frame:
+/// the real network's size through both converters.
+#[test]
+fn paper_with_random_weights_at_batch_2() {
+    let Some(py) = python() else { return };
+    let cfg = ModelConfig::paper();
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = checkpoint_of(&cfg, dir.path(), 7);
+    let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
+    let kind = Some(RadarInput::Height);
+    let two: Vec<PredictInput> = (0..2).map(|i| sample(800, 350, 20 + i)).collect();
+    let mut jobs = vec![];
+    for format in [Format::Onnx, Format::TorchScript] {
+        let out = dir.path().join(format!("paper.{}", format.name()));
+        let mut o = options(&ckpt, format, &out, &py);
+        o.batch = Batch::Fixed(2);
+        let done = export(&o).unwrap();
+        assert_eq!(done.info.batch, "2");
+        assert_eq!(done.info.inputs[0].shape[0], serde_json::json!(2));
+        jobs.push(Job::new(format, &out, &two, kind));
+    }
+    run_outside(&py, &jobs);
+    compare(&jobs, &loaded.net, &cfg);
+}
