@@ -10,6 +10,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "../../model/tests/support/reference.rs"]
+mod reference;
+
 use depthsense_eval::predict::{predict, PredictInput};
 use depthsense_export::{
     export, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision, Sidecar,
@@ -456,4 +459,62 @@ fn paper_with_random_weights_at_batch_2() {
     }
     run_outside(&py, &jobs);
     compare(&jobs, &loaded.net, &cfg);
+}
+
+/// The authors' layout: a `.pth` written by `torch.save(model.state_dict())` of the reference
+/// RVMDE network (crates/model/tests/released_reference.py; ResNet-101 layout at narrow widths),
+/// exported with `--config released` as `predict` loads it, runs in onnxruntime like `predict`.
+#[test]
+fn the_authors_pth_with_config_released() {
+    let Some(py) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let input = sample(800, 350, 42);
+    let hw = 800 * 350;
+    let mut rgb = vec![0f32; 3 * hw];
+    for (i, p) in input.image.pixels().enumerate() {
+        for c in 0..3 {
+            rgb[c * hw + i] = p[c] as f32 / 255.0;
+        }
+    }
+    write_f32(&dir.path().join("rgb.f32"), &rgb);
+    write_f32(&dir.path().join("radar.f32"), &input.radar_height.depth_m);
+    let params = serde_json::json!({
+        "seed": 11, "width": 8, "blocks": [3, 4, 23, 3], "decoder_channels": 16,
+        "radar_width": 8, "radar_channels": 1, "radar_out_channels": 16, "head_channels": 32,
+        "bins": 80, "height": 350, "width_px": 800, "bn_spread": 0.3, "head_gain": 20.0,
+        "radar_strips": 0, "alpha": 1.0, "beta": 80.0, "decode_offset": 0.3,
+        "rgb_file": dir.path().join("rgb.f32"), "radar_file": dir.path().join("radar.f32"),
+    });
+    let Some(_) = reference::run_reference(dir.path(), &params) else {
+        return;
+    };
+    let narrow: Vec<String> = [
+        "width=8",
+        "radar-width=8",
+        "decoder-channels=16",
+        "head-channels=32",
+        "radar-out-channels=16",
+    ]
+    .map(String::from)
+    .to_vec();
+    let pth = dir.path().join("weights.pth");
+    let out = dir.path().join("rvmde.onnx");
+    let mut o = options(&pth, Format::Onnx, &out, &py);
+    o.config = Some("released".into());
+    o.set = narrow.clone();
+    let done = export(&o).unwrap();
+    assert_eq!(done.info.preset, "released");
+    assert!(done.info.model_config.clamp_logits && done.info.model_config.radar_in_metres);
+    let (loaded, _) =
+        depthsense_eval::evaluate::load_model(&pth, Some("released"), &narrow, Device::Cpu)
+            .unwrap();
+    let inputs = [input];
+    let jobs = [Job::new(
+        Format::Onnx,
+        &out,
+        &inputs,
+        Some(RadarInput::Height),
+    )];
+    run_outside(&py, &jobs);
+    compare(&jobs, &loaded.net, &loaded.config);
 }

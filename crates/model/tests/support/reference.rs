@@ -1,7 +1,7 @@
 //! Running the PyTorch reference scripts from a test: `released_reference.py` (the authors'
 //! network in plain PyTorch) and `torchvision_reference.py` (torchvision's ResNet key names).
-//! Shared by the model crate's tests and `crates/train/tests/released_real_keyframe.rs`
-//! (included there by path).
+//! Shared by the model crate's tests, `crates/eval/tests/released_real_keyframe.rs` and
+//! `crates/export/tests/export.rs` (included there by path).
 // Each test binary uses a part of these helpers.
 #![allow(dead_code)]
 
