@@ -22,7 +22,8 @@ enum Command {
     Prepare(cmd::prepare::Args),
     /// Operations on prepared folders: `index merge` combines sharded preparation.
     Index(cmd::index::Args),
-    /// Print a JSON summary of a sensor file (.pcd, .pcd.bin, .jpg) or a version folder.
+    /// Print a JSON summary of sensor files (.pcd, .pcd.bin, .jpg), folders of them, or a
+    /// version folder.
     Inspect(cmd::inspect::Args),
     /// Generate the synthetic nuScenes-format world (the embedded default dataset).
     Synth(cmd::synth::Args),

@@ -55,6 +55,58 @@ pub fn inspect(path: &Path) -> Result<Value, PrepError> {
     )
 }
 
+/// Whether `dir` is a nuScenes version folder (it holds `scene.json`).
+pub fn is_version_folder(dir: &Path) -> bool {
+    dir.join("scene.json").is_file()
+}
+
+/// Whether `inspect` reads `path` as a sensor file (by its name).
+pub fn is_sensor_file(path: &Path) -> bool {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    [".pcd", ".bin", ".jpg", ".jpeg", ".png"]
+        .iter()
+        .any(|ext| name.ends_with(ext))
+}
+
+/// What `inspect PATH...` reads: each file as given; a version folder as one; any other folder
+/// as its sensor files ([`is_sensor_file`]), recursively, sorted by path.
+pub fn expand_paths(paths: &[std::path::PathBuf]) -> Result<Vec<std::path::PathBuf>, PrepError> {
+    let mut out = vec![];
+    for p in paths {
+        if p.is_dir() && !is_version_folder(p) {
+            let mut found = vec![];
+            collect_sensor_files(p, &mut found)?;
+            found.sort();
+            out.extend(found);
+        } else {
+            out.push(p.clone());
+        }
+    }
+    Ok(out)
+}
+
+fn collect_sensor_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) -> Result<(), PrepError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| NuError::io(dir, e))?;
+    for e in entries {
+        let path = e.map_err(|e| NuError::io(dir, e))?.path();
+        if path.is_dir() {
+            collect_sensor_files(&path, out)?;
+        } else if is_sensor_file(&path) {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+/// [`inspect`] of every path, in order, on all cores: a failure stays with its path.
+pub fn inspect_all(paths: &[std::path::PathBuf]) -> Vec<Result<Value, PrepError>> {
+    use rayon::prelude::*;
+    paths.par_iter().map(|p| inspect(p)).collect()
+}
+
 /// A version folder: row counts and the scenes with their conditions.
 fn inspect_version(path: &Path, name: String) -> Result<Value, PrepError> {
     let version = path

@@ -1,17 +1,45 @@
-//! `depthsense inspect PATH`: JSON summary of a sensor file or a version folder.
+//! `depthsense inspect PATH...`: JSON summary of sensor files, folders of them, or a version
+//! folder.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use depthsense_prep::inspect::{expand_paths, inspect, inspect_all, is_version_folder};
+
 #[derive(clap::Args)]
 pub struct Args {
-    /// A radar `.pcd` (ascii, binary or binary_compressed), a lidar `.pcd.bin`, a camera
-    /// `.jpg`/`.png`, or a version folder (e.g. DATAROOT/v1.0-mini).
-    path: PathBuf,
+    /// Radar `.pcd` files (ascii, binary or binary_compressed), lidar `.pcd.bin`, camera
+    /// `.jpg`/`.png`, folders of them (read recursively, sorted), or a version folder (e.g.
+    /// DATAROOT/v1.0-mini). One file or version folder prints one JSON object; more print a
+    /// JSON array with one object per file (`{"path", "error"}` for a file that cannot be read,
+    /// and the exit code is then 1).
+    #[arg(required = true)]
+    paths: Vec<PathBuf>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let v = depthsense_prep::inspect::inspect(&a.path)?;
-    println!("{}", serde_json::to_string_pretty(&v)?);
+    let single = a.paths.len() == 1 && (!a.paths[0].is_dir() || is_version_folder(&a.paths[0]));
+    if single {
+        let v = inspect(&a.paths[0])?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    let files = expand_paths(&a.paths)?;
+    let mut failed = 0usize;
+    let all: Vec<serde_json::Value> = files
+        .iter()
+        .zip(inspect_all(&files))
+        .map(|(p, r)| {
+            r.unwrap_or_else(|e| {
+                failed += 1;
+                serde_json::json!({"path": p.display().to_string(), "error": e.to_string()})
+            })
+        })
+        .collect();
+    println!("{}", serde_json::to_string_pretty(&all)?);
+    if failed > 0 {
+        eprintln!("{failed} of {} file(s) could not be read", files.len());
+        return Ok(ExitCode::FAILURE);
+    }
     Ok(ExitCode::SUCCESS)
 }
