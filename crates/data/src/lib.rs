@@ -180,6 +180,23 @@ pub struct Partition {
     pub test_scenes: Vec<String>,
 }
 
+impl Partition {
+    /// A training run needs both training and validation samples: the error names the
+    /// prepared folder `data`, both counts and how the partition was made.
+    pub fn require_train_and_val(&self, data: &Path) -> Result<(), TrainError> {
+        if self.train.is_empty() || self.val.is_empty() {
+            return Err(TrainError::Data(format!(
+                "{}: {} training and {} validation samples ({}): need both",
+                data.display(),
+                self.train.len(),
+                self.val.len(),
+                self.method
+            )));
+        }
+        Ok(())
+    }
+}
+
 fn scene_names(entries: &[IndexEntry]) -> Vec<String> {
     let set: BTreeSet<String> = entries.iter().map(|e| e.scene_name.clone()).collect();
     set.into_iter().collect()
@@ -726,21 +743,26 @@ fn read_eval_maps(dir: &Path, w: usize, h: usize) -> Result<(Vec<f32>, Vec<bool>
     let sparse_path = dir.join(LIDAR_SPARSE_FILE);
     let s = read_depth(&sparse_path)?;
     check_size(&s, w, h, &sparse_path)?;
-    let mut lowheight = Vec::new();
+    Ok((s.depth_m, read_lowheight_mask(dir, w, h)?))
+}
+
+/// A sample's low-height mask (SPEC §4) as w×h booleans, empty when the sample has none; a
+/// mask of another size is an error naming the file.
+pub fn read_lowheight_mask(dir: &Path, w: usize, h: usize) -> Result<Vec<bool>, TrainError> {
     let mpath = dir.join(LOWHEIGHT_MASK_FILE);
-    if mpath.exists() {
-        let m = decode_rgb_luma(&mpath)?;
-        if m.len() != w * h {
-            return Err(TrainError::Data(format!(
-                "{}: mask has {} pixels, expected {}",
-                mpath.display(),
-                m.len(),
-                w * h
-            )));
-        }
-        lowheight = m;
+    if !mpath.exists() {
+        return Ok(Vec::new());
     }
-    Ok((s.depth_m, lowheight))
+    let m = decode_rgb_luma(&mpath)?;
+    if m.len() != w * h {
+        return Err(TrainError::Data(format!(
+            "{}: mask has {} pixels, expected {}",
+            mpath.display(),
+            m.len(),
+            w * h
+        )));
+    }
+    Ok(m)
 }
 
 /// SPEC §8 horizontal flip of every map of a sample (image, radar, target, eval maps).

@@ -18,7 +18,7 @@ use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_model::ModelConfig;
 use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE};
+use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE};
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
@@ -209,25 +209,7 @@ pub fn load_ground_truth(ds: &Dataset, e: &IndexEntry) -> Result<GroundTruth, Tr
     let dir = ds.sample_dir(e);
     let gt = read_depth(&dir.join(LIDAR_SPARSE_FILE))?;
     let (w, h) = (gt.width as usize, gt.height as usize);
-    let mpath = dir.join(LOWHEIGHT_MASK_FILE);
-    let lowheight = if mpath.exists() {
-        let img = image::open(&mpath).map_err(|err| TrainError::Parse {
-            path: mpath.display().to_string(),
-            reason: err.to_string(),
-        })?;
-        let m: Vec<bool> = img.to_luma8().pixels().map(|p| p.0[0] > 127).collect();
-        if m.len() != w * h {
-            return Err(TrainError::Data(format!(
-                "{}: mask has {} pixels, expected {}",
-                mpath.display(),
-                m.len(),
-                w * h
-            )));
-        }
-        m
-    } else {
-        vec![]
-    };
+    let lowheight = depthsense_data::read_lowheight_mask(&dir, w, h)?;
     Ok(GroundTruth {
         width: w,
         height: h,

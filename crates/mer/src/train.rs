@@ -321,15 +321,7 @@ impl<'o> Run<'o> {
         let device = depthsense_model::device::parse_device(&opts.device)?;
         let ds = Dataset::open(&opts.data)?;
         let part = partition(&ds, opts.val_every_scene)?;
-        if part.train.is_empty() || part.val.is_empty() {
-            return Err(TrainError::Data(format!(
-                "{}: {} training and {} validation samples ({}): need both",
-                opts.data.display(),
-                part.train.len(),
-                part.val.len(),
-                part.method
-            )));
-        }
+        part.require_train_and_val(&opts.data)?;
         // One writer per run folder; a run there is refused unless --resume or --force.
         let lock = lock_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
         let jobs = match opts.jobs {

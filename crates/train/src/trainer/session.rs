@@ -599,15 +599,7 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainErro
     let ds = Dataset::open(&opts.data)?;
     let mut part = partition(&ds, opts.val_every_scene)?;
     depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
-    if part.train.is_empty() || part.val.is_empty() {
-        return Err(TrainError::Data(format!(
-            "{}: {} training and {} validation samples ({}): need both",
-            opts.data.display(),
-            part.train.len(),
-            part.val.len(),
-            part.method
-        )));
-    }
+    part.require_train_and_val(&opts.data)?;
     Ok((ds, part))
 }
 
