@@ -185,18 +185,14 @@ fn failure_markdown(r: &FailureResult) -> String {
         e.eval.main_cap(),
         e.seed
     ));
-    let mut t = MdTable::new(&[
-        ("scenario", Align::Left),
-        ("images", Align::Right),
-        ("RMSE (m)", Align::Right),
-        ("ΔRMSE (m)", Align::Right),
-        ("MAE (m)", Align::Right),
-        ("δ1", Align::Right),
-        ("AbsRel", Align::Right),
+    let mut columns = vec![("scenario", Align::Left)];
+    columns.extend(RowValues::SCENARIO_MD_COLUMNS);
+    columns.extend([
         ("RMSE day", Align::Right),
         ("RMSE night", Align::Right),
         ("RMSE rain", Align::Right),
     ]);
+    let mut t = MdTable::new(&columns);
     let base = r
         .results
         .first()

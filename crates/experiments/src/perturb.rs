@@ -261,16 +261,9 @@ fn perturb_markdown(r: &PerturbResult) -> String {
         e.eval.main_cap(),
         e.seed
     ));
-    let mut t = MdTable::new(&[
-        ("axis", Align::Left),
-        ("magnitude", Align::Right),
-        ("images", Align::Right),
-        ("RMSE (m)", Align::Right),
-        ("ΔRMSE (m)", Align::Right),
-        ("MAE (m)", Align::Right),
-        ("δ1", Align::Right),
-        ("AbsRel", Align::Right),
-    ]);
+    let mut columns = vec![("axis", Align::Left), ("magnitude", Align::Right)];
+    columns.extend(RowValues::SCENARIO_MD_COLUMNS);
+    let mut t = MdTable::new(&columns);
     let base = r.baseline.combined().map(|x| x.rmse);
     md_row(&mut t, &r.baseline, base);
     for x in &r.rows {

@@ -134,6 +134,19 @@ pub struct RowValues {
 }
 
 impl RowValues {
+    /// The Markdown columns of [`RowValues::scenario_md_cells`].
+    pub const SCENARIO_MD_COLUMNS: [(&'static str, depthsense_metrics::table::Align); 6] = {
+        use depthsense_metrics::table::Align::Right;
+        [
+            ("images", Right),
+            ("RMSE (m)", Right),
+            ("ΔRMSE (m)", Right),
+            ("MAE (m)", Right),
+            ("δ1", Right),
+            ("AbsRel", Right),
+        ]
+    };
+
     /// The Markdown cells of a scenario of a one-checkpoint experiment (`failure`, `perturb`)
     /// from its combined row: images, RMSE (m), ΔRMSE (m) against `base_rmse`, MAE (m), δ1,
     /// AbsRel — missing values as [`depthsense_metrics::table::MISSING`].
