@@ -8,17 +8,8 @@ use depthsense_export::{export, Batch, ExportOptions, Format, Precision};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Checkpoint written by `train`, or a PyTorch state dict such as the authors'
-    /// paper_weights_rvmde.pth together with `--config released`.
-    #[arg(long)]
-    checkpoint: PathBuf,
-    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
-    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
-    #[arg(long)]
-    config: Option<String>,
-    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    #[command(flatten)]
+    model: super::model_source::ModelSource,
     /// onnx (opset 17: onnxruntime, TensorRT), torchscript (torch.jit.load, libtorch) or
     /// pytorch (a state dict for python/depthsense_torch.py).
     #[arg(long)]
@@ -44,9 +35,9 @@ pub struct Args {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let opts = ExportOptions {
-        checkpoint: a.checkpoint,
-        config: a.config,
-        set: a.set,
+        checkpoint: a.model.checkpoint,
+        config: a.model.config,
+        set: a.model.set,
         format: Format::parse(&a.format)?,
         out: a.out,
         batch: Batch::parse(&a.batch)?,

@@ -12,6 +12,7 @@ pub mod index;
 pub mod inspect;
 pub mod mer;
 pub mod model_info;
+pub mod model_source;
 pub mod predict;
 pub mod prepare;
 pub mod report;

@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_eval::evaluate::load_model;
 use depthsense_eval::predict::{
     input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, PredictInput,
     OUTPUT_FILES,
@@ -15,17 +14,8 @@ use depthsense_train::trainer::radar_input_for;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Checkpoint written by `train`, or a PyTorch state dict such as the authors'
-    /// paper_weights_rvmde.pth together with `--config released`.
-    #[arg(long)]
-    checkpoint: PathBuf,
-    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
-    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
-    #[arg(long)]
-    config: Option<String>,
-    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    #[command(flatten)]
+    model: super::model_source::ModelSource,
     /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
     #[arg(long, conflicts_with_all = ["token", "image", "data"])]
     sample: Option<PathBuf>,
@@ -94,9 +84,9 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         .map(|f| f.parse::<PredFormat>())
         .collect::<Result<Vec<_>, _>>()?;
     let opts = EvalOptions {
-        checkpoint: a.checkpoint.clone(),
-        config: a.config.clone(),
-        set: a.set.clone(),
+        checkpoint: a.model.checkpoint.clone(),
+        config: a.model.config.clone(),
+        set: a.model.set.clone(),
         data: data.to_path_buf(),
         split: a.split.clone(),
         batch_size: a.batch_size,
@@ -114,10 +104,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         .collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
-    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
-    if let Some(r) = &load_report {
-        eprint!("{}: {r}", a.checkpoint.display());
-    }
+    let loaded = a.model.load(device)?;
     let pb = super::train::progress_bar("predict");
     let (_, n) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
     pb.finish_and_clear();
@@ -137,10 +124,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
-    let (loaded, load_report) = load_model(&a.checkpoint, a.config.as_deref(), &a.set, device)?;
-    if let Some(r) = &load_report {
-        eprint!("{}: {r}", a.checkpoint.display());
-    }
+    let loaded = a.model.load(device)?;
     let radar = radar_input_for(&loaded.config, None)?;
     if let Some(ck) = &a.mer_checkpoint {
         let pda = depthsense_model::pda::load(ck, device)?;

@@ -1,0 +1,34 @@
+//! The network a command runs, as `predict` and `export` take it: `--checkpoint`, `--config`,
+//! `--set` (flattened into their arguments).
+
+use std::path::PathBuf;
+
+use depthsense_eval::evaluate::load_model;
+use depthsense_model::checkpoint::Loaded;
+
+#[derive(clap::Args)]
+pub struct ModelSource {
+    /// Checkpoint written by `train`, or a PyTorch state dict such as the authors'
+    /// paper_weights_rvmde.pth together with `--config released`.
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
+    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
+    #[arg(long)]
+    pub config: Option<String>,
+    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+impl ModelSource {
+    /// Loads the network on `device`; a PyTorch file's import report goes to stderr.
+    pub fn load(&self, device: tch::Device) -> anyhow::Result<Loaded> {
+        let (loaded, report) =
+            load_model(&self.checkpoint, self.config.as_deref(), &self.set, device)?;
+        if let Some(r) = &report {
+            eprint!("{}: {r}", self.checkpoint.display());
+        }
+        Ok(loaded)
+    }
+}
