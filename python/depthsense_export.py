@@ -43,11 +43,10 @@ class Graph(nn.Module):
     """The exported graph: `DepthSense` with float32 inputs and output whatever the precision;
     RGB-only networks take the image alone."""
 
-    def __init__(self, model, half, with_radar):
+    def __init__(self, model, half):
         super().__init__()
         self.model = model.half() if half else model
         self.half = half
-        self.with_radar = with_radar
 
     def run(self, image, radar):
         if self.half:
@@ -94,7 +93,7 @@ def export(a):
     cfg, model = build(a.weights, a.config)
     with_radar = cfg["fusion"] != "none"
     half = a.precision == "fp16"
-    graph = (WithRadar if with_radar else ImageOnly)(model, half, with_radar).eval()
+    graph = (WithRadar if with_radar else ImageOnly)(model, half).eval()
     inputs = example_inputs(cfg, a.batch, with_radar)
     names = ["image", "radar"][:len(inputs)]
     if a.format == "pytorch":

@@ -85,25 +85,19 @@ class Runner:
             self.mode = "regression"
 
     def forward(self, image, radar):
-        """The head output `bench model` times as `forward`."""
-        cfg, y = self.cfg, self.net(image, radar)
-        if self.mode == "regression":
-            return y
+        """The head output `bench model` times as `forward`: `DepthNet::forward_t`
+        (`head_output`), or the released code's ordinal layer."""
         if self.mode == "released":
             h, w = image.shape[-2:]
-            up = F.interpolate(y, size=(h, w), mode="bilinear", align_corners=True)
+            up = F.interpolate(self.net(image, radar), size=(h, w), mode="bilinear",
+                               align_corners=True)
             return released_ordinal_layer(up)
-        if cfg["clamp_logits"]:  # DepthNet::forward_t with clamp_logits
-            up = upsample(y, cfg["out_height"], cfg["out_width"], cfg["align_corners"])
-            return pair_differences(up.clamp(1e-8, 1e8))
-        return pair_differences(y)
+        return head_output(self.net, image, radar)
 
     def decode(self, out, h, w):
-        cfg, sid = self.cfg, self.cfg["sid"]
-        if self.mode == "regression":
-            return (upsample(out, h, w, cfg["align_corners"]).float()
-                    - sid["decode_offset_m"]).clamp_min(0.0)
-        return levels_to_depth(sid, self.levels(out, h, w))
+        if self.mode == "released":
+            return levels_to_depth(self.cfg["sid"], self.levels(out, h, w))
+        return decode(self.cfg, out, h, w)
 
     def levels(self, out, h, w):
         if self.mode == "released":
