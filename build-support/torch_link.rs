@@ -39,7 +39,22 @@ fn torch_lib_dir() -> Option<std::path::PathBuf> {
     (!dir.is_empty()).then(|| std::path::PathBuf::from(dir))
 }
 
+#[allow(dead_code)]
 fn link_torch() {
+    link_torch_for(None);
+}
+
+/// The link arguments for every target of the package (`None`), or for one binary and the
+/// package's tests.
+#[allow(dead_code)]
+fn link_torch_for(bin: Option<&str>) {
+    let arg = |a: String| match bin {
+        Some(b) => {
+            println!("cargo:rustc-link-arg-bin={b}={a}");
+            println!("cargo:rustc-link-arg-tests={a}");
+        }
+        None => println!("cargo:rustc-link-arg={a}"),
+    };
     let Some(dir) = torch_lib_dir() else {
         println!("cargo:warning=torch not found by the active python: run `make setup` and build through `make` (or `source .venv/bin/activate`)");
         return;
@@ -48,11 +63,11 @@ fn link_torch() {
     if target_os != "linux" {
         return;
     }
-    println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+    arg(format!("-Wl,-rpath,{}", dir.display()));
     if dir.join("libtorch_cuda.so").exists() {
-        println!("cargo:rustc-link-arg=-L{}", dir.display());
-        println!("cargo:rustc-link-arg=-Wl,--no-as-needed");
-        println!("cargo:rustc-link-arg=-ltorch_cuda");
-        println!("cargo:rustc-link-arg=-Wl,--as-needed");
+        arg(format!("-L{}", dir.display()));
+        arg("-Wl,--no-as-needed".into());
+        arg("-ltorch_cuda".into());
+        arg("-Wl,--as-needed".into());
     }
 }

@@ -68,9 +68,15 @@ if [ -n "$MAKE_BUNDLE" ]; then
   WORLD_TMP="${GPU_BUNDLE_WORLD:-$REPO/runs/gpu-bundle-world}"
   mkdir -p "$B"
   rm -rf "$B/prepared"
-  cp "$SRC_BIN" "$B/depthsense.tmp" && strip "$B/depthsense.tmp" && mv "$B/depthsense.tmp" "$B/depthsense"
+  # Both binaries: `depthsense` (torch-free front) hands the network commands to
+  # `depthsense-net` beside it.
+  for bin in depthsense depthsense-net; do
+    SRC="$(dirname "$SRC_BIN")/$bin"
+    [ -x "$SRC" ] || { echo "no release binary at $SRC (make build)" >&2; exit 2; }
+    cp "$SRC" "$B/$bin.tmp" && strip "$B/$bin.tmp" && mv "$B/$bin.tmp" "$B/$bin"
+  done
   cp "$REPO/scripts/gpu-check.sh" "$REPO/scripts/torch_reference.py" "$REPO/python/depthsense_torch.py" "$B/"
-  chmod +x "$B/gpu-check.sh" "$B/depthsense"
+  chmod +x "$B/gpu-check.sh" "$B/depthsense" "$B/depthsense-net"
   # A small world: 10 scenes × 5 keyframes (val/test scenes held out by the loader's rule),
   # prepared like the demo (K = 2 lidar sweeps for the dense target).
   "$B/depthsense" synth --out "$WORLD_TMP" --force --scenes 10 --keyframes-per-scene 5 --seed 7 \
@@ -83,7 +89,7 @@ if [ -n "$MAKE_BUNDLE" ]; then
     echo "  \"built\": \"$(date -u +%Y-%m-%dT%H:%M:%SZ)\","
     echo "  \"git_commit\": \"$(git -C "$REPO" rev-parse HEAD 2>/dev/null || echo unknown)\","
     echo "  \"git_dirty\": $( [ -z "$(git -C "$REPO" status --porcelain --untracked-files=no 2>/dev/null)" ] && echo false || echo true),"
-    echo "  \"binary_sha256\": \"$(sha256sum "$B/depthsense" | cut -d' ' -f1)\","
+    echo "  \"binary_sha256\": \"$(sha256sum "$B/depthsense-net" | cut -d' ' -f1)\","
     echo "  \"binary_built\": \"$(date -u -r "$SRC_BIN" +%Y-%m-%dT%H:%M:%SZ)\","
     echo "  \"world\": \"synth --scenes 10 --keyframes-per-scene 5 --seed 7; prepare --lidar-sweeps 2\""
     echo "}"
@@ -142,8 +148,10 @@ fail() {
 "$PY" -c 'import torch' 2>/dev/null || fail "python $PY cannot import torch"
 
 # ldd: libtorch_cuda.so must be linked and resolved, or the binary runs on the CPU silently.
+# (`depthsense` is the torch-free front; the network commands run in depthsense-net beside it.)
+NET_BIN="$(dirname "$BIN")/depthsense-net"
 if command -v ldd >/dev/null; then
-  ldd "$BIN" > "$S/ldd.txt" 2>&1
+  ldd "$NET_BIN" > "$S/ldd.txt" 2>&1
 else
   echo "ldd: not installed" > "$S/ldd.txt"
 fi
@@ -152,7 +160,7 @@ LDD_CUDA="$(grep -E 'libtorch_cuda\.so' "$S/ldd.txt" | head -1 | sed 's/^[[:spac
 LDD_MISSING="$(grep -c 'not found' "$S/ldd.txt" || true)"
 if [ "$DRY" = 0 ]; then
   if [ -z "$LDD_CUDA" ] || echo "$LDD_CUDA" | grep -q 'not found'; then
-    fail "ldd: libtorch_cuda.so is not linked/resolved by $BIN (got: '${LDD_CUDA:-nothing}'): the run would be on the CPU"
+    fail "ldd: libtorch_cuda.so is not linked/resolved by $NET_BIN (got: '${LDD_CUDA:-nothing}'): the run would be on the CPU"
   fi
   [ "$LDD_MISSING" = 0 ] || fail "ldd: $LDD_MISSING libraries not found (see log.txt)"
   "$PY" -c 'import torch,sys; sys.exit(0 if torch.cuda.is_available() else 1)' \

@@ -1,5 +1,7 @@
 include!("../../build-support/torch_link.rs");
 
 fn main() {
-    link_torch();
+    // Only depthsense-net links libtorch; `depthsense`, the torch-free front, must not get
+    // libtorch_cuda forced in (src/main.rs).
+    link_torch_for(Some("depthsense-net"));
 }

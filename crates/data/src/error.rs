@@ -60,3 +60,19 @@ impl From<depthsense_dist::DistError> for TrainError {
         TrainError::Other(e.to_string())
     }
 }
+
+/// The torch-free layer's errors become the same variants here (same messages).
+impl From<depthsense_dataset::DataError> for TrainError {
+    fn from(e: depthsense_dataset::DataError) -> Self {
+        use depthsense_dataset::DataError as D;
+        match e {
+            D::Io { path, source } => TrainError::Io { path, source },
+            D::Parse { path, reason } => TrainError::Parse { path, reason },
+            D::Data(m) => TrainError::Data(m),
+            D::Config(m) => TrainError::Config(m),
+            D::Metrics(m) => TrainError::Metrics(m),
+            D::OutputExists { dir, what, advice } => TrainError::OutputExists { dir, what, advice },
+            D::Other(m) => TrainError::Other(m),
+        }
+    }
+}

@@ -1,7 +1,8 @@
-//! depthsense-data (layer 2, ARCHITECTURE.md): everything between `depthsense prepare`'s output
-//! and a batch of tensors — dataset and index, the train/validation partition and withheld
-//! scenes ([`exclusion`]), SPEC §8 augmentation, radar corruption ([`radar_failure`]), the MER
-//! maps on disk ([`mer_maps`]) and the prefetching loader. No training code: the training
+//! depthsense-data (layer 3, ARCHITECTURE.md): everything between `depthsense prepare`'s output
+//! and a batch of tensors — withheld scenes ([`exclusion`]), SPEC §8 augmentation, radar
+//! corruption ([`radar_failure`]), MER's `mer.json` ([`mer_maps`]) and the prefetching loader;
+//! the dataset, index, partition and a sample's readers are `depthsense_dataset`'s
+//! (re-exported here). No training code: the training
 //! engine (`depthsense-train`) and everything above it read data only through this crate.
 //!
 //! The data loader: reads `depthsense prepare` output (`depthsense_prep::layout`), applies the
@@ -17,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
-use depthsense_nuscenes::depth_png::{decode_png, DepthMap};
+use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_nuscenes::hash::{fnv1a64, SplitMix64, GOLDEN_GAMMA};
 use depthsense_prep::layout::{
     Condition, IndexEntry, PreparedIndex, IMAGE_FILE, INDEX_FILE, LIDAR_DENSE_FILE,
@@ -30,6 +31,14 @@ pub mod error;
 pub mod exclusion;
 pub mod mer_maps;
 pub mod radar_failure;
+
+// The torch-free part (index, partition, a sample's files, MER maps on disk) lives in
+// depthsense-dataset, so that `depthsense` runs the data commands without libtorch; the
+// loader's users keep reaching it through this crate.
+pub use depthsense_dataset::index::{partition, subsample, Dataset, Partition};
+pub use depthsense_dataset::maps::{
+    check_size, decode_rgb, read_depth, read_lowheight_mask, read_meta,
+};
 
 pub use error::TrainError;
 
@@ -98,251 +107,6 @@ impl Default for LoadOptions {
             train_radar_drop: 0.0,
         }
     }
-}
-
-/// A prepared data directory: `index.json` and its sample folders.
-#[derive(Debug, Clone)]
-pub struct Dataset {
-    pub root: PathBuf,
-    pub index: PreparedIndex,
-}
-
-impl Dataset {
-    /// Open `root/index.json`.
-    pub fn open(root: &Path) -> Result<Self, TrainError> {
-        let path = root.join(INDEX_FILE);
-        let bytes = std::fs::read(&path).map_err(|e| TrainError::io(&path, e))?;
-        let index: PreparedIndex =
-            serde_json::from_slice(&bytes).map_err(|e| TrainError::Parse {
-                path: path.display().to_string(),
-                reason: e.to_string(),
-            })?;
-        if index.samples.is_empty() {
-            return Err(TrainError::Data(format!(
-                "{} lists no samples: run `depthsense prepare` first",
-                path.display()
-            )));
-        }
-        Ok(Self {
-            root: root.to_path_buf(),
-            index,
-        })
-    }
-
-    pub fn sample_dir(&self, e: &IndexEntry) -> PathBuf {
-        self.root.join(&e.dir)
-    }
-
-    /// Every distinct split name in the index.
-    pub fn split_names(&self) -> BTreeSet<String> {
-        self.index
-            .samples
-            .iter()
-            .flat_map(|s| s.splits.iter().cloned())
-            .collect()
-    }
-
-    /// Entries of a split ("all" = everything).
-    pub fn split(&self, name: &str) -> Vec<IndexEntry> {
-        self.index
-            .samples
-            .iter()
-            .filter(|s| name == "all" || s.splits.iter().any(|x| x == name))
-            .cloned()
-            .collect()
-    }
-
-    /// Scene names in index order, deduplicated.
-    pub fn scenes(&self) -> Vec<String> {
-        let mut seen = BTreeSet::new();
-        let mut out = Vec::new();
-        for s in &self.index.samples {
-            if seen.insert(s.scene_name.clone()) {
-                out.push(s.scene_name.clone());
-            }
-        }
-        out
-    }
-}
-
-/// The train / validation / test partition: `train` fits, `val` selects (checkpoints, epochs,
-/// hyper-parameters), `test` only reports. The three scene sets are disjoint in every mode.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Partition {
-    /// How it was made (see [`partition`]).
-    pub method: String,
-    pub train: Vec<IndexEntry>,
-    pub val: Vec<IndexEntry>,
-    pub test: Vec<IndexEntry>,
-    /// Scenes of the validation set (names, sorted).
-    pub val_scenes: Vec<String>,
-    /// Scenes of the test set (names, sorted).
-    pub test_scenes: Vec<String>,
-}
-
-impl Partition {
-    /// A training run needs both training and validation samples: the error names the
-    /// prepared folder `data`, both counts and how the partition was made.
-    pub fn require_train_and_val(&self, data: &Path) -> Result<(), TrainError> {
-        if self.train.is_empty() || self.val.is_empty() {
-            return Err(TrainError::Data(format!(
-                "{}: {} training and {} validation samples ({}): need both",
-                data.display(),
-                self.train.len(),
-                self.val.len(),
-                self.method
-            )));
-        }
-        Ok(())
-    }
-}
-
-fn scene_names(entries: &[IndexEntry]) -> Vec<String> {
-    let set: BTreeSet<String> = entries.iter().map(|e| e.scene_name.clone()).collect();
-    set.into_iter().collect()
-}
-
-/// Scenes at positions every−1, 2·every−1, … of `scenes` (sorted); the last one when that
-/// picks none and there are at least 2.
-fn every_nth(scenes: &[String], every: usize) -> Vec<String> {
-    let every = every.max(2);
-    let mut picked: Vec<String> = scenes
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| i % every == every - 1)
-        .map(|(_, s)| s.clone())
-        .collect();
-    if picked.is_empty() && scenes.len() >= 2 {
-        picked.push(scenes[scenes.len() - 1].clone());
-    }
-    picked
-}
-
-/// Split samples into training, validation and test sets; nothing is ever selected on test.
-///
-/// 1. The index has `train` and `val` splits (`prepare` writes them: a synthetic world's own
-///    lists, or the released lists with a fixed validation subset of the training scenes):
-///    they are used, and `test` is the `test` split (possibly empty).
-/// 2. The index has `train` (and maybe `test`) but no `val` (prepared before validation
-///    splits existed): the validation scenes are every `every`-th training scene by name.
-/// 3. No split lists (`--split all`): scenes sorted by name; positions ≡ every−1 (mod every)
-///    are test, positions ≡ every−2 are validation, the rest train (at least one scene each
-///    when there are ≥ 3 scenes).
-///
-/// Deterministic; the scene names of val and test are recorded.
-pub fn partition(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
-    let names = ds.split_names();
-    if names.contains("train") && names.contains("val") {
-        return Ok(Partition::of_sets(
-            "splits (train / val / test of index.json)".into(),
-            ds.split("train"),
-            ds.split("val"),
-            ds.split("test"),
-        ));
-    }
-    if names.contains("train") {
-        return Ok(partition_train_split(ds, every));
-    }
-    partition_scene_modulo(ds, every)
-}
-
-impl Partition {
-    /// The partition of these three sets, with their scene names recorded.
-    fn of_sets(
-        method: String,
-        train: Vec<IndexEntry>,
-        val: Vec<IndexEntry>,
-        test: Vec<IndexEntry>,
-    ) -> Partition {
-        Partition {
-            method,
-            val_scenes: scene_names(&val),
-            test_scenes: scene_names(&test),
-            train,
-            val,
-            test,
-        }
-    }
-}
-
-/// Mode 2 of [`partition`]: a `train` split but no `val`; every `every`-th training scene by
-/// name is validation, `test` is the `test` split.
-fn partition_train_split(ds: &Dataset, every: usize) -> Partition {
-    let train_all = ds.split("train");
-    let val_scenes = every_nth(&scene_names(&train_all), every);
-    let (val, train): (Vec<_>, Vec<_>) = train_all
-        .into_iter()
-        .partition(|e| val_scenes.contains(&e.scene_name));
-    Partition::of_sets(
-        format!(
-            "train split, every {}th training scene by name held out for validation",
-            every.max(2)
-        ),
-        train,
-        val,
-        ds.split("test"),
-    )
-}
-
-/// Mode 3 of [`partition`]: no split lists; test and validation scenes by position modulo
-/// `every` among the scenes sorted by name.
-fn partition_scene_modulo(ds: &Dataset, every: usize) -> Result<Partition, TrainError> {
-    let mut scenes = ds.scenes();
-    scenes.sort();
-    if scenes.len() < 3 {
-        return Err(TrainError::Data(format!(
-            "{}: need at least 3 scenes for train / validation / test, found {}",
-            ds.root.display(),
-            scenes.len()
-        )));
-    }
-    let every = every.max(3);
-    let (val_scenes, test_scenes) = modulo_val_test_scenes(&scenes, every);
-    let of = |set: &[String]| -> Vec<IndexEntry> {
-        ds.index
-            .samples
-            .iter()
-            .filter(|e| set.contains(&e.scene_name))
-            .cloned()
-            .collect()
-    };
-    let train: Vec<IndexEntry> = ds
-        .index
-        .samples
-        .iter()
-        .filter(|e| !val_scenes.contains(&e.scene_name) && !test_scenes.contains(&e.scene_name))
-        .cloned()
-        .collect();
-    Ok(Partition::of_sets(
-        format!(
-            "scene-modulo (no split lists: of the scenes sorted by name, every {every}th is test, \
-             the one before it validation)"
-        ),
-        train,
-        of(&val_scenes),
-        of(&test_scenes),
-    ))
-}
-
-/// (validation, test) scenes of sorted `scenes` (at least 3): positions ≡ every−2 and
-/// ≡ every−1 (mod `every`), the second-last and last scene when that picks none.
-fn modulo_val_test_scenes(scenes: &[String], every: usize) -> (Vec<String>, Vec<String>) {
-    let mut test_scenes: Vec<String> = Vec::new();
-    let mut val_scenes: Vec<String> = Vec::new();
-    for (i, s) in scenes.iter().enumerate() {
-        if i % every == every - 1 {
-            test_scenes.push(s.clone());
-        } else if i % every == every - 2 {
-            val_scenes.push(s.clone());
-        }
-    }
-    if test_scenes.is_empty() {
-        test_scenes.push(scenes[scenes.len() - 1].clone());
-    }
-    if val_scenes.is_empty() {
-        val_scenes.push(scenes[scenes.len() - 2].clone());
-    }
-    (val_scenes, test_scenes)
 }
 
 /// One decoded, augmented, normalised sample (CPU, channel-major).
@@ -447,45 +211,6 @@ impl Augment {
         }
         a
     }
-}
-
-/// A sample directory's `meta.json`.
-pub fn read_meta(dir: &Path) -> Result<depthsense_prep::layout::SampleMeta, TrainError> {
-    let p = dir.join(META_FILE);
-    serde_json::from_slice(&read_file(&p)?).map_err(|e| TrainError::Parse {
-        path: p.display().to_string(),
-        reason: e.to_string(),
-    })
-}
-
-fn read_file(path: &Path) -> Result<Vec<u8>, TrainError> {
-    std::fs::read(path).map_err(|e| TrainError::io(path, e))
-}
-
-pub fn read_depth(path: &Path) -> Result<DepthMap, TrainError> {
-    let bytes = read_file(path)?;
-    decode_png(&bytes, &path.display().to_string()).map_err(|e| TrainError::Data(e.to_string()))
-}
-
-pub fn decode_rgb(path: &Path) -> Result<image::RgbImage, TrainError> {
-    let bytes = read_file(path)?;
-    let img = image::load_from_memory(&bytes).map_err(|e| TrainError::Parse {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-    })?;
-    Ok(img.to_rgb8())
-}
-
-fn check_size(map: &DepthMap, w: usize, h: usize, path: &Path) -> Result<(), TrainError> {
-    if map.width as usize != w || map.height as usize != h {
-        return Err(TrainError::Data(format!(
-            "{}: map is {}x{} but the image is {w}x{h}",
-            path.display(),
-            map.width,
-            map.height
-        )));
-    }
-    Ok(())
 }
 
 fn flip_rows<T: Copy>(v: &mut [T], w: usize) {
@@ -746,25 +471,6 @@ fn read_eval_maps(dir: &Path, w: usize, h: usize) -> Result<(Vec<f32>, Vec<bool>
     Ok((s.depth_m, read_lowheight_mask(dir, w, h)?))
 }
 
-/// A sample's low-height mask (SPEC §4) as w×h booleans, empty when the sample has none; a
-/// mask of another size is an error naming the file.
-pub fn read_lowheight_mask(dir: &Path, w: usize, h: usize) -> Result<Vec<bool>, TrainError> {
-    let mpath = dir.join(LOWHEIGHT_MASK_FILE);
-    if !mpath.exists() {
-        return Ok(Vec::new());
-    }
-    let m = decode_rgb_luma(&mpath)?;
-    if m.len() != w * h {
-        return Err(TrainError::Data(format!(
-            "{}: mask has {} pixels, expected {}",
-            mpath.display(),
-            m.len(),
-            w * h
-        )));
-    }
-    Ok(m)
-}
-
 /// SPEC §8 horizontal flip of every map of a sample (image, radar, target, eval maps).
 fn flip_sample(s: &mut Sample) {
     let w = s.width;
@@ -805,15 +511,6 @@ pub fn normalise_image(rgb: &image::RgbImage, aug: &Augment) -> Vec<f32> {
         }
     }
     image
-}
-
-fn decode_rgb_luma(path: &Path) -> Result<Vec<bool>, TrainError> {
-    let bytes = read_file(path)?;
-    let img = image::load_from_memory(&bytes).map_err(|e| TrainError::Parse {
-        path: path.display().to_string(),
-        reason: e.to_string(),
-    })?;
-    Ok(img.to_luma8().pixels().map(|p| p.0[0] > 127).collect())
 }
 
 /// A batch of samples stacked channel-major: shapes in the field docs.

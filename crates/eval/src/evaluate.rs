@@ -7,27 +7,30 @@
 //! depth maps on disk, [`run_eval_predictions`]) therefore share protocol, caps, GT,
 //! conditions and tables exactly.
 
-pub mod npy;
-
 use std::path::{Path, PathBuf};
 
 use depthsense_data::radar_failure::RadarFailure;
-use depthsense_data::{partition, read_depth, Dataset, LoadOptions, RadarInput};
-use depthsense_metrics::{tables, EvalConfig, Evaluator, Report};
+use depthsense_data::{Dataset, LoadOptions, RadarInput};
+use depthsense_metrics::{EvalConfig, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_model::ModelConfig;
-use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE};
 use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
 use depthsense_train::trainer::{evaluate_net, radar_input_for, subsample};
 pub use depthsense_train::validate::{condition_names, score_image};
-
-/// Which samples to evaluate.
-pub const HELD_OUT: &str = "held-out";
+// Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
+// `eval --predictions` without libtorch; re-exported for the network side's users.
+pub use depthsense_score::npy;
+pub use depthsense_score::predictions::{
+    find_prediction, load_ground_truth, read_prediction, run_eval_predictions, select_split,
+    write_prediction, GroundTruth, PredFormat, PredictionsOptions, PredictionsSummary, HELD_OUT,
+};
+pub use depthsense_score::tables::{
+    table_paths, write_tables, write_tables_with_command, TABLE_FILES,
+};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalOptions {
@@ -85,28 +88,6 @@ impl Default for EvalOptions {
             name: "model".into(),
         }
     }
-}
-
-/// Samples of a split name (see [`EvalOptions::split`]).
-pub fn select_split(
-    ds: &Dataset,
-    split: &str,
-    every: usize,
-) -> Result<Vec<IndexEntry>, TrainError> {
-    let v = if split == HELD_OUT {
-        // The test scenes: never the validation scenes that selected the checkpoint.
-        partition(ds, every)?.test
-    } else {
-        ds.split(split)
-    };
-    if v.is_empty() {
-        return Err(TrainError::Data(format!(
-            "{}: split {split:?} has no samples (splits present: {:?})",
-            ds.root.display(),
-            ds.split_names()
-        )));
-    }
-    Ok(v)
 }
 
 /// Loads a network for `eval` / `predict`: a depthsense checkpoint, or a PyTorch state dict
@@ -193,197 +174,6 @@ fn eval_with(
         on_batch,
     )
 }
-
-/// What the scorer needs of a prepared sample: sparse GT and low-height mask.
-#[derive(Debug, Clone)]
-pub struct GroundTruth {
-    pub width: usize,
-    pub height: usize,
-    pub sparse_m: Vec<f32>,
-    /// Empty when the sample has no mask file.
-    pub lowheight: Vec<bool>,
-}
-
-/// Read a sample's sparse GT and low-height mask (what `load_sample` reads with `eval_maps`).
-pub fn load_ground_truth(ds: &Dataset, e: &IndexEntry) -> Result<GroundTruth, TrainError> {
-    let dir = ds.sample_dir(e);
-    let gt = read_depth(&dir.join(LIDAR_SPARSE_FILE))?;
-    let (w, h) = (gt.width as usize, gt.height as usize);
-    let lowheight = depthsense_data::read_lowheight_mask(&dir, w, h)?;
-    Ok(GroundTruth {
-        width: w,
-        height: h,
-        sparse_m: gt.depth_m,
-        lowheight,
-    })
-}
-
-/// File formats of predictions on disk.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum PredFormat {
-    /// 16-bit PNG, depth × 256, 0 = no prediction (KITTI convention, SPEC §3).
-    Png,
-    /// NumPy float32 metres.
-    Npy,
-}
-
-impl PredFormat {
-    pub fn ext(self) -> &'static str {
-        match self {
-            PredFormat::Png => "png",
-            PredFormat::Npy => "npy",
-        }
-    }
-}
-
-impl std::str::FromStr for PredFormat {
-    type Err = TrainError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "png" => Ok(Self::Png),
-            "npy" => Ok(Self::Npy),
-            o => Err(TrainError::Config(format!(
-                "unknown prediction format {o:?} (png, npy)"
-            ))),
-        }
-    }
-}
-
-/// The prediction file of a sample in `dir`: `<token>.npy`, `<token>.png`,
-/// `<token>/depth.npy` or `<token>/depth.png` (first found, in that order).
-pub fn find_prediction(dir: &Path, token: &str) -> Option<(PathBuf, PredFormat)> {
-    [
-        (dir.join(format!("{token}.npy")), PredFormat::Npy),
-        (dir.join(format!("{token}.png")), PredFormat::Png),
-        (dir.join(token).join("depth.npy"), PredFormat::Npy),
-        (dir.join(token).join("depth.png"), PredFormat::Png),
-    ]
-    .into_iter()
-    .find(|(p, _)| p.is_file())
-}
-
-/// Read one prediction file as (values in metres, width, height).
-pub fn read_prediction(path: &Path, f: PredFormat) -> Result<(Vec<f32>, usize, usize), TrainError> {
-    match f {
-        PredFormat::Png => {
-            let m = read_depth(path)?;
-            Ok((m.depth_m, m.width as usize, m.height as usize))
-        }
-        PredFormat::Npy => {
-            let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, e))?;
-            let (v, h, w) = npy::decode(&bytes, path)?;
-            Ok((v, w, h))
-        }
-    }
-}
-
-/// Write one prediction (metres, `w`x`h`) as `<dir>/<token>.<ext>`.
-pub fn write_prediction(
-    dir: &Path,
-    token: &str,
-    pred: &[f32],
-    w: usize,
-    h: usize,
-    f: PredFormat,
-) -> Result<PathBuf, TrainError> {
-    let p = dir.join(format!("{token}.{}", f.ext()));
-    let bytes = match f {
-        PredFormat::Npy => npy::encode_f32(pred, h, w),
-        PredFormat::Png => {
-            depthsense_nuscenes::depth_png::encode_png(&depthsense_nuscenes::depth_png::DepthMap {
-                width: w as u32,
-                height: h as u32,
-                depth_m: pred.to_vec(),
-            })
-            .map_err(|e| TrainError::Data(e.to_string()))?
-        }
-    };
-    write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
-    Ok(p)
-}
-
-/// `eval --predictions`: another method's depth maps, one per sample token.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PredictionsOptions {
-    /// Folder of `<token>.png` / `<token>.npy` (see [`find_prediction`]).
-    pub dir: PathBuf,
-    pub data: PathBuf,
-    pub split: String,
-    pub val_every_scene: usize,
-    pub eval: EvalConfig,
-    pub max_samples: Option<usize>,
-    /// Samples of the split without a prediction file: an error (false) or skipped and
-    /// counted (true).
-    pub allow_missing: bool,
-}
-
-/// What was scored.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PredictionsSummary {
-    pub scored: usize,
-    pub png: usize,
-    pub npy: usize,
-    /// Tokens of the split without a prediction file.
-    pub missing: Vec<String>,
-}
-
-/// Score prediction files with exactly the `eval --checkpoint` protocol ([`score_image`]).
-pub fn run_eval_predictions(
-    opts: &PredictionsOptions,
-    progress: &ProgressBar,
-) -> Result<(Report, PredictionsSummary), TrainError> {
-    let ds = Dataset::open(&opts.data)?;
-    let entries = subsample(
-        &select_split(&ds, &opts.split, opts.val_every_scene)?,
-        opts.max_samples,
-    );
-    let mut ev = Evaluator::new(opts.eval.clone())?;
-    let mut sum = PredictionsSummary {
-        scored: 0,
-        png: 0,
-        npy: 0,
-        missing: vec![],
-    };
-    progress.set_length(entries.len() as u64);
-    for e in &entries {
-        progress.inc(1);
-        let Some((path, fmt)) = find_prediction(&opts.dir, &e.sample_token) else {
-            sum.missing.push(e.sample_token.clone());
-            continue;
-        };
-        let gt = load_ground_truth(&ds, e)?;
-        let (pred, w, h) = read_prediction(&path, fmt)?;
-        if (w, h) != (gt.width, gt.height) {
-            return Err(TrainError::Data(format!(
-                "{}: prediction is {w}x{h} but the ground truth of the training frame is {}x{} \
-                 (SPEC §3: predictions must be in the 800x350 frame `prepare` writes)",
-                path.display(),
-                gt.width,
-                gt.height
-            )));
-        }
-        score_image(&mut ev, &gt.sparse_m, &gt.lowheight, &e.conditions, &pred)?;
-        sum.scored += 1;
-        match fmt {
-            PredFormat::Png => sum.png += 1,
-            PredFormat::Npy => sum.npy += 1,
-        }
-    }
-    if !sum.missing.is_empty() && !opts.allow_missing {
-        return Err(TrainError::Data(format!(
-            "{}: {} of {} samples of split {:?} have no prediction (e.g. {}.png / .npy); pass \
-             --allow-missing to score the others",
-            opts.dir.display(),
-            sum.missing.len(),
-            entries.len(),
-            opts.split,
-            sum.missing[0]
-        )));
-    }
-    Ok((ev.finish(), sum))
-}
-
 /// Run a network over the samples of `opts` (as `eval` would) and write each prediction as
 /// `<out>/<token>.<ext>` for every format in `formats`; returns the report and the count.
 pub fn write_predictions(
@@ -413,50 +203,6 @@ pub fn write_predictions(
         Ok(())
     })?;
     Ok((report, n))
-}
-
-/// The files [`write_tables`] writes.
-pub const TABLE_FILES: [&str; 3] = ["tables.md", "tables.csv", "tables.json"];
-
-/// [`TABLE_FILES`] in `dir`.
-pub fn table_paths(dir: &Path) -> Vec<PathBuf> {
-    TABLE_FILES.iter().map(|f| dir.join(f)).collect()
-}
-
-/// Write `tables.md`, `tables.csv` and `tables.json` (every row of every report plus the
-/// three rendered tables) into `dir`.
-pub fn write_tables(dir: &Path, models: &[(&str, &Report)]) -> Result<(), TrainError> {
-    write_tables_with_command(dir, models, None)
-}
-
-/// [`write_tables`], recording the invocation as `command_line` in tables.json and as a last
-/// "Command:" line of tables.md (`depthsense report` shows it).
-pub fn write_tables_with_command(
-    dir: &Path,
-    models: &[(&str, &Report)],
-    command_line: Option<&str>,
-) -> Result<(), TrainError> {
-    std::fs::create_dir_all(dir).map_err(|e| TrainError::io(dir, e))?;
-    let mut md = tables::markdown_report(models);
-    md.push_str(&depthsense_metrics::table::md_command_line(command_line));
-    let csv = tables::csv_report(models);
-    let json = serde_json::json!({
-        "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),
-        "tables": tables::all_tables(models),
-        "command_line": command_line,
-    });
-    let w = |name: &str, bytes: &[u8]| {
-        let p = dir.join(name);
-        write_atomic(&p, bytes).map_err(|e| TrainError::io(&p, e))
-    };
-    w("tables.md", md.as_bytes())?;
-    w("tables.csv", csv.as_bytes())?;
-    w(
-        "tables.json",
-        serde_json::to_string_pretty(&json)
-            .map_err(|e| TrainError::Other(e.to_string()))?
-            .as_bytes(),
-    )
 }
 
 #[cfg(test)]

@@ -22,10 +22,6 @@ pub struct Scenario {
     pub failure: RadarFailure,
 }
 
-/// The default scenarios of `experiment failure`.
-pub const DEFAULT_SCENARIOS: &str =
-    "none;radar-drop=0.5;radar-drop=1;drop-radars=all;beyond=50;beyond=30;beyond=15;clutter=10;clutter=50";
-
 /// Parse "none;radar-drop=0.5;drop-radars=RADAR_FRONT_LEFT+RADAR_FRONT_RIGHT;beyond=30;
 /// clutter=20" (`;` between scenarios, `,` between settings of one scenario).
 pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, TrainError> {

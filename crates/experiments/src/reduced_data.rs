@@ -55,10 +55,6 @@ pub fn parse_grid(s: &str) -> Result<Vec<Cell>, TrainError> {
         .collect()
 }
 
-/// The default grid: everything, then without half the day scenes, without night, without
-/// rain (our reading of SPEC §10.5; the paper's exact fractions are not in the SPEC).
-pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
-
 /// Everything a reduced-data experiment is made of.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReducedDataOptions {

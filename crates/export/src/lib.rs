@@ -1,4 +1,4 @@
-//! depthsense-export (layer 6, ARCHITECTURE.md): `depthsense export` — a trained network out of
+//! depthsense-export (layer 7, ARCHITECTURE.md): `depthsense export` — a trained network out of
 //! depthsense as ONNX, TorchScript or a PyTorch state dict, with a sidecar JSON that says how to
 //! feed it.
 //!
@@ -14,6 +14,7 @@
 //! (`FILE.json`) last, atomically. An existing `--out` (or its sidecar) is refused without
 //! `force`.
 
+pub mod ort_bench;
 pub mod python;
 pub mod sidecar;
 

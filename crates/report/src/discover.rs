@@ -3,7 +3,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use depthsense_mer::report::{report_markdown, CoverageRow, MerReport};
+use depthsense_score::mer_coverage::{report_markdown, CoverageRow, MerReport};
 use serde_json::Value;
 
 use super::{FigureGrid, Kind, ReportError, Skipped};

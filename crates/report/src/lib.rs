@@ -1,4 +1,4 @@
-//! depthsense-report (layer 6, ARCHITECTURE.md) — `depthsense report`: one self-contained page of every experiment output found under some
+//! depthsense-report (layer 4, ARCHITECTURE.md) — `depthsense report`: one self-contained page of every experiment output found under some
 //! run folders — ablation, reduced data, sensor failure, calibration perturbation, cost,
 //! Grad-CAM++ (explain), evaluation tables (main, region and distance-cap tables), the MER
 //! coverage report and the demo's report folder.
@@ -222,7 +222,7 @@ pub struct ReportOptions {
     pub tile_width: u32,
     /// The invocation, shown at the top of the page.
     pub command_line: Option<String>,
-    /// Replace a report already in `out` (its own files only; [`depthsense_train::outputs`]).
+    /// Replace a report already in `out` (its own files only; `depthsense_dataset::outputs`).
     pub force: bool,
 }
 

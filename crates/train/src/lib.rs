@@ -1,4 +1,4 @@
-//! depthsense-train (layer 3, ARCHITECTURE.md): the training engine — optimisers, the training
+//! depthsense-train (layer 4, ARCHITECTURE.md): the training engine — optimisers, the training
 //! step, validation, checkpoints and exact resume, run folders, data-parallel training.
 //!
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
@@ -18,7 +18,8 @@ pub mod distributed;
 pub mod learner;
 pub mod metrics_log;
 pub mod optim_state;
-pub mod outputs;
+/// Run folders and the refusal to overwrite results: torch-free, in depthsense-dataset.
+pub use depthsense_dataset::outputs;
 pub mod sgd;
 pub mod step;
 pub mod trainer;

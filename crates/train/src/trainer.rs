@@ -15,7 +15,6 @@ use std::path::{Path, PathBuf};
 use depthsense_data::{Partition, RadarInput, TargetKind};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
-use depthsense_prep::layout::IndexEntry;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
@@ -206,15 +205,7 @@ pub fn radar_input_for(
     Ok(Some(r))
 }
 
-/// Evenly spaced subset of at most `max` entries (deterministic).
-pub fn subsample(entries: &[IndexEntry], max: Option<usize>) -> Vec<IndexEntry> {
-    match max {
-        Some(m) if m > 0 && entries.len() > m => (0..m)
-            .map(|i| entries[i * entries.len() / m].clone())
-            .collect(),
-        _ => entries.to_vec(),
-    }
-}
+pub use depthsense_dataset::subsample;
 
 fn all_finite(vs: &VarStore) -> bool {
     tch::no_grad(|| {

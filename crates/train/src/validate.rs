@@ -2,14 +2,15 @@
 //! scorer [`score_image`] that `eval`, `eval --predictions` and every experiment use too.
 
 use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader, TargetKind};
-use depthsense_metrics::{EvalConfig, EvalImage, Evaluator, Report};
+use depthsense_metrics::{EvalConfig, Evaluator, Report};
 use depthsense_model::DepthNet;
-use depthsense_prep::layout::{Condition, IndexEntry};
+use depthsense_prep::layout::IndexEntry;
 use indicatif::ProgressBar;
 use tch::{Device, Kind};
 
 use crate::error::TrainError;
 use crate::upload::upload_inputs;
+pub use depthsense_score::{condition_names, score_image};
 
 /// Run `net` over `entries` and feed the decoded depth to the metrics (SPEC §9). `on_batch`
 /// sees every batch with its predictions ([B,H,W] metres, row-major).
@@ -76,34 +77,4 @@ pub fn evaluate_net(
         progress.inc(batch.size as u64);
     }
     Ok(ev.finish())
-}
-
-/// Names of conditions as the metrics rows use them.
-pub fn condition_names(c: &[Condition]) -> Vec<&'static str> {
-    c.iter()
-        .map(|c| match c {
-            Condition::Day => "day",
-            Condition::Night => "night",
-            Condition::Rain => "rain",
-        })
-        .collect()
-}
-
-/// The one scorer (SPEC §9): one image's prediction (metres, row-major, training frame)
-/// against its sparse GT, low-height mask (empty = absent) and scene conditions.
-pub fn score_image(
-    ev: &mut Evaluator,
-    sparse_m: &[f32],
-    lowheight: &[bool],
-    conditions: &[Condition],
-    pred_m: &[f32],
-) -> Result<(), TrainError> {
-    let conds = condition_names(conditions);
-    ev.add(&EvalImage {
-        pred_m,
-        gt_m: sparse_m,
-        lowheight: (!lowheight.is_empty()).then_some(lowheight),
-        conditions: &conds,
-    })?;
-    Ok(())
 }

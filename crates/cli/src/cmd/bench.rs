@@ -1,15 +1,13 @@
-use std::process::ExitCode;
-
-use clap::Subcommand;
+//! `depthsense bench data | synth | model | train | export`: benchmarks that write a JSON report.
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(subcommand)]
-    what: What,
+    pub what: What,
 }
 
-#[derive(Subcommand)]
-enum What {
+#[derive(clap::Subcommand)]
+pub enum What {
     /// Data layer: table loading, prepare throughput, projection time.
     Data(super::bench_data::Args),
     /// Synthetic world generation throughput.
@@ -18,13 +16,6 @@ enum What {
     Model(super::bench_model::Args),
     /// Training and data-loader throughput.
     Train(super::bench_train::Args),
-}
-
-pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    match args.what {
-        What::Data(a) => super::bench_data::run(a),
-        What::Synth(a) => super::bench_synth::run(a),
-        What::Model(a) => super::bench_model::run(a),
-        What::Train(a) => super::bench_train::run(a),
-    }
+    /// The exported ONNX graph in onnxruntime (CPU) beside depthsense's own forward.
+    Export(super::bench_export::Args),
 }

@@ -4,13 +4,12 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_eval::evaluate::{
-    load_model, run_eval_loaded, run_eval_predictions, table_paths, write_tables_with_command,
-    EvalOptions, PredictionsOptions,
-};
-use depthsense_experiments::failure::RadarFailure;
+use depthsense_dataset::outputs::refuse_existing;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_train::outputs::refuse_existing;
+use depthsense_score::predictions::{run_eval_predictions, PredictionsOptions};
+use depthsense_score::tables::{table_paths, write_tables_with_command};
+
+use super::progress::progress_bar;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["checkpoint", "predictions"])))]
@@ -18,93 +17,94 @@ pub struct Args {
     /// Checkpoint written by `train` (e.g. RUN/best.safetensors), or a PyTorch state dict
     /// such as the authors' paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
-    checkpoint: Option<PathBuf>,
+    pub checkpoint: Option<PathBuf>,
     /// Instead of a checkpoint: a folder of another method's predictions, one per sample
     /// token, in the 800x350 training frame: <token>.png (16-bit, depth×256, KITTI
     /// convention) or <token>.npy (float32 metres), or <token>/depth.{npy,png}. Scored with
     /// exactly the same protocol, caps, GT and tables as --checkpoint.
     #[arg(long, conflicts_with_all = ["checkpoint", "config", "set", "radar_drop", "radar_input", "drop_radars", "drop_beyond_m", "clutter"])]
-    predictions: Option<PathBuf>,
+    pub predictions: Option<PathBuf>,
     /// With --predictions: score the samples that have a file and list the others, instead
     /// of failing when some are missing.
     #[arg(long, requires = "predictions")]
-    allow_missing: bool,
+    pub allow_missing: bool,
     /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
     /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
     #[arg(long)]
-    config: Option<String>,
+    pub config: Option<String>,
     /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    pub set: Vec<String>,
     /// Prepared data directory (holds index.json).
     #[arg(long)]
-    data: PathBuf,
+    pub data: PathBuf,
     /// Output directory for tables.md, tables.csv and tables.json
     /// (default: an `eval/` folder beside the checkpoint).
     #[arg(long)]
-    out: Option<PathBuf>,
+    pub out: Option<PathBuf>,
     /// Samples: held-out (the `test` split, or the scenes `train` held out), all, or a split
     /// name of the index (test-day, test-night, official-val, …).
     #[arg(long, default_value = "held-out")]
-    split: String,
+    pub split: String,
     /// Scene modulo `train` used to hold scenes out when no split lists matched.
     #[arg(long, default_value_t = 5)]
-    val_every_scene: usize,
+    pub val_every_scene: usize,
     /// Fraction of radar points removed at random (1.0 = radar absent): sensor failure.
     #[arg(long, default_value_t = 0.0)]
-    radar_drop: f64,
+    pub radar_drop: f64,
     /// Radars absent (sensor failure): channel names, comma separated (e.g.
     /// RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT), or `all`. Dropping only some of a sample's radars
     /// re-rasterises its radar_points.bin without them (samples prepared before that file
     /// existed are refused: re-run `depthsense prepare`).
     #[arg(long, value_delimiter = ',')]
-    drop_radars: Vec<String>,
+    pub drop_radars: Vec<String>,
     /// Remove every radar return (and its height strip) deeper than this many metres.
     #[arg(long)]
-    drop_beyond_m: Option<f64>,
+    pub drop_beyond_m: Option<f64>,
     /// Add this many ghost radar points per sample (deterministic in --seed; README
     /// "Sensor failure" gives the rule).
     #[arg(long, default_value_t = 0)]
-    clutter: usize,
+    pub clutter: usize,
     /// Seed of the radar drop and of the clutter.
     #[arg(long, default_value_t = 0)]
-    seed: u64,
+    pub seed: u64,
     /// Pixels beyond the cap: mask (dropped, default), clamp (GT and prediction clamped:
     /// peers'), or radarnet (RadarNet's evaluation: 0 < GT < cap, prediction not clipped,
     /// per image then mean; README "RadarNet's protocol").
     #[arg(long, default_value = "mask")]
-    protocol: String,
+    pub protocol: String,
     /// Aggregation: image (metrics per image, then mean; default) or pooled (over pixels).
     #[arg(long, default_value = "image")]
-    aggregate: String,
+    pub aggregate: String,
     /// Depth caps in metres (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "50,70,80")]
-    caps: Vec<f64>,
+    pub caps: Vec<f64>,
     /// Batch size of inference.
     #[arg(long, default_value_t = 4)]
-    batch_size: usize,
+    pub batch_size: usize,
     /// Device: auto, cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
-    device: String,
+    pub device: String,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
-    jobs: usize,
+    pub jobs: usize,
     /// Evaluate at most this many samples (evenly spaced).
     #[arg(long)]
-    max_samples: Option<usize>,
+    pub max_samples: Option<usize>,
     /// Radar map(s): height, raw or raw-height (default: from the checkpoint's config).
     #[arg(long)]
-    radar_input: Option<String>,
+    pub radar_input: Option<String>,
     /// Model name in the tables.
     #[arg(long, default_value = "model")]
-    name: String,
+    pub name: String,
     /// Replace tables an earlier `eval` wrote in the output folder (only tables.md, tables.csv
     /// and tables.json); without it they are refused before anything is computed.
     #[arg(long)]
-    force: bool,
+    pub force: bool,
 }
 
-fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
+/// The metrics settings of the command line.
+pub fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
     Ok(EvalConfig {
         caps_m: a.caps.clone(),
         protocol: a.protocol.parse::<Protocol>()?,
@@ -113,67 +113,8 @@ fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
     })
 }
 
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if let Some(dir) = a.predictions.clone() {
-        return run_predictions(a, dir);
-    }
-    let checkpoint = a
-        .checkpoint
-        .clone()
-        .ok_or_else(|| anyhow::anyhow!("give --checkpoint or --predictions"))?;
-    let out = a.out.clone().unwrap_or_else(|| {
-        checkpoint
-            .parent()
-            .map(|p| p.join("eval"))
-            .unwrap_or_else(|| PathBuf::from("eval"))
-    });
-    refuse_existing(&table_paths(&out), a.force, "eval")?;
-    let opts = EvalOptions {
-        checkpoint,
-        config: a.config.clone(),
-        set: a.set.clone(),
-        data: a.data.clone(),
-        split: a.split.clone(),
-        val_every_scene: a.val_every_scene,
-        eval: eval_config(&a)?,
-        radar_drop: a.radar_drop,
-        failure: RadarFailure {
-            drop_radars: a.drop_radars.clone(),
-            drop_beyond_m: a.drop_beyond_m,
-            clutter: a.clutter,
-            perturb: None,
-        },
-        seed: a.seed,
-        batch_size: a.batch_size,
-        device: a.device.clone(),
-        jobs: a.jobs,
-        max_samples: a.max_samples,
-        radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,
-        name: a.name.clone(),
-    };
-    let device = depthsense_model::device::parse_device(&opts.device)?;
-    let (loaded, load_report) =
-        load_model(&opts.checkpoint, opts.config.as_deref(), &opts.set, device)?;
-    if let Some(r) = &load_report {
-        eprint!("{}: {r}", opts.checkpoint.display());
-    }
-    let pb = super::train::progress_bar("eval");
-    let report = run_eval_loaded(&opts, &loaded, &pb)?;
-    pb.finish_and_clear();
-    let models = [(a.name.as_str(), &report)];
-    write_tables_with_command(&out, &models, Some(&command_line()))?;
-    println!("{}", depthsense_metrics::tables::markdown_report(&models));
-    eprintln!(
-        "{} images evaluated (radar drop {}, failure: {}); tables written to {}/tables.{{md,csv,json}}",
-        report.images_seen,
-        opts.radar_drop,
-        opts.failure.label(),
-        out.display()
-    );
-    Ok(ExitCode::SUCCESS)
-}
-
-fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
+/// `eval --predictions DIR` (torch-free: `depthsense` runs it itself).
+pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
     let out = a.out.clone().unwrap_or_else(|| dir.join("eval"));
     refuse_existing(&table_paths(&out), a.force, "eval")?;
     let opts = PredictionsOptions {
@@ -185,7 +126,7 @@ fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
         max_samples: a.max_samples,
         allow_missing: a.allow_missing,
     };
-    let pb = super::train::progress_bar("eval");
+    let pb = progress_bar("eval");
     let (report, sum) = run_eval_predictions(&opts, &pb)?;
     pb.finish_and_clear();
     let models = [(a.name.as_str(), &report)];
@@ -204,6 +145,6 @@ fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
 }
 
 /// The invocation, recorded in tables.json / tables.md.
-fn command_line() -> String {
+pub fn command_line() -> String {
     std::env::args().collect::<Vec<_>>().join(" ")
 }

@@ -1,5 +1,10 @@
+//! Every subcommand's flags (`Args`, torch-free, parsed by both binaries) and the `run` of
+//! the commands that need no network. The network commands' `run` live in
+//! `src/bin/depthsense-net/<name>.rs`.
+
 pub mod bench;
 pub mod bench_data;
+pub mod bench_export;
 pub mod bench_model;
 pub mod bench_synth;
 pub mod bench_train;
@@ -15,6 +20,7 @@ pub mod model_info;
 pub mod model_source;
 pub mod predict;
 pub mod prepare;
+pub mod progress;
 pub mod report;
 pub mod synth;
 pub mod train;

@@ -3,9 +3,6 @@
 
 use std::path::PathBuf;
 
-use depthsense_eval::evaluate::load_model;
-use depthsense_model::checkpoint::Loaded;
-
 #[derive(clap::Args)]
 pub struct ModelSource {
     /// Checkpoint written by `train`, or a PyTorch state dict such as the authors'
@@ -19,16 +16,4 @@ pub struct ModelSource {
     /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-}
-
-impl ModelSource {
-    /// Loads the network on `device`; a PyTorch file's import report goes to stderr.
-    pub fn load(&self, device: tch::Device) -> anyhow::Result<Loaded> {
-        let (loaded, report) =
-            load_model(&self.checkpoint, self.config.as_deref(), &self.set, device)?;
-        if let Some(r) = &report {
-            eprint!("{}: {r}", self.checkpoint.display());
-        }
-        Ok(loaded)
-    }
 }

@@ -2,196 +2,67 @@
 //! files (JPEG + radar PCDs + calibration JSON).
 
 use std::path::PathBuf;
-use std::process::ExitCode;
-
-use depthsense_eval::predict::{
-    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, PredictInput,
-    OUTPUT_FILES,
-};
-use depthsense_nuscenes::depth_png::DepthMap;
-use depthsense_train::outputs::refuse_existing;
-use depthsense_train::trainer::radar_input_for;
 
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]
-    model: super::model_source::ModelSource,
+    pub model: super::model_source::ModelSource,
     /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
     #[arg(long, conflicts_with_all = ["token", "image", "data"])]
-    sample: Option<PathBuf>,
+    pub sample: Option<PathBuf>,
     /// Input 4: every sample of a split of a prepared data directory; writes
     /// OUT/<token>.png (16-bit, depth×256) and/or OUT/<token>.npy (float32 metres), the
     /// layout `eval --predictions` reads.
     #[arg(long, conflicts_with_all = ["token", "image"])]
-    data: Option<PathBuf>,
+    pub data: Option<PathBuf>,
     /// With --data: held-out (test scenes), all, or a split name of the index.
     #[arg(long, default_value = "held-out", requires = "data")]
-    split: String,
+    pub split: String,
     /// With --data: file formats, comma separated (png, npy).
     #[arg(long, value_delimiter = ',', default_value = "png", requires = "data")]
-    format: Vec<String>,
+    pub format: Vec<String>,
     /// With --data: batch size of inference.
     #[arg(long, default_value_t = 4, requires = "data")]
-    batch_size: usize,
+    pub batch_size: usize,
     /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
     #[arg(long, requires = "dataroot", conflicts_with = "image")]
-    token: Option<String>,
+    pub token: Option<String>,
     /// nuScenes-format dataroot for --token.
     #[arg(long)]
-    dataroot: Option<PathBuf>,
+    pub dataroot: Option<PathBuf>,
     /// Version folder for --token.
     #[arg(long, default_value = "v1.0-mini")]
-    version: String,
+    pub version: String,
     /// Input 3: a 1600x900 CAM_FRONT JPEG (with --radar and --calibration).
     #[arg(long, requires = "calibration")]
-    image: Option<PathBuf>,
+    pub image: Option<PathBuf>,
     /// Radar .pcd files for --image (repeat the flag or separate with commas).
     #[arg(long, value_delimiter = ',')]
-    radar: Vec<PathBuf>,
+    pub radar: Vec<PathBuf>,
     /// Calibration JSON for --image: {"camera_intrinsic": 3x3 (full resolution),
     /// "cam_from_radar": {"<radar file name>": 4x4 row-major}}.
     #[arg(long)]
-    calibration: Option<PathBuf>,
+    pub calibration: Option<PathBuf>,
     /// Keep every radar point (disable the devkit filters) for --image / --token.
     #[arg(long)]
-    no_radar_filters: bool,
+    pub no_radar_filters: bool,
     /// Output directory: depth.png (16-bit, depth×256), depth_color.png, radar_overlay.png,
     /// image.png.
     #[arg(long, default_value = "predict")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Depth of the far end of the colour map, metres.
     #[arg(long, default_value_t = 80.0)]
-    max_depth: f32,
+    pub max_depth: f32,
     /// Device: auto, cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
-    device: String,
+    pub device: String,
     /// PDA checkpoint (`depthsense mer train`) that computes the MER maps of the input, for
     /// a model trained with `--radar-input mer` (SPEC §5). Needed for --token and --image;
     /// a prepared sample uses the maps `mer apply` wrote unless this is given.
     #[arg(long)]
-    mer_checkpoint: Option<PathBuf>,
+    pub mer_checkpoint: Option<PathBuf>,
     /// Replace predictions an earlier `predict` wrote in --out (only the files this run
     /// writes); without it they are refused before anything is computed.
     #[arg(long)]
-    force: bool,
-}
-
-fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
-    use depthsense_eval::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
-    let formats = a
-        .format
-        .iter()
-        .map(|f| f.parse::<PredFormat>())
-        .collect::<Result<Vec<_>, _>>()?;
-    let opts = EvalOptions {
-        checkpoint: a.model.checkpoint.clone(),
-        config: a.model.config.clone(),
-        set: a.model.set.clone(),
-        data: data.to_path_buf(),
-        split: a.split.clone(),
-        batch_size: a.batch_size,
-        device: a.device.clone(),
-        ..EvalOptions::default()
-    };
-    let ds = depthsense_data::Dataset::open(data)?;
-    let files: Vec<PathBuf> = select_split(&ds, &opts.split, opts.val_every_scene)?
-        .iter()
-        .flat_map(|e| {
-            formats
-                .iter()
-                .map(|f| a.out.join(format!("{}.{}", e.sample_token, f.ext())))
-        })
-        .collect();
-    refuse_existing(&files, a.force, "predict")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
-    let loaded = a.model.load(device)?;
-    let pb = super::train::progress_bar("predict");
-    let (_, n) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
-    pb.finish_and_clear();
-    eprintln!(
-        "{n} predictions ({}) written to {}",
-        a.format.join(", "),
-        a.out.display()
-    );
-    Ok(ExitCode::SUCCESS)
-}
-
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if let Some(data) = a.data.clone() {
-        return run_dataset(&a, &data);
-    }
-    let mut input = read_input(&a)?;
-    let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
-    refuse_existing(&files, a.force, "predict")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
-    let loaded = a.model.load(device)?;
-    let radar = radar_input_for(&loaded.config, None)?;
-    if let Some(ck) = &a.mer_checkpoint {
-        let pda = depthsense_model::pda::load(ck, device)?;
-        depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
-    }
-    let depth = predict(&loaded.net, &input, radar, device)?;
-    let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
-    print_summary(&input, &depth);
-    for f in files {
-        println!("{}", f.display());
-    }
-    Ok(ExitCode::SUCCESS)
-}
-
-/// The one input of the command line: a prepared sample, a sample token of a dataroot (its
-/// maps computed like `prepare` does), or raw files.
-fn read_input(a: &Args) -> anyhow::Result<PredictInput> {
-    Ok(if let Some(dir) = &a.sample {
-        input_from_prepared(dir)?
-    } else if let Some(token) = &a.token {
-        let dataroot = a
-            .dataroot
-            .as_ref()
-            .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
-        let opts = depthsense_prep::PrepareOptions {
-            dataroot: dataroot.clone(),
-            version: a.version.clone(),
-            radar_filters: !a.no_radar_filters,
-            ..depthsense_prep::PrepareOptions::default()
-        };
-        input_from_token(dataroot, &a.version, token, &opts)?
-    } else if let Some(jpeg) = &a.image {
-        let calib = a
-            .calibration
-            .as_ref()
-            .ok_or_else(|| anyhow::anyhow!("--image needs --calibration"))?;
-        input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
-    } else {
-        anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
-    })
-}
-
-/// The prediction's size, mean depth and radar pixels, and its RMSE against the lidar
-/// ground truth where the input has one (stderr).
-fn print_summary(input: &PredictInput, depth: &DepthMap) {
-    let valid: Vec<f32> = depth.depth_m.iter().copied().filter(|d| *d > 0.0).collect();
-    let mean = valid.iter().map(|d| *d as f64).sum::<f64>() / valid.len().max(1) as f64;
-    eprintln!(
-        "{}: {}x{} depth, mean {mean:.2} m, {} radar pixels",
-        input.name,
-        depth.width,
-        depth.height,
-        input.radar_raw.valid_count()
-    );
-    if let Some(gt) = &input.gt {
-        let (mut n, mut se) = (0usize, 0f64);
-        for (p, g) in depth.depth_m.iter().zip(&gt.depth_m) {
-            if *g > 0.0 && *g <= 80.0 {
-                n += 1;
-                se += ((p.clamp(1.0, 80.0) - g) as f64).powi(2);
-            }
-        }
-        if n > 0 {
-            eprintln!(
-                "RMSE against lidar ({n} px, ≤ 80 m): {:.3} m",
-                (se / n as f64).sqrt()
-            );
-        }
-    }
+    pub force: bool,
 }

@@ -7,37 +7,37 @@ use std::process::ExitCode;
 use anyhow::Context;
 use depthsense_report::{build_report, ReportOptions};
 
-/// A page larger than this gets a warning (browsers and mail handle it, but slowly).
-const LARGE_PAGE_BYTES: usize = 20_000_000;
-
 #[derive(clap::Args)]
 pub struct Args {
     /// Folders searched, recursively, for experiment outputs: ablation.json, reduced_data.json,
     /// failure.json, perturb.json, cost.json, explain.json, tables.json (eval) and MER
     /// reports (`mer report --json`), each with its .md/.csv/.png beside it.
     #[arg(long, required = true, num_args = 1.., value_name = "DIR")]
-    runs: Vec<PathBuf>,
+    pub runs: Vec<PathBuf>,
     /// Output folder: report.html (self-contained), report.md with img/, report.json. A report
     /// already there is refused unless --force.
     #[arg(long, value_name = "REPORT")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Replace a report already in --out (only report.html, report.md, report.json and img/;
     /// other files in the folder are left alone).
     #[arg(long)]
-    force: bool,
+    pub force: bool,
     /// Title of the page.
     #[arg(long, default_value = "depthsense report")]
-    title: String,
+    pub title: String,
     /// How many folder levels below each --runs DIR are searched.
     #[arg(long, default_value_t = 4)]
-    max_depth: usize,
+    pub max_depth: usize,
     /// Plots and grids wider than this many pixels are downscaled before embedding.
     #[arg(long, default_value_t = 1600)]
-    max_width: u32,
+    pub max_width: u32,
     /// Width in pixels of each tile of a figure grid (explain overlays).
     #[arg(long, default_value_t = 400)]
-    tile_width: u32,
+    pub tile_width: u32,
 }
+
+/// A page larger than this gets a warning (browsers and mail handle it, but slowly).
+const LARGE_PAGE_BYTES: usize = 20_000_000;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let opts = ReportOptions {

@@ -1,413 +1,152 @@
 //! `depthsense train`: train a depth network on prepared data (SPEC §8).
 
-use std::ffi::OsString;
 use std::path::PathBuf;
-use std::process::ExitCode;
-use std::time::Duration;
-
-use depthsense_data::{RadarInput, TargetKind};
-use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
-use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
-use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(clap::Args)]
 pub struct Args {
     /// Prepared data directory (output of `depthsense prepare`, holds index.json).
     #[arg(long)]
-    data: PathBuf,
+    pub data: PathBuf,
     /// Model preset: paper, released or tiny.
     #[arg(long, default_value = "paper")]
-    config: String,
+    pub config: String,
     /// Run directory: config.json, metrics.jsonl, curves.png, last/best checkpoints.
     #[arg(long, default_value = "runs/train")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Override the preset's fusion: late, early or none (RGB only).
     #[arg(long)]
-    fusion: Option<String>,
+    pub fusion: Option<String>,
     /// Override the preset's head: ordinal, l1 or l2.
     #[arg(long)]
-    head: Option<String>,
+    pub head: Option<String>,
     /// Override the preset's Dropout2d probability in the head (paper: 0.5).
     #[arg(long)]
-    dropout: Option<f64>,
+    pub dropout: Option<f64>,
     /// Disable the spatial attention module of late fusion.
     #[arg(long)]
-    no_attention: bool,
+    pub no_attention: bool,
     /// Any model-config field as key=value (repeatable), applied after the options above;
     /// e.g. `--set width=32 --set head-channels=64` (see `depthsense model-info --help`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    pub set: Vec<String>,
     /// Epochs (paper: 40).
     #[arg(long, default_value_t = 40)]
-    epochs: usize,
+    pub epochs: usize,
     /// Batch size (paper: 8).
     #[arg(long, default_value_t = 8)]
-    batch_size: usize,
+    pub batch_size: usize,
     /// Initial learning rate (paper: 1e-3).
     #[arg(long, default_value_t = 1e-3)]
-    lr: f64,
+    pub lr: f64,
     /// Power of the per-iteration polynomial decay to 0 (paper: 0.9).
     #[arg(long, default_value_t = 0.9)]
-    lr_power: f64,
+    pub lr_power: f64,
     /// SGD momentum (paper: 0.9).
     #[arg(long, default_value_t = 0.9)]
-    momentum: f64,
+    pub momentum: f64,
     /// Weight decay (paper: 1e-4).
     #[arg(long, default_value_t = 1e-4)]
-    weight_decay: f64,
+    pub weight_decay: f64,
     /// Seed of initialisation, shuffling, augmentation and dropout.
     #[arg(long, default_value_t = 0)]
-    seed: u64,
+    pub seed: u64,
     /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]
-    device: String,
+    pub device: String,
     /// Mixed precision (bf16 autocast of the forward pass; CUDA only, ignored on CPU).
     #[arg(long)]
-    amp: bool,
+    pub amp: bool,
     /// torchvision ResNet state dict (e.g. resnet101.pth) to initialise the RGB encoder.
     #[arg(long)]
-    backbone_weights: Option<PathBuf>,
+    pub backbone_weights: Option<PathBuf>,
     /// Continue exactly from OUT/last.safetensors (same options required).
     #[arg(long)]
-    resume: bool,
+    pub resume: bool,
     /// Start over in an --out that holds a run: its config.json, metrics.jsonl, curves.png and
     /// checkpoints are removed first (other files stay). Without --resume or --force such a
     /// folder is refused.
     #[arg(long, conflicts_with = "resume")]
-    force: bool,
+    pub force: bool,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
-    jobs: usize,
+    pub jobs: usize,
     /// Batches decoded ahead of the training step.
     #[arg(long, default_value_t = 4)]
-    prefetch: usize,
+    pub prefetch: usize,
     /// Radar map(s) for the radar channels: height, raw, raw-height or mer (raw + 6 MER
     /// channels, after `depthsense mer apply`; sets radar_channels = 7). Default: from the
     /// model's radar_channels (1 → height, 2 → raw-height, 7 → mer). Stored in the
     /// checkpoint's model config: `eval` and `predict` feed the same input.
     #[arg(long)]
-    radar_input: Option<String>,
+    pub radar_input: Option<String>,
     /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
     #[arg(long, default_value = "dense")]
-    target: String,
+    pub target: String,
     /// Disable flip and brightness/colour/gamma jitter.
     #[arg(long)]
-    no_augment: bool,
+    pub no_augment: bool,
     /// Training-time radar dropout (not in the paper): each training sample loses a fraction
     /// U(0, P) of its radar returns with their height-extended strips, so that the network
     /// cannot read "no return here" as a depth cue. 0 = off. README, "What the demo shows".
     #[arg(long, default_value_t = 0.0, value_name = "P")]
-    train_radar_drop: f64,
+    pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations, then the poly decay (0 = none,
     /// the paper).
     #[arg(long, default_value_t = 0, value_name = "N")]
-    warmup: u64,
+    pub warmup: u64,
     /// Only for data prepared without validation lists: every N-th training scene (sorted by
     /// name) is held out for validation (and, without any split lists, every N-th scene is
     /// test and the one before it validation). Never selects on test scenes.
     #[arg(long, default_value_t = 5)]
-    val_every_scene: usize,
+    pub val_every_scene: usize,
     /// Withhold a fraction of one condition's TRAINING scenes (SPEC §10.5), e.g.
     /// `night=1.0,rain=0.5`: per condition, its training scenes ordered by a fixed hash of
     /// the scene name, the first round(fraction × n) withheld (README "Reduced training
     /// data"). Validation and test scenes are unchanged.
     #[arg(long, value_delimiter = ',', value_name = "CONDITION=FRACTION")]
-    exclude: Vec<String>,
+    pub exclude: Vec<String>,
     /// Validate on at most this many validation samples (evenly spaced).
     #[arg(long)]
-    max_val_samples: Option<usize>,
+    pub max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
     #[arg(long)]
-    max_batches_per_epoch: Option<usize>,
+    pub max_batches_per_epoch: Option<usize>,
     /// Also write OUT/last.safetensors every N iterations (0 = only at epoch ends).
     #[arg(long, default_value_t = 0)]
-    checkpoint_every: u64,
+    pub checkpoint_every: u64,
     /// Read the training loss to the host every N iterations (one GPU synchronisation per N;
     /// always before checkpoints and at epoch ends). 0 = 1 on the CPU, 25 on CUDA.
     #[arg(long, default_value_t = 0, value_name = "N")]
-    loss_read_every: u64,
+    pub loss_read_every: u64,
     /// Stop after this global iteration (checkpointed; continue with --resume).
     #[arg(long)]
-    stop_after: Option<u64>,
+    pub stop_after: Option<u64>,
     /// Validation protocol beyond the cap: mask (drop) or clamp (peers').
     #[arg(long, default_value = "mask")]
-    protocol: String,
+    pub protocol: String,
     /// Validation aggregation: image (per image, then mean) or pooled (over all pixels).
     #[arg(long, default_value = "image")]
-    aggregate: String,
+    pub aggregate: String,
     /// Data-parallel: start N local worker processes (one per GPU, or N CPU processes) with
     /// the environment torchrun sets. --batch-size is the global batch (a multiple of N).
     /// Under torchrun / srun leave this out: the workers read RANK, WORLD_SIZE, … themselves.
     #[arg(long, value_name = "N")]
-    nproc: Option<usize>,
+    pub nproc: Option<usize>,
     /// With --nproc: the rendezvous port on 127.0.0.1 (default: a free one).
     #[arg(long)]
-    master_port: Option<u16>,
+    pub master_port: Option<u16>,
     /// Data-parallel: SyncBatchNorm (batch statistics over the global batch), so N ranks
     /// train as one process with the same global batch.
     #[arg(long)]
-    sync_bn: bool,
+    pub sync_bn: bool,
     /// Data-parallel: seconds before a rendezvous or collective fails (naming the peer).
     #[arg(long, default_value_t = 300)]
-    dist_timeout: u64,
+    pub dist_timeout: u64,
     /// Data-parallel: gradient all-reduce bucket size in MB (DDP's default 25).
     #[arg(long, default_value_t = 25.0)]
-    bucket_mb: f64,
+    pub bucket_mb: f64,
     /// Data-parallel: after every step check that each rank's model equals rank 0's
     /// (bitwise; one broadcast of the model per step — for tests and debugging).
     #[arg(long)]
-    check_replicas: bool,
-}
-
-/// This process's arguments without `--nproc N` (what each worker runs).
-fn worker_args() -> Vec<OsString> {
-    let mut out = vec![];
-    let mut it = std::env::args_os().skip(1);
-    while let Some(a) = it.next() {
-        if a == "--nproc" {
-            it.next();
-        } else if a.to_string_lossy().starts_with("--nproc=") {
-        } else {
-            out.push(a);
-        }
-    }
-    out
-}
-
-pub fn parse_fusion(s: &str) -> anyhow::Result<Fusion> {
-    Ok(match s {
-        "late" => Fusion::Late,
-        "early" => Fusion::Early,
-        "none" | "rgb" => Fusion::None,
-        o => anyhow::bail!("unknown fusion {o:?} (late, early, none)"),
-    })
-}
-
-pub fn parse_head(s: &str) -> anyhow::Result<HeadKind> {
-    Ok(match s {
-        "ordinal" => HeadKind::Ordinal,
-        "l1" => HeadKind::L1,
-        "l2" => HeadKind::L2,
-        o => anyhow::bail!("unknown head {o:?} (ordinal, l1, l2)"),
-    })
-}
-
-pub fn progress_bar(prefix: &str) -> ProgressBar {
-    let pb = ProgressBar::new(0);
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>6.bold} [{bar:30}] {pos}/{len} {elapsed_precise} ETA {eta} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(prefix.to_string());
-    pb
-}
-
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let timeout = Duration::from_secs(a.dist_timeout.max(1));
-    if let Some(n) = a.nproc {
-        return launch_workers(&a, n, timeout);
-    }
-    let dist = DistArgs {
-        sync_bn: a.sync_bn,
-        bucket_mb: a.bucket_mb,
-        check_replicas: a.check_replicas,
-        timeout,
-    };
-    let out = a.out.clone();
-    let model = model_config(&a)?;
-    let opts = train_options(a, model)?;
-    let Some((s, pb)) = train_this_process(opts, &dist)? else {
-        // a rank other than 0: rank 0 reports
-        return Ok(ExitCode::SUCCESS);
-    };
-    pb.finish();
-    print_summary(&s, &out);
-    Ok(ExitCode::SUCCESS)
-}
-
-/// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
-/// (each this command without `--nproc`) and wait for them.
-fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
-    // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
-    if !a.resume && !a.force {
-        depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
-    }
-    // Another writer fails us here, at once (taken and released: rank 0 holds it next).
-    drop(depthsense_nuscenes::lock::OutputLock::exclusive(
-        &a.out,
-        "depthsense train",
-    )?);
-    distributed::launch_local(
-        n,
-        &worker_args(),
-        a.master_port,
-        timeout + Duration::from_secs(30),
-    )?;
-    Ok(ExitCode::SUCCESS)
-}
-
-/// The preset with the command line's model options applied, `--set` last.
-fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
-    let mut model = ModelConfig::preset(&a.config)?;
-    if let Some(f) = &a.fusion {
-        model.fusion = parse_fusion(f)?;
-        if model.fusion != Fusion::Late {
-            model.attention = false;
-        }
-    }
-    if let Some(h) = &a.head {
-        model.head = parse_head(h)?;
-    }
-    if let Some(d) = a.dropout {
-        model.dropout = d;
-    }
-    if a.no_attention {
-        model.attention = false;
-    }
-    if let Some(r) = &a.radar_input {
-        // The radar input fixes the channel count (mer: raw + 6 MER = 7, SPEC §5).
-        model.set_option("radar-input", r)?;
-    }
-    Ok(model.with_options(&a.set)?)
-}
-
-/// The trainer's options from the command line and the resolved `model`.
-fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
-    Ok(TrainOptions {
-        data: a.data,
-        out: a.out.clone(),
-        model,
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        lr_power: a.lr_power,
-        momentum: a.momentum,
-        weight_decay: a.weight_decay,
-        seed: a.seed,
-        device: a.device,
-        amp: a.amp,
-        backbone_weights: a.backbone_weights,
-        resume: a.resume,
-        force: a.force,
-        jobs: a.jobs,
-        prefetch: a.prefetch,
-        radar_input: a
-            .radar_input
-            .as_deref()
-            .map(str::parse::<RadarInput>)
-            .transpose()?,
-        target: match a.target.as_str() {
-            "dense" => TargetKind::Dense,
-            "sparse" => TargetKind::Sparse,
-            o => anyhow::bail!("unknown target {o:?} (dense, sparse)"),
-        },
-        augment: !a.no_augment,
-        val_every_scene: a.val_every_scene,
-        exclude: a
-            .exclude
-            .iter()
-            .map(|x| x.parse::<depthsense_experiments::reduced_data::Exclusion>())
-            .collect::<Result<Vec<_>, _>>()?,
-        max_val_samples: a.max_val_samples,
-        max_batches_per_epoch: a.max_batches_per_epoch,
-        checkpoint_every: a.checkpoint_every,
-        loss_read_every: a.loss_read_every,
-        train_radar_drop: a.train_radar_drop,
-        warmup_iters: a.warmup,
-        stop_after: a.stop_after,
-        eval: EvalConfig {
-            protocol: a.protocol.parse::<Protocol>()?,
-            aggregate: a.aggregate.parse::<Aggregate>()?,
-            ..EvalConfig::default()
-        },
-    })
-}
-
-/// The data-parallel options of the command line.
-struct DistArgs {
-    sync_bn: bool,
-    bucket_mb: f64,
-    check_replicas: bool,
-    /// Rendezvous and collective timeout.
-    timeout: Duration,
-}
-
-/// Train in this process: alone, or as one rank of the job the environment describes.
-/// `None` on ranks other than 0 (they print nothing).
-fn train_this_process(
-    mut opts: TrainOptions,
-    d: &DistArgs,
-) -> anyhow::Result<Option<(TrainSummary, ProgressBar)>> {
-    let env = match DistEnv::from_env()? {
-        None => {
-            if d.sync_bn {
-                eprintln!("note: --sync-bn has no effect in a single process");
-            }
-            let pb = progress_bar("train");
-            return Ok(Some((train(&opts, &pb)?, pb)));
-        }
-        Some(env) => env,
-    };
-    opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
-    let device = depthsense_model::device::parse_device(&opts.device)?;
-    let dopts = DistOptions {
-        sync_bn: d.sync_bn,
-        bucket_bytes: (d.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
-        check_replicas: d.check_replicas,
-    };
-    let who = format!("rank {} of {}", env.rank, env.world_size);
-    let dist = Dist::from_env(dopts, device, d.timeout)
-        .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
-        .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
-    let pb = if env.rank == 0 {
-        progress_bar("train")
-    } else {
-        ProgressBar::hidden()
-    };
-    let s = train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
-    if env.rank != 0 {
-        return Ok(None);
-    }
-    Ok(Some((s, pb)))
-}
-
-/// The run's summary on stderr: iterations, times, validation RMSE over the whole history.
-fn print_summary(s: &TrainSummary, out: &std::path::Path) {
-    // The whole history (a resumed run's summary only holds its own epochs).
-    let history =
-        depthsense_train::trainer::read_metrics(&out.join(depthsense_train::trainer::METRICS_FILE))
-            .map(|(_, v)| v)
-            .unwrap_or_else(|_| s.val.clone());
-    let first = history.first().map_or(f64::NAN, |v| v.rmse);
-    let last = history.last().map_or(f64::NAN, |v| v.rmse);
-    eprintln!(
-        "{} iterations of {} in {:.1} s (training {:.1} s at {:.2} img/s, validation {:.1} s, \
-         the rest set-up and checkpoints); validation RMSE {first:.3} m → {last:.3} m \
-         (best {}) on {} validation samples ({})",
-        s.iterations_done,
-        s.total_iterations,
-        s.seconds,
-        s.train_seconds,
-        s.train_images_per_s,
-        s.val_seconds,
-        if s.best_val_rmse.is_finite() {
-            format!("{:.3} m", s.best_val_rmse)
-        } else {
-            "none yet: no epoch completed".to_string()
-        },
-        s.partition.val.len(),
-        s.partition.method
-    );
-    if s.interrupted {
-        eprintln!(
-            "stopped at iteration {} as asked; continue with --resume",
-            s.iterations_done
-        );
-    }
-    eprintln!("run directory: {}", out.display());
+    pub check_replicas: bool,
 }

@@ -4,12 +4,12 @@
 
 use std::path::Path;
 
-use depthsense_data::error::TrainError;
+use depthsense_dataset::DataError;
 
 const MAGIC: &[u8] = b"\x93NUMPY";
 
-fn bad(path: &Path, why: impl Into<String>) -> TrainError {
-    TrainError::Parse {
+fn bad(path: &Path, why: impl Into<String>) -> DataError {
+    DataError::Parse {
         path: path.display().to_string(),
         reason: why.into(),
     }
@@ -46,7 +46,7 @@ fn dict_value<'a>(dict: &'a str, key: &str) -> Option<&'a str> {
 }
 
 /// Decode a `.npy` float array as (values, height, width).
-pub fn decode(bytes: &[u8], path: &Path) -> Result<(Vec<f32>, usize, usize), TrainError> {
+pub fn decode(bytes: &[u8], path: &Path) -> Result<(Vec<f32>, usize, usize), DataError> {
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
         return Err(bad(path, "not a .npy file (magic missing)"));
     }

@@ -8,13 +8,13 @@
 
 use std::path::{Path, PathBuf};
 
-use depthsense_data::error::TrainError;
-use depthsense_data::{partition, read_depth, Dataset};
+use depthsense_dataset::DataError;
+use depthsense_dataset::{partition, read_depth, Dataset};
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{derive_channels, read_mer_maps, THRESHOLDS};
+use depthsense_dataset::mer_maps::{derive_channels, read_mer_maps, THRESHOLDS};
 
 /// One row of the report.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -46,7 +46,7 @@ pub struct MerReport {
 /// Per map of one sample: (name, pixels with depth, relative errors at covered GT pixels).
 type SampleStats = Vec<(String, u64, Vec<f32>)>;
 
-fn sample_stats(dir: &Path, cap_m: f32) -> Result<(u64, SampleStats), TrainError> {
+fn sample_stats(dir: &Path, cap_m: f32) -> Result<(u64, SampleStats), DataError> {
     let gt = read_depth(&dir.join(LIDAR_SPARSE_FILE))?;
     let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
     let height = read_depth(&dir.join(RADAR_HEIGHT_FILE))?;
@@ -57,7 +57,7 @@ fn sample_stats(dir: &Path, cap_m: f32) -> Result<(u64, SampleStats), TrainError
         ("height", height.depth_m.len()),
     ] {
         if len != n || md.depth_m.len() != n {
-            return Err(TrainError::Data(format!(
+            return Err(DataError::Data(format!(
                 "{}: {name} / MER maps and the lidar GT differ in size",
                 dir.display()
             )));
@@ -98,14 +98,14 @@ fn quantile(sorted: &[f32], q: f64) -> f64 {
 }
 
 /// Samples of `split`: "held-out" = the test scenes of the train/val/test partition.
-fn entries_of(ds: &Dataset, split: &str) -> Result<Vec<IndexEntry>, TrainError> {
+fn entries_of(ds: &Dataset, split: &str) -> Result<Vec<IndexEntry>, DataError> {
     let e = if split == "held-out" {
         partition(ds, 5)?.test
     } else {
         ds.split(split)
     };
     if e.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(DataError::Data(format!(
             "{}: no samples in split {split:?}",
             ds.root.display()
         )));
@@ -114,7 +114,7 @@ fn entries_of(ds: &Dataset, split: &str) -> Result<Vec<IndexEntry>, TrainError> 
 }
 
 /// Measure every map on the samples of `split` (GT ≤ `cap_m`).
-pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, TrainError> {
+pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, DataError> {
     let ds = Dataset::open(data)?;
     let entries = entries_of(&ds, split)?;
     let per: Vec<(u64, SampleStats)> = entries

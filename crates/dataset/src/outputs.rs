@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::error::TrainError;
+use crate::error::DataError;
 
 // The files of a training run folder (SPEC §8; `trainer` re-exports them).
 pub const CONFIG_FILE: &str = "config.json";
@@ -113,7 +113,7 @@ pub fn claim_run_folder(
     command: &str,
     resume: bool,
     force: bool,
-) -> Result<Option<RunHolds>, TrainError> {
+) -> Result<Option<RunHolds>, DataError> {
     let Some(holds) = run_in(dir) else {
         return Ok(None);
     };
@@ -121,7 +121,7 @@ pub fn claim_run_folder(
         return Ok(None);
     }
     if !force {
-        return Err(TrainError::OutputExists {
+        return Err(DataError::OutputExists {
             dir: dir.display().to_string(),
             what: holds.to_string(),
             advice: format!(
@@ -141,7 +141,7 @@ pub fn claim_run_folder(
         match std::fs::remove_file(&p) {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(TrainError::io(&p, e)),
+            Err(e) => return Err(DataError::io(&p, e)),
         }
     }
     Ok(Some(holds))
@@ -150,7 +150,7 @@ pub fn claim_run_folder(
 /// The results-folder rule: `files` are what `command` is about to write; when some exist and
 /// `force` is not given, refuse (naming up to five of them and the count). With `force`, say
 /// how many will be replaced.
-pub fn refuse_existing(files: &[PathBuf], force: bool, command: &str) -> Result<(), TrainError> {
+pub fn refuse_existing(files: &[PathBuf], force: bool, command: &str) -> Result<(), DataError> {
     let existing: Vec<&PathBuf> = files.iter().filter(|p| p.exists()).collect();
     if existing.is_empty() {
         return Ok(());
@@ -180,7 +180,7 @@ pub fn refuse_existing(files: &[PathBuf], force: bool, command: &str) -> Result<
     } else {
         String::new()
     };
-    Err(TrainError::OutputExists {
+    Err(DataError::OutputExists {
         dir,
         what: format!(
             "results of an earlier `{command}` ({}{more})",

@@ -1,0 +1,170 @@
+//! `depthsense bench export` (the network side; its flags: `depthsense_cli::cmd::bench_export`):
+//! random weights (seed 0) → a checkpoint → `export --format onnx` → onnxruntime's CPU latency,
+//! and depthsense's own forward + decode on the same inputs with the same threads.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use depthsense_cli::cmd::bench_export::Args;
+use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
+use depthsense_export::ort_bench::{time_onnxruntime, GraphInput};
+use depthsense_export::{export, Batch, ExportOptions, Format, Precision};
+use depthsense_model::{checkpoint, report, DepthNet, Fusion, ModelConfig};
+use serde::Serialize;
+use tch::{nn, Device, Kind, Tensor};
+
+use super::bench_model::{summarise, time_it, Timing};
+
+/// The frame of the graph's contract (SPEC §3).
+const HEIGHT: usize = 350;
+const WIDTH: usize = 800;
+
+#[derive(Serialize)]
+struct Results {
+    config: String,
+    params: i64,
+    height: usize,
+    width: usize,
+    batch: usize,
+    threads: usize,
+    warmup: usize,
+    repeats: usize,
+    /// depthsense (libtorch, this process): forward and decode to full-resolution depth.
+    depthsense: Timing,
+    /// onnxruntime on the exported graph (image normalisation and decode inside it).
+    onnxruntime: Timing,
+    onnxruntime_version: String,
+    onnxruntime_providers: Vec<String>,
+    /// Seconds of `export --format onnx` (trace, conversion, full check).
+    export_s: f64,
+    onnx_bytes: u64,
+    /// The two depth maps on the same input: largest |Δ| and the fraction within 1 mm.
+    max_abs_diff_m: f64,
+    frac_within_1mm: f64,
+}
+
+/// Random inputs as the graph takes them: RGB in [0, 1] and sparse radar in metres.
+fn inputs(cfg: &ModelConfig, batch: usize) -> (Tensor, Tensor) {
+    let (b, h, w) = (batch as i64, HEIGHT as i64, WIDTH as i64);
+    let image = Tensor::rand([b, 3, h, w], (Kind::Float, Device::Cpu));
+    let c = cfg.radar_channels;
+    let mask = Tensor::rand([b, c, h, w], (Kind::Float, Device::Cpu)).lt(0.03);
+    let radar = (Tensor::rand([b, c, h, w], (Kind::Float, Device::Cpu)) * 60.0 + 2.0) * mask;
+    (image, radar)
+}
+
+fn values(t: &Tensor) -> anyhow::Result<Vec<f32>> {
+    Ok(Vec::<f32>::try_from(t.contiguous().view([-1]))?)
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let cfg = ModelConfig::resolve(&a.preset)?.with_options(&a.set)?;
+    if let Some(n) = a.threads {
+        tch::set_num_threads(n as i32);
+    }
+    let threads = tch::get_num_threads().max(1) as usize;
+    tch::manual_seed(0);
+    let vs = nn::VarStore::new(Device::Cpu);
+    let net = DepthNet::new(&vs.root(), &cfg)?;
+    let params = report::model_report(&vs, &net, HEIGHT as i64, WIDTH as i64).total_params;
+
+    let work = tempfile::tempdir().context("temporary folder")?;
+    let ckpt = work.path().join("random.safetensors");
+    checkpoint::save(&ckpt, &vs, &cfg, &serde_json::Value::Null)?;
+    let onnx = work.path().join("model.onnx");
+    eprintln!("exporting {} ({params} parameters) to ONNX …", cfg.name);
+    let t = Instant::now();
+    export(&ExportOptions {
+        checkpoint: ckpt,
+        config: None,
+        set: vec![],
+        format: Format::Onnx,
+        out: onnx.clone(),
+        batch: Batch::Dynamic,
+        precision: Precision::Fp32,
+        force: true,
+        python: a.python.clone(),
+    })?;
+    let export_s = t.elapsed().as_secs_f64();
+    let onnx_bytes = std::fs::metadata(&onnx)?.len();
+
+    let (image, radar) = inputs(&cfg, a.batch);
+    let mean = Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]);
+    let std = Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]);
+    let normalised = (&image - &mean) / &std;
+    let _guard = tch::no_grad_guard();
+    let forward = || {
+        net.decode_to(
+            &net.forward_t(&normalised, &radar, false),
+            HEIGHT as i64,
+            WIDTH as i64,
+        )
+    };
+    eprintln!("timing depthsense …");
+    let ours = time_it(Device::Cpu, a.warmup, a.repeats, a.batch as i64, || {
+        let _ = forward();
+    });
+    let ours_depth = values(&forward().to_kind(Kind::Float))?;
+
+    eprintln!("timing onnxruntime …");
+    let (image_v, radar_v) = (values(&image)?, values(&radar)?);
+    let mut graph_inputs = vec![GraphInput {
+        name: "image",
+        values: &image_v,
+        shape: vec![a.batch, 3, HEIGHT, WIDTH],
+    }];
+    if cfg.fusion != Fusion::None {
+        graph_inputs.push(GraphInput {
+            name: "radar",
+            values: &radar_v,
+            shape: vec![a.batch, cfg.radar_channels as usize, HEIGHT, WIDTH],
+        });
+    }
+    let ort = time_onnxruntime(
+        a.python.as_deref(),
+        &onnx,
+        &graph_inputs,
+        "CPUExecutionProvider",
+        threads,
+        a.warmup,
+        a.repeats,
+    )?;
+    anyhow::ensure!(
+        ort.depth_m.len() == ours_depth.len(),
+        "onnxruntime returned {} depth values, depthsense {}",
+        ort.depth_m.len(),
+        ours_depth.len()
+    );
+    let diffs: Vec<f64> = ort
+        .depth_m
+        .iter()
+        .zip(&ours_depth)
+        .map(|(x, y)| (x - y).abs() as f64)
+        .collect();
+    let res = Results {
+        config: cfg.name.clone(),
+        params,
+        height: HEIGHT,
+        width: WIDTH,
+        batch: a.batch,
+        threads,
+        warmup: a.warmup,
+        repeats: a.repeats,
+        depthsense: ours,
+        onnxruntime: summarise(a.batch as i64, &ort.ms),
+        onnxruntime_version: ort.onnxruntime_version,
+        onnxruntime_providers: ort.providers,
+        export_s,
+        onnx_bytes,
+        max_abs_diff_m: diffs.iter().copied().fold(0.0, f64::max),
+        frac_within_1mm: diffs.iter().filter(|d| **d <= 1e-3).count() as f64 / diffs.len() as f64,
+    };
+    let text = serde_json::to_string_pretty(&res)?;
+    println!("{text}");
+    if let Some(p) = &a.out {
+        depthsense_nuscenes::fsutil::write_atomic(p, format!("{text}\n").as_bytes())
+            .with_context(|| p.display().to_string())?;
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,49 @@
+//! `depthsense explain`: Grad-CAM++ maps by distance class (SPEC §10.6) of a checkpoint on (the network side; its flags: `depthsense_cli::cmd::explain`).
+
+use depthsense_cli::cmd::explain::Args;
+use depthsense_data::Dataset;
+use depthsense_eval::evaluate::{load_model, select_split};
+use depthsense_eval::explain::run_explain;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let dirs = if let Some(data) = &a.data {
+        let ds = Dataset::open(data)?;
+        let e = depthsense_train::trainer::subsample(
+            &select_split(&ds, &a.split, 5)?,
+            Some(a.max_samples),
+        );
+        e.iter().map(|x| ds.sample_dir(x)).collect()
+    } else {
+        a.sample.clone()
+    };
+    if dirs.is_empty() {
+        anyhow::bail!("give --sample DIR (repeatable) or --data P");
+    }
+    let own: Vec<PathBuf> = ["explain.json", "explain.md", "grid.png"]
+        .iter()
+        .map(|f| a.out.join(f))
+        .collect();
+    depthsense_train::outputs::refuse_existing(&own, a.force, "explain")?;
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let (loaded, _) = load_model(&a.checkpoint, a.config.as_deref(), &[], device)?;
+    let r = run_explain(
+        &loaded.net,
+        &a.checkpoint,
+        &dirs,
+        &a.distances,
+        a.band,
+        &a.layer,
+        &a.out,
+        device,
+        Some(std::env::args().collect::<Vec<_>>().join(" ")),
+    )?;
+    println!("{}", std::fs::read_to_string(a.out.join("explain.md"))?);
+    eprintln!(
+        "{} maps; grid {}",
+        r.records.len(),
+        a.out.join(&r.grid).display()
+    );
+    Ok(ExitCode::SUCCESS)
+}

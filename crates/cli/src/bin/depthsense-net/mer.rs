@@ -1,0 +1,94 @@
+//! `depthsense mer train | apply | report`: MER, the multi-channel enhanced radar (SPEC §5). (the network side; its flags: `depthsense_cli::cmd::mer`).
+
+use depthsense_cli::cmd::mer::{ApplyArgs, Args, Command, TrainArgs};
+use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_mer::apply::{apply, MerApplyOptions};
+use depthsense_mer::train::{train_pda, MerTrainOptions};
+use depthsense_model::pda::PdaConfig;
+use std::process::ExitCode;
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    match a.command {
+        Command::Train(t) => run_train(t),
+        Command::Apply(x) => run_apply(x),
+        Command::Report(r) => depthsense_cli::cmd::mer::run_report(r),
+    }
+}
+
+fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
+    let opts = MerTrainOptions {
+        data: a.data,
+        out: a.out,
+        pda: {
+            let mut c = PdaConfig::resolve(&a.config)?;
+            if let Some(e) = a.affinity {
+                c.affinity_channels = e;
+                c.validate()?;
+            }
+            c
+        },
+        epochs: a.epochs,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        weight_decay: a.weight_decay,
+        seed: a.seed,
+        device: a.device,
+        resume: a.resume,
+        force: a.force,
+        jobs: a.jobs,
+        augment: !a.no_augment,
+        max_val_samples: a.max_val_samples,
+        val_every_scene: a.val_every_scene,
+        ..MerTrainOptions::default()
+    };
+    let pb = progress_bar("mer");
+    let s = train_pda(&opts, &pb)?;
+    pb.finish_and_clear();
+    for v in &s.val {
+        eprintln!(
+            "epoch {:>3}: val loss {:.4} precision {:.3} recall {:.3} AUC {:.3} ({} pairs, {} positive)",
+            v.epoch, v.loss, v.precision, v.recall, v.auc, v.pairs, v.positives
+        );
+    }
+    eprintln!(
+        "PDA {} ({} parameters): best val AUC {:.3}, {} iterations in {:.1} s → {}",
+        opts.pda.name,
+        s.parameters,
+        s.best_auc,
+        s.iterations,
+        s.seconds,
+        s.run_dir.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn run_apply(a: ApplyArgs) -> anyhow::Result<ExitCode> {
+    let opts = MerApplyOptions {
+        data: a.data,
+        checkpoint: a.checkpoint,
+        device: a.device,
+        jobs: a.jobs,
+        batch_size: a.batch_size,
+        network_threads: a.network_threads,
+        force: a.force,
+        preview: a.preview,
+        preview_dir: a.preview_dir,
+    };
+    let pb = progress_bar("mer");
+    let s = apply(&opts, &pb)?;
+    pb.finish_and_clear();
+    eprintln!(
+        "MER maps: {} written ({:.2} samples/s; network {:.1} ms/image), {} already done, \
+         {:.1} s → {}",
+        s.written,
+        s.samples_per_s,
+        1e3 * s.network_seconds / s.written.max(1) as f64,
+        s.skipped,
+        s.seconds,
+        opts.data.display()
+    );
+    for p in &s.previews {
+        println!("{}", p.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,20 @@
+//! Loading the network a command names (`depthsense_cli::cmd::model_source::ModelSource`:
+//! `--checkpoint`, `--config`, `--set`), as `predict` and `export` take it.
+
+use depthsense_cli::cmd::model_source::ModelSource;
+use depthsense_eval::evaluate::load_model;
+use depthsense_model::checkpoint::Loaded;
+
+/// Loads the network on `device`; a PyTorch file's import report goes to stderr.
+pub fn load(source: &ModelSource, device: tch::Device) -> anyhow::Result<Loaded> {
+    let (loaded, report) = load_model(
+        &source.checkpoint,
+        source.config.as_deref(),
+        &source.set,
+        device,
+    )?;
+    if let Some(r) = &report {
+        eprint!("{}: {r}", source.checkpoint.display());
+    }
+    Ok(loaded)
+}

@@ -1,0 +1,133 @@
+//! `depthsense predict`: depth for a prepared sample, a sample token of a dataroot, or raw (the network side; its flags: `depthsense_cli::cmd::predict`).
+
+use depthsense_cli::cmd::predict::Args;
+use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_eval::predict::{
+    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, PredictInput,
+    OUTPUT_FILES,
+};
+use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_train::outputs::refuse_existing;
+use depthsense_train::trainer::radar_input_for;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
+    use depthsense_eval::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
+    let formats = a
+        .format
+        .iter()
+        .map(|f| f.parse::<PredFormat>())
+        .collect::<Result<Vec<_>, _>>()?;
+    let opts = EvalOptions {
+        checkpoint: a.model.checkpoint.clone(),
+        config: a.model.config.clone(),
+        set: a.model.set.clone(),
+        data: data.to_path_buf(),
+        split: a.split.clone(),
+        batch_size: a.batch_size,
+        device: a.device.clone(),
+        ..EvalOptions::default()
+    };
+    let ds = depthsense_data::Dataset::open(data)?;
+    let files: Vec<PathBuf> = select_split(&ds, &opts.split, opts.val_every_scene)?
+        .iter()
+        .flat_map(|e| {
+            formats
+                .iter()
+                .map(|f| a.out.join(format!("{}.{}", e.sample_token, f.ext())))
+        })
+        .collect();
+    refuse_existing(&files, a.force, "predict")?;
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let loaded = super::model_source::load(&a.model, device)?;
+    let pb = progress_bar("predict");
+    let (_, n) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
+    pb.finish_and_clear();
+    eprintln!(
+        "{n} predictions ({}) written to {}",
+        a.format.join(", "),
+        a.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if let Some(data) = a.data.clone() {
+        return run_dataset(&a, &data);
+    }
+    let mut input = read_input(&a)?;
+    let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
+    refuse_existing(&files, a.force, "predict")?;
+    let device = depthsense_model::device::parse_device(&a.device)?;
+    let loaded = super::model_source::load(&a.model, device)?;
+    let radar = radar_input_for(&loaded.config, None)?;
+    if let Some(ck) = &a.mer_checkpoint {
+        let pda = depthsense_model::pda::load(ck, device)?;
+        depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
+    }
+    let depth = predict(&loaded.net, &input, radar, device)?;
+    let files = write_outputs(&a.out, &input, &depth, a.max_depth)?;
+    print_summary(&input, &depth);
+    for f in files {
+        println!("{}", f.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The one input of the command line: a prepared sample, a sample token of a dataroot (its
+/// maps computed like `prepare` does), or raw files.
+fn read_input(a: &Args) -> anyhow::Result<PredictInput> {
+    Ok(if let Some(dir) = &a.sample {
+        input_from_prepared(dir)?
+    } else if let Some(token) = &a.token {
+        let dataroot = a
+            .dataroot
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
+        let opts = depthsense_prep::PrepareOptions {
+            dataroot: dataroot.clone(),
+            version: a.version.clone(),
+            radar_filters: !a.no_radar_filters,
+            ..depthsense_prep::PrepareOptions::default()
+        };
+        input_from_token(dataroot, &a.version, token, &opts)?
+    } else if let Some(jpeg) = &a.image {
+        let calib = a
+            .calibration
+            .as_ref()
+            .ok_or_else(|| anyhow::anyhow!("--image needs --calibration"))?;
+        input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
+    } else {
+        anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
+    })
+}
+
+/// The prediction's size, mean depth and radar pixels, and its RMSE against the lidar
+/// ground truth where the input has one (stderr).
+fn print_summary(input: &PredictInput, depth: &DepthMap) {
+    let valid: Vec<f32> = depth.depth_m.iter().copied().filter(|d| *d > 0.0).collect();
+    let mean = valid.iter().map(|d| *d as f64).sum::<f64>() / valid.len().max(1) as f64;
+    eprintln!(
+        "{}: {}x{} depth, mean {mean:.2} m, {} radar pixels",
+        input.name,
+        depth.width,
+        depth.height,
+        input.radar_raw.valid_count()
+    );
+    if let Some(gt) = &input.gt {
+        let (mut n, mut se) = (0usize, 0f64);
+        for (p, g) in depth.depth_m.iter().zip(&gt.depth_m) {
+            if *g > 0.0 && *g <= 80.0 {
+                n += 1;
+                se += ((p.clamp(1.0, 80.0) - g) as f64).powi(2);
+            }
+        }
+        if n > 0 {
+            eprintln!(
+                "RMSE against lidar ({n} px, ≤ 80 m): {:.3} m",
+                (se / n as f64).sqrt()
+            );
+        }
+    }
+}

@@ -1,0 +1,251 @@
+//! `depthsense train`: train a depth network on prepared data (SPEC §8). (the network side; its flags: `depthsense_cli::cmd::train`).
+
+use depthsense_cli::cmd::progress::progress_bar;
+/// This process's arguments without `--nproc N` (what each worker runs).
+use depthsense_cli::cmd::train::Args;
+use depthsense_data::{RadarInput, TargetKind};
+use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
+use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
+use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
+use indicatif::ProgressBar;
+use std::ffi::OsString;
+use std::process::ExitCode;
+use std::time::Duration;
+
+fn worker_args() -> Vec<OsString> {
+    let mut out = vec![];
+    let mut it = std::env::args_os().skip(1);
+    while let Some(a) = it.next() {
+        if a == "--nproc" {
+            it.next();
+        } else if a.to_string_lossy().starts_with("--nproc=") {
+        } else {
+            out.push(a);
+        }
+    }
+    out
+}
+
+pub fn parse_fusion(s: &str) -> anyhow::Result<Fusion> {
+    Ok(match s {
+        "late" => Fusion::Late,
+        "early" => Fusion::Early,
+        "none" | "rgb" => Fusion::None,
+        o => anyhow::bail!("unknown fusion {o:?} (late, early, none)"),
+    })
+}
+
+pub fn parse_head(s: &str) -> anyhow::Result<HeadKind> {
+    Ok(match s {
+        "ordinal" => HeadKind::Ordinal,
+        "l1" => HeadKind::L1,
+        "l2" => HeadKind::L2,
+        o => anyhow::bail!("unknown head {o:?} (ordinal, l1, l2)"),
+    })
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let timeout = Duration::from_secs(a.dist_timeout.max(1));
+    if let Some(n) = a.nproc {
+        return launch_workers(&a, n, timeout);
+    }
+    let dist = DistArgs {
+        sync_bn: a.sync_bn,
+        bucket_mb: a.bucket_mb,
+        check_replicas: a.check_replicas,
+        timeout,
+    };
+    let out = a.out.clone();
+    let model = model_config(&a)?;
+    let opts = train_options(a, model)?;
+    let Some((s, pb)) = train_this_process(opts, &dist)? else {
+        // a rank other than 0: rank 0 reports
+        return Ok(ExitCode::SUCCESS);
+    };
+    pb.finish();
+    print_summary(&s, &out);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
+/// (each this command without `--nproc`) and wait for them.
+fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
+    // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
+    if !a.resume && !a.force {
+        depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
+    }
+    // Another writer fails us here, at once (taken and released: rank 0 holds it next).
+    drop(depthsense_nuscenes::lock::OutputLock::exclusive(
+        &a.out,
+        "depthsense train",
+    )?);
+    distributed::launch_local(
+        n,
+        &worker_args(),
+        a.master_port,
+        timeout + Duration::from_secs(30),
+    )?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The preset with the command line's model options applied, `--set` last.
+fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
+    let mut model = ModelConfig::preset(&a.config)?;
+    if let Some(f) = &a.fusion {
+        model.fusion = parse_fusion(f)?;
+        if model.fusion != Fusion::Late {
+            model.attention = false;
+        }
+    }
+    if let Some(h) = &a.head {
+        model.head = parse_head(h)?;
+    }
+    if let Some(d) = a.dropout {
+        model.dropout = d;
+    }
+    if a.no_attention {
+        model.attention = false;
+    }
+    if let Some(r) = &a.radar_input {
+        // The radar input fixes the channel count (mer: raw + 6 MER = 7, SPEC §5).
+        model.set_option("radar-input", r)?;
+    }
+    Ok(model.with_options(&a.set)?)
+}
+
+/// The trainer's options from the command line and the resolved `model`.
+fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
+    Ok(TrainOptions {
+        data: a.data,
+        out: a.out.clone(),
+        model,
+        epochs: a.epochs,
+        batch_size: a.batch_size,
+        lr: a.lr,
+        lr_power: a.lr_power,
+        momentum: a.momentum,
+        weight_decay: a.weight_decay,
+        seed: a.seed,
+        device: a.device,
+        amp: a.amp,
+        backbone_weights: a.backbone_weights,
+        resume: a.resume,
+        force: a.force,
+        jobs: a.jobs,
+        prefetch: a.prefetch,
+        radar_input: a
+            .radar_input
+            .as_deref()
+            .map(str::parse::<RadarInput>)
+            .transpose()?,
+        target: match a.target.as_str() {
+            "dense" => TargetKind::Dense,
+            "sparse" => TargetKind::Sparse,
+            o => anyhow::bail!("unknown target {o:?} (dense, sparse)"),
+        },
+        augment: !a.no_augment,
+        val_every_scene: a.val_every_scene,
+        exclude: a
+            .exclude
+            .iter()
+            .map(|x| x.parse::<depthsense_experiments::reduced_data::Exclusion>())
+            .collect::<Result<Vec<_>, _>>()?,
+        max_val_samples: a.max_val_samples,
+        max_batches_per_epoch: a.max_batches_per_epoch,
+        checkpoint_every: a.checkpoint_every,
+        loss_read_every: a.loss_read_every,
+        train_radar_drop: a.train_radar_drop,
+        warmup_iters: a.warmup,
+        stop_after: a.stop_after,
+        eval: EvalConfig {
+            protocol: a.protocol.parse::<Protocol>()?,
+            aggregate: a.aggregate.parse::<Aggregate>()?,
+            ..EvalConfig::default()
+        },
+    })
+}
+
+/// The data-parallel options of the command line.
+struct DistArgs {
+    sync_bn: bool,
+    bucket_mb: f64,
+    check_replicas: bool,
+    /// Rendezvous and collective timeout.
+    timeout: Duration,
+}
+
+/// Train in this process: alone, or as one rank of the job the environment describes.
+/// `None` on ranks other than 0 (they print nothing).
+fn train_this_process(
+    mut opts: TrainOptions,
+    d: &DistArgs,
+) -> anyhow::Result<Option<(TrainSummary, ProgressBar)>> {
+    let env = match DistEnv::from_env()? {
+        None => {
+            if d.sync_bn {
+                eprintln!("note: --sync-bn has no effect in a single process");
+            }
+            let pb = progress_bar("train");
+            return Ok(Some((train(&opts, &pb)?, pb)));
+        }
+        Some(env) => env,
+    };
+    opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
+    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let dopts = DistOptions {
+        sync_bn: d.sync_bn,
+        bucket_bytes: (d.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
+        check_replicas: d.check_replicas,
+    };
+    let who = format!("rank {} of {}", env.rank, env.world_size);
+    let dist = Dist::from_env(dopts, device, d.timeout)
+        .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
+        .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
+    let pb = if env.rank == 0 {
+        progress_bar("train")
+    } else {
+        ProgressBar::hidden()
+    };
+    let s = train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
+    if env.rank != 0 {
+        return Ok(None);
+    }
+    Ok(Some((s, pb)))
+}
+
+/// The run's summary on stderr: iterations, times, validation RMSE over the whole history.
+fn print_summary(s: &TrainSummary, out: &std::path::Path) {
+    // The whole history (a resumed run's summary only holds its own epochs).
+    let history =
+        depthsense_train::trainer::read_metrics(&out.join(depthsense_train::trainer::METRICS_FILE))
+            .map(|(_, v)| v)
+            .unwrap_or_else(|_| s.val.clone());
+    let first = history.first().map_or(f64::NAN, |v| v.rmse);
+    let last = history.last().map_or(f64::NAN, |v| v.rmse);
+    eprintln!(
+        "{} iterations of {} in {:.1} s (training {:.1} s at {:.2} img/s, validation {:.1} s, \
+         the rest set-up and checkpoints); validation RMSE {first:.3} m → {last:.3} m \
+         (best {}) on {} validation samples ({})",
+        s.iterations_done,
+        s.total_iterations,
+        s.seconds,
+        s.train_seconds,
+        s.train_images_per_s,
+        s.val_seconds,
+        if s.best_val_rmse.is_finite() {
+            format!("{:.3} m", s.best_val_rmse)
+        } else {
+            "none yet: no epoch completed".to_string()
+        },
+        s.partition.val.len(),
+        s.partition.method
+    );
+    if s.interrupted {
+        eprintln!(
+            "stopped at iteration {} as asked; continue with --resume",
+            s.iterations_done
+        );
+    }
+    eprintln!("run directory: {}", out.display());
+}

@@ -1,0 +1,34 @@
+//! `depthsense bench export`: the exported ONNX graph in onnxruntime (CPU) beside depthsense's
+//! own forward + decode, same network, inputs, threads and machine, in one run — with the two
+//! depth maps compared.
+
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Network: a preset (tiny, paper, released, tiny-wide) or a model-config JSON; random
+    /// weights (seed 0), as `bench model` builds it.
+    #[arg(long, default_value = "tiny")]
+    pub preset: String,
+    /// Override one config option, `key=value`, repeatable (see `model-info --help`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Images per run (the graph's batch axis is dynamic).
+    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
+    /// Untimed warm-up runs of each engine.
+    #[arg(long, default_value_t = 3)]
+    pub warmup: usize,
+    /// Timed runs of each engine; the median is reported.
+    #[arg(long, default_value_t = 10)]
+    pub repeats: usize,
+    /// CPU threads of both engines (default: libtorch's choice, all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// The Python with onnxruntime (default: as `export --python`).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
+    /// Write the results as JSON to this file.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+}

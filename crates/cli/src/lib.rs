@@ -1,0 +1,99 @@
+//! The command line of depthsense, shared by its two binaries (ARCHITECTURE.md, "cli"):
+//!
+//! - `depthsense` (src/main.rs) never links libtorch: it parses every command, runs the ones
+//!   that need no network (synth, prepare, inspect, index, bench data|synth, …) and hands the
+//!   others to `depthsense-net` beside it (exec: same process id, arguments, environment);
+//! - `depthsense-net` (src/bin/depthsense-net/) links libtorch and runs every command.
+//!
+//! Each subcommand's flags live in `cmd/<name>.rs` (`Args`); a data command's `run` sits
+//! beside them, a network command's in `src/bin/depthsense-net/<name>.rs`.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+pub mod cmd;
+pub mod handoff;
+
+/// Metric depth for a car's front camera, fused with sparse automotive radar (DepthSense),
+/// trained and evaluated on nuScenes or on the embedded synthetic world.
+#[derive(Parser)]
+#[command(name = "depthsense", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Turn a raw nuScenes dataroot into training-frame maps (800x350 PNGs + meta.json).
+    Prepare(cmd::prepare::Args),
+    /// Operations on prepared folders: `index merge` combines sharded preparation.
+    Index(cmd::index::Args),
+    /// Print a JSON summary of sensor files (.pcd, .pcd.bin, .jpg), folders of them, or a
+    /// version folder.
+    Inspect(cmd::inspect::Args),
+    /// Generate the synthetic nuScenes-format world (the embedded default dataset).
+    Synth(cmd::synth::Args),
+    /// Print parameters per module and multiply-adds of a model configuration.
+    ModelInfo(cmd::model_info::Args),
+    /// Train a depth network on prepared data.
+    Train(cmd::train::Args),
+    /// Evaluate a checkpoint: the paper's tables as Markdown, CSV and JSON.
+    Eval(cmd::eval::Args),
+    /// Predict depth for a prepared sample, a sample token, or raw files.
+    Predict(cmd::predict::Args),
+    /// A trained network as ONNX, TorchScript or a PyTorch state dict, with a sidecar JSON.
+    Export(cmd::export::Args),
+    /// Synthesise a world, prepare, train, evaluate and write a report, end to end.
+    Demo(cmd::demo::Args),
+    /// Experiments of the paper built from training runs (ablation: variants × seeds).
+    Experiment(cmd::experiment::Args),
+    /// Grad-CAM++ maps by distance class (SPEC §10.6), with and without radar.
+    Explain(cmd::explain::Args),
+    /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader).
+    Bench(cmd::bench::Args),
+    /// MER (multi-channel enhanced radar): train the radar–pixel association network, apply it
+    /// to prepared data, report coverage and error.
+    Mer(cmd::mer::Args),
+    /// Gather every experiment output under some run folders into one self-contained HTML
+    /// page (tables, plots, figure grids, the commands that made them), plus Markdown and JSON.
+    Report(cmd::report::Args),
+}
+
+/// Runs `command` in this process when it needs no network, i.e. without libtorch; gives it
+/// back (`Err`) when it does.
+pub fn run_without_torch(command: Command) -> Result<anyhow::Result<ExitCode>, Box<Command>> {
+    match command {
+        Command::Prepare(a) => Ok(cmd::prepare::run(a)),
+        Command::Index(a) => Ok(cmd::index::run(a)),
+        Command::Inspect(a) => Ok(cmd::inspect::run(a)),
+        Command::Synth(a) => Ok(cmd::synth::run(a)),
+        Command::Report(a) => Ok(cmd::report::run(a)),
+        Command::Eval(a) => match a.predictions.clone() {
+            Some(dir) => Ok(cmd::eval::run_predictions(a, dir)),
+            None => Err(Box::new(Command::Eval(a))),
+        },
+        Command::Mer(cmd::mer::Args { command }) => match command {
+            cmd::mer::Command::Report(a) => Ok(cmd::mer::run_report(a)),
+            command => Err(Box::new(Command::Mer(cmd::mer::Args { command }))),
+        },
+        Command::Bench(cmd::bench::Args { what }) => match what {
+            cmd::bench::What::Data(a) => Ok(cmd::bench_data::run(a)),
+            cmd::bench::What::Synth(a) => Ok(cmd::bench_synth::run(a)),
+            what => Err(Box::new(Command::Bench(cmd::bench::Args { what }))),
+        },
+        other => Err(Box::new(other)),
+    }
+}
+
+/// How both binaries end: the command's exit code, or its error on stderr and exit code 1.
+pub fn finish(result: anyhow::Result<ExitCode>) -> ExitCode {
+    match result {
+        Ok(code) => code,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,51 @@
+//! `tables.md`, `tables.csv` and `tables.json`: what `eval` writes (SPEC §10 items 1–3).
+
+use std::path::{Path, PathBuf};
+
+use depthsense_dataset::DataError;
+use depthsense_metrics::{tables, Report};
+use depthsense_nuscenes::fsutil::write_atomic;
+
+/// The files [`write_tables`] writes.
+pub const TABLE_FILES: [&str; 3] = ["tables.md", "tables.csv", "tables.json"];
+
+/// [`TABLE_FILES`] in `dir`.
+pub fn table_paths(dir: &Path) -> Vec<PathBuf> {
+    TABLE_FILES.iter().map(|f| dir.join(f)).collect()
+}
+
+/// Write `tables.md`, `tables.csv` and `tables.json` (every row of every report plus the
+/// three rendered tables) into `dir`.
+pub fn write_tables(dir: &Path, models: &[(&str, &Report)]) -> Result<(), DataError> {
+    write_tables_with_command(dir, models, None)
+}
+
+/// [`write_tables`], recording the invocation as `command_line` in tables.json and as a last
+/// "Command:" line of tables.md (`depthsense report` shows it).
+pub fn write_tables_with_command(
+    dir: &Path,
+    models: &[(&str, &Report)],
+    command_line: Option<&str>,
+) -> Result<(), DataError> {
+    std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
+    let mut md = tables::markdown_report(models);
+    md.push_str(&depthsense_metrics::table::md_command_line(command_line));
+    let csv = tables::csv_report(models);
+    let json = serde_json::json!({
+        "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),
+        "tables": tables::all_tables(models),
+        "command_line": command_line,
+    });
+    let w = |name: &str, bytes: &[u8]| {
+        let p = dir.join(name);
+        write_atomic(&p, bytes).map_err(|e| DataError::io(&p, e))
+    };
+    w("tables.md", md.as_bytes())?;
+    w("tables.csv", csv.as_bytes())?;
+    w(
+        "tables.json",
+        serde_json::to_string_pretty(&json)
+            .map_err(|e| DataError::Other(e.to_string()))?
+            .as_bytes(),
+    )
+}
