@@ -354,10 +354,13 @@ class Attention(nn.Module):
 
 
 def pool_nearest(d, k, ceil_mode):
-    """`net::pool_nearest`: the nearest non-zero depth of each k cell (max-pool of 1/d)."""
-    inv = d.clamp_min(1e-6).reciprocal() * (d > 0).to(d.dtype)
+    """`net::pool_nearest`: the nearest non-zero depth of each k cell (max-pool of 1/d).
+    Computed in float32 whatever `d`'s precision (1/1e-6 and 1e-12 are out of half's range),
+    returned in `d`'s dtype."""
+    d32 = d.float()
+    inv = d32.clamp_min(1e-6).reciprocal() * (d32 > 0).float()
     inv = F.max_pool2d(inv, k, k, 0, ceil_mode=ceil_mode)
-    return inv.clamp_min(1e-12).reciprocal() * (inv > 0).to(inv.dtype)
+    return (inv.clamp_min(1e-12).reciprocal() * (inv > 0).float()).to(d.dtype)
 
 
 class RadarSkip(nn.Module):
@@ -578,7 +581,9 @@ def head_output(net, image, radar):
     """`DepthNet::forward_t`: [N,2K,h,w] logits → [N,K,h,w] ordinal differences z (or, with
     `clamp_logits`, the 2K logits upsampled to out_height × out_width, clamped to [1e-8, 1e8],
     then paired); [N,1,h,w] metres for the L1 / L2 heads."""
-    cfg, y = net.cfg, net(image, radar)
+    # The head's output in float32 whatever the network's precision: the clamp to [1e-8, 1e8]
+    # and the decode are outside half's range (export --precision fp16).
+    cfg, y = net.cfg, net(image, radar).float()
     if cfg["head"] != "ordinal":
         return y
     if cfg["clamp_logits"]:

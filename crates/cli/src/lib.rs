@@ -51,7 +51,7 @@ pub enum Command {
     Experiment(cmd::experiment::Args),
     /// Grad-CAM++ maps by distance class (SPEC §10.6), with and without radar.
     Explain(cmd::explain::Args),
-    /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader).
+    /// Benchmarks that write a JSON report (tables, prepare, synth, model, train, loader, onnxruntime).
     Bench(cmd::bench::Args),
     /// MER (multi-channel enhanced radar): train the radar–pixel association network, apply it
     /// to prepared data, report coverage and error.

@@ -194,12 +194,10 @@ pub fn export(opts: &ExportOptions) -> Result<Exported, ExportError> {
             }
         }
     }
-    if opts.precision == Precision::Fp16 {
-        // Measured on the demo's network: plain half precision overflows (NaN head output, a
-        // constant 1.03 m depth). A mixed-precision graph is still to be written.
+    if opts.precision == Precision::Fp16 && opts.format == Format::PyTorch {
         return Err(ExportError::Options(
-            "--precision fp16: not supported yet — in plain half precision the network's \
-             activations overflow (NaN depth on the demo's model); export fp32"
+            "--precision fp16 applies to the onnx and torchscript graphs; a pytorch state dict \
+             is stored in float32 (`.half()` it in PyTorch)"
                 .into(),
         ));
     }

@@ -319,6 +319,26 @@ fn check_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) {
             side.radar_channels
         );
         assert_eq!(side.inputs.len(), 1 + usize::from(kind.is_some()));
+        if format == Format::PyTorch {
+            // …and comes back into depthsense with its sidecar as --config: the same variables.
+            let side_file = sidecar_path(&out);
+            let (back, report) = depthsense_eval::evaluate::load_model(
+                &out,
+                Some(side_file.to_str().unwrap()),
+                &[],
+                Device::Cpu,
+            )
+            .unwrap();
+            assert!(report.is_some_and(|r| r.left_random.is_empty()));
+            assert_eq!(&back.config, cfg);
+            let theirs = back.vs.variables();
+            for (name, v) in loaded.vs.variables() {
+                assert!(
+                    v.equal(&theirs[&name]),
+                    "{name} differs after the round trip"
+                );
+            }
+        }
         jobs.push(Job::new(format, &out, &inputs, kind));
     }
     run_outside(py, &jobs);
@@ -348,6 +368,65 @@ fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
         small(&["radar-input=mer"]),
     ] {
         check_variant(&py, &cfg, &both);
+    }
+}
+
+/// `--precision fp16`: half precision between float32 inputs and output (the radar pooling and
+/// the decode in float32). Against fp32 `predict`: at most 0.1 % of the pixels beyond one SID bin
+/// (`bench model --precision`'s target) and none non-finite; most pixels keep their bin.
+#[test]
+fn fp16_graphs_run_outside_depthsense_within_one_bin_of_predict() {
+    let Some(py) = python() else { return };
+    let cfg = ModelConfig::tiny()
+        .with_options(&["out-height=64", "out-width=128", "radar-downscale=2"])
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let ckpt = checkpoint_of(&cfg, dir.path(), 4);
+    let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
+    let kind = Some(RadarInput::Height);
+    let inputs: Vec<PredictInput> = (0..2).map(|i| sample(128, 64, 20 + i)).collect();
+    let mut jobs = vec![];
+    for format in [Format::Onnx, Format::TorchScript] {
+        let out = dir.path().join(format!("half.{}", format.name()));
+        let mut o = options(&ckpt, format, &out, &py);
+        o.precision = Precision::Fp16;
+        assert_eq!(export(&o).unwrap().info.precision, "fp16");
+        jobs.push(Job::new(format, &out, &inputs, kind));
+    }
+    run_outside(&py, &jobs);
+    let sid = &cfg.sid;
+    let bin = ((sid.beta_m / sid.alpha_m).ln() / sid.bins as f64).exp() - 1.0;
+    for job in &jobs {
+        for (input, theirs) in job.inputs.iter().zip(job.depth()) {
+            let ours = predict(&loaded.net, input, kind, Device::Cpu)
+                .unwrap()
+                .depth_m;
+            let (mut same, mut beyond) = (0usize, 0usize);
+            for (&a, &b) in ours.iter().zip(&theirs) {
+                assert!(b.is_finite(), "{}: non-finite depth", job.format.name());
+                let diff = (a as f64 - b as f64).abs();
+                same += usize::from(diff <= 1e-3);
+                let one_bin = (a.max(b) as f64 + sid.decode_offset_m) * bin * 1.01 + 1e-3;
+                beyond += usize::from(diff > one_bin);
+            }
+            let n = ours.len() as f64;
+            eprintln!(
+                "fp16 {}: same bin {:.3} %, beyond one bin {:.4} %",
+                job.format.name(),
+                100.0 * same as f64 / n,
+                100.0 * beyond as f64 / n
+            );
+            assert!(
+                beyond as f64 / n <= 1e-3,
+                "{}: {beyond} pixels",
+                job.format.name()
+            );
+            assert!(
+                same as f64 / n >= 0.95,
+                "{}: {same} pixels",
+                job.format.name()
+            );
+        }
     }
 }
 
@@ -415,12 +494,12 @@ fn bad_inputs_are_clear_errors_and_write_nothing() {
         .to_string();
     assert!(e.contains("/bin/false") && e.contains("m.onnx"), "{e}");
     nothing_written("python failed");
-    // fp16 is refused (not silently wrong)
-    let mut o = options(&ckpt, Format::TorchScript, &out, &py);
+    // fp16 has no meaning for a state dict (stored in float32): refused, not silently ignored
+    let mut o = options(&ckpt, Format::PyTorch, &dir.path().join("m.pth"), &py);
     o.precision = Precision::Fp16;
     let e = export(&o).unwrap_err().to_string();
-    assert!(e.contains("fp16"), "{e}");
-    nothing_written("fp16");
+    assert!(e.contains("fp16") && e.contains("float32"), "{e}");
+    nothing_written("fp16 state dict");
     // an existing --out is refused without --force, and replaced with it
     export(&options(&ckpt, Format::Onnx, &out, &py)).unwrap();
     let before = std::fs::read(&out).unwrap();

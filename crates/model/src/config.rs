@@ -634,7 +634,13 @@ impl ModelConfig {
             return Ok(crate::checkpoint::read_config(path)?.0);
         }
         let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
-        let cfg: ModelConfig = serde_json::from_str(&text)
+        let mut json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| ModelError::format(path, format!("not a model config JSON: {e}")))?;
+        // An export sidecar (FILE.json beside `export`'s FILE) holds the config as `model_config`.
+        if let Some(inner) = json.get_mut("model_config") {
+            json = inner.take();
+        }
+        let cfg: ModelConfig = serde_json::from_value(json)
             .map_err(|e| ModelError::format(path, format!("not a model config JSON: {e}")))?;
         cfg.validate()?;
         Ok(cfg)

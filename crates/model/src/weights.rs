@@ -433,15 +433,26 @@ pub fn released_key(key: &str) -> Option<String> {
 
 /// Loads the authors' released PyTorch checkpoint (a state dict, `{"state_dict": …}` or a
 /// pickled module; `module.` prefixes removed) into a network built with the `released`
-/// preset. Every network variable must be covered; missing and mismatching tensors are all
+/// preset — or any PyTorch state dict under depthsense's own variable names (what
+/// `export --format pytorch` writes) into the network of its config. Every network variable must be covered; missing and mismatching tensors are all
 /// named in the error.
 pub fn load_released_checkpoint(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
     let file = pickle::read_torch_file(path)?;
+    // depthsense's own names are accepted as well: `export --format pytorch` writes
+    // `{"config", "state_dict": {rgb.…, decoder.…, radar.…, head.…}}` (python/depthsense_torch.py).
+    let ours: std::collections::HashSet<String> = vs.variables().into_keys().collect();
     let report = import(
         path,
         vs,
         file,
-        |key| released_key(key).ok_or_else(|| "not part of the released network".into()),
+        |key| {
+            released_key(key)
+                .or_else(|| {
+                    let k = strip_wrappers(key);
+                    ours.contains(k).then(|| k.to_string())
+                })
+                .ok_or_else(|| "not part of the released network".into())
+        },
         |_, _, _| false,
     )?;
     let missing: Vec<String> = report.left_random.clone();

@@ -28,8 +28,9 @@ pub struct Args {
     /// of failing when some are missing.
     #[arg(long, requires = "predictions")]
     pub allow_missing: bool,
-    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
-    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
+    /// Architecture: a preset (paper, released, tiny), a model-config JSON or an export
+    /// sidecar (FILE.json of `export`). Required for a PyTorch .pth; for a depthsense
+    /// checkpoint it replaces the stored config.
     #[arg(long)]
     pub config: Option<String>,
     /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).

@@ -17,8 +17,8 @@ pub struct Args {
     /// Batch axis of the graph: `dynamic` (one file for every N) or a fixed N.
     #[arg(long, default_value = "dynamic")]
     pub batch: String,
-    /// Arithmetic inside the graph: fp32 (fp16 is refused for now: plain half precision
-    /// overflows in this network).
+    /// Arithmetic inside the graph: fp32, or fp16 (half precision between float32 inputs and
+    /// output; the radar pooling and the decode stay float32). onnx and torchscript only.
     #[arg(long, default_value = "fp32")]
     pub precision: String,
     /// Replace an existing FILE and FILE.json.

@@ -9,8 +9,9 @@ pub struct ModelSource {
     /// paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Architecture: a preset (paper, released, tiny) or a model-config JSON. Required for a
-    /// PyTorch .pth; for a depthsense checkpoint it replaces the stored config.
+    /// Architecture: a preset (paper, released, tiny), a model-config JSON or an export
+    /// sidecar (FILE.json of `export`). Required for a PyTorch .pth; for a depthsense
+    /// checkpoint it replaces the stored config.
     #[arg(long)]
     pub config: Option<String>,
     /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
