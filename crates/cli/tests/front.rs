@@ -64,10 +64,9 @@ fn data_commands_run_without_the_network_binary() {
     }
     let d = data.to_str().unwrap();
     let p = preds.to_str().unwrap();
-    let out = tmp.path().join("eval");
-    let o = run(
-        &front,
-        &[
+    // `eval --predictions` with `bin`, into `out`: tables.json.
+    let eval = |bin: &Path, out: &Path| -> serde_json::Value {
+        let args = [
             "eval",
             "--predictions",
             p,
@@ -76,38 +75,22 @@ fn data_commands_run_without_the_network_binary() {
             "--split",
             "all",
             "--out",
-            out.to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let tables: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("tables.json")).unwrap()).unwrap();
+        ];
+        let o = Command::new(bin).args(args).arg(out).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice(&std::fs::read(out.join("tables.json")).unwrap()).unwrap()
+    };
+    let out = tmp.path().join("eval");
+    let tables = eval(&front, &out);
     let mut rmse = vec![];
     collect(&tables["models"], "rmse", &mut rmse);
     assert!(!rmse.is_empty(), "no rmse in tables.json");
     assert!(rmse.iter().all(|v| *v == 0.0), "{rmse:?}");
     // The same scoring through depthsense-net: the same report.
-    let out_net = tmp.path().join("eval-net");
-    let o = run(
-        Path::new(NET),
-        &[
-            "eval",
-            "--predictions",
-            p,
-            "--data",
-            d,
-            "--split",
-            "all",
-            "--out",
-            out_net.to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let tables_net: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out_net.join("tables.json")).unwrap()).unwrap();
+    let tables_net = eval(Path::new(NET), &tmp.path().join("eval-net"));
     assert_eq!(tables["models"], tables_net["models"]);
 
-    // `report` over it, `bench data`'s help, `inspect` of a folder with nothing readable.
+    // `report` over it, and some help texts (`train`'s is parsed by the front itself).
     let page = tmp.path().join("page");
     let o = run(
         &front,
