@@ -9,7 +9,7 @@ and crates/export/tests/export.rs).
 
 `depthsense export` writes W and CONFIG (the loaded network's variables under depthsense's
 names and its model config), runs this script with a temporary FILE and renames it when this
-exits 0. The graph's contract (README "Deploying a trained model"): inputs `image` float32
+exits 0. The graph's contract (docs/guide/deploy.md): inputs `image` float32
 [N,3,H,W] RGB in [0, 1] and `radar` float32 [N,C,H,W] in metres (absent for RGB-only networks),
 output `depth` float32 [N,1,out_height,out_width] in metres; with `--precision fp16` the
 network computes in half precision between float32 inputs and output.

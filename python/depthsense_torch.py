@@ -604,8 +604,7 @@ def decode(cfg, out, h, w):
 
 
 class DepthSense(nn.Module):
-    """A depthsense network as `depthsense predict` runs it (README "Deploying a trained
-    model"): `forward(image, radar)` with image [N,3,H,W] RGB in [0, 1] (the ImageNet
+    """A depthsense network as `depthsense predict` runs it (docs/guide/deploy.md): `forward(image, radar)` with image [N,3,H,W] RGB in [0, 1] (the ImageNet
     normalisation and any input downscaling happen inside) and radar [N,C,H,W] in metres (the
     maps `predict` feeds, C = `radar_channels`; None for an RGB-only network) → depth
     [N,1,out_height,out_width] in metres. `self.net` is the `DepthNet`; its `state_dict()` keys

@@ -4,7 +4,7 @@
 Reads a prepared folder (`depthsense prepare`) and two folders of predictions written by
 `depthsense predict --split test --format npy` (RGB-only and fusion, one `<token>.npy` per
 sample, metres, 800x350 training frame). Scores both with `eval`'s default protocol (GT =
-`lidar_sparse.png`, pixels with 0 < GT <= 80 m, RMSE per image then the mean; README "Evaluate")
+`lidar_sparse.png`, pixels with 0 < GT <= 80 m, RMSE per image then the mean; docs/guide/evaluate.md)
 and then the *oracle* RGB-only prediction whose error is set to zero on the pixels covered by
 the height-extended radar map (`radar_height.png`, SPEC §5), and on that strip dilated by k px.
 The oracle rows bound what a model gains by being exact where radar points are (k = 0) or

@@ -59,6 +59,9 @@ pub enum Command {
     /// Gather every experiment output under some run folders into one self-contained HTML
     /// page (tables, plots, figure grids, the commands that made them), plus Markdown and JSON.
     Report(cmd::report::Args),
+    /// The command-line reference as Markdown (docs/guide/cli.md).
+    #[command(hide = true)]
+    HelpMarkdown(cmd::help_markdown::Args),
 }
 
 /// Runs `command` in this process when it needs no network, i.e. without libtorch; gives it
@@ -70,6 +73,7 @@ pub fn run_without_torch(command: Command) -> Result<anyhow::Result<ExitCode>, B
         Command::Inspect(a) => Ok(cmd::inspect::run(a)),
         Command::Synth(a) => Ok(cmd::synth::run(a)),
         Command::Report(a) => Ok(cmd::report::run(a)),
+        Command::HelpMarkdown(a) => Ok(cmd::help_markdown::run(a)),
         Command::Eval(a) => match a.predictions.clone() {
             Some(dir) => Ok(cmd::eval::run_predictions(a, dir)),
             None => Err(Box::new(Command::Eval(a))),

@@ -1,4 +1,4 @@
-//! What survives a kill or a full disk, with the real binary (README "Reliability"):
+//! What survives a kill or a full disk, with the real binary (docs/guide/reliability.md):
 //! - `prepare` killed with SIGKILL five times, then run to the end, leaves exactly the files of
 //!   one uninterrupted run (byte for byte);
 //! - `train` killed with SIGKILL after a checkpoint and continued with `--resume` ends with the

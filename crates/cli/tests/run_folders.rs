@@ -1,4 +1,4 @@
-//! Nothing lost, nothing written twice (README "Reliability"), with the real binary:
+//! Nothing lost, nothing written twice (docs/guide/reliability.md), with the real binary:
 //! a second `train` into a finished run folder is refused and changes no byte; two `train`s on
 //! one folder — the second fails at once naming the first, the first completes; a process
 //! killed while holding the lock leaves no lock behind. Every child is killed on failure and

@@ -3,7 +3,7 @@
 //! as the loader reads them ([`RadarFailure::apply`]), so that `eval` and
 //! `experiment failure` see exactly what a failing sensor would have given the network.
 //!
-//! Rules (documented in the README "Sensor failure"):
+//! Rules (documented in the docs/guide/experiments.md, "Sensor failure"):
 //! - `drop_radars`: channel names (`RADAR_FRONT`, …, or `all`). A sample's channels are the
 //!   keys of its `meta.json` `cam_from_radar` (a sample that lists none has one unnamed
 //!   radar set that only `all` drops). When every channel of the sample is dropped, both

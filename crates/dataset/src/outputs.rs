@@ -1,4 +1,4 @@
-//! The one rule for output folders (README "Reliability"): **a command never replaces results
+//! The one rule for output folders (docs/guide/reliability.md): **a command never replaces results
 //! that are already there unless told to.**
 //!
 //! - A *run folder* (`train`, `mer train`): one that holds a run is refused unless `--resume`

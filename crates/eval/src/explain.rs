@@ -383,8 +383,8 @@ fn grid_image(rows: &[Vec<image::RgbImage>]) -> image::RgbImage {
 
 fn markdown(r: &ExplainResult) -> String {
     let mut md = String::from(
-        "# Grad-CAM++ by distance class (SPEC §10.6)\n\nTarget, band and heat fraction: README \
-         \"Grad-CAM++\". Heat in band vs chance (the fraction an even heat map would give).\n\n\
+        "# Grad-CAM++ by distance class (SPEC §10.6)\n\nTarget, band and heat fraction: docs/guide/experiments.md, \
+         \"Grad-CAM++ by distance class\". Heat in band vs chance (the fraction an even heat map would give).\n\n\
          | sample | d (m) | layer | radar | band px | heat in band | chance |\n|---|---:|---|---|---:|---:|---:|\n",
     );
     for x in &r.records {

@@ -505,7 +505,7 @@ fn demo_in(out: &Path) -> Option<String> {
     (!parts.is_empty()).then(|| format!("an unfinished demo ({}/)", parts.join("/, ")))
 }
 
-/// The demo's stages as separate commands with its settings (README "Demo").
+/// The demo's stages as separate commands with its settings (docs/guide/experiments.md, "The demo").
 fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<String> {
     let out = opts.out.display();
     let mut v = vec![

@@ -173,7 +173,7 @@ fn failure_markdown(r: &FailureResult) -> String {
     let mut md = String::from("# Sensor failure (SPEC §10.8)\n\n");
     md.push_str(&format!(
         "Checkpoint `{}` on `{}` (split {}), cap {} m, full image; seed {} (radar drop and \
-         clutter draws). Scenario rules: README \"Sensor failure\". ΔRMSE is against the \
+         clutter draws). Scenario rules: docs/guide/experiments.md, \"Sensor failure\". ΔRMSE is against the \
          first scenario.\n\n",
         e.checkpoint.display(),
         e.data.display(),

@@ -2,7 +2,7 @@
 //! differences d_s = metric(variant, s) − metric(baseline, s) remove what the seed does to both
 //! (initialisation, data order, dropout). Their mean, its standard error sd(d)/√n and the
 //! two-sided paired t-test at 5 % (Student's t with n − 1 degrees of freedom) decide whether a
-//! difference is a finding (README "The paper's ablation, with seeds").
+//! difference is a finding (docs/guide/experiments.md, "The ablation, with seeds").
 
 use serde::{Deserialize, Serialize};
 

@@ -228,7 +228,7 @@ fn markdown(r: &ReducedDataResult) -> String {
     let o = &r.options;
     let mut md = String::from("# Reduced training data (SPEC §10.5)\n\n");
     md.push_str(&format!(
-        "Each cell trains `{}` with the listed training scenes withheld (rule: README \
+        "Each cell trains `{}` with the listed training scenes withheld (rule: docs/guide/experiments.md, \
          \"Reduced training data\"), seeds {:?}, {} epoch(s); every run is selected on the \
          same validation scenes and tested on the same **test** scenes ({}). Mean ± std over \
          seeds, full image, cap {} m.\n\n",

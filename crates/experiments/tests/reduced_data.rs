@@ -1,5 +1,5 @@
 //! Reduced training data (SPEC §10.5): `--exclude` withholds exactly the documented scenes
-//! (README "Reduced training data"), and `experiment reduced-data` trains, tests and tables
+//! (docs/guide/experiments.md, "Reduced training data"), and `experiment reduced-data` trains, tests and tables
 //! its grid, resumably.
 
 mod common;

@@ -73,7 +73,7 @@ impl Default for MerTrainOptions {
             epochs: 20,
             batch_size: 4,
             // Adam at 1e-2: val AUC 0.584 after 4 epochs on the 20-scene world, 1e-3: 0.501
-            // after 1 epoch (README, MER).
+            // after 1 epoch (docs/guide/mer.md).
             lr: 1e-2,
             lr_power: 0.9,
             weight_decay: 1e-4,

@@ -37,7 +37,7 @@ pub enum Protocol {
     /// prediction used as the network gave it (no clip to [α, β]; non-finite values still
     /// count as the clip maximum), metrics per image then the mean over images (`pooled` is
     /// refused). GT is whatever sparse map is scored: their test GT is the single keyframe
-    /// lidar sweep, as ours (README "RadarNet's protocol").
+    /// lidar sweep, as ours (docs/guide/evaluate.md, "RadarNet's protocol").
     Radarnet,
 }
 

@@ -69,7 +69,7 @@ pub enum RadarBranchKind {
 pub enum AttentionGate {
     /// f·2σ(s), range (0, 2): CBAM's σ(s) times 2 (the head's linear 1x1 conv absorbs the
     /// constant). Can close to 0 everywhere: measured, with MER input the module learns to
-    /// close and the network collapses to the label marginal (README, MER).
+    /// close and the network collapses to the label marginal (docs/guide/mer.md).
     #[default]
     Double,
     /// f·(½ + σ(s)), range (½, 3⁄2): the same monotone gate shifted so that it can re-weight

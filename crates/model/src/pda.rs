@@ -10,7 +10,7 @@
 //! - [`save`] / [`load`]: one safetensors file with the config in its metadata (atomic).
 //!
 //! Initialisation is PyTorch's `nn.Conv2d` default for every conv (U(±1/√fan_in)) and
-//! BatchNorm γ = 1, β = 0 (crate::layers, README "Training that learns").
+//! BatchNorm γ = 1, β = 0 (crate::layers, docs/guide/train.md).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -82,7 +82,7 @@ pub struct PdaConfig {
     /// multiple of s), every level runs s times coarser, and the head predicts the K logits
     /// for each of the s² positions inside a cell — the inverse fold (pixel shuffle), computed
     /// only at the radar pixels. The labels, the window and the grid are those of SPEC §5
-    /// either way; only the network's cost changes (the `fast` preset, README "MER").
+    /// either way; only the network's cost changes (the `fast` preset, docs/guide/mer.md).
     #[serde(
         default = "crate::config::one",
         skip_serializing_if = "crate::config::is_one"
@@ -104,7 +104,7 @@ pub struct PdaConfig {
     /// ⟨W_q f(p), W_k f(n)⟩ / √E, f = the U-Net's level-0 features: the head keeps the
     /// per-offset prior, the dot product says whether n looks like p's surroundings — the
     /// "same object" question that the plain head has to answer through 180 fixed channels.
-    /// Not in RC-PDA and off in every preset: measured no better (README, MER).
+    /// Not in RC-PDA and off in every preset: measured no better (docs/guide/mer.md).
     #[serde(default)]
     pub affinity_channels: i64,
 }

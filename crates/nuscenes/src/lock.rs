@@ -2,7 +2,7 @@
 //! as long as the command writes there. The kernel releases it when the process ends in any
 //! way (SIGKILL included), so a killed run never leaves a stale lock; the file itself stays and
 //! only says who held it last. A second process fails at once, naming the holder
-//! (README "Reliability").
+//! (docs/guide/reliability.md).
 //!
 //! - [`OutputLock::exclusive`]: `train`, `mer train`, `mer apply`, `experiment *`, `index
 //!   merge`, `demo` — nobody else may write the folder;

@@ -51,8 +51,8 @@ pub fn remove_close(points_sensor: &[[f32; 5]], radius_m: f32) -> (Vec<[f32; 3]>
 /// rails, mirrors — which ride along with the car and, in a sweep taken metres away from the
 /// keyframe, land in front of the camera.
 ///
-/// Measured on the real keyframe (`../shared/fixtures/nuscenes-kf0`, README "The dense
-/// target"): every return above the ground within 3 m of the lidar is the car — roof
+/// Measured on the real keyframe (`../shared/fixtures/nuscenes-kf0`, docs/guide/prepare.md, "The
+/// dense target"): every return above the ground within 3 m of the lidar is the car — roof
 /// x −0.19…1.57 m, z 1.35…1.84 m; bonnet x 2.25…2.73 m, z 0.88…1.02 m; |y| ≤ 0.64 m — and the
 /// nearest world return is ground 3.03 m from the lidar. The box is the car (Renault Zoe,
 /// 4.08 × 1.73 m, ≈ 1.95 m wide with mirrors; the ego origin is the rear axle) around those

@@ -1,7 +1,7 @@
 //! Moving-object boxes for the dense target (SPEC §4: "remove points inside annotated moving
 //! boxes").
 //!
-//! Rule (README "Dense target"): a sweep taken at time t loses its points inside the box of
+//! Rule (docs/guide/prepare.md, "The dense target"): a sweep taken at time t loses its points inside the box of
 //! every moving instance **at time t**. The box at t is interpolated between the instance's
 //! two annotations that bracket t as nuscenes-devkit `NuScenes.get_boxes` does for sweeps —
 //! linear centre, slerp of the rotation, the later annotation's size — when they are at most

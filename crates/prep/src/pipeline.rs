@@ -385,7 +385,7 @@ fn moving_tracks(
         .collect()
 }
 
-/// Dense target (SPEC §4, README "Dense target"): the keyframe's own pixels, plus the points
+/// Dense target (SPEC §4, docs/guide/prepare.md, "The dense target"): the keyframe's own pixels, plus the points
 /// of ±K sweeps moved through their own ego poses that survive, in this order,
 /// 1. near-sensor removal (the ego car's own returns, devkit `remove_close(1.0)`), then the
 ///    ego car's body box in each sweep's ego frame ([`maps::EGO_BOX`]),
@@ -1095,7 +1095,7 @@ fn shard_selection(
 fn open_output(opts: &PrepareOptions) -> Result<depthsense_nuscenes::lock::OutputLock, PrepError> {
     std::fs::create_dir_all(&opts.out).map_err(|e| PrepError::io(&opts.out, e))?;
     // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
-    // may not write it meanwhile (README "Reliability").
+    // may not write it meanwhile (docs/guide/reliability.md).
     let writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
     // Temporary folders of interrupted runs (never those of a running process).
     crate::index::remove_stale_temp_dirs(&opts.out);

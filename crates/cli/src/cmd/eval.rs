@@ -62,8 +62,8 @@ pub struct Args {
     /// Remove every radar return (and its height strip) deeper than this many metres.
     #[arg(long)]
     pub drop_beyond_m: Option<f64>,
-    /// Add this many ghost radar points per sample (deterministic in --seed; README
-    /// "Sensor failure" gives the rule).
+    /// Add this many ghost radar points per sample (deterministic in --seed; the rule:
+    /// docs/guide/evaluate.md, "Sensor failure at test time").
     #[arg(long, default_value_t = 0)]
     pub clutter: usize,
     /// Seed of the radar drop and of the clutter.
@@ -71,7 +71,7 @@ pub struct Args {
     pub seed: u64,
     /// Pixels beyond the cap: mask (dropped, default), clamp (GT and prediction clamped:
     /// peers'), or radarnet (RadarNet's evaluation: 0 < GT < cap, prediction not clipped,
-    /// per image then mean; README "RadarNet's protocol").
+    /// per image then mean; docs/guide/evaluate.md, "RadarNet's protocol").
     #[arg(long, default_value = "mask")]
     pub protocol: String,
     /// Aggregation: image (metrics per image, then mean; default) or pooled (over pixels).

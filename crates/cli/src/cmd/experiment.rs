@@ -245,7 +245,7 @@ pub struct AblationArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Number of seeds: 0, 1, …, N−1. Each seed trains every variant; the verdicts are a
-    /// paired test over the seeds (README "The paper's ablation, with seeds").
+    /// paired test over the seeds (docs/guide/experiments.md, "The ablation, with seeds").
     #[arg(long, default_value_t = 5, conflicts_with = "seed_list")]
     pub seeds: u64,
     /// Explicit seeds instead of --seeds, comma separated (e.g. 0,7,11).

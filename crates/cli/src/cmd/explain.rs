@@ -1,5 +1,5 @@
 //! `depthsense explain`: Grad-CAM++ maps by distance class (SPEC §10.6) of a checkpoint on
-//! prepared samples, with and without radar (target and formulas: README "Grad-CAM++").
+//! prepared samples, with and without radar (target and formulas: docs/guide/experiments.md, "Grad-CAM++ by distance class").
 
 use std::path::PathBuf;
 

@@ -1,5 +1,5 @@
 //! `depthsense export`: a trained network as ONNX, TorchScript or a PyTorch state dict, with a
-//! sidecar JSON (crates/export; README "Deploying a trained model").
+//! sidecar JSON (crates/export; docs/guide/deploy.md).
 
 use std::path::PathBuf;
 

@@ -37,7 +37,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = "paper")]
     pub config: String,
     /// Channels of the appearance-affinity term added to the head (0 = RC-PDA's plain head;
-    /// default: the preset's). See README, MER.
+    /// default: the preset's). See docs/guide/mer.md.
     #[arg(long)]
     pub affinity: Option<i64>,
     /// Epochs.

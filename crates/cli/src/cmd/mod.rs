@@ -13,6 +13,7 @@ pub mod eval;
 pub mod experiment;
 pub mod explain;
 pub mod export;
+pub mod help_markdown;
 pub mod index;
 pub mod inspect;
 pub mod mer;

@@ -87,7 +87,7 @@ pub struct Args {
     pub no_augment: bool,
     /// Training-time radar dropout (not in the paper): each training sample loses a fraction
     /// U(0, P) of its radar returns with their height-extended strips, so that the network
-    /// cannot read "no return here" as a depth cue. 0 = off. README, "What the demo shows".
+    /// cannot read "no return here" as a depth cue. 0 = off. docs/guide/train.md.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations, then the poly decay (0 = none,
@@ -101,8 +101,8 @@ pub struct Args {
     pub val_every_scene: usize,
     /// Withhold a fraction of one condition's TRAINING scenes (SPEC §10.5), e.g.
     /// `night=1.0,rain=0.5`: per condition, its training scenes ordered by a fixed hash of
-    /// the scene name, the first round(fraction × n) withheld (README "Reduced training
-    /// data"). Validation and test scenes are unchanged.
+    /// the scene name, the first round(fraction × n) withheld (docs/guide/experiments.md,
+    /// "Reduced training data"). Validation and test scenes are unchanged.
     #[arg(long, value_delimiter = ',', value_name = "CONDITION=FRACTION")]
     pub exclude: Vec<String>,
     /// Validate on at most this many validation samples (evenly spaced).

@@ -49,7 +49,7 @@ fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The results-folder rule for `experiment NAME` (README "Reliability"): the folder's lock,
+/// The results-folder rule for `experiment NAME` (docs/guide/reliability.md): the folder's lock,
 /// and OUT/NAME.{md,csv,json,png} refused when present unless --force.
 fn claim_results(
     out: &std::path::Path,
