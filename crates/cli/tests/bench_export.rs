@@ -45,4 +45,5 @@ fn bench_export_times_both_engines_on_the_same_inputs() {
     let within = r["frac_within_1mm"].as_f64().unwrap();
     assert!(within >= 0.999, "{within}");
     assert!(r["onnx_bytes"].as_u64().unwrap() > 1_000_000);
+    assert_eq!(r["params"].as_u64(), Some(923_563), "the tiny preset");
 }

@@ -224,9 +224,9 @@ impl<'a> Job<'a> {
 }
 
 /// Runs `jobs` in one Python process (tests/run_exported.py).
-fn run_outside(py: &Path, jobs: &[Job]) {
+fn run_outside(py: &Path, jobs: &[&Job]) {
     let list = tempfile::NamedTempFile::new().unwrap();
-    let v: Vec<serde_json::Value> = jobs.iter().map(Job::json).collect();
+    let v: Vec<serde_json::Value> = jobs.iter().map(|j| j.json()).collect();
     std::fs::write(list.path(), serde_json::to_string(&v).unwrap()).unwrap();
     let out = Command::new(py)
         .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/run_exported.py"))
@@ -295,15 +295,25 @@ fn options(ckpt: &Path, format: Format, out: &Path, py: &Path) -> ExportOptions 
     }
 }
 
-/// Exports `cfg` in `formats` and checks each against `predict` on two samples.
-fn check_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) {
+/// A network exported in some formats, with the two samples its exports are run on.
+struct Exported {
+    cfg: ModelConfig,
+    _dir: tempfile::TempDir,
+    loaded: checkpoint::Loaded,
+    kind: Option<RadarInput>,
+    inputs: Vec<PredictInput>,
+    files: Vec<(Format, PathBuf)>,
+}
+
+/// Exports `cfg` in `formats`: each sidecar round-trips, and a `pytorch` file comes back into
+/// depthsense with its sidecar as the config, variable for variable.
+fn export_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) -> Exported {
     let dir = tempfile::tempdir().unwrap();
     let ckpt = checkpoint_of(cfg, dir.path(), 3);
     let (w, h) = (cfg.out_width as u32, cfg.out_height as u32);
     let kind = depthsense_train::trainer::radar_input_for(cfg, None).unwrap();
     let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
-    let inputs: Vec<PredictInput> = (0..2).map(|i| sample(w, h, 10 + i)).collect();
-    let mut jobs = vec![];
+    let mut files = vec![];
     for &format in formats {
         let out = dir.path().join(format!("model.{}", format.name()));
         let done = export(&options(&ckpt, format, &out, py)).unwrap();
@@ -320,7 +330,6 @@ fn check_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) {
         );
         assert_eq!(side.inputs.len(), 1 + usize::from(kind.is_some()));
         if format == Format::PyTorch {
-            // …and comes back into depthsense with its sidecar as --config: the same variables.
             let side_file = sidecar_path(&out);
             let (back, report) = depthsense_eval::evaluate::load_model(
                 &out,
@@ -339,10 +348,16 @@ fn check_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) {
                 );
             }
         }
-        jobs.push(Job::new(format, &out, &inputs, kind));
+        files.push((format, out));
     }
-    run_outside(py, &jobs);
-    compare(&jobs, &loaded.net, cfg);
+    Exported {
+        cfg: cfg.clone(),
+        _dir: dir,
+        loaded,
+        kind,
+        inputs: (0..2).map(|i| sample(w, h, 10 + i)).collect(),
+        files,
+    }
 }
 
 #[test]
@@ -356,18 +371,34 @@ fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
     let both = [Format::Onnx, Format::TorchScript];
     // The `pytorch` state dict in python/depthsense_torch.py: once (the module is checked for
     // every option by crates/model/tests/torch_reference_params.rs).
-    check_variant(
+    let mut variants = vec![export_variant(
         &py,
         &small(&[]),
         &[Format::Onnx, Format::TorchScript, Format::PyTorch],
-    );
+    )];
     for cfg in [
         small(&["fusion=early", "attention=off"]),
         small(&["fusion=none"]),
         small(&["head=l1"]),
         small(&["radar-input=mer"]),
     ] {
-        check_variant(&py, &cfg, &both);
+        variants.push(export_variant(&py, &cfg, &both));
+    }
+    // Every file of every variant in one Python (torch and onnxruntime imported once).
+    let jobs: Vec<(usize, Job)> = variants
+        .iter()
+        .enumerate()
+        .flat_map(|(i, v)| {
+            v.files
+                .iter()
+                .map(move |(f, p)| (i, Job::new(*f, p, &v.inputs, v.kind)))
+        })
+        .collect();
+    let all: Vec<&Job> = jobs.iter().map(|(_, j)| j).collect();
+    run_outside(&py, &all);
+    for (i, job) in &jobs {
+        let v = &variants[*i];
+        compare(std::slice::from_ref(job), &v.loaded.net, &v.cfg);
     }
 }
 
@@ -393,7 +424,7 @@ fn fp16_graphs_run_outside_depthsense_within_one_bin_of_predict() {
         assert_eq!(export(&o).unwrap().info.precision, "fp16");
         jobs.push(Job::new(format, &out, &inputs, kind));
     }
-    run_outside(&py, &jobs);
+    run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     let sid = &cfg.sid;
     let bin = ((sid.beta_m / sid.alpha_m).ln() / sid.bins as f64).exp() - 1.0;
     for job in &jobs {
@@ -448,7 +479,7 @@ fn one_file_serves_n_1_and_n_4_at_the_full_frame() {
         jobs.push(Job::new(format, &out, &one, kind));
         jobs.push(Job::new(format, &out, &four, kind));
     }
-    run_outside(&py, &jobs);
+    run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     compare(&jobs, &loaded.net, &cfg);
 }
 
@@ -536,7 +567,7 @@ fn paper_with_random_weights_at_batch_2() {
         assert_eq!(done.info.inputs[0].shape[0], serde_json::json!(2));
         jobs.push(Job::new(format, &out, &two, kind));
     }
-    run_outside(&py, &jobs);
+    run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     compare(&jobs, &loaded.net, &cfg);
 }
 
@@ -594,6 +625,6 @@ fn the_authors_pth_with_config_released() {
         &inputs,
         Some(RadarInput::Height),
     )];
-    run_outside(&py, &jobs);
+    run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     compare(&jobs, &loaded.net, &loaded.config);
 }

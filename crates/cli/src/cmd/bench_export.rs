@@ -10,7 +10,8 @@ pub struct Args {
     /// weights (seed 0), as `bench model` builds it.
     #[arg(long, default_value = "tiny")]
     pub preset: String,
-    /// Override one config option, `key=value`, repeatable (see `model-info --help`).
+    /// Override one config option, `key=value`, repeatable (see `model-info --help`); the
+    /// graph's frame is the config's `out-height` x `out-width` (350x800 for every preset).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Images per run (the graph's batch axis is dynamic).

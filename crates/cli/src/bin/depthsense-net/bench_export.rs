@@ -16,10 +16,6 @@ use tch::{nn, Device, Kind, Tensor};
 
 use super::bench_model::{summarise, time_it, Timing};
 
-/// The frame of the graph's contract (SPEC §3).
-const HEIGHT: usize = 350;
-const WIDTH: usize = 800;
-
 #[derive(Serialize)]
 struct Results {
     config: String,
@@ -46,7 +42,7 @@ struct Results {
 
 /// Random inputs as the graph takes them: RGB in [0, 1] and sparse radar in metres.
 fn inputs(cfg: &ModelConfig, batch: usize) -> (Tensor, Tensor) {
-    let (b, h, w) = (batch as i64, HEIGHT as i64, WIDTH as i64);
+    let (b, h, w) = (batch as i64, cfg.out_height, cfg.out_width);
     let image = Tensor::rand([b, 3, h, w], (Kind::Float, Device::Cpu));
     let c = cfg.radar_channels;
     let mask = Tensor::rand([b, c, h, w], (Kind::Float, Device::Cpu)).lt(0.03);
@@ -67,7 +63,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     tch::manual_seed(0);
     let vs = nn::VarStore::new(Device::Cpu);
     let net = DepthNet::new(&vs.root(), &cfg)?;
-    let params = report::model_report(&vs, &net, HEIGHT as i64, WIDTH as i64).total_params;
+    // The graph's frame: the config's output size (SPEC §3: 350x800 for every preset).
+    let (height, width) = (cfg.out_height, cfg.out_width);
+    let params = report::model_report(&vs, &net, height, width).total_params;
 
     let work = tempfile::tempdir().context("temporary folder")?;
     let ckpt = work.path().join("random.safetensors");
@@ -94,13 +92,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let std = Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]);
     let normalised = (&image - &mean) / &std;
     let _guard = tch::no_grad_guard();
-    let forward = || {
-        net.decode_to(
-            &net.forward_t(&normalised, &radar, false),
-            HEIGHT as i64,
-            WIDTH as i64,
-        )
-    };
+    let forward = || net.decode_to(&net.forward_t(&normalised, &radar, false), height, width);
     eprintln!("timing depthsense …");
     let ours = time_it(Device::Cpu, a.warmup, a.repeats, a.batch as i64, || {
         let _ = forward();
@@ -112,13 +104,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let mut graph_inputs = vec![GraphInput {
         name: "image",
         values: &image_v,
-        shape: vec![a.batch, 3, HEIGHT, WIDTH],
+        shape: vec![a.batch, 3, height as usize, width as usize],
     }];
     if cfg.fusion != Fusion::None {
         graph_inputs.push(GraphInput {
             name: "radar",
             values: &radar_v,
-            shape: vec![a.batch, cfg.radar_channels as usize, HEIGHT, WIDTH],
+            shape: vec![
+                a.batch,
+                cfg.radar_channels as usize,
+                height as usize,
+                width as usize,
+            ],
         });
     }
     let ort = time_onnxruntime(
@@ -145,8 +142,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let res = Results {
         config: cfg.name.clone(),
         params,
-        height: HEIGHT,
-        width: WIDTH,
+        height: height as usize,
+        width: width as usize,
         batch: a.batch,
         threads,
         warmup: a.warmup,
