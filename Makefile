@@ -47,8 +47,8 @@ DEMO_ARGS ?=
 demo: build
 	$(BIN) demo --out runs/demo $(DEMO_ARGS)
 
-# The test binaries run with the memory settings `depthsense` makes at start (tune_memory in
-# crates/cli/src/main.rs): glibc keeps freed memory and libtorch puts large tensors on huge
+# The test binaries run with the memory settings `depthsense-net` makes at start (tune_memory
+# in crates/cli/src/bin/depthsense-net/main.rs): glibc keeps freed memory and libtorch puts large tensors on huge
 # pages, or libtorch's per-layer tensors page-fault in anew every step. Built first without
 # them, so that the compiler runs with glibc's defaults.
 TEST_MALLOC := glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=1073741824
