@@ -5,7 +5,8 @@ PyTorch users fine-tune, checked against depthsense by crates/model/tests/torch_
 and crates/export/tests/export.rs).
 
     python depthsense_export.py --weights W.safetensors --config CONFIG.json \
-        --format onnx|torchscript|pytorch --out FILE [--batch N|dynamic] [--precision fp32|fp16]
+        --format onnx|torchscript|pytorch --out FILE [--format F2 --out FILE2 …]
+        [--batch N|dynamic] [--precision fp32|fp16]
 
 `depthsense export` writes W and CONFIG (the loaded network's variables under depthsense's
 names and its model config), runs this script with a temporary FILE and renames it when this
@@ -96,29 +97,37 @@ def export(a):
     graph = (WithRadar if with_radar else ImageOnly)(model, half).eval()
     inputs = example_inputs(cfg, a.batch, with_radar)
     names = ["image", "radar"][:len(inputs)]
-    if a.format == "pytorch":
-        # The DepthNet's state dict under depthsense's names (`DepthSense(cfg).net`), with the
-        # config beside it: `torch.load` gives {"config": …, "state_dict": …}.
-        sd = {k: v.float() for k, v in model.net.state_dict().items()}
-        torch.save({"format": "depthsense-pytorch-v1", "config": cfg, "state_dict": sd}, a.out)
+    traced = None
+    onnx_files = []
+    for fmt, out in zip(a.format, a.out):
+        if fmt == "pytorch":
+            # The DepthNet's state dict under depthsense's names (`DepthSense(cfg).net`), with
+            # the config beside it: `torch.load` gives {"config": …, "state_dict": …}.
+            sd = {k: v.float() for k, v in model.net.state_dict().items()}
+            torch.save({"format": "depthsense-pytorch-v1", "config": cfg, "state_dict": sd}, out)
+            continue
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            if traced is None:  # one trace serves every graph format
+                traced = torch.jit.trace(graph, inputs, check_trace=False)
+            if fmt == "torchscript":
+                traced.save(out)
+                continue
+            dynamic = {n: {0: "N"} for n in names + ["depth"]} if a.batch == "dynamic" else None
+            torch.onnx.export(traced, inputs, out, dynamo=False, opset_version=OPSET,
+                              input_names=names, output_names=["depth"], dynamic_axes=dynamic,
+                              do_constant_folding=True)
+            onnx_files.append(out)
+    if not onnx_files:
         return 0
-    with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        traced = torch.jit.trace(graph, inputs, check_trace=False)
-        if a.format == "torchscript":
-            traced.save(a.out)
-            return 0
-        dynamic = {n: {0: "N"} for n in names + ["depth"]} if a.batch == "dynamic" else None
-        torch.onnx.export(traced, inputs, a.out, dynamo=False, opset_version=OPSET,
-                          input_names=names, output_names=["depth"], dynamic_axes=dynamic,
-                          do_constant_folding=True)
     try:
         import onnx
     except ImportError as e:
         print(f"onnx is not importable by {sys.executable} (make setup installs it): {e}",
               file=sys.stderr)
         return 77
-    onnx.checker.check_model(onnx.load(a.out), full_check=True)
+    for out in onnx_files:
+        onnx.checker.check_model(onnx.load(out), full_check=True)
     return 0
 
 
@@ -126,14 +135,19 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--weights", required=True, help="safetensors: the network's variables")
     p.add_argument("--config", required=True, help="the model config JSON")
-    p.add_argument("--format", required=True, choices=["onnx", "torchscript", "pytorch"])
-    p.add_argument("--out", required=True, help="the file to write")
+    p.add_argument("--format", required=True, action="append",
+                   choices=["onnx", "torchscript", "pytorch"],
+                   help="repeatable, one --out each: several formats from one trace")
+    p.add_argument("--out", required=True, action="append", help="the file to write")
     p.add_argument("--batch", default="dynamic", help="N or dynamic")
     p.add_argument("--precision", default="fp32", choices=["fp32", "fp16"])
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     a = p.parse_args()
     if a.threads > 0:
         torch.set_num_threads(a.threads)
+    if len(a.format) != len(a.out):
+        print(f"{len(a.format)} --format but {len(a.out)} --out", file=sys.stderr)
+        return 2
     if a.batch != "dynamic" and not (a.batch.isdigit() and int(a.batch) > 0):
         print(f"--batch {a.batch}: a positive number or 'dynamic'", file=sys.stderr)
         return 2

@@ -184,9 +184,105 @@ pub fn sidecar_path(out: &Path) -> PathBuf {
 
 /// Exports `opts.checkpoint` (see the module docs).
 pub fn export(opts: &ExportOptions) -> Result<Exported, ExportError> {
-    let sidecar_file = sidecar_path(&opts.out);
+    let mut done = export_many(opts, &[(opts.format, opts.out.clone())])?;
+    done.pop()
+        .ok_or_else(|| ExportError::Options("nothing was exported".into()))
+}
+
+/// Exports `opts.checkpoint` once into every `(format, file)` of `targets` — one load, one
+/// Python, one trace for all graph formats — each with its sidecar; `opts.format` and
+/// `opts.out` are ignored. Every file is checked before anything is written, and on a failure
+/// none of the targets is left half-written.
+pub fn export_many(
+    opts: &ExportOptions,
+    targets: &[(Format, PathBuf)],
+) -> Result<Vec<Exported>, ExportError> {
+    let per_target: Vec<ExportOptions> = targets
+        .iter()
+        .map(|(format, out)| ExportOptions {
+            format: *format,
+            out: out.clone(),
+            ..opts.clone()
+        })
+        .collect();
+    for o in &per_target {
+        check_target(o)?;
+    }
+    let (loaded, _) = depthsense_eval::evaluate::load_model(
+        &opts.checkpoint,
+        opts.config.as_deref(),
+        &opts.set,
+        tch::Device::Cpu,
+    )?;
+    let infos = per_target
+        .iter()
+        .map(|o| Sidecar::new(o, &loaded.config))
+        .collect::<Result<Vec<_>, _>>()?;
+    let work = tempfile::tempdir().map_err(|e| ExportError::io(&std::env::temp_dir(), e))?;
+    let weights = work.path().join("weights.safetensors");
+    loaded
+        .vs
+        .save(&weights)
+        .map_err(|e| ExportError::Options(format!("{}: {e}", weights.display())))?;
+    let config = work.path().join("config.json");
+    let cfg_json = serde_json::to_string_pretty(&loaded.config)
+        .map_err(|e| ExportError::Options(e.to_string()))?;
+    std::fs::write(&config, cfg_json).map_err(|e| ExportError::io(&config, e))?;
+    // The temporary files go where the results go: an unwritable folder fails here, naming it.
+    let mut tmps: Vec<(Format, PathBuf)> = vec![];
+    let remove_all = |tmps: &[(Format, PathBuf)]| {
+        for (_, t) in tmps {
+            let _ = std::fs::remove_file(t);
+        }
+    };
+    for o in &per_target {
+        let tmp = temp_sibling(&o.out);
+        if let Err(e) = std::fs::write(&tmp, b"") {
+            remove_all(&tmps);
+            return Err(ExportError::io(&o.out, e));
+        }
+        tmps.push((o.format, tmp));
+    }
+    if let Err(e) = python::convert(opts, work.path(), &weights, &config, &tmps) {
+        remove_all(&tmps);
+        // name the files asked for, not their temporary siblings
+        return Err(match e {
+            ExportError::Python { python, detail, .. } => ExportError::Python {
+                python,
+                out: targets
+                    .iter()
+                    .map(|(_, p)| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                detail,
+            },
+            e => e,
+        });
+    }
+    let mut done = vec![];
+    for ((o, info), (_, tmp)) in per_target.into_iter().zip(infos).zip(&tmps) {
+        std::fs::rename(tmp, &o.out).map_err(|e| {
+            remove_all(&tmps);
+            ExportError::io(&o.out, e)
+        })?;
+        let sidecar = sidecar_path(&o.out);
+        let text =
+            serde_json::to_string_pretty(&info).map_err(|e| ExportError::Options(e.to_string()))?;
+        write_atomic(&sidecar, format!("{text}\n").as_bytes())
+            .map_err(|e| ExportError::io(&sidecar, e))?;
+        done.push(Exported {
+            out: o.out,
+            sidecar,
+            info,
+        });
+    }
+    Ok(done)
+}
+
+/// A target that may be written: not there (or `--force`), a precision its format takes.
+fn check_target(opts: &ExportOptions) -> Result<(), ExportError> {
     if !opts.force {
-        for p in [&opts.out, &sidecar_file] {
+        for p in [&opts.out, &sidecar_path(&opts.out)] {
             if p.exists() {
                 return Err(ExportError::Exists {
                     path: p.display().to_string(),
@@ -201,42 +297,5 @@ pub fn export(opts: &ExportOptions) -> Result<Exported, ExportError> {
                 .into(),
         ));
     }
-    let (loaded, _) = depthsense_eval::evaluate::load_model(
-        &opts.checkpoint,
-        opts.config.as_deref(),
-        &opts.set,
-        tch::Device::Cpu,
-    )?;
-    let info = Sidecar::new(opts, &loaded.config)?;
-    let work = tempfile::tempdir().map_err(|e| ExportError::io(&std::env::temp_dir(), e))?;
-    let weights = work.path().join("weights.safetensors");
-    loaded
-        .vs
-        .save(&weights)
-        .map_err(|e| ExportError::Options(format!("{}: {e}", weights.display())))?;
-    let config = work.path().join("config.json");
-    let cfg_json = serde_json::to_string_pretty(&loaded.config)
-        .map_err(|e| ExportError::Options(e.to_string()))?;
-    std::fs::write(&config, cfg_json).map_err(|e| ExportError::io(&config, e))?;
-    let tmp = temp_sibling(&opts.out);
-    // The temporary file goes where the result goes: an unwritable folder fails here, naming it.
-    std::fs::write(&tmp, b"").map_err(|e| ExportError::io(&opts.out, e))?;
-    let run = python::convert(opts, work.path(), &weights, &config, &tmp);
-    if let Err(e) = run {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    std::fs::rename(&tmp, &opts.out).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        ExportError::io(&opts.out, e)
-    })?;
-    let text =
-        serde_json::to_string_pretty(&info).map_err(|e| ExportError::Options(e.to_string()))?;
-    write_atomic(&sidecar_file, format!("{text}\n").as_bytes())
-        .map_err(|e| ExportError::io(&sidecar_file, e))?;
-    Ok(Exported {
-        out: opts.out.clone(),
-        sidecar: sidecar_file,
-        info,
-    })
+    Ok(())
 }

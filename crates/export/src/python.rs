@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::{ExportError, ExportOptions};
+use crate::{ExportError, ExportOptions, Format};
 
 /// `python/depthsense_torch.py`, as built into this binary.
 pub const DEPTHSENSE_TORCH_PY: &str = include_str!("../../../python/depthsense_torch.py");
@@ -35,13 +35,14 @@ pub fn find_python() -> PathBuf {
     PathBuf::from("python3")
 }
 
-/// Runs the exporter on `weights` + `config` (in `work`), writing `tmp_out`.
+/// Runs the exporter on `weights` + `config` (in `work`), writing every `(format, file)` of
+/// `targets` from one trace.
 pub(crate) fn convert(
     opts: &ExportOptions,
     work: &Path,
     weights: &Path,
     config: &Path,
-    tmp_out: &Path,
+    targets: &[(Format, PathBuf)],
 ) -> Result<(), ExportError> {
     for (name, text) in [
         ("depthsense_torch.py", DEPTHSENSE_TORCH_PY),
@@ -51,20 +52,29 @@ pub(crate) fn convert(
         std::fs::write(&p, text).map_err(|e| ExportError::io(&p, e))?;
     }
     let python = opts.python.clone().unwrap_or_else(find_python);
+    let outs: Vec<String> = targets
+        .iter()
+        .map(|(_, p)| p.display().to_string())
+        .collect();
     let failed = |detail: String| ExportError::Python {
         python: python.display().to_string(),
-        out: opts.out.display().to_string(),
+        out: outs.join(", "),
         detail,
     };
-    let output = Command::new(&python)
+    let mut command = Command::new(&python);
+    command
         .arg(work.join("depthsense_export.py"))
         .arg("--weights")
         .arg(weights)
         .arg("--config")
-        .arg(config)
-        .args(["--format", opts.format.name()])
-        .arg("--out")
-        .arg(tmp_out)
+        .arg(config);
+    for (format, out) in targets {
+        command
+            .args(["--format", format.name()])
+            .arg("--out")
+            .arg(out);
+    }
+    let output = command
         .args(["--batch", &opts.batch.arg()])
         .args(["--precision", opts.precision.name()])
         .output()

@@ -15,7 +15,8 @@ mod reference;
 
 use depthsense_eval::predict::{predict, PredictInput};
 use depthsense_export::{
-    export, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision, Sidecar,
+    export, export_many, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision,
+    Sidecar,
 };
 use depthsense_model::{checkpoint, DepthNet, ModelConfig, RadarInput};
 use depthsense_nuscenes::depth_png::DepthMap;
@@ -295,6 +296,14 @@ fn options(ckpt: &Path, format: Format, out: &Path, py: &Path) -> ExportOptions 
     }
 }
 
+/// `dir/STEM.onnx` and `dir/STEM.torchscript`: the two graph formats.
+fn both_graphs(dir: &Path, stem: &str) -> Vec<(Format, PathBuf)> {
+    [Format::Onnx, Format::TorchScript]
+        .into_iter()
+        .map(|f| (f, dir.join(format!("{stem}.{}", f.name()))))
+        .collect()
+}
+
 /// A network exported in some formats, with the two samples its exports are run on.
 struct Exported {
     cfg: ModelConfig,
@@ -314,9 +323,14 @@ fn export_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) -> Exported 
     let kind = depthsense_train::trainer::radar_input_for(cfg, None).unwrap();
     let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
     let mut files = vec![];
-    for &format in formats {
-        let out = dir.path().join(format!("model.{}", format.name()));
-        let done = export(&options(&ckpt, format, &out, py)).unwrap();
+    // every format from one load and one trace (`export_many`)
+    let targets: Vec<(Format, PathBuf)> = formats
+        .iter()
+        .map(|&f| (f, dir.path().join(format!("model.{}", f.name()))))
+        .collect();
+    let all = export_many(&options(&ckpt, formats[0], &targets[0].1, py), &targets).unwrap();
+    assert_eq!(all.len(), formats.len());
+    for (done, (format, out)) in all.into_iter().zip(targets) {
         let side: Sidecar =
             serde_json::from_str(&std::fs::read_to_string(sidecar_path(&out)).unwrap()).unwrap();
         assert_eq!(side, done.info, "the sidecar round-trips");
@@ -416,13 +430,13 @@ fn fp16_graphs_run_outside_depthsense_within_one_bin_of_predict() {
     let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
     let kind = Some(RadarInput::Height);
     let inputs: Vec<PredictInput> = (0..2).map(|i| sample(128, 64, 20 + i)).collect();
+    let targets = both_graphs(dir.path(), "half");
+    let mut o = options(&ckpt, Format::Onnx, &targets[0].1, &py);
+    o.precision = Precision::Fp16;
     let mut jobs = vec![];
-    for format in [Format::Onnx, Format::TorchScript] {
-        let out = dir.path().join(format!("half.{}", format.name()));
-        let mut o = options(&ckpt, format, &out, &py);
-        o.precision = Precision::Fp16;
-        assert_eq!(export(&o).unwrap().info.precision, "fp16");
-        jobs.push(Job::new(format, &out, &inputs, kind));
+    for (done, (format, out)) in export_many(&o, &targets).unwrap().into_iter().zip(&targets) {
+        assert_eq!(done.info.precision, "fp16");
+        jobs.push(Job::new(*format, out, &inputs, kind));
     }
     run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     let sid = &cfg.sid;
@@ -472,12 +486,12 @@ fn one_file_serves_n_1_and_n_4_at_the_full_frame() {
     let kind = Some(RadarInput::Height);
     let one: Vec<PredictInput> = vec![sample(800, 350, 0)];
     let four: Vec<PredictInput> = (1..5).map(|i| sample(800, 350, i)).collect();
+    let targets = both_graphs(dir.path(), "tiny");
+    export_many(&options(&ckpt, Format::Onnx, &targets[0].1, &py), &targets).unwrap();
     let mut jobs = vec![];
-    for format in [Format::Onnx, Format::TorchScript] {
-        let out = dir.path().join(format!("tiny.{}", format.name()));
-        export(&options(&ckpt, format, &out, &py)).unwrap();
-        jobs.push(Job::new(format, &out, &one, kind));
-        jobs.push(Job::new(format, &out, &four, kind));
+    for (format, out) in &targets {
+        jobs.push(Job::new(*format, out, &one, kind));
+        jobs.push(Job::new(*format, out, &four, kind));
     }
     run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     compare(&jobs, &loaded.net, &cfg);
@@ -531,6 +545,19 @@ fn bad_inputs_are_clear_errors_and_write_nothing() {
     let e = export(&o).unwrap_err().to_string();
     assert!(e.contains("fp16") && e.contains("float32"), "{e}");
     nothing_written("fp16 state dict");
+    // several targets: one existing file refuses them all before anything is written
+    std::fs::write(dir.path().join("taken.onnx"), b"the user's file").unwrap();
+    let targets = [
+        (Format::TorchScript, dir.path().join("fresh.torchscript")),
+        (Format::Onnx, dir.path().join("taken.onnx")),
+    ];
+    let e = export_many(&options(&ckpt, Format::Onnx, &out, &py), &targets)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("taken.onnx") && e.contains("--force"), "{e}");
+    assert!(!targets[0].1.exists());
+    std::fs::remove_file(dir.path().join("taken.onnx")).unwrap();
+    nothing_written("one of several targets exists");
     // an existing --out is refused without --force, and replaced with it
     export(&options(&ckpt, Format::Onnx, &out, &py)).unwrap();
     let before = std::fs::read(&out).unwrap();
@@ -557,15 +584,14 @@ fn paper_with_random_weights_at_batch_2() {
     let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
     let kind = Some(RadarInput::Height);
     let two: Vec<PredictInput> = (0..2).map(|i| sample(800, 350, 20 + i)).collect();
+    let targets = both_graphs(dir.path(), "paper");
+    let mut o = options(&ckpt, Format::Onnx, &targets[0].1, &py);
+    o.batch = Batch::Fixed(2);
     let mut jobs = vec![];
-    for format in [Format::Onnx, Format::TorchScript] {
-        let out = dir.path().join(format!("paper.{}", format.name()));
-        let mut o = options(&ckpt, format, &out, &py);
-        o.batch = Batch::Fixed(2);
-        let done = export(&o).unwrap();
+    for (done, (format, out)) in export_many(&o, &targets).unwrap().into_iter().zip(&targets) {
         assert_eq!(done.info.batch, "2");
         assert_eq!(done.info.inputs[0].shape[0], serde_json::json!(2));
-        jobs.push(Job::new(format, &out, &two, kind));
+        jobs.push(Job::new(*format, out, &two, kind));
     }
     run_outside(&py, &jobs.iter().collect::<Vec<_>>());
     compare(&jobs, &loaded.net, &cfg);
