@@ -91,6 +91,12 @@ pub fn run_without_torch(command: Command) -> Result<anyhow::Result<ExitCode>, B
     }
 }
 
+/// The invocation as the user typed it (`depthsense …`: the handoff keeps argv[0]), recorded
+/// in the outputs that name the command that made them (tables.json, reports, experiments).
+pub fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
 /// How both binaries end: the command's exit code, or its error on stderr and exit code 1.
 pub fn finish(result: anyhow::Result<ExitCode>) -> ExitCode {
     match result {

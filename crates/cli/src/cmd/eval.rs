@@ -131,7 +131,7 @@ pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
     let (report, sum) = run_eval_predictions(&opts, &pb)?;
     pb.finish_and_clear();
     let models = [(a.name.as_str(), &report)];
-    write_tables_with_command(&out, &models, Some(&command_line()))?;
+    write_tables_with_command(&out, &models, Some(&crate::command_line()))?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
         "{} predictions scored ({} png, {} npy), {} samples without a file; tables written to \
@@ -143,9 +143,4 @@ pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
         out.display()
     );
     Ok(ExitCode::SUCCESS)
-}
-
-/// The invocation, recorded in tables.json / tables.md.
-pub fn command_line() -> String {
-    std::env::args().collect::<Vec<_>>().join(" ")
 }

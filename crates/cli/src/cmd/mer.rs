@@ -131,7 +131,7 @@ pub struct ReportArgs {
 /// `mer report` (torch-free: `depthsense` runs it itself).
 pub fn run_report(a: ReportArgs) -> anyhow::Result<ExitCode> {
     let mut r = mer_report(&a.data, &a.split, a.cap)?;
-    r.command_line = Some(std::env::args().collect::<Vec<_>>().join(" "));
+    r.command_line = Some(crate::command_line());
     print!("{}", report_markdown(&r));
     if let Some(p) = &a.json {
         write_atomic(p, serde_json::to_string_pretty(&r)?.as_bytes())?;

@@ -47,7 +47,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_depth: a.max_depth,
         max_width: a.max_width.max(16),
         tile_width: a.tile_width.max(16),
-        command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        command_line: Some(crate::command_line()),
         force: a.force,
     };
     let s = build_report(&opts).with_context(|| format!("report → {}", opts.out.display()))?;

@@ -17,7 +17,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         jobs: a.jobs,
         pictures: a.pictures,
         force: a.force,
-        command_line: Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        command_line: Some(depthsense_cli::command_line()),
     };
     let mp = MultiProgress::new();
     let s = run_demo(&opts, &mp)?;

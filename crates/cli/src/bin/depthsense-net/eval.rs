@@ -1,7 +1,8 @@
 //! `depthsense eval`: the paper's tables (SPEC §10 items 1–3) for a checkpoint, or for any (the network side; its flags: `depthsense_cli::cmd::eval`).
 
-use depthsense_cli::cmd::eval::{command_line, eval_config, run_predictions, Args};
+use depthsense_cli::cmd::eval::{eval_config, Args};
 use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_cli::command_line;
 use depthsense_eval::evaluate::{
     load_model, run_eval_loaded, table_paths, write_tables_with_command, EvalOptions,
 };
@@ -11,9 +12,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if let Some(dir) = a.predictions.clone() {
-        return run_predictions(a, dir);
-    }
     let checkpoint = a
         .checkpoint
         .clone()

@@ -69,7 +69,7 @@ fn claim_results(
 }
 
 fn command_line() -> Option<String> {
-    Some(std::env::args().collect::<Vec<_>>().join(" "))
+    Some(depthsense_cli::command_line())
 }
 
 fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {

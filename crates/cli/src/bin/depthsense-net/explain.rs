@@ -37,7 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         &a.layer,
         &a.out,
         device,
-        Some(std::env::args().collect::<Vec<_>>().join(" ")),
+        Some(depthsense_cli::command_line()),
     )?;
     println!("{}", std::fs::read_to_string(a.out.join("explain.md"))?);
     eprintln!(
