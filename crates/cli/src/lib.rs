@@ -22,6 +22,12 @@ pub mod handoff;
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// When stderr is not a terminal (`> run.log 2>&1`, Slurm, nohup, CI), long commands print
+    /// a plain progress line this often: seconds (`30s`, `2m`) or steps (`100it`: iterations,
+    /// keyframes, samples). On a terminal the progress bars stay. `DEPTHSENSE_PROGRESS=bars|
+    /// lines|none` overrides the choice.
+    #[arg(long, global = true, default_value = "30s", value_name = "EVERY")]
+    pub log_every: depthsense_progress::LogEvery,
 }
 
 #[derive(Subcommand)]

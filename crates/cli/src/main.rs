@@ -9,6 +9,7 @@ use depthsense_cli::{finish, handoff, run_without_torch, Cli};
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    depthsense_progress::configure(cli.log_every);
     finish(match run_without_torch(cli.command) {
         Ok(result) => result,
         Err(_network_command) => handoff::run_in_net(std::env::args_os().skip(1).collect()),

@@ -33,7 +33,7 @@ fn main() {
         jobs: 2,
         ..TrainOptions::default()
     };
-    let s = train(&o, &indicatif::ProgressBar::hidden()).unwrap();
+    let s = train(&o, &depthsense_progress::Progress::hidden()).unwrap();
     println!(
         "val {:?}",
         s.val

@@ -15,7 +15,7 @@ use depthsense_metrics::{EvalConfig, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_model::ModelConfig;
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
@@ -116,7 +116,7 @@ pub fn load_model(
 
 /// Evaluate a checkpoint (see [`load_model`] for what `opts.checkpoint` may be). Returns the
 /// report (every row).
-pub fn run_eval(opts: &EvalOptions, progress: &ProgressBar) -> Result<Report, TrainError> {
+pub fn run_eval(opts: &EvalOptions, progress: &Progress) -> Result<Report, TrainError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let (loaded, _) = load_model(&opts.checkpoint, opts.config.as_deref(), &opts.set, device)?;
     run_eval_loaded(opts, &loaded, progress)
@@ -126,7 +126,7 @@ pub fn run_eval(opts: &EvalOptions, progress: &ProgressBar) -> Result<Report, Tr
 pub fn run_eval_loaded(
     opts: &EvalOptions,
     loaded: &Loaded,
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<Report, TrainError> {
     eval_with(opts, loaded, progress, |_, _| Ok(()))
 }
@@ -135,7 +135,7 @@ pub fn run_eval_loaded(
 fn eval_with(
     opts: &EvalOptions,
     loaded: &Loaded,
-    progress: &ProgressBar,
+    progress: &Progress,
     on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), TrainError>,
 ) -> Result<Report, TrainError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
@@ -161,6 +161,14 @@ fn eval_with(
     };
     opts.failure.validate()?;
     progress.set_length(entries.len() as u64);
+    progress.println(format!(
+        "{} samples of {} (split {}) through {} on {}",
+        entries.len(),
+        opts.data.display(),
+        opts.split,
+        opts.checkpoint.display(),
+        depthsense_model::device::describe(device)
+    ));
     evaluate_net(
         &loaded.net,
         &ds,
@@ -181,7 +189,7 @@ pub fn write_predictions(
     loaded: &Loaded,
     out: &Path,
     formats: &[PredFormat],
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<(Report, usize), TrainError> {
     std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
     let mut n = 0usize;

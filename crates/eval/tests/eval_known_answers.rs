@@ -13,7 +13,7 @@ use depthsense_eval::evaluate::{
 };
 use depthsense_metrics::{EvalConfig, Report, CONDITIONS};
 use depthsense_model::{checkpoint, sid, DepthNet, ModelConfig};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use tch::{nn::VarStore, Device};
 
 const W: u32 = 128;
@@ -185,8 +185,7 @@ fn ground_truth_as_prediction_scores_zero_error() {
         )
         .unwrap();
     }
-    let (report, sum) =
-        run_eval_predictions(&popts(&preds, &data), &ProgressBar::hidden()).unwrap();
+    let (report, sum) = run_eval_predictions(&popts(&preds, &data), &Progress::hidden()).unwrap();
     assert_eq!(sum.png, truth.len());
     let want = expected(&truth, &[50.0, 70.0, 80.0], |t, i| t.sparse_m[i]);
     check(&report, &want);
@@ -220,8 +219,7 @@ fn ground_truth_plus_one_metre_has_mae_one() {
         )
         .unwrap();
     }
-    let (report, sum) =
-        run_eval_predictions(&popts(&preds, &data), &ProgressBar::hidden()).unwrap();
+    let (report, sum) = run_eval_predictions(&popts(&preds, &data), &Progress::hidden()).unwrap();
     assert_eq!(sum.npy, truth.len());
     let want = expected(&truth, &[50.0, 70.0, 80.0], |t, i| t.sparse_m[i] + 1.0);
     check(&report, &want);
@@ -279,7 +277,7 @@ fn a_constant_network_scores_what_the_files_say() {
         batch_size: 3,
         ..EvalOptions::default()
     };
-    let report = run_eval(&opts, &ProgressBar::hidden()).unwrap();
+    let report = run_eval(&opts, &Progress::hidden()).unwrap();
     // the network computes in float32: its constant is 9.196068 m to float precision
     let c = depth_m as f32 as f64;
     let want = expected(&truth, &[50.0, 70.0, 80.0], |_, _| c);

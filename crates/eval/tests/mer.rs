@@ -19,8 +19,8 @@ use depthsense_model::pda::{MerWindow, PdaConfig};
 use depthsense_model::{ModelConfig, RadarInput};
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::layout::{LIDAR_DENSE_FILE, META_FILE};
+use depthsense_progress::Progress;
 use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
-use indicatif::ProgressBar;
 
 /// libtorch's generator is process-wide; tests that train hold this lock (see workflow.rs).
 static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -216,7 +216,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let data = tmp.path().join("data");
     let ds = toy(&data);
     let run = tmp.path().join("pda");
-    let s = train_pda(&train_opts(&data, &run), &ProgressBar::hidden()).unwrap();
+    let s = train_pda(&train_opts(&data, &run), &Progress::hidden()).unwrap();
     assert_eq!(s.val.len(), 7, "the untrained network and 6 epochs");
     assert!(
         s.val.iter().all(|v| v.pairs > 0 && v.positives > 0),
@@ -243,10 +243,10 @@ fn train_apply_twice_and_the_seven_channel_input() {
         preview_dir: Some(tmp.path().join("preview")),
         ..MerApplyOptions::default()
     };
-    let a = apply(&opts, &ProgressBar::hidden()).unwrap();
+    let a = apply(&opts, &Progress::hidden()).unwrap();
     assert_eq!((a.written, a.skipped, a.previews.len()), (10, 0, 1));
     let first = mer_bytes(&ds);
-    let again = apply(&opts, &ProgressBar::hidden()).unwrap();
+    let again = apply(&opts, &Progress::hidden()).unwrap();
     assert_eq!((again.written, again.skipped), (0, 10));
     assert_eq!(mer_bytes(&ds), first, "a second run changes nothing");
     let forced = MerApplyOptions {
@@ -254,7 +254,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
         preview: 0,
         ..opts.clone()
     };
-    assert_eq!(apply(&forced, &ProgressBar::hidden()).unwrap().written, 10);
+    assert_eq!(apply(&forced, &Progress::hidden()).unwrap().written, 10);
     assert_eq!(
         mer_bytes(&ds),
         first,
@@ -273,16 +273,14 @@ fn train_apply_twice_and_the_seven_channel_input() {
         },
         ..train_opts(&data, &run2)
     };
-    train_pda(&o2, &ProgressBar::hidden()).unwrap();
+    train_pda(&o2, &Progress::hidden()).unwrap();
     let loaded2 = depthsense_model::pda::load(&run2.join(BEST_CKPT), tch::Device::Cpu).unwrap();
     assert_eq!(loaded2.config.input_stride, 2);
     let other = MerApplyOptions {
         checkpoint: run2.join(BEST_CKPT),
         ..opts.clone()
     };
-    let err = apply(&other, &ProgressBar::hidden())
-        .unwrap_err()
-        .to_string();
+    let err = apply(&other, &Progress::hidden()).unwrap_err().to_string();
     assert!(err.contains("--force") && err.contains("mer.json"), "{err}");
 
     // predict's own MER (`--mer-checkpoint`) equals what `mer apply` stored.
@@ -299,7 +297,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
         network_threads: 1,
         ..other
     };
-    assert_eq!(apply(&forced2, &ProgressBar::hidden()).unwrap().written, 10);
+    assert_eq!(apply(&forced2, &Progress::hidden()).unwrap().written, 10);
     let mut input = depthsense_eval::predict::input_from_prepared(&dir).unwrap();
     let stored = input.mer.take().unwrap();
     attach_mer(&mut input, &loaded2.net, tch::Device::Cpu).unwrap();
@@ -340,9 +338,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
         jobs: 2,
         ..TrainOptions::default()
     };
-    let err = train(&topts, &ProgressBar::hidden())
-        .unwrap_err()
-        .to_string();
+    let err = train(&topts, &Progress::hidden()).unwrap_err().to_string();
     assert!(err.contains("7"), "radar_channels must match: {err}");
     let topts = TrainOptions {
         model: topts
@@ -352,7 +348,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
             .unwrap(),
         ..topts
     };
-    train(&topts, &ProgressBar::hidden()).unwrap();
+    train(&topts, &Progress::hidden()).unwrap();
     let (cfg, _) = depthsense_model::checkpoint::read_config(&topts.out.join(BEST_CKPT)).unwrap();
     assert_eq!((cfg.radar_input, cfg.radar_channels), (RadarInput::Mer, 7));
 
@@ -360,9 +356,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
     // sample has no depth map (so a rerun would redo it).
     let bad = ds.sample_dir(&ds.index.samples[9]);
     std::fs::write(bad.join("image.png"), b"not a png").unwrap();
-    let err = apply(&forced, &ProgressBar::hidden())
-        .unwrap_err()
-        .to_string();
+    let err = apply(&forced, &Progress::hidden()).unwrap_err().to_string();
     assert!(err.contains("image.png"), "{err}");
     assert!(!bad.join("radar_mer_depth.png").exists());
 }
@@ -443,7 +437,7 @@ fn missing_or_corrupt_lidar_dense_is_a_clear_error() {
     );
     // Through `mer train` as well.
     let out = tmp.path().join("run");
-    let err = train_pda(&train_opts(tmp.path(), &out), &ProgressBar::hidden());
+    let err = train_pda(&train_opts(tmp.path(), &out), &Progress::hidden());
     let err = err.unwrap_err().to_string();
     assert!(err.contains(LIDAR_DENSE_FILE), "{err}");
     // Data prepared with K = 0 is refused.

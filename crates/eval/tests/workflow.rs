@@ -8,9 +8,9 @@ use depthsense_data::{
 };
 use depthsense_eval::evaluate::{run_eval, write_tables, EvalOptions};
 use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
+use depthsense_progress::Progress;
 use depthsense_train::trainer::{read_metrics, train, TrainOptions, BEST_CKPT, LAST_CKPT};
 use depthsense_train::TrainError;
-use indicatif::ProgressBar;
 
 const W: u32 = 128;
 const H: u32 = 64;
@@ -322,7 +322,7 @@ fn train_resume_mismatch_eval_predict() {
     let data = tmp.path().join("data");
     // 6 scenes of 4: test toy-0004, validation toy-0003, 16 train samples (4 batches of 4).
     toy(&data, 6, 4);
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
 
     // Uninterrupted: 10 epochs × 4 iterations.
     let full = train(&opts(&data, &tmp.path().join("a"), Fusion::Late), &pb).unwrap();
@@ -502,7 +502,7 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
     o.lr = 1e30; // diverges within a few steps: a real non-finite loss
     o.checkpoint_every = 1;
     o.max_val_samples = Some(1);
-    let err = train(&o, &ProgressBar::hidden()).expect_err("must stop");
+    let err = train(&o, &Progress::hidden()).expect_err("must stop");
     let msg = err.to_string();
     let TrainError::NonFiniteLoss { iteration, .. } = err else {
         panic!("expected a non-finite-loss error, got {msg}");
@@ -541,7 +541,7 @@ fn deferred_loss_read_reports_the_first_non_finite_iteration() {
         o.max_val_samples = Some(1);
         o.loss_read_every = every;
         o.checkpoint_every = checkpoint_every;
-        let err = train(&o, &ProgressBar::hidden()).expect_err("must stop");
+        let err = train(&o, &Progress::hidden()).expect_err("must stop");
         let TrainError::NonFiniteLoss { iteration, .. } = err else {
             panic!("expected a non-finite-loss error, got {err}");
         };
@@ -586,7 +586,7 @@ fn deferred_loss_read_trains_identically() {
         o.epochs = 2;
         o.max_val_samples = Some(2);
         o.loss_read_every = every;
-        let s = train(&o, &ProgressBar::hidden()).unwrap();
+        let s = train(&o, &Progress::hidden()).unwrap();
         let l = checkpoint::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
         let mut w: Vec<(String, Vec<f32>)> =
             l.vs.variables()

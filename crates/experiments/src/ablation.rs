@@ -25,7 +25,7 @@ use depthsense_data::{partition, Dataset, Partition};
 use depthsense_metrics::table::{csv_num, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
-use indicatif::MultiProgress;
+use depthsense_progress::Board;
 use serde::{Deserialize, Serialize};
 
 use super::paired::{paired_test, PairedTest};
@@ -210,7 +210,7 @@ fn one_run(
     ds: &Dataset,
     part: &Partition,
     device: tch::Device,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<(RunRecord, RunStatus), TrainError> {
     let run = opts
         .out
@@ -435,10 +435,7 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Ve
 
 /// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
 /// `mp` hosts one progress bar per run (pass a hidden one in tests).
-pub fn run_ablation(
-    opts: &AblationOptions,
-    mp: &MultiProgress,
-) -> Result<AblationResult, TrainError> {
+pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, TrainError> {
     let t0 = Instant::now();
     check_options(opts)?;
     let models = variant_models(opts)?;
@@ -462,6 +459,12 @@ pub fn run_ablation(
     let total = models.len() * opts.seeds.len();
     let overall = run_bar(mp, "ablation runs");
     overall.set_length(total as u64);
+    overall.println(format!(
+        "{} variants × {} seeds = {total} runs into {}",
+        models.len(),
+        opts.seeds.len(),
+        opts.out.display()
+    ));
     let mut runs = vec![];
     let mut status = vec![];
     for (variant, model) in &models {

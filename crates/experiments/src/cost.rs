@@ -106,10 +106,16 @@ pub fn measure(cfg: &ModelConfig, o: &CostOptions, device: Device) -> Result<Cos
 pub fn run_cost(
     o: &CostOptions,
     out: &Path,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<CostResult, TrainError> {
     let device = depthsense_model::device::parse_device(&o.device)?;
     progress.set_length((o.presets.len() * o.variants.len()) as u64);
+    progress.println(format!(
+        "{} presets × {} variants on {}",
+        o.presets.len(),
+        o.variants.len(),
+        depthsense_model::device::describe(device)
+    ));
     let mut rows = vec![];
     for p in &o.presets {
         let base = super::ablation::base_model(p)?;
@@ -234,7 +240,7 @@ mod tests {
             command_line: None,
         };
         let dir = tempfile::tempdir().unwrap();
-        let r = run_cost(&o, dir.path(), &indicatif::ProgressBar::hidden()).unwrap();
+        let r = run_cost(&o, dir.path(), &depthsense_progress::Progress::hidden()).unwrap();
         assert_eq!(r.rows.len(), 2);
         // the radar branch adds parameters and MACs
         assert!(r.rows[1].params > r.rows[0].params);

@@ -21,7 +21,7 @@ use depthsense_model::{checkpoint, Fusion, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use depthsense_progress::{Board, Progress};
 use serde::{Deserialize, Serialize};
 use tch::Device;
 
@@ -170,21 +170,12 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
     p
 }
 
-fn stage_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
-    let pb = mp.add(ProgressBar::new(0));
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>10.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(name.to_string());
-    pb
+fn stage_bar(mp: &Board, name: &str) -> Progress {
+    mp.bar(name)
 }
 
 /// Run the demo. `mp` hosts one progress bar per stage (pass a hidden one in tests).
-pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, TrainError> {
+pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainError> {
     let t0 = Instant::now();
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let cuda = device.is_cuda();
@@ -193,6 +184,17 @@ pub fn run_demo(opts: &DemoOptions, mp: &MultiProgress) -> Result<DemoSummary, T
     // One demo per folder at a time, and an earlier one is replaced only when asked.
     let _writing = OutputLock::exclusive(out, "depthsense demo")?;
     clear_earlier_demo(opts)?;
+    mp.println(format!(
+        "demo: a world of {} scenes × {} keyframes, `{}` RGB-only and radar fusion, {} epochs \
+         of batch {} on {} → {}",
+        plan.scenes,
+        plan.keyframes_per_scene,
+        plan.preset,
+        plan.epochs,
+        plan.batch_size,
+        depthsense_model::device::describe(device),
+        out.display()
+    ));
     let mut stages: Vec<(String, f64)> = vec![];
     let t = Instant::now();
     let (world, scfg) = synthesise(opts, &plan, mp)?;
@@ -279,7 +281,7 @@ fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), TrainError> {
 fn synthesise(
     opts: &DemoOptions,
     plan: &DemoPlan,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<(PathBuf, depthsense_synth::SynthConfig), TrainError> {
     let world = opts.out.join("world");
     let mut scfg = depthsense_synth::SynthConfig::demo();
@@ -300,7 +302,7 @@ fn prepare_world(
     plan: &DemoPlan,
     world: &Path,
     version: &str,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<PathBuf, TrainError> {
     let prepared = opts.out.join("prepared");
     // The world was just regenerated: samples prepared from an earlier world (or by an older
@@ -343,7 +345,7 @@ fn train_both(
     opts: &DemoOptions,
     plan: &DemoPlan,
     prepared: &Path,
-    mp: &MultiProgress,
+    mp: &Board,
     stages: &mut Vec<(String, f64)>,
 ) -> Result<Vec<DemoRun>, TrainError> {
     let out = &opts.out;
@@ -394,7 +396,7 @@ fn evaluate_both(
     runs: &[DemoRun],
     report_dir: &Path,
     device: Device,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<Vec<(String, Report)>, TrainError> {
     let pic_tokens: Vec<String> = subsample(test, Some(opts.pictures.max(1)))
         .iter()

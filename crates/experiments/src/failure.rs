@@ -97,7 +97,7 @@ pub fn run_failure(
     scenarios: &[Scenario],
     out: &std::path::Path,
     command_line: Option<String>,
-    mp: &indicatif::MultiProgress,
+    mp: &depthsense_progress::Board,
 ) -> Result<FailureResult, TrainError> {
     let device = depthsense_model::device::parse_device(&base.device)?;
     let (loaded, _) = depthsense_eval::evaluate::load_model(

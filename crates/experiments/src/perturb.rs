@@ -128,7 +128,7 @@ pub fn run_perturb(
     opts: &PerturbOptions,
     out: &Path,
     command_line: Option<String>,
-    mp: &indicatif::MultiProgress,
+    mp: &depthsense_progress::Board,
 ) -> Result<PerturbResult, TrainError> {
     let grid = opts.grid()?;
     let device = depthsense_model::device::parse_device(&base.device)?;
@@ -143,12 +143,8 @@ pub fn run_perturb(
         axis: PerturbAxis::Yaw,
         amount: 0.0,
     };
-    let total = mp.add(indicatif::ProgressBar::new(grid.len() as u64 + 1));
-    total.set_style(
-        indicatif::ProgressStyle::with_template("{prefix:>16.bold} {pos}/{len} perturbations")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    total.set_prefix("perturb");
+    let total = mp.bar("perturbations");
+    total.set_length(grid.len() as u64 + 1);
     let eval_one = |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, TrainError> {
         let pb = run_bar(mp, label);
         let t = std::time::Instant::now();

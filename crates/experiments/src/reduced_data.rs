@@ -18,8 +18,8 @@ use depthsense_data::{partition, Dataset};
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_model::ModelConfig;
+use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
-use indicatif::MultiProgress;
 use serde::{Deserialize, Serialize};
 
 use super::runner::{
@@ -125,7 +125,7 @@ fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64)
 /// Train every cell × seed, test on the test scenes, write the tables and the chart.
 pub fn run_reduced_data(
     opts: &ReducedDataOptions,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<ReducedDataResult, TrainError> {
     let t0 = Instant::now();
     check(opts)?;
@@ -147,6 +147,13 @@ pub fn run_reduced_data(
     )?;
     let overall = run_bar(mp, "reduced-data runs");
     overall.set_length((opts.grid.len() * opts.seeds.len()) as u64);
+    overall.println(format!(
+        "{} cells × {} seeds = {} runs into {}",
+        opts.grid.len(),
+        opts.seeds.len(),
+        opts.grid.len() * opts.seeds.len(),
+        opts.out.display()
+    ));
     let (mut runs, mut cells) = (vec![], vec![]);
     for cell in &opts.grid {
         let mut p = part.clone();

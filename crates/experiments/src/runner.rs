@@ -14,11 +14,11 @@ use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
 use depthsense_model::{checkpoint, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
+use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};
 use depthsense_train::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
 };
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
 
 use super::Stat;
@@ -343,17 +343,8 @@ pub fn row_values(r: &Report) -> Vec<RowValues> {
     out
 }
 
-pub fn run_bar(mp: &MultiProgress, name: &str) -> ProgressBar {
-    let pb = mp.add(ProgressBar::new(0));
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>16.bold} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(name.to_string());
-    pb
+pub fn run_bar(mp: &Board, name: &str) -> Progress {
+    mp.bar(name)
 }
 
 /// Mean ± std over seeds per variant × condition × region (rows without valid images in a
@@ -401,7 +392,7 @@ pub fn train_and_test(
     ds: &Dataset,
     test: &[IndexEntry],
     device: tch::Device,
-    mp: &MultiProgress,
+    mp: &Board,
 ) -> Result<(RunRecord, RunStatus), TrainError> {
     let run = topts.out.clone();
     let seed = topts.seed;
@@ -479,7 +470,7 @@ fn finished_record(
 /// best validation RMSE).
 fn train_or_reuse(
     topts: &TrainOptions,
-    pb: &ProgressBar,
+    pb: &Progress,
 ) -> Result<(RunStatus, f64, Option<f64>), TrainError> {
     let run = &topts.out;
     let cfg_path = run.join(CONFIG_FILE);
@@ -522,7 +513,7 @@ fn test_best(
     ds: &Dataset,
     test: &[IndexEntry],
     device: tch::Device,
-    pb: &ProgressBar,
+    pb: &Progress,
 ) -> Result<Report, TrainError> {
     let best = topts.out.join(BEST_CKPT);
     if !best.exists() {

@@ -14,9 +14,9 @@ use depthsense_experiments::ablation::{
     JSON_FILE, MD_FILE, PNG_FILE, RUN_EVAL_FILE,
 };
 use depthsense_experiments::Stat;
+use depthsense_progress::Progress;
 use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
 use depthsense_viz::plot::{bar_chart_png, colorize_depth, picture_row_png};
-use indicatif::ProgressBar;
 
 fn opts(data: &Path, out: &Path) -> AblationOptions {
     AblationOptions {
@@ -299,7 +299,7 @@ fn ablation_runs_reports_and_resumes() {
             stop_after: Some(1),
             ..o2.run.train_options(out2.join("runs/rgb/seed0"), &model, 0)
         },
-        &ProgressBar::hidden(),
+        &Progress::hidden(),
     )
     .unwrap();
     assert!(partial.interrupted);

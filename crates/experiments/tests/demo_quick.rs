@@ -4,7 +4,7 @@
 mod common;
 
 use depthsense_experiments::demo::{run_demo, DemoOptions};
-use indicatif::{MultiProgress, ProgressDrawTarget};
+use depthsense_progress::Board;
 
 #[test]
 fn quick_demo_writes_the_report() {
@@ -21,7 +21,7 @@ fn quick_demo_writes_the_report() {
         pictures: 1,
         ..DemoOptions::default()
     };
-    let mp = MultiProgress::with_draw_target(ProgressDrawTarget::hidden());
+    let mp = Board::hidden();
     let s = run_demo(&opts, &mp).unwrap();
     let r = &s.report_dir;
     for f in [

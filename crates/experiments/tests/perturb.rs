@@ -18,8 +18,8 @@ use depthsense_prep::radar_points::{
     PerturbAxis, Perturbation, RadarPoints, SweepGroup, RADAR_POINTS_FILE,
 };
 use depthsense_prep::{prepare, PrepareOptions};
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, Weather};
-use indicatif::ProgressBar;
 use tch::{nn::VarStore, Device};
 
 fn tiny_checkpoint(dir: &Path) -> PathBuf {
@@ -54,7 +54,7 @@ fn prepared_once() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
             conditions: vec![(Weather::Day, 1.0)],
             ..SynthConfig::default()
         };
-        generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+        generate(&root, &cfg, &Progress::hidden()).unwrap();
         let data = tmp.path().join("prepared");
         let opts = PrepareOptions {
             dataroot: root,
@@ -64,7 +64,7 @@ fn prepared_once() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
             jobs: 2,
             ..Default::default()
         };
-        let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        let s = prepare(&opts, &Progress::hidden()).unwrap();
         assert_eq!((s.prepared, s.failed.len()), (2, 0), "{:?}", s.failed);
         let ck = tiny_checkpoint(tmp.path());
         (tmp, data, ck)
@@ -130,7 +130,7 @@ fn raw_map(ds: &Dataset, e: &IndexEntry, failure: RadarFailure) -> Vec<f32> {
 #[test]
 fn zero_perturbation_is_the_unperturbed_eval_bit_for_bit() {
     let (tmp, _data, eo) = setup();
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
     let plain = run_eval(&eo, &pb).unwrap();
     // (every axis at 0 gives the very same points: radar_points unit tests)
     for axis in [PerturbAxis::Pitch, PerturbAxis::Z] {
@@ -145,7 +145,7 @@ fn zero_perturbation_is_the_unperturbed_eval_bit_for_bit() {
         translate_m: vec![0.5],
         axes: vec![PerturbAxis::Yaw],
     };
-    let mp = indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden());
+    let mp = depthsense_progress::Board::hidden();
     let r = run_perturb(&eo, &opts, &out, Some("cmd".into()), &mp).unwrap();
     assert_eq!(r.baseline.report, plain);
     assert_eq!(r.rows.len(), 1);
@@ -220,7 +220,7 @@ fn yaw_moves_an_optical_axis_return_as_the_pinhole_model_predicts() {
 #[test]
 fn dropping_radars_all_equals_radar_drop_one_and_one_radar_removes_exactly_its_points() {
     let (_tmp, data, eo) = setup();
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
     let full_drop = run_eval(
         &EvalOptions {
             radar_drop: 1.0,
@@ -279,7 +279,7 @@ fn samples_without_radar_points_ask_for_a_new_prepare() {
     for e in &ds.index.samples {
         std::fs::remove_file(ds.sample_dir(e).join(RADAR_POINTS_FILE)).unwrap();
     }
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
     // everything else still works
     run_eval(&eo, &pb).unwrap();
     let err = run_eval(&with_failure(&eo, perturb(PerturbAxis::Yaw, 1.0)), &pb).unwrap_err();

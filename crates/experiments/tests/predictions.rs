@@ -12,7 +12,7 @@ use depthsense_eval::evaluate::{
 use depthsense_experiments::failure::RadarFailure;
 use depthsense_metrics::{tables, EvalConfig, Protocol, Report};
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use tch::{nn::VarStore, Device};
 
 fn tiny_checkpoint(dir: &Path) -> PathBuf {
@@ -71,7 +71,7 @@ fn md(r: &Report) -> String {
 #[test]
 fn predict_outputs_reproduce_eval_checkpoint() {
     let (tmp, data, eo) = setup();
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
     let by_checkpoint = run_eval(&eo, &pb).unwrap();
     let (loaded, _) = load_model(&eo.checkpoint, None, &[], Device::Cpu).unwrap();
     let out = tmp.path().join("preds");
@@ -153,7 +153,7 @@ fn predict_outputs_reproduce_eval_checkpoint() {
 #[test]
 fn dropping_every_radar_equals_radar_drop_one() {
     let (_tmp, data, eo) = setup();
-    let pb = ProgressBar::hidden();
+    let pb = Progress::hidden();
     let full_drop = run_eval(
         &EvalOptions {
             radar_drop: 1.0,
@@ -229,7 +229,7 @@ fn failure_experiment_tables_every_scenario() {
         assert!(parse_scenarios(bad).is_err(), "{bad}");
     }
     let out = tmp.path().join("failure");
-    let mp = indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden());
+    let mp = depthsense_progress::Board::hidden();
     let r = run_failure(&eo, &sc, &out, Some("cmd".into()), &mp).unwrap();
     for f in [FAILURE_MD, FAILURE_CSV, FAILURE_JSON, FAILURE_PNG] {
         assert!(out.join(f).is_file(), "{f}");

@@ -577,7 +577,7 @@ fn demo_page_renders_in_headless_chromium() {
         pictures: 2,
         ..Default::default()
     };
-    let mp = indicatif::MultiProgress::with_draw_target(indicatif::ProgressDrawTarget::hidden());
+    let mp = depthsense_progress::Board::hidden();
     let s = depthsense_experiments::demo::run_demo(&opts, &mp).unwrap();
     let page = s.report_dir.join("report.html");
     let html = std::fs::read_to_string(&page).unwrap();

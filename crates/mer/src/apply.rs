@@ -17,7 +17,7 @@ use depthsense_model::pda::{self, PdaConfig, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use rayon::prelude::*;
 use tch::{Device, Tensor};
 
@@ -228,10 +228,7 @@ fn prepare_record(
 }
 
 /// Run `mer apply` (see the module docs).
-pub fn apply(
-    opts: &MerApplyOptions,
-    progress: &ProgressBar,
-) -> Result<MerApplySummary, TrainError> {
+pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySummary, TrainError> {
     let started = Instant::now();
     // It writes the prepared dataset in place: no `prepare`, merge or other `mer apply` meanwhile.
     let _writing =
@@ -261,6 +258,12 @@ pub fn apply(
         .build()
         .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
     progress.set_length(todo.len() as u64);
+    progress.println(format!(
+        "{} samples of {} to enhance ({skipped} already done) on {}",
+        todo.len(),
+        ds.root.display(),
+        depthsense_model::device::describe(device)
+    ));
     let t0 = Instant::now();
     // libtorch's thread count is process-wide: set for the pipeline, then put back.
     let torch_threads = tch::get_num_threads();
@@ -316,7 +319,7 @@ fn run_pipeline(
     opts: &MerApplyOptions,
     pool: &rayon::ThreadPool,
     device: Device,
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<f64, TrainError> {
     use std::sync::mpsc::sync_channel;
     type Loaded<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, TrainError>);

@@ -24,6 +24,7 @@ use depthsense_model::pda::{self, balanced_bce, PdaConfig, PdaNet};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
+use depthsense_progress::Progress;
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use depthsense_train::sgd::poly_lr;
@@ -31,7 +32,6 @@ use depthsense_train::trainer::{
     append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
     LAST_OPTIM, METRICS_FILE,
 };
-use indicatif::ProgressBar;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -103,6 +103,17 @@ pub struct MerValRecord {
     pub auc: f64,
     pub pairs: u64,
     pub positives: u64,
+}
+
+/// The progress line of a validation.
+impl std::fmt::Display for MerValRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "loss {:.4}, AUC {:.4}, precision {:.3}, recall {:.3} on {} pairs ({} positive)",
+            self.loss, self.auc, self.precision, self.recall, self.pairs, self.positives
+        )
+    }
 }
 
 /// What `mer train` did.
@@ -312,6 +323,28 @@ struct Run<'o> {
 }
 
 impl<'o> Run<'o> {
+    /// What the run trains on and for how long (the first line of its log).
+    fn start_line(&self) -> String {
+        let o = self.opts;
+        let from = match self.state.iteration {
+            0 => String::new(),
+            it => format!(", resumed at iteration {it}"),
+        };
+        format!(
+            "PDA on {} training / {} validation samples of {}; {} epochs × {} iterations, \
+             batch {}, lr {}, {}{from} → {}",
+            self.train.len(),
+            self.val.len(),
+            o.data.display(),
+            o.epochs,
+            self.bpe,
+            o.batch_size,
+            o.lr,
+            depthsense_model::device::describe(self.device),
+            o.out.display()
+        )
+    }
+
     fn new(opts: &'o MerTrainOptions) -> Result<Self, TrainError> {
         if opts.batch_size == 0 || opts.epochs == 0 {
             return Err(TrainError::Config(
@@ -389,7 +422,7 @@ impl<'o> Run<'o> {
     }
 
     /// One epoch of SGD steps; returns the mean loss.
-    fn run_epoch(&mut self, epoch: u64, progress: &ProgressBar) -> Result<f64, TrainError> {
+    fn run_epoch(&mut self, epoch: u64, progress: &Progress) -> Result<f64, TrainError> {
         let o = self.opts;
         let order = epoch_order(self.train.len(), o.seed, epoch, true);
         let total = self.bpe * o.epochs as u64;
@@ -427,8 +460,12 @@ impl<'o> Run<'o> {
                 &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
                                     "loss": lv, "lr": lr}),
             )?;
+            progress.set_message(format!(
+                "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
+                epoch + 1,
+                o.epochs
+            ));
             progress.set_position(it);
-            progress.set_message(format!("epoch {}/{} loss {lv:.4}", epoch + 1, o.epochs));
         }
         self.state.iteration = (epoch + 1) * self.bpe;
         Ok(sum / n.max(1) as f64)
@@ -574,7 +611,7 @@ impl Learner for Run<'_> {
     fn train_epoch(
         &mut self,
         epoch: u64,
-        progress: &ProgressBar,
+        progress: &Progress,
     ) -> Result<EpochEnd<MerValRecord>, TrainError> {
         let loss = self.run_epoch(epoch, progress)?;
         progress.set_message(format!(
@@ -592,10 +629,11 @@ impl Learner for Run<'_> {
 /// Train the PDA network (see the module docs for RUN/).
 pub fn train_pda(
     opts: &MerTrainOptions,
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<MerTrainSummary, TrainError> {
     let started = Instant::now();
     let mut run = Run::new(opts)?;
+    progress.println(run.start_line());
     let fitted = fit(&mut run, progress)?;
     Ok(MerTrainSummary {
         run_dir: opts.out.clone(),

@@ -8,7 +8,7 @@ use std::time::Instant;
 use depthsense_nuscenes::geometry::{cam_from_sensor, ego_from_sensor, Camera};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
 use depthsense_nuscenes::tables::{NuScenes, Token};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use serde_json::json;
 
 use crate::error::PrepError;
@@ -811,7 +811,7 @@ fn bench_prepare(
     };
     let cpu0 = process_cpu_s().unwrap_or(0.0);
     let t = Instant::now();
-    let (s, times) = prepare_timed(&opts, &ProgressBar::hidden())?;
+    let (s, times) = prepare_timed(&opts, &Progress::hidden())?;
     let secs = t.elapsed().as_secs_f64();
     let cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
     if let Some((t, r)) = s.failed.first() {

@@ -1017,7 +1017,7 @@ pub fn select_samples_in<'a>(
 /// Finished samples (with `meta.json`) are skipped; failed samples are listed in the summary.
 pub fn prepare(
     opts: &PrepareOptions,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<PrepareSummary, PrepError> {
     prepare_timed(opts, progress).map(|(s, _)| s)
 }
@@ -1025,7 +1025,7 @@ pub fn prepare(
 /// [`prepare`] that also returns the time per stage (for `bench data`).
 pub fn prepare_timed(
     opts: &PrepareOptions,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<(PrepareSummary, StageTimes), PrepError> {
     progress.set_message(format!("loading {} tables", opts.version));
     let nu = NuScenes::load(&opts.dataroot, &opts.version)?;
@@ -1055,6 +1055,17 @@ pub fn prepare_timed(
         }
     }
     progress.set_length(todo.len() as u64);
+    progress.println(format!(
+        "{} keyframes to prepare ({} already done) from {} ({}, split {}{}) into {}",
+        todo.len(),
+        existing.len(),
+        opts.dataroot.display(),
+        opts.version,
+        opts.split,
+        opts.shard
+            .map_or(String::new(), |sh| format!(", shard {sh}")),
+        opts.out.display()
+    ));
     let times = Mutex::new(StageTimes::default());
     let job = Job {
         nu: &nu,
@@ -1124,7 +1135,7 @@ type SampleResult = (Token, Result<(), PrepError>);
 fn prepare_all(
     job: &Job,
     todo: &[&Sample],
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<Vec<SampleResult>, PrepError> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.opts.jobs)
@@ -1294,8 +1305,8 @@ fn write_index(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use depthsense_progress::Progress;
     use depthsense_synth::{generate, SynthConfig};
-    use indicatif::ProgressBar;
 
     /// A panic inside one sample fails that sample (named, with the file being read), leaves
     /// no folder for it, and every other sample of the run is prepared.
@@ -1308,7 +1319,7 @@ mod tests {
             keyframes_per_scene: 2,
             ..SynthConfig::tiny()
         };
-        generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+        generate(&root, &cfg, &Progress::hidden()).unwrap();
         let nu = NuScenes::load(&root, &cfg.version_name).unwrap();
         let victim = nu.sample[1].token.to_string();
         PANIC_ON.lock().unwrap().push(victim.clone());
@@ -1321,7 +1332,7 @@ mod tests {
             jobs: 2,
             ..Default::default()
         };
-        let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        let s = prepare(&opts, &Progress::hidden()).unwrap();
         PANIC_ON.lock().unwrap().retain(|t| *t != victim);
         assert_eq!(s.prepared, 3, "{:?}", s.failed);
         assert_eq!(s.failed.len(), 1);
@@ -1344,7 +1355,7 @@ mod tests {
         assert_eq!(idx.samples.len(), 3);
         assert!(idx.samples.iter().all(|e| e.sample_token != victim));
         // A second run prepares the one that failed.
-        let s2 = prepare(&opts, &ProgressBar::hidden()).unwrap();
+        let s2 = prepare(&opts, &Progress::hidden()).unwrap();
         assert_eq!((s2.prepared, s2.skipped_existing), (1, 3));
     }
 }

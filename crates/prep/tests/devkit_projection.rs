@@ -18,8 +18,8 @@ use std::process::Command;
 use depthsense_nuscenes::depth_png::{read_depth_png, MAX_DEPTH_M};
 use depthsense_prep::layout::SampleMeta;
 use depthsense_prep::{prepare, PrepareOptions};
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, Weather};
-use indicatif::ProgressBar;
 
 const KF0_SAMPLE: &str = "ca9a282c9e77460f8360f564131a8af5";
 const W: usize = 800;
@@ -123,7 +123,7 @@ fn prepared(root: &Path, version: &str, out: &Path, sweeps: usize, filters: bool
         jobs: 2,
         ..Default::default()
     };
-    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+    let s = prepare(&opts, &Progress::hidden()).unwrap();
     assert!(s.failed.is_empty(), "{:?}", s.failed);
     out.to_path_buf()
 }
@@ -184,7 +184,7 @@ fn synthetic_world_projects_like_the_devkit_single_and_multi_sweep() {
         jobs: 2,
         ..SynthConfig::default()
     };
-    generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+    generate(&root, &cfg, &Progress::hidden()).unwrap();
     let version = cfg.version_name.as_str();
     // Single sweep with the devkit's default radar filters; five sweeps without them (more
     // points, each sweep through its own ego pose).

@@ -8,8 +8,8 @@ use std::sync::OnceLock;
 use depthsense_prep::index::merge;
 use depthsense_prep::layout::{self, PreparedIndex};
 use depthsense_prep::{prepare, PrepError, PrepareOptions, Shard};
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig};
-use indicatif::ProgressBar;
 
 /// 5 scenes × 2 keyframes (3 train, 2 test scenes), generated once for the whole file.
 fn world() -> &'static (tempfile::TempDir, PathBuf, String) {
@@ -22,7 +22,7 @@ fn world() -> &'static (tempfile::TempDir, PathBuf, String) {
             keyframes_per_scene: 2,
             ..SynthConfig::tiny()
         };
-        generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+        generate(&root, &cfg, &Progress::hidden()).unwrap();
         (dir, root, cfg.version_name)
     })
 }
@@ -41,7 +41,7 @@ fn opts(out: &Path) -> PrepareOptions {
 }
 
 fn run(o: &PrepareOptions) -> Result<depthsense_prep::PrepareSummary, PrepError> {
-    prepare(o, &ProgressBar::hidden())
+    prepare(o, &Progress::hidden())
 }
 
 fn read_index(p: &Path) -> PreparedIndex {

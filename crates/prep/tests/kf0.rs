@@ -6,7 +6,7 @@ use depthsense_nuscenes::depth_png::read_depth_png;
 use depthsense_nuscenes::tables::{NuScenes, Token};
 use depthsense_prep::layout::{self, PreparedIndex, SampleMeta};
 use depthsense_prep::pipeline::{compute_sample, prepare, PrepError, PrepareOptions};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 
 const SAMPLE: &str = "ca9a282c9e77460f8360f564131a8af5";
 
@@ -125,7 +125,7 @@ fn prepare_writes_skips_and_indexes() {
     let Some(root) = kf0() else { return };
     let out = tempfile::tempdir().unwrap();
     let o = opts(&root, out.path());
-    let s = prepare(&o, &ProgressBar::hidden()).unwrap();
+    let s = prepare(&o, &Progress::hidden()).unwrap();
     assert_eq!((s.prepared, s.skipped_existing, s.failed.len()), (1, 0, 0));
     let dir = out.path().join(SAMPLE);
     for f in [
@@ -154,14 +154,12 @@ fn prepare_writes_skips_and_indexes() {
     assert_eq!(idx.samples.len(), 1);
     assert_eq!(idx.samples[0].scene_name, "scene-0061");
     // Second run skips.
-    let s2 = prepare(&o, &ProgressBar::hidden()).unwrap();
+    let s2 = prepare(&o, &Progress::hidden()).unwrap();
     assert_eq!((s2.prepared, s2.skipped_existing), (0, 1));
     // Different map settings into the same directory are refused, not silently mixed.
     let mut o3 = opts(&root, out.path());
     o3.radar_sweeps = 3;
-    let err = prepare(&o3, &ProgressBar::hidden())
-        .unwrap_err()
-        .to_string();
+    let err = prepare(&o3, &Progress::hidden()).unwrap_err().to_string();
     assert!(
         err.contains("radar_sweeps") && err.contains("different settings"),
         "{err}"
@@ -210,7 +208,7 @@ fn missing_and_corrupt_files_fail_the_sample_only() {
             None => std::fs::remove_file(&radar).unwrap(),
         }
         let out = tmp.path().join(format!("out-{what}"));
-        let s = prepare(&opts(&data, &out), &ProgressBar::hidden()).unwrap();
+        let s = prepare(&opts(&data, &out), &Progress::hidden()).unwrap();
         assert_eq!(s.prepared, 0);
         assert_eq!(s.failed.len(), 1);
         let reason = &s.failed[0].1;
@@ -237,7 +235,7 @@ fn non_unit_quaternion_and_empty_split() {
     );
     std::fs::write(&p, t).unwrap();
     let out = tmp.path().join("out");
-    let s = prepare(&opts(&data, &out), &ProgressBar::hidden()).unwrap();
+    let s = prepare(&opts(&data, &out), &Progress::hidden()).unwrap();
     assert_eq!(s.failed.len(), 1);
     assert!(
         s.failed[0]
@@ -249,7 +247,7 @@ fn non_unit_quaternion_and_empty_split() {
     );
     let mut o = opts(&root, &out);
     o.split = "test-night".into();
-    let err = prepare(&o, &ProgressBar::hidden()).unwrap_err();
+    let err = prepare(&o, &Progress::hidden()).unwrap_err();
     assert!(matches!(err, PrepError::EmptySplit { .. }), "{err}");
     assert!(err.to_string().contains("--split all"));
 }

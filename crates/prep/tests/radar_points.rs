@@ -7,8 +7,8 @@ use depthsense_nuscenes::geometry::to_frame;
 use depthsense_prep::layout::{PreparedIndex, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use depthsense_prep::radar_points::{RadarPoints, RADAR_POINTS_FILE};
 use depthsense_prep::{prepare, PrepareOptions};
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, Weather};
-use indicatif::ProgressBar;
 
 fn png(depth_m: &[f32]) -> Vec<u8> {
     encode_png_fast(&DepthMap {
@@ -29,7 +29,7 @@ fn stored_points_reproduce_the_radar_maps_and_drop_one_radar_exactly() {
         conditions: vec![(Weather::Day, 1.0)],
         ..SynthConfig::default()
     };
-    generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+    generate(&root, &cfg, &Progress::hidden()).unwrap();
     let out = tmp.path().join("prepared");
     let opts = PrepareOptions {
         dataroot: root,
@@ -39,7 +39,7 @@ fn stored_points_reproduce_the_radar_maps_and_drop_one_radar_exactly() {
         jobs: 1,
         ..Default::default()
     };
-    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+    let s = prepare(&opts, &Progress::hidden()).unwrap();
     assert_eq!((s.prepared, s.failed.len()), (1, 0), "{:?}", s.failed);
     let idx: PreparedIndex =
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();

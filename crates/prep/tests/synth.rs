@@ -7,8 +7,8 @@ use depthsense_nuscenes::pcd::read_lidar_pcd_bin;
 use depthsense_nuscenes::NuScenes;
 use depthsense_prep::layout::{Condition, PreparedIndex};
 use depthsense_prep::{prepare, PrepareOptions};
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, Weather, TRUTH_DIR};
-use indicatif::ProgressBar;
 
 #[test]
 fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
@@ -20,7 +20,7 @@ fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
         conditions: vec![(Weather::Night, 1.0)],
         ..SynthConfig::default()
     };
-    let summary = generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+    let summary = generate(&root, &cfg, &Progress::hidden()).unwrap();
     assert_eq!(summary.keyframes, 2);
     let nu = NuScenes::load(&root, &cfg.version_name).unwrap();
     assert_eq!(nu.sample.len(), 2);
@@ -66,7 +66,7 @@ fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
         jobs: 1,
         ..Default::default()
     };
-    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+    let s = prepare(&opts, &Progress::hidden()).unwrap();
     assert_eq!((s.prepared, s.failed.len()), (2, 0), "{:?}", s.failed);
     let idx: PreparedIndex =
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
@@ -139,7 +139,7 @@ fn lidar_projection_matches_rendered_truth_and_prepare_runs() {
             split: "test".into(),
             ..opts
         },
-        &ProgressBar::hidden(),
+        &Progress::hidden(),
     )
     .unwrap_err();
     assert!(err.to_string().contains("--split all"), "{err}");
@@ -155,7 +155,7 @@ fn prepared_synthetic_world_carries_train_val_test_tags() {
         keyframes_per_scene: 1,
         ..SynthConfig::tiny()
     };
-    generate(&root, &cfg, &ProgressBar::hidden()).unwrap();
+    generate(&root, &cfg, &Progress::hidden()).unwrap();
     let out = tmp.path().join("prepared");
     let opts = PrepareOptions {
         dataroot: root.clone(),
@@ -166,7 +166,7 @@ fn prepared_synthetic_world_carries_train_val_test_tags() {
         jobs: 0,
         ..Default::default()
     };
-    let s = prepare(&opts, &ProgressBar::hidden()).unwrap();
+    let s = prepare(&opts, &Progress::hidden()).unwrap();
     assert_eq!((s.prepared, s.failed.len()), (9, 0), "{:?}", s.failed);
     let idx: PreparedIndex =
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
@@ -217,7 +217,7 @@ fn prepared_synthetic_world_carries_train_val_test_tags() {
             out: out2.clone(),
             ..opts
         },
-        &ProgressBar::hidden(),
+        &Progress::hidden(),
     )
     .unwrap();
     assert_eq!(s.prepared, 3);

@@ -8,7 +8,7 @@ use depthsense_dataset::{partition, read_depth, subsample, DataError, Dataset};
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE};
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
 use crate::npy;
@@ -172,7 +172,7 @@ pub struct PredictionsSummary {
 /// Score prediction files with exactly the `eval --checkpoint` protocol ([`score_image`]).
 pub fn run_eval_predictions(
     opts: &PredictionsOptions,
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<(Report, PredictionsSummary), DataError> {
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(
@@ -187,6 +187,12 @@ pub fn run_eval_predictions(
         missing: vec![],
     };
     progress.set_length(entries.len() as u64);
+    progress.println(format!(
+        "{} samples of {} scored against {}",
+        entries.len(),
+        opts.data.display(),
+        opts.dir.display()
+    ));
     for e in &entries {
         progress.inc(1);
         let Some((path, fmt)) = find_prediction(&opts.dir, &e.sample_token) else {

@@ -16,7 +16,7 @@ fn main() {
     if let Some(s) = a.get(4) {
         cfg.seed = s.parse().unwrap_or(0);
     }
-    match depthsense_synth::generate(&out, &cfg, &indicatif::ProgressBar::hidden()) {
+    match depthsense_synth::generate(&out, &cfg, &depthsense_progress::Progress::hidden()) {
         Ok(s) => {
             println!("{s:?}");
             if let Ok(sheet) = std::env::var("SHEET") {

@@ -105,7 +105,7 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError + '_ {
 pub fn generate(
     out: &Path,
     cfg: &SynthConfig,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<SynthSummary, SynthError> {
     let start = Instant::now();
     cfg.validate()?;
@@ -153,7 +153,7 @@ pub fn generate(
 fn generate_into(
     root: &Path,
     cfg: &SynthConfig,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<SynthSummary, SynthError> {
     let seed = cfg.seed;
     let m = cfg.keyframes_per_scene;
@@ -584,9 +584,14 @@ fn render_frames(
     cfg: &SynthConfig,
     jobs: &[Job],
     plans: &[ScenePlan],
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<Vec<JobOut>, SynthError> {
     progress.set_length(jobs.len() as u64);
+    progress.println(format!(
+        "{} scenes, {} frames (keyframes and sweeps of every sensor) to render",
+        plans.len(),
+        jobs.len()
+    ));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(cfg.jobs)
         .build()

@@ -214,7 +214,7 @@ pub enum SynthError {
 pub fn generate(
     out: &Path,
     cfg: &SynthConfig,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<SynthSummary, SynthError> {
     generate::generate(out, cfg, progress)
 }

@@ -9,8 +9,8 @@ use depthsense_nuscenes::depth_png::read_depth_png;
 use depthsense_nuscenes::geometry::{apply_f32, cam_from_sensor, Camera};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
 use depthsense_nuscenes::NuScenes;
+use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, SynthError, SynthSummary};
-use indicatif::ProgressBar;
 
 const VERSION: &str = "v1.0-synth";
 
@@ -19,7 +19,7 @@ fn world() -> &'static (tempfile::TempDir, SynthSummary) {
     W.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
         let root = dir.path().join("synth");
-        let s = generate(&root, &SynthConfig::tiny(), &ProgressBar::hidden()).unwrap();
+        let s = generate(&root, &SynthConfig::tiny(), &Progress::hidden()).unwrap();
         (dir, s)
     })
 }
@@ -166,14 +166,14 @@ fn same_seed_is_byte_identical_whatever_the_threads() {
         jobs: 1,
         ..SynthConfig::tiny()
     };
-    generate(&other, &cfg, &ProgressBar::hidden()).unwrap();
+    generate(&other, &cfg, &Progress::hidden()).unwrap();
     let b = files_under(&other);
     assert_eq!(a.len(), b.len());
     for (k, v) in &a {
         assert!(b.get(k) == Some(v), "{} differs", k.display());
     }
     // Regenerating over a previous synthetic world replaces it.
-    generate(&other, &cfg, &ProgressBar::hidden()).unwrap();
+    generate(&other, &cfg, &Progress::hidden()).unwrap();
     assert_eq!(files_under(&other).len(), a.len());
 }
 
@@ -181,7 +181,7 @@ fn same_seed_is_byte_identical_whatever_the_threads() {
 fn refuses_to_overwrite_foreign_data() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("precious.txt"), b"x").unwrap();
-    let err = generate(dir.path(), &SynthConfig::tiny(), &ProgressBar::hidden()).unwrap_err();
+    let err = generate(dir.path(), &SynthConfig::tiny(), &Progress::hidden()).unwrap_err();
     assert!(matches!(err, SynthError::Exists(_)), "{err}");
     assert!(dir.path().join("precious.txt").exists());
 }

@@ -10,9 +10,9 @@ use std::sync::OnceLock;
 
 use depthsense_nuscenes::pcd::read_radar_pcd;
 use depthsense_nuscenes::NuScenes;
+use depthsense_progress::Progress;
 use depthsense_synth::radar_stats::radar_stats;
 use depthsense_synth::{generate, SynthConfig};
-use indicatif::ProgressBar;
 
 /// The demo configuration (day/night/rain 0.5/0.25/0.25, seed 0) at a small size: 12 scenes
 /// (6 day, 3 night, 3 rain) × 2 keyframes.
@@ -29,7 +29,7 @@ fn root() -> &'static Path {
     &W.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
         let root = dir.path().join("synth");
-        generate(&root, &cfg(), &ProgressBar::hidden()).unwrap();
+        generate(&root, &cfg(), &Progress::hidden()).unwrap();
         (dir, root)
     })
     .1

@@ -53,7 +53,7 @@ impl Default for BenchTrainOptions {
 /// Run the benchmark; returns the JSON report.
 pub fn bench_train(
     opts: &BenchTrainOptions,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<serde_json::Value, TrainError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
     depthsense_model::device::autotune_fixed_size(device);
@@ -156,7 +156,7 @@ fn time_steps(
     load: &LoadOptions,
     plan: &dyn Fn(u64) -> EpochPlan,
     device: tch::Device,
-    progress: &indicatif::ProgressBar,
+    progress: &depthsense_progress::Progress,
 ) -> Result<(usize, f64, Vec<f64>), TrainError> {
     tch::manual_seed(0);
     let vs = VarStore::new(device);

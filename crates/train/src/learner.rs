@@ -18,7 +18,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use depthsense_nuscenes::lock::OutputLock;
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use serde::Serialize;
 
 use crate::error::TrainError;
@@ -27,8 +27,9 @@ use crate::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
 
 /// How one training run validates, logs and trains an epoch; [`fit`] drives it.
 pub trait Learner {
-    /// One validation record (the `"val"` field of RUN/metrics.jsonl's records).
-    type Val: Serialize;
+    /// One validation record (the `"val"` field of RUN/metrics.jsonl's records); its
+    /// `Display` is the progress line of a validation.
+    type Val: Serialize + std::fmt::Display;
     /// Global iterations done (0: a fresh run, whose initial network is validated first).
     fn iteration(&self) -> u64;
     /// Iterations of the whole run (the progress bar's length).
@@ -43,7 +44,7 @@ pub trait Learner {
     fn train_epoch(
         &mut self,
         epoch: u64,
-        progress: &ProgressBar,
+        progress: &Progress,
     ) -> Result<EpochEnd<Self::Val>, TrainError>;
 }
 
@@ -64,10 +65,7 @@ pub struct Fitted<V> {
 }
 
 /// Runs `learner` to the end of its last epoch, or to where an epoch says stop.
-pub fn fit<L: Learner>(
-    learner: &mut L,
-    progress: &ProgressBar,
-) -> Result<Fitted<L::Val>, TrainError> {
+pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L::Val>, TrainError> {
     progress.set_length(learner.total_iterations());
     progress.set_position(learner.iteration());
     let mut val = vec![];
@@ -75,10 +73,20 @@ pub fn fit<L: Learner>(
         progress.set_message("validating the initial network");
         let v = learner.validation(0)?;
         learner.log(&serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}))?;
+        progress.println(format!("validation before training: {v}"));
         val.push(v);
     }
-    for epoch in learner.epochs_left() {
+    let epochs = learner.epochs_left();
+    for epoch in epochs.clone() {
         let end = learner.train_epoch(epoch, progress)?;
+        if let Some(v) = &end.val {
+            progress.println(format!(
+                "validation after epoch {}/{} (iteration {}): {v}",
+                epoch + 1,
+                epochs.end,
+                learner.iteration()
+            ));
+        }
         val.extend(end.val);
         if end.stop {
             return Ok(Fitted {
@@ -178,11 +186,7 @@ mod tests {
             self.calls.borrow_mut().push(record.to_string());
             Ok(())
         }
-        fn train_epoch(
-            &mut self,
-            epoch: u64,
-            _: &ProgressBar,
-        ) -> Result<EpochEnd<u64>, TrainError> {
+        fn train_epoch(&mut self, epoch: u64, _: &Progress) -> Result<EpochEnd<u64>, TrainError> {
             self.calls.borrow_mut().push(format!("epoch {epoch}"));
             self.iteration += 10;
             let stop = self.stop_at_epoch == Some(epoch);
@@ -205,7 +209,7 @@ mod tests {
     #[test]
     fn a_fresh_run_validates_the_initial_network_then_every_epoch() {
         let mut t = toy(0, 0..2, None);
-        let f = fit(&mut t, &ProgressBar::hidden()).unwrap();
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
         assert_eq!(f.val, [100, 101, 102]);
         assert!(!f.interrupted);
         assert_eq!(
@@ -222,7 +226,7 @@ mod tests {
     #[test]
     fn a_resumed_run_skips_the_initial_validation_and_a_stop_ends_it() {
         let mut t = toy(15, 1..4, Some(2));
-        let f = fit(&mut t, &ProgressBar::hidden()).unwrap();
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
         assert_eq!(f.val, [102]);
         assert!(f.interrupted);
         assert_eq!(t.calls.into_inner(), ["epoch 1", "epoch 2"]);

@@ -26,6 +26,18 @@ pub struct ValRecord {
     pub n_pixels: u64,
 }
 
+/// The progress line of a validation: `RMSE 9.412 m, MAE 4.120 m, AbsRel 0.213, δ1 0.712 on
+/// 16 images`.
+impl std::fmt::Display for ValRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "RMSE {:.3} m, MAE {:.3} m, AbsRel {:.3}, δ1 {:.3} on {} images",
+            self.rmse, self.mae, self.abs_rel, self.delta1, self.n_images
+        )
+    }
+}
+
 impl ValRecord {
     pub(crate) fn from_report(epoch: u64, iteration: u64, r: &Report) -> Self {
         let row = r.headline().cloned();

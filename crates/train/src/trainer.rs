@@ -165,6 +165,8 @@ pub struct TrainSummary {
     /// Wall seconds from opening the data to the end, so also set-up and checkpoints.
     pub seconds: f64,
     pub partition: Partition,
+    /// Validation samples each validation scores (`--max-val-samples` of the partition's).
+    pub val_samples_used: usize,
 }
 
 /// Training state stored in a checkpoint's `extra` (with the options that must not change

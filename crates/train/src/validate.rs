@@ -5,7 +5,7 @@ use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader, TargetKind
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
 use depthsense_model::DepthNet;
 use depthsense_prep::layout::IndexEntry;
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use tch::{Device, Kind};
 
 use crate::error::TrainError;
@@ -24,7 +24,7 @@ pub fn evaluate_net(
     batch_size: usize,
     jobs: usize,
     device: Device,
-    progress: &ProgressBar,
+    progress: &Progress,
     mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
 ) -> Result<Report, TrainError> {
     let mut ev = Evaluator::new(eval_cfg.clone())?;

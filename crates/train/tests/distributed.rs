@@ -6,11 +6,11 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use depthsense_model::ModelConfig;
+use depthsense_progress::Progress;
 use depthsense_train::distributed::{Dist, DistOptions};
 use depthsense_train::trainer::{
     read_metrics, train, train_distributed, TrainOptions, LAST_CKPT, METRICS_FILE,
 };
-use indicatif::ProgressBar;
 
 /// Trainings in this process draw from libtorch's process-wide generator: one at a time.
 static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -111,7 +111,7 @@ fn worker() {
     tch::set_num_threads(1);
     let res = Dist::from_env(d, tch::Device::Cpu, Duration::from_secs(t)).and_then(|dist| {
         let dist = dist.expect("launched with WORLD_SIZE");
-        train_distributed(&o, dist, &ProgressBar::hidden())
+        train_distributed(&o, dist, &Progress::hidden())
     });
     if let Err(e) = res {
         eprintln!("WORKER-ERROR: {e}");
@@ -194,11 +194,7 @@ fn two_ranks_with_sync_bn_equal_one_process_with_the_global_batch_and_resume_acr
     };
     let reference = {
         let _g = torch_rng();
-        let s = train(
-            &opts(&data, &tmp.path().join("ref")),
-            &ProgressBar::hidden(),
-        )
-        .unwrap();
+        let s = train(&opts(&data, &tmp.path().join("ref")), &Progress::hidden()).unwrap();
         assert_eq!(s.iterations_done, 12);
         s.losses
     };
@@ -219,7 +215,7 @@ fn two_ranks_with_sync_bn_equal_one_process_with_the_global_batch_and_resume_acr
         let _g = torch_rng();
         let mut o = opts(&data, &resumed);
         o.stop_after = Some(5);
-        let s = train(&o, &ProgressBar::hidden()).unwrap();
+        let s = train(&o, &Progress::hidden()).unwrap();
         assert!(s.interrupted);
     }
     let mut o = opts(&data, &resumed);
@@ -257,7 +253,7 @@ fn without_sync_bn_the_replicas_stay_identical_and_a_two_rank_run_resumes_on_one
     let _g = torch_rng();
     let mut o = opts(&data, &run);
     o.resume = true;
-    let s = train(&o, &ProgressBar::hidden()).unwrap();
+    let s = train(&o, &Progress::hidden()).unwrap();
     assert_eq!(s.iterations_done, 6);
     assert_eq!(s.losses.iter().map(|l| l.0).collect::<Vec<_>>(), [5, 6]);
     let all = losses(&run);

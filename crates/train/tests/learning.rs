@@ -6,10 +6,10 @@ use std::path::Path;
 
 use depthsense_data::{partition, Dataset, LoadOptions};
 use depthsense_model::{checkpoint, ModelConfig, RadarInput};
+use depthsense_progress::Progress;
 use depthsense_train::trainer::{
     evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, LAST_CKPT,
 };
-use indicatif::ProgressBar;
 
 /// libtorch's generator is process-wide: tests that train hold this lock so that each run's
 /// initial weights come from its own seed.
@@ -61,7 +61,7 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
         prefetch: 2,
         ..TrainOptions::default()
     };
-    train(&opts, &ProgressBar::hidden()).unwrap();
+    train(&opts, &Progress::hidden()).unwrap();
     let loaded = checkpoint::load(&opts.out.join(LAST_CKPT), tch::Device::Cpu).unwrap();
     let part = partition(&ds, opts.val_every_scene).unwrap();
     let radar = radar_input_for(&loaded.config, None).unwrap();
@@ -82,7 +82,7 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
         4,
         2,
         tch::Device::Cpu,
-        &ProgressBar::hidden(),
+        &Progress::hidden(),
         |batch, preds| {
             let hw = batch.width * batch.height;
             for (i, s) in batch.samples.iter().enumerate() {
@@ -124,7 +124,7 @@ fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
         max_batches_per_epoch: Some(1),
         ..TrainOptions::default()
     };
-    train(&opts, &ProgressBar::hidden()).unwrap();
+    train(&opts, &Progress::hidden()).unwrap();
     let loaded = checkpoint::load(&opts.out.join(BEST_CKPT), tch::Device::Cpu).unwrap();
     assert_eq!(loaded.config.radar_input, RadarInput::Raw);
     // eval / predict / demo derive the input from the checkpoint: raw, not height-extended.

@@ -84,13 +84,7 @@ fn generate_timed(a: &Args, cfg: &SynthConfig) -> anyhow::Result<TimedWorld> {
     let base = a.work.clone().unwrap_or_else(std::env::temp_dir);
     std::fs::create_dir_all(&base).with_context(|| format!("creating {}", base.display()))?;
     let root = base.join(format!("depthsense-bench-synth-{}", std::process::id()));
-    let pb = indicatif::ProgressBar::new(0);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template(
-            "bench synth {bar:40} {pos}/{len} frames {elapsed_precise}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let pb = depthsense_progress::Progress::new("bench synth");
     let cpu0 = cpu_seconds();
     let t = Instant::now();
     let summary = depthsense_synth::generate(&root, cfg, &pb)?;

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_prep::{prepare, PrepareOptions, Shard};
-use indicatif::{ProgressBar, ProgressStyle};
+use depthsense_progress::Progress;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -70,14 +70,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         keep_going: a.keep_going,
         shard,
     };
-    let pb = ProgressBar::new(0);
+    let pb = Progress::new("prepare");
     pb.enable_steady_tick(std::time::Duration::from_millis(200));
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{spinner} {msg} [{bar:40}] {pos}/{len} keyframes  {per_sec}  ETA {eta}",
-        )?
-        .progress_chars("=> "),
-    );
     let t = std::time::Instant::now();
     let s = prepare(&opts, &pb)?;
     pb.finish_and_clear();

@@ -1,17 +1,9 @@
-//! The one progress-bar style of the long commands.
+//! The one progress of the long commands: a bar on a terminal, plain lines in a log file
+//! (`depthsense_progress`).
 
-use indicatif::{ProgressBar, ProgressStyle};
+use depthsense_progress::Progress;
 
-/// A bar `PREFIX [=====>    ] pos/len elapsed ETA msg`; the caller sets its length.
-pub fn progress_bar(prefix: &str) -> ProgressBar {
-    let pb = ProgressBar::new(0);
-    pb.set_style(
-        ProgressStyle::with_template(
-            "{prefix:>6.bold} [{bar:30}] {pos}/{len} {elapsed_precise} ETA {eta} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
-    );
-    pb.set_prefix(prefix.to_string());
-    pb
+/// A progress named `prefix` (bar on a terminal, lines otherwise); the caller sets its length.
+pub fn progress_bar(prefix: &str) -> Progress {
+    Progress::new(prefix)
 }

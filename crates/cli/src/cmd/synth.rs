@@ -69,13 +69,15 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     let cfg = synth_config(&args)?;
-    let pb = indicatif::ProgressBar::new(0);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template(
-            "synth {bar:40} {pos}/{len} frames  {elapsed_precise} (eta {eta})",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let pb = depthsense_progress::Progress::new("synth");
+    pb.println(format!(
+        "{} scenes × {} keyframes, seed {}, version {} → {}",
+        cfg.scenes,
+        cfg.keyframes_per_scene,
+        cfg.seed,
+        cfg.version_name,
+        out.display()
+    ));
     let s = depthsense_synth::generate(&out, &cfg, &pb)
         .with_context(|| format!("generating the synthetic world into {}", out.display()))?;
     pb.finish_and_clear();

@@ -6,10 +6,10 @@ use std::path::Path;
 use std::time::SystemTime;
 
 use depthsense_experiments::runner::RunSettings;
-use indicatif::{MultiProgress, ProgressDrawTarget};
+use depthsense_progress::Board;
 
-pub fn hidden() -> MultiProgress {
-    MultiProgress::with_draw_target(ProgressDrawTarget::hidden())
+pub fn hidden() -> Board {
+    Board::hidden()
 }
 
 pub fn mtime(p: &Path) -> SystemTime {

@@ -13,7 +13,7 @@ use depthsense_model::{checkpoint, DepthNet, ModelConfig};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
-use indicatif::ProgressBar;
+use depthsense_progress::Progress;
 use std::ops::Range;
 use tch::{nn::VarStore, Device, Kind};
 
@@ -211,7 +211,7 @@ impl<'o> Trainer<'o> {
             self.opts.batch_size,
             self.opts.jobs,
             self.device,
-            &ProgressBar::hidden(),
+            &Progress::hidden(),
             |_, _| Ok(()),
         )?;
         let r = match &self.dist {
@@ -315,7 +315,7 @@ impl<'o> Trainer<'o> {
         &mut self,
         epoch: u64,
         acc: &mut EpochLosses,
-        progress: &ProgressBar,
+        progress: &Progress,
     ) -> Result<(), TrainError> {
         if acc.pending.is_empty() {
             return Ok(());
@@ -422,7 +422,7 @@ impl<'o> Trainer<'o> {
     fn run_epoch(
         &mut self,
         epoch: u64,
-        progress: &ProgressBar,
+        progress: &Progress,
     ) -> Result<EpochEnd<ValRecord>, TrainError> {
         let opts = self.opts;
         let skip = (self.state.iteration - epoch * self.bpe) as usize;
@@ -468,7 +468,6 @@ impl<'o> Trainer<'o> {
             self.train_secs += p.seconds;
             self.images += batch.size * world;
             acc.pending.push(p);
-            progress.set_position(it);
             let epoch_end = it.is_multiple_of(self.bpe);
             let stop_here = opts.stop_after == Some(it);
             let periodic = opts.checkpoint_every > 0 && it.is_multiple_of(opts.checkpoint_every);
@@ -476,6 +475,8 @@ impl<'o> Trainer<'o> {
             if acc.pending.len() >= every || epoch_end || stop_here || periodic {
                 self.read_losses(epoch, &mut acc, progress)?;
             }
+            // After the read, so that a progress line carries this iteration's loss.
+            progress.set_position(it);
             if !epoch_end && (stop_here || periodic) {
                 self.state.epoch = epoch;
                 self.checkpoint()?;
@@ -497,7 +498,8 @@ impl<'o> Trainer<'o> {
     }
 
     /// Trains to the end (or to `stop_after`).
-    pub fn run(mut self, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
+    pub fn run(mut self, progress: &Progress) -> Result<TrainSummary, TrainError> {
+        progress.println(self.start_line());
         let fitted = fit(&mut self, progress)?;
         let summary = TrainSummary {
             run_dir: self.run.clone(),
@@ -512,8 +514,34 @@ impl<'o> Trainer<'o> {
             val_seconds: 0.0,
             seconds: 0.0,
             partition: self.part.clone(),
+            val_samples_used: self.val_entries.len(),
         };
         self.finish(summary)
+    }
+
+    /// What the run trains on and for how long (the first line of its log).
+    fn start_line(&self) -> String {
+        let o = self.opts;
+        let from = match self.state.iteration {
+            0 => String::new(),
+            it => format!(", resumed at iteration {it}"),
+        };
+        format!(
+            "{} ({}) on {} training / {} validation samples of {}; {} epochs × {} iterations = \
+             {} iterations, batch {}, lr {}, {}{from} → {}",
+            self.cfg.name,
+            fusion_words(&self.cfg),
+            self.part.train.len(),
+            self.val_entries.len(),
+            o.data.display(),
+            o.epochs,
+            self.bpe,
+            self.total,
+            o.batch_size,
+            o.lr,
+            depthsense_model::device::describe(self.device),
+            self.run.display()
+        )
     }
 
     fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, TrainError> {
@@ -563,7 +591,7 @@ impl Learner for Trainer<'_> {
     fn train_epoch(
         &mut self,
         epoch: u64,
-        progress: &ProgressBar,
+        progress: &Progress,
     ) -> Result<EpochEnd<ValRecord>, TrainError> {
         self.run_epoch(epoch, progress)
     }
@@ -617,6 +645,16 @@ fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOpti
         failure: Default::default(),
         train_radar_drop: opts.train_radar_drop,
     })
+}
+
+/// `late fusion + attention`, `late fusion`, `early fusion` or `RGB only`.
+fn fusion_words(cfg: &ModelConfig) -> &'static str {
+    match (cfg.fusion, cfg.attention) {
+        (depthsense_model::Fusion::Late, true) => "late fusion + attention",
+        (depthsense_model::Fusion::Late, false) => "late fusion",
+        (depthsense_model::Fusion::Early, _) => "early fusion",
+        (depthsense_model::Fusion::None, _) => "RGB only",
+    }
 }
 
 /// The requested model config with the output resolution of the data's frames.
@@ -751,7 +789,7 @@ fn resume(
 }
 
 /// Train a network. See the module docs for what lands in `opts.out`.
-pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary, TrainError> {
+pub fn train(opts: &TrainOptions, progress: &Progress) -> Result<TrainSummary, TrainError> {
     Trainer::new(opts)?.run(progress)
 }
 
@@ -760,7 +798,7 @@ pub fn train(opts: &TrainOptions, progress: &ProgressBar) -> Result<TrainSummary
 pub fn train_distributed(
     opts: &TrainOptions,
     dist: Dist,
-    progress: &ProgressBar,
+    progress: &Progress,
 ) -> Result<TrainSummary, TrainError> {
     Trainer::with_dist(opts, Some(dist))?.run(progress)
 }

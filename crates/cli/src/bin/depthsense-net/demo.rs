@@ -2,7 +2,7 @@
 
 use depthsense_cli::cmd::demo::Args;
 use depthsense_experiments::demo::{run_demo, DemoOptions};
-use indicatif::MultiProgress;
+use depthsense_progress::Board;
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -19,7 +19,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         force: a.force,
         command_line: Some(depthsense_cli::command_line()),
     };
-    let mp = MultiProgress::new();
+    let mp = Board::new(10);
     let s = run_demo(&opts, &mp)?;
     println!(
         "{}",

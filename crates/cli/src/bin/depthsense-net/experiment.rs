@@ -9,7 +9,7 @@ use depthsense_experiments::ablation::{
 };
 use depthsense_experiments::runner::RunSettings;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use indicatif::MultiProgress;
+use depthsense_progress::Board;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -84,7 +84,7 @@ fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
         eval: EvalConfig::default(),
         command_line: command_line(),
     };
-    let r = run_reduced_data(&opts, &MultiProgress::new())?;
+    let r = run_reduced_data(&opts, &Board::new(16))?;
     let md = std::fs::read_to_string(opts.out.join(MD_FILE))?;
     println!("{md}");
     eprintln!("{} runs in {:.1} s", r.runs.len(), r.total_seconds);
@@ -108,7 +108,7 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
     };
     let sc = parse_scenarios(&a.scenarios)?;
     let _writing = claim_results(&a.out, "failure", a.force)?;
-    run_failure(&base, &sc, &a.out, command_line(), &MultiProgress::new())?;
+    run_failure(&base, &sc, &a.out, command_line(), &Board::new(16))?;
     println!("{}", std::fs::read_to_string(a.out.join(FAILURE_MD))?);
     Ok(ExitCode::SUCCESS)
 }
@@ -135,7 +135,7 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
     };
     let _writing = claim_results(&a.out, "perturb", a.force)?;
     let t = std::time::Instant::now();
-    run_perturb(&base, &opts, &a.out, command_line(), &MultiProgress::new())?;
+    run_perturb(&base, &opts, &a.out, command_line(), &Board::new(16))?;
     println!("{}", std::fs::read_to_string(a.out.join(PERTURB_MD))?);
     eprintln!("{:.1} s", t.elapsed().as_secs_f64());
     Ok(ExitCode::SUCCESS)
@@ -143,7 +143,7 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
 
 fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
     let opts = ablation_options(a)?;
-    let mp = MultiProgress::new();
+    let mp = Board::new(16);
     let r = run_ablation(&opts, &mp)?;
     print_ablation(&r, &opts);
     Ok(ExitCode::SUCCESS)

@@ -75,6 +75,7 @@ fn tune_memory() {
 fn main() -> ExitCode {
     tune_memory();
     let cli = Cli::parse();
+    depthsense_progress::configure(cli.log_every);
     finish(match run_without_torch(cli.command) {
         Ok(result) => result,
         Err(network_command) => run_network(*network_command),

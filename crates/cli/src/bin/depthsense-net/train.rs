@@ -6,9 +6,9 @@ use depthsense_cli::cmd::train::Args;
 use depthsense_data::{RadarInput, TargetKind};
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use depthsense_progress::Progress;
 use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
-use indicatif::ProgressBar;
 use std::ffi::OsString;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -180,7 +180,7 @@ struct DistArgs {
 fn train_this_process(
     mut opts: TrainOptions,
     d: &DistArgs,
-) -> anyhow::Result<Option<(TrainSummary, ProgressBar)>> {
+) -> anyhow::Result<Option<(TrainSummary, Progress)>> {
     let env = match DistEnv::from_env()? {
         None => {
             if d.sync_bn {
@@ -205,7 +205,7 @@ fn train_this_process(
     let pb = if env.rank == 0 {
         progress_bar("train")
     } else {
-        ProgressBar::hidden()
+        Progress::hidden()
     };
     let s = train_distributed(&opts, dist, &pb).map_err(|e| anyhow::anyhow!("{who}: {e}"))?;
     if env.rank != 0 {
@@ -226,7 +226,7 @@ fn print_summary(s: &TrainSummary, out: &std::path::Path) {
     eprintln!(
         "{} iterations of {} in {:.1} s (training {:.1} s at {:.2} img/s, validation {:.1} s, \
          the rest set-up and checkpoints); validation RMSE {first:.3} m → {last:.3} m \
-         (best {}) on {} validation samples ({})",
+         (best {}) on {} validation samples{} ({})",
         s.iterations_done,
         s.total_iterations,
         s.seconds,
@@ -238,7 +238,12 @@ fn print_summary(s: &TrainSummary, out: &std::path::Path) {
         } else {
             "none yet: no epoch completed".to_string()
         },
-        s.partition.val.len(),
+        s.val_samples_used,
+        if s.val_samples_used < s.partition.val.len() {
+            format!(" of {}", s.partition.val.len())
+        } else {
+            String::new()
+        },
         s.partition.method
     );
     if s.interrupted {
