@@ -61,6 +61,13 @@ impl From<depthsense_dist::DistError> for TrainError {
     }
 }
 
+/// An unknown preset or `--set` key, or a config no network can be built with.
+impl From<depthsense_model::config::ConfigError> for TrainError {
+    fn from(e: depthsense_model::config::ConfigError) -> Self {
+        TrainError::Model(e.into())
+    }
+}
+
 /// The torch-free layer's errors become the same variants here (same messages).
 impl From<depthsense_dataset::DataError> for TrainError {
     fn from(e: depthsense_dataset::DataError) -> Self {

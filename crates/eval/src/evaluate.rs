@@ -14,7 +14,6 @@ use depthsense_data::{Dataset, LoadOptions, RadarInput};
 use depthsense_metrics::{EvalConfig, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
-use depthsense_model::ModelConfig;
 use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
@@ -102,7 +101,7 @@ pub fn load_model(
     device: tch::Device,
 ) -> Result<(Loaded, Option<LoadReport>), TrainError> {
     let cfg = match (config, set.is_empty()) {
-        (Some(c), _) => Some(ModelConfig::resolve(c)?.with_options(set)?),
+        (Some(c), _) => Some(depthsense_model::config::resolve(c)?.with_options(set)?),
         (None, true) => None,
         (None, false) if !checkpoint::is_torch_file(checkpoint_path)? => Some(
             checkpoint::read_config(checkpoint_path)?
@@ -216,7 +215,7 @@ pub fn write_predictions(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use depthsense_model::{pickle, DepthNet};
+    use depthsense_model::{pickle, DepthNet, ModelConfig};
     use tch::{nn::VarStore, Device, Tensor};
 
     fn narrow_released() -> ModelConfig {

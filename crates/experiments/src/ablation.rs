@@ -261,10 +261,7 @@ impl AblationResult {
 
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
 pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
-    if spec == "tiny-wide" {
-        return Ok(ModelConfig::tiny_wide());
-    }
-    Ok(ModelConfig::resolve(spec)?)
+    Ok(depthsense_model::config::resolve(spec)?)
 }
 
 /// The model config of each variant (preset → `set` → variant fields).

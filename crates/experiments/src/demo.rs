@@ -573,9 +573,9 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
     write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
 }
 
-/// The demo's network: a model preset, or `tiny-wide` ([`ModelConfig::demo_preset`]).
+/// The demo's network: a model preset ([`depthsense_model::config::presets`]).
 pub fn demo_model(preset: &str) -> Result<ModelConfig, TrainError> {
-    Ok(ModelConfig::demo_preset(preset)?)
+    Ok(ModelConfig::preset(preset)?)
 }
 
 #[allow(clippy::too_many_arguments)]

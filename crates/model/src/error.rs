@@ -31,9 +31,9 @@ fn list_names(names: &[String]) -> String {
 /// Everything that can go wrong building, running, saving or loading a network.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    /// `ModelConfig::preset` got a name it does not know.
-    #[error("unknown model preset `{0}` (expected one of: paper, released, tiny)")]
-    UnknownPreset(String),
+    /// An unknown preset or `--set` key, or a config no network can be built with.
+    #[error(transparent)]
+    Config(#[from] depthsense_config::ConfigError),
     /// A configuration field has a value the network cannot be built with.
     #[error("invalid model config: {0}")]
     InvalidConfig(String),

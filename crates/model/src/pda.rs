@@ -84,8 +84,8 @@ pub struct PdaConfig {
     /// only at the radar pixels. The labels, the window and the grid are those of SPEC §5
     /// either way; only the network's cost changes (the `fast` preset, docs/guide/mer.md).
     #[serde(
-        default = "crate::config::one",
-        skip_serializing_if = "crate::config::is_one"
+        default = "depthsense_config::one",
+        skip_serializing_if = "depthsense_config::is_one"
     )]
     pub input_stride: i64,
     pub window: MerWindow,

@@ -664,7 +664,7 @@ fn devices_and_config_serde() {
     assert_eq!(ModelConfig::preset("Paper").unwrap(), ModelConfig::paper());
     assert!(matches!(
         ModelConfig::preset("huge"),
-        Err(ModelError::UnknownPreset(_))
+        Err(depthsense_model::config::ConfigError::UnknownPreset(_))
     ));
     // --set options and --config resolution (preset, JSON file, checkpoint)
     let c = ModelConfig::paper()
@@ -697,8 +697,14 @@ fn devices_and_config_serde() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("m.json");
     std::fs::write(&json, serde_json::to_string(&c).unwrap()).unwrap();
-    assert_eq!(ModelConfig::resolve(json.to_str().unwrap()).unwrap(), c);
-    assert_eq!(ModelConfig::resolve("tiny").unwrap(), ModelConfig::tiny());
+    assert_eq!(
+        depthsense_model::config::resolve(json.to_str().unwrap()).unwrap(),
+        c
+    );
+    assert_eq!(
+        depthsense_model::config::resolve("tiny").unwrap(),
+        ModelConfig::tiny()
+    );
     let mut bad = ModelConfig::tiny();
     bad.backbone_depth = 42;
     assert!(DepthNet::new(&nn::VarStore::new(Device::Cpu).root(), &bad).is_err());

@@ -80,7 +80,7 @@ fn torch_reference_builds_our_presets_parameter_for_parameter() {
     assert_eq!(names, PRESETS, "one row per preset, in order");
     for (preset, params, macs) in counts {
         let preset = preset.as_str();
-        let cfg = ModelConfig::demo_preset(preset).unwrap();
+        let cfg = ModelConfig::preset(preset).unwrap();
         let vs = nn::VarStore::new(Device::Cpu);
         let net = DepthNet::new(&vs.root(), &cfg).unwrap();
         let rep = report::model_report(&vs, &net, 350, 800);

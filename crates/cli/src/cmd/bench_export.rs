@@ -6,13 +6,12 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Network: a preset (tiny, paper, released, tiny-wide) or a model-config JSON; random
-    /// weights (seed 0), as `bench model` builds it.
-    #[arg(long, default_value = "tiny")]
+    #[arg(long, default_value = "tiny", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", " or a model-config JSON; random weights (seed 0), as `bench \
+                     model` builds it"))]
     pub preset: String,
-    /// Override one config option, `key=value`, repeatable (see `model-info --help`); the
-    /// graph's frame is the config's `out-height` x `out-width` (350x800 for every preset).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Images per run (the graph's batch axis is dynamic).
     #[arg(long, default_value_t = 1)]

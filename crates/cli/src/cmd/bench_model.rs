@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Network: a preset (released, paper, tiny), a model-config JSON file or a checkpoint.
-    #[arg(long, default_value = "released")]
+    #[arg(long, default_value = "released", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", ", a model-config JSON file or a checkpoint"))]
     pub preset: String,
-    /// Override one config option, `key=value`, repeatable (see `model-info --help`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
     #[arg(long, default_value = "auto")]

@@ -7,8 +7,8 @@ pub struct Args {
     /// Prepared data (default: a generated 800x350 toy dataset in a temporary directory).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Model preset: paper, released or tiny.
-    #[arg(long, default_value = "paper")]
+    #[arg(long, default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", " or a model-config JSON"))]
     pub config: String,
     /// Batch size.
     #[arg(long, default_value_t = 8)]
@@ -31,8 +31,8 @@ pub struct Args {
     /// bf16 autocast (CUDA only).
     #[arg(long)]
     pub amp: bool,
-    /// Any model-config field as key=value (repeatable), e.g. `--set input-downscale=2`.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Also write the JSON report to this file.
     #[arg(long)]

@@ -28,13 +28,13 @@ pub struct Args {
     /// of failing when some are missing.
     #[arg(long, requires = "predictions")]
     pub allow_missing: bool,
-    /// Architecture: a preset (paper, released, tiny), a model-config JSON or an export
-    /// sidecar (FILE.json of `export`). Required for a PyTorch .pth; for a depthsense
-    /// checkpoint it replaces the stored config.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Architecture", ", a model-config JSON or an export sidecar (FILE.json \
+                     of `export`). Required for a PyTorch .pth; for a depthsense checkpoint it \
+                     replaces the stored config"))]
     pub config: Option<String>,
-    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Prepared data directory (holds index.json).
     #[arg(long)]
@@ -92,8 +92,8 @@ pub struct Args {
     /// Evaluate at most this many samples (evenly spaced).
     #[arg(long)]
     pub max_samples: Option<usize>,
-    /// Radar map(s): height, raw or raw-height (default: from the checkpoint's config).
-    #[arg(long)]
+    /// Radar map(s): height, raw, raw-height or mer (default: from the checkpoint's config).
+    #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
     /// Model name in the tables.
     #[arg(long, default_value = "model")]

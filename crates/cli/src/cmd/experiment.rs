@@ -55,8 +55,8 @@ pub struct CostArgs {
     /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
     #[arg(long)]
     pub force: bool,
-    /// Presets (paper, released, tiny, tiny-wide) or model-config JSON files, comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "paper,released,tiny")]
+    #[arg(long, value_delimiter = ',', default_value = "paper,released,tiny", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Networks, comma separated", " or model-config JSON files"))]
     pub presets: Vec<String>,
     /// Fusion variants, comma separated (rgb, early, late, late-sam, l1, l2).
     #[arg(long, value_delimiter = ',', default_value = "rgb,early,late,late-sam")]
@@ -88,13 +88,11 @@ pub struct RunArgs {
     /// have test scenes.
     #[arg(long)]
     pub data: PathBuf,
-    /// Model preset: paper, released, tiny, tiny-wide, or a model-config JSON file.
-    #[arg(long, default_value = "paper")]
+    #[arg(long, default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", " or a model-config JSON file"))]
     pub preset: String,
-    /// Any model-config field as key=value (repeatable), applied to the preset (in `ablation`
-    /// not fusion, attention or head: the variants set those); e.g. `--set width=8 --set
-    /// dropout=0`.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Epochs of each run (paper: 40).
     #[arg(long, default_value_t = 40)]
@@ -151,8 +149,8 @@ pub struct FailureArgs {
     /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Architecture for a .pth: a preset or a model-config JSON.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
     pub config: Option<String>,
     /// Prepared data directory.
     #[arg(long)]
@@ -194,8 +192,8 @@ pub struct PerturbArgs {
     /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Architecture for a .pth: a preset or a model-config JSON.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
     pub config: Option<String>,
     /// Prepared data directory (prepared with radar_points.bin: a current `prepare`).
     #[arg(long)]

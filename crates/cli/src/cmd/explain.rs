@@ -8,8 +8,8 @@ pub struct Args {
     /// Checkpoint (depthsense .safetensors, or a .pth with --config).
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Architecture for a .pth: a preset or a model-config JSON.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
     pub config: Option<String>,
     /// One prepared sample directory (repeatable).
     #[arg(long, conflicts_with = "data")]

@@ -2,6 +2,10 @@
 //! the commands that need no network. The network commands' `run` live in
 //! `src/bin/depthsense-net/<name>.rs`.
 
+/// The short help of every `--set` (its `--help` lists every key: `depthsense_config`).
+pub const SET_SHORT: &str =
+    "Override one model-config option, KEY=VALUE, repeatable (--help lists every key)";
+
 pub mod bench;
 pub mod bench_data;
 pub mod bench_export;

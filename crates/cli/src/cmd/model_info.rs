@@ -4,18 +4,12 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Network: a preset (paper, released, tiny), a model-config JSON file, or a depthsense
-    /// checkpoint (.safetensors; its stored config is used).
-    #[arg(long, default_value = "paper")]
+    #[arg(long, default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", ", a model-config JSON, an export sidecar or a depthsense \
+                     checkpoint (.safetensors: its stored config)"))]
     pub config: String,
-    /// Override one config option, `key=value`, repeatable (e.g. `--set backbone=50
-    /// --set fusion=early --set attention=off --set head=l1 --set radar-channels=7`). Keys:
-    /// backbone (18|34|50|101), width, fusion (late|early|none), attention (on|off),
-    /// head (ordinal|l1|l2), radar-channels (1|7), radar-branch (basic|bottleneck),
-    /// radar-width, radar-out-channels, decoder (topdown|released), decoder-channels,
-    /// stem (torchvision|deep), head-channels, head-pre-dropout, dropout, bins, alpha, beta,
-    /// decode-offset (m), align-corners (on|off), out-height, out-width.
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Input height the multiply-adds are counted at.
     #[arg(long, default_value_t = 350)]

@@ -9,12 +9,12 @@ pub struct ModelSource {
     /// paper_weights_rvmde.pth together with `--config released`.
     #[arg(long)]
     pub checkpoint: PathBuf,
-    /// Architecture: a preset (paper, released, tiny), a model-config JSON or an export
-    /// sidecar (FILE.json of `export`). Required for a PyTorch .pth; for a depthsense
-    /// checkpoint it replaces the stored config.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Architecture", ", a model-config JSON or an export sidecar (FILE.json \
+                     of `export`). Required for a PyTorch .pth; for a depthsense checkpoint it \
+                     replaces the stored config"))]
     pub config: Option<String>,
-    /// Override one config option, `key=value`, repeatable (keys as in `model-info --set`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
 }

@@ -7,17 +7,18 @@ pub struct Args {
     /// Prepared data directory (output of `depthsense prepare`, holds index.json).
     #[arg(long)]
     pub data: PathBuf,
-    /// Model preset: paper, released or tiny.
-    #[arg(long, default_value = "paper")]
+    #[arg(long, default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
+          help = depthsense_config::cli::config_help("Network", ", a model-config JSON or an export sidecar"))]
     pub config: String,
     /// Run directory: config.json, metrics.jsonl, curves.png, last/best checkpoints.
     #[arg(long, default_value = "runs/train")]
     pub out: PathBuf,
-    /// Override the preset's fusion: late, early or none (RGB only).
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_value("fusion"),
+          help = depthsense_config::cli::value_help("fusion", "Override the preset's fusion \
+                 (none = rgb = RGB only; not late: no attention)"))]
     pub fusion: Option<String>,
-    /// Override the preset's head: ordinal, l1 or l2.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_value("head"),
+          help = depthsense_config::cli::value_help("head", "Override the preset's head"))]
     pub head: Option<String>,
     /// Override the preset's Dropout2d probability in the head (paper: 0.5).
     #[arg(long)]
@@ -25,9 +26,8 @@ pub struct Args {
     /// Disable the spatial attention module of late fusion.
     #[arg(long)]
     pub no_attention: bool,
-    /// Any model-config field as key=value (repeatable), applied after the options above;
-    /// e.g. `--set width=32 --set head-channels=64` (see `depthsense model-info --help`).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Epochs (paper: 40).
     #[arg(long, default_value_t = 40)]
@@ -77,7 +77,7 @@ pub struct Args {
     /// channels, after `depthsense mer apply`; sets radar_channels = 7). Default: from the
     /// model's radar_channels (1 → height, 2 → raw-height, 7 → mer). Stored in the
     /// checkpoint's model config: `eval` and `predict` feed the same input.
-    #[arg(long)]
+    #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
     /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
     #[arg(long, default_value = "dense")]

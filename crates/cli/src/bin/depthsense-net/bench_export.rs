@@ -55,7 +55,7 @@ fn values(t: &Tensor) -> anyhow::Result<Vec<f32>> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let cfg = ModelConfig::resolve(&a.preset)?.with_options(&a.set)?;
+    let cfg = depthsense_model::config::resolve(&a.preset)?.with_options(&a.set)?;
     if let Some(n) = a.threads {
         tch::set_num_threads(n as i32);
     }

@@ -182,7 +182,7 @@ impl Bench {
     /// Resolve the network and device, set libtorch up, build the network (seed 0) in the
     /// layout and precision this device supports (a note on stderr for each one refused).
     fn new(args: &Args) -> anyhow::Result<Bench> {
-        let cfg = ModelConfig::resolve(&args.preset)?.with_options(&args.set)?;
+        let cfg = depthsense_model::config::resolve(&args.preset)?.with_options(&args.set)?;
         let dev = device::parse_device(&args.device)?;
         if let Some(n) = args.threads {
             tch::set_num_threads(n);

@@ -2,11 +2,11 @@
 
 use anyhow::Context;
 use depthsense_cli::cmd::model_info::Args;
-use depthsense_model::{report, DepthNet, ModelConfig};
+use depthsense_model::{report, DepthNet};
 use std::process::ExitCode;
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let cfg = ModelConfig::resolve(&args.config)?.with_options(&args.set)?;
+    let cfg = depthsense_model::config::resolve(&args.config)?.with_options(&args.set)?;
     let vs = tch::nn::VarStore::new(tch::Device::Cpu);
     let net = DepthNet::new(&vs.root(), &cfg)?;
     let rep = report::model_report(&vs, &net, args.height, args.width);

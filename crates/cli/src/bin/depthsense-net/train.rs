@@ -5,7 +5,7 @@ use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_cli::cmd::train::Args;
 use depthsense_data::{RadarInput, TargetKind};
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_model::{Fusion, HeadKind, ModelConfig};
+use depthsense_model::{Fusion, ModelConfig};
 use depthsense_progress::Progress;
 use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
@@ -25,24 +25,6 @@ fn worker_args() -> Vec<OsString> {
         }
     }
     out
-}
-
-pub fn parse_fusion(s: &str) -> anyhow::Result<Fusion> {
-    Ok(match s {
-        "late" => Fusion::Late,
-        "early" => Fusion::Early,
-        "none" | "rgb" => Fusion::None,
-        o => anyhow::bail!("unknown fusion {o:?} (late, early, none)"),
-    })
-}
-
-pub fn parse_head(s: &str) -> anyhow::Result<HeadKind> {
-    Ok(match s {
-        "ordinal" => HeadKind::Ordinal,
-        "l1" => HeadKind::L1,
-        "l2" => HeadKind::L2,
-        o => anyhow::bail!("unknown head {o:?} (ordinal, l1, l2)"),
-    })
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -91,15 +73,15 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
 
 /// The preset with the command line's model options applied, `--set` last.
 fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
-    let mut model = ModelConfig::preset(&a.config)?;
+    let mut model = depthsense_model::config::resolve(&a.config)?;
     if let Some(f) = &a.fusion {
-        model.fusion = parse_fusion(f)?;
+        model.apply_option("fusion", f)?;
         if model.fusion != Fusion::Late {
             model.attention = false;
         }
     }
     if let Some(h) = &a.head {
-        model.head = parse_head(h)?;
+        model.apply_option("head", h)?;
     }
     if let Some(d) = a.dropout {
         model.dropout = d;

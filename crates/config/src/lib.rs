@@ -1,0 +1,37 @@
+//! The network's configuration without libtorch (ARCHITECTURE.md, "config"): [`ModelConfig`]
+//! and its enums (SPEC §6, §6.1, §7), and the two registries every command reads — so that
+//! `train`, `model-info`, `eval`, `predict`, `export`, the experiments, the benches and their
+//! `--help` texts accept exactly the same words:
+//!
+//! - [`presets`]: the named networks (`paper`, `released`, `tiny`, `tiny-wide`);
+//! - [`options`]: every `--set KEY=VALUE` key, its aliases, the values it takes and what it
+//!   sets;
+//! - [`cli`]: the value parsers and help texts the command line builds from them.
+//!
+//! The depthsense binary parses every command without libtorch, so these live here rather than
+//! in `depthsense-model`, which builds the network from a [`ModelConfig`].
+
+pub mod cli;
+mod model_config;
+pub mod options;
+pub mod presets;
+
+pub use model_config::{
+    is_one, one, AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind,
+    RadarInput, SidConfig, StemKind,
+};
+
+/// A preset name or an option that no network can be built with.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    /// [`ModelConfig::preset`] got a name that is not in [`presets::PRESETS`].
+    #[error(
+        "unknown model preset `{0}` (presets: {known}; or the path of a model-config JSON, an \
+         export sidecar or a depthsense checkpoint)",
+        known = presets::names().join(", ")
+    )]
+    UnknownPreset(String),
+    /// A field has a value the network cannot be built with, or an option is unknown.
+    #[error("invalid model config: {0}")]
+    Invalid(String),
+}
