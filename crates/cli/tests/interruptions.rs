@@ -31,19 +31,22 @@ fn ok(o: &Output) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
-/// Every file below `dir` (relative path → bytes), without the lock files.
+/// Everything below `dir`, dot-files and folders (empty ones too) included: relative path →
+/// bytes (a folder: its path with a trailing `/` and no bytes; the lock files, which record the
+/// pid of their last holder: present, bytes not compared).
 fn tree(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     fn walk(root: &Path, d: &Path, m: &mut BTreeMap<PathBuf, Vec<u8>>) {
         for e in std::fs::read_dir(d).unwrap() {
             let p = e.unwrap().path();
             let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            let rel = p.strip_prefix(root).unwrap().to_path_buf();
             if p.is_dir() {
+                m.insert(PathBuf::from(format!("{}/", rel.display())), vec![]);
                 walk(root, &p, m);
-            } else if name != ".depthsense.lock" && name != ".index.lock" {
-                m.insert(
-                    p.strip_prefix(root).unwrap().to_path_buf(),
-                    std::fs::read(&p).unwrap(),
-                );
+            } else if name == ".depthsense.lock" || name == ".index.lock" {
+                m.insert(rel, vec![]);
+            } else {
+                m.insert(rel, std::fs::read(&p).unwrap());
             }
         }
     }
@@ -115,7 +118,24 @@ fn prepare_killed_five_times_then_finished_equals_one_clean_run() {
     }
     eprintln!("{interrupted} of 5 kills interrupted a running prepare (clean run {clean_s:?})");
     assert!(interrupted >= 1, "no kill landed while prepare ran");
+    // The temporary folder of a prepare killed while writing a sample, whose parent has not
+    // reaped it yet (a zombie: its /proc entry is still there).
+    let mut zombie = Command::new("sleep").arg("60").spawn().unwrap();
+    zombie.kill().unwrap();
+    let t = Instant::now();
+    while depthsense_prep::index::pid_alive(zombie.id()) {
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "sleep survived SIGKILL"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let stale = out.join(format!(".tmp-{}-{}", zombie.id(), "0".repeat(32)));
+    std::fs::create_dir_all(&stale).unwrap();
+    std::fs::write(stale.join("image.png"), b"half a sample").unwrap();
     ok(&output(&mut prepare(&world, &out)));
+    zombie.wait().unwrap();
+    assert!(!stale.exists(), "the stale temporary folder stayed");
     let (a, b) = (tree(&clean), tree(&out));
     assert_eq!(
         a.keys().collect::<Vec<_>>(),

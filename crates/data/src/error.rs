@@ -42,11 +42,84 @@ pub enum TrainError {
     },
     #[error(transparent)]
     Lock(#[from] depthsense_nuscenes::lock::LockError),
+    /// Prepared samples that cannot be read, every one with its reason (the loader reads on
+    /// past them, so that `eval` and `predict` name them all at once), and how to rebuild them.
+    #[error("{}", unreadable_text(.root, .samples))]
+    Unreadable {
+        /// The prepared folder.
+        root: String,
+        /// (sample token, what is wrong), in the order they were met.
+        samples: Vec<(String, String)>,
+    },
+    /// `train --resume` of a run that has run all its epochs: nothing to do (exit status 0).
+    #[error(
+        "{run} is finished: {epochs} of {epochs} epochs (iteration {iteration}); nothing was \
+         changed. To train it longer, run the same command with --extend --epochs N (N > \
+         {epochs}): a new learning-rate schedule from its last checkpoint \
+         (docs/guide/train.md, \"Longer runs and fine-tuning\")"
+    )]
+    RunFinished {
+        run: String,
+        epochs: usize,
+        iteration: u64,
+    },
+    /// The torch-free data layer's errors that have no variant of their own here.
+    #[error(transparent)]
+    Dataset(depthsense_dataset::DataError),
     #[error("{0}")]
     Other(String),
 }
 
+fn unreadable_text(root: &str, samples: &[(String, String)]) -> String {
+    let mut s = format!(
+        "{} prepared sample(s) of {root} cannot be read:",
+        samples.len()
+    );
+    for (token, why) in samples {
+        // The reason names the sample's file (and so its token) when it has one.
+        if why.contains(token.as_str()) {
+            s += &format!("\n  {why}");
+        } else {
+            s += &format!("\n  {token}: {why}");
+        }
+    }
+    let mer = samples.iter().all(|(_, why)| why.contains("radar_mer_"));
+    s += &if mer {
+        format!(
+            "\nthe MER maps come from `depthsense mer apply --data {root} --checkpoint PDA.safetensors` \
+             (docs/guide/mer.md); a model trained with --radar-input mer needs them"
+        )
+    } else {
+        format!(
+            "\nto rebuild them, rerun the `depthsense prepare` command that wrote {root} with \
+             --verify added: it re-reads every sample and prepares the broken ones again \
+             (docs/guide/prepare.md, \"Checking a prepared folder\")"
+        )
+    };
+    s
+}
+
 impl TrainError {
+    /// One error for several: every [`TrainError::Unreadable`] merged into one, unless another
+    /// kind is among them (then the first of those). `None` for none.
+    pub fn merged(errors: Vec<TrainError>) -> Option<TrainError> {
+        let mut root = None;
+        let mut samples = vec![];
+        for e in errors {
+            match e {
+                TrainError::Unreadable {
+                    root: r,
+                    samples: s,
+                } => {
+                    root.get_or_insert(r);
+                    samples.extend(s);
+                }
+                other => return Some(other),
+            }
+        }
+        root.map(|root| TrainError::Unreadable { root, samples })
+    }
+
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.display().to_string(),
@@ -80,6 +153,7 @@ impl From<depthsense_dataset::DataError> for TrainError {
             D::Metrics(m) => TrainError::Metrics(m),
             D::OutputExists { dir, what, advice } => TrainError::OutputExists { dir, what, advice },
             D::Other(m) => TrainError::Other(m),
+            other => TrainError::Dataset(other),
         }
     }
 }

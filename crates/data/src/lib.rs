@@ -276,8 +276,27 @@ fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), Trai
     Ok(())
 }
 
-/// Read one sample directory. `draw` is the sample's random stream (augmentation).
+/// Read one sample directory. `draw` is the sample's random stream (augmentation). A file that
+/// is missing, truncated or corrupt is a [`TrainError::Unreadable`] naming the sample and how to
+/// rebuild it.
 pub fn load_sample(
+    ds: &Dataset,
+    entry: &IndexEntry,
+    opts: &LoadOptions,
+    rng: &mut Rng,
+) -> Result<Sample, TrainError> {
+    let unreadable = |why: String| TrainError::Unreadable {
+        root: ds.root.display().to_string(),
+        samples: vec![(entry.sample_token.clone(), why)],
+    };
+    read_sample(ds, entry, opts, rng).map_err(|e| match e {
+        TrainError::Data(why) => unreadable(why),
+        TrainError::Io { .. } | TrainError::Parse { .. } => unreadable(e.to_string()),
+        other => other,
+    })
+}
+
+fn read_sample(
     ds: &Dataset,
     entry: &IndexEntry,
     opts: &LoadOptions,
@@ -637,7 +656,7 @@ impl Loader {
             .name("loader".into())
             .spawn(move || {
                 for (bi, group) in groups {
-                    let res: Result<Vec<Sample>, TrainError> = pool.install(|| {
+                    let res: Vec<Result<Sample, TrainError>> = pool.install(|| {
                         group
                             .par_iter()
                             .map(|&pos| {
@@ -646,9 +665,20 @@ impl Loader {
                             })
                             .collect()
                     });
-                    let batch = res.and_then(|s| Batch::stack(bi, s));
-                    let failed = batch.is_err();
-                    if tx.send(batch).is_err() || failed {
+                    let (ok, bad): (Vec<_>, Vec<_>) = res.into_iter().partition(Result::is_ok);
+                    let batch =
+                        match TrainError::merged(bad.into_iter().filter_map(Result::err).collect())
+                        {
+                            None => {
+                                Batch::stack(bi, ok.into_iter().filter_map(Result::ok).collect())
+                            }
+                            Some(e) => Err(e),
+                        };
+                    // Past unreadable samples the stream goes on (a consumer that stops at
+                    // the first error drops the loader); any other error ends it.
+                    let stop =
+                        matches!(&batch, Err(e) if !matches!(e, TrainError::Unreadable { .. }));
+                    if tx.send(batch).is_err() || stop {
                         break;
                     }
                 }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use depthsense_prep::layout::{IndexEntry, PreparedIndex, INDEX_FILE};
 use serde::{Deserialize, Serialize};
 
-use crate::error::DataError;
+use crate::error::{DataError, NotPrepared};
 
 /// A prepared data directory: `index.json` and its sample folders.
 #[derive(Debug, Clone)]
@@ -17,10 +17,58 @@ pub struct Dataset {
     pub index: PreparedIndex,
 }
 
+/// What `root`, which has no `index.json`, is instead.
+fn not_prepared(root: &Path) -> NotPrepared {
+    if !root.is_dir() {
+        let parent = root
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        let mut prepared_siblings: Vec<String> = std::fs::read_dir(parent)
+            .map(|rd| {
+                rd.flatten()
+                    .filter(|e| e.path().join(INDEX_FILE).is_file())
+                    .map(
+                        |e| match root.parent().filter(|p| !p.as_os_str().is_empty()) {
+                            Some(p) => p.join(e.file_name()).display().to_string(),
+                            None => e.file_name().to_string_lossy().into_owned(),
+                        },
+                    )
+                    .collect()
+            })
+            .unwrap_or_default();
+        prepared_siblings.sort();
+        return NotPrepared::Missing { prepared_siblings };
+    }
+    let mut shards: Vec<String> = std::fs::read_dir(root)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with("index.shard-") && n.ends_with(".json"))
+                .collect()
+        })
+        .unwrap_or_default();
+    shards.sort();
+    if !shards.is_empty() {
+        return NotPrepared::Shards(shards);
+    }
+    let versions = depthsense_nuscenes::tables::version_folders(root);
+    if !versions.is_empty() {
+        return NotPrepared::Dataroot(versions);
+    }
+    NotPrepared::Other
+}
+
 impl Dataset {
     /// Open `root/index.json`.
     pub fn open(root: &Path) -> Result<Self, DataError> {
         let path = root.join(INDEX_FILE);
+        if !path.exists() {
+            return Err(DataError::NoIndex {
+                root: root.display().to_string(),
+                found: not_prepared(root),
+            });
+        }
         let bytes = std::fs::read(&path).map_err(|e| DataError::io(&path, e))?;
         let index: PreparedIndex =
             serde_json::from_slice(&bytes).map_err(|e| DataError::Parse {

@@ -18,9 +18,9 @@ use depthsense_nuscenes::depth_png::{decode_png, encode_png16_fast, DepthMap};
 use crate::error::DataError;
 
 /// Per sample: depth × 256 of the most confident associated radar return (SPEC §5).
-pub const MER_DEPTH_FILE: &str = "radar_mer_depth.png";
+pub const MER_DEPTH_FILE: &str = depthsense_prep::layout::MER_DEPTH_FILE;
 /// Per sample: that confidence × 65535.
-pub const MER_CONF_FILE: &str = "radar_mer_conf.png";
+pub const MER_CONF_FILE: &str = depthsense_prep::layout::MER_CONF_FILE;
 /// In the prepared root: which PDA model wrote the MER maps.
 pub const MER_RECORD_FILE: &str = "mer.json";
 /// MER thresholds θ of the 6 channels d·[conf > θ] (SPEC §5).

@@ -18,8 +18,10 @@ use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
+use depthsense_prep::layout::IndexEntry;
 use depthsense_train::trainer::{evaluate_net, radar_input_for, subsample};
 pub use depthsense_train::validate::{condition_names, score_image};
+use depthsense_train::validate::{run_net, RunPlan};
 // Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
 // `eval --predictions` without libtorch; re-exported for the network side's users.
 pub use depthsense_score::npy;
@@ -130,20 +132,19 @@ pub fn run_eval_loaded(
     eval_with(opts, loaded, progress, |_, _| Ok(()))
 }
 
-/// [`run_eval_loaded`] with a callback on every batch and its predictions.
-fn eval_with(
+/// What [`eval_with`] and [`write_predictions`] run over: the prepared folder, the samples of
+/// the split and how they are loaded (the checkpoint's radar input, radar drop and failures).
+fn eval_inputs(
     opts: &EvalOptions,
     loaded: &Loaded,
     progress: &Progress,
-    on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<Report, TrainError> {
+) -> Result<(Dataset, Vec<IndexEntry>, LoadOptions), TrainError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
         return Err(TrainError::Config(format!(
             "--radar-drop must be within [0, 1], got {}",
             opts.radar_drop
         )));
     }
-    let device = loaded.vs.device();
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(
         &select_split(&ds, &opts.split, opts.val_every_scene)?,
@@ -166,8 +167,19 @@ fn eval_with(
         opts.data.display(),
         opts.split,
         opts.checkpoint.display(),
-        depthsense_model::device::describe(device)
+        depthsense_model::device::describe(loaded.vs.device())
     ));
+    Ok((ds, entries, load))
+}
+
+/// [`run_eval_loaded`] with a callback on every batch and its predictions.
+fn eval_with(
+    opts: &EvalOptions,
+    loaded: &Loaded,
+    progress: &Progress,
+    on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), TrainError>,
+) -> Result<Report, TrainError> {
+    let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
     evaluate_net(
         &loaded.net,
         &ds,
@@ -176,40 +188,55 @@ fn eval_with(
         &opts.eval,
         opts.batch_size,
         opts.jobs,
-        device,
+        loaded.vs.device(),
         progress,
         on_batch,
     )
 }
-/// Run a network over the samples of `opts` (as `eval` would) and write each prediction as
-/// `<out>/<token>.<ext>` for every format in `formats`; returns the report and the count.
+/// Run a network over the samples of `opts` (as `eval` would, without reading their ground
+/// truth) and write each prediction as `<out>/<token>.<ext>` for every format in `formats`;
+/// returns how many samples were written.
 pub fn write_predictions(
     opts: &EvalOptions,
     loaded: &Loaded,
     out: &Path,
     formats: &[PredFormat],
     progress: &Progress,
-) -> Result<(Report, usize), TrainError> {
+) -> Result<usize, TrainError> {
+    let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
     std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
     let mut n = 0usize;
-    let report = eval_with(opts, loaded, progress, |b, pred| {
-        let hw = b.width * b.height;
-        for (i, s) in b.samples.iter().enumerate() {
-            for &f in formats {
-                write_prediction(
-                    out,
-                    &s.token,
-                    &pred[i * hw..(i + 1) * hw],
-                    b.width,
-                    b.height,
-                    f,
-                )?;
+    let run = RunPlan {
+        batch_size: opts.batch_size,
+        jobs: opts.jobs,
+        device: loaded.vs.device(),
+    };
+    run_net(
+        &loaded.net,
+        &ds,
+        &entries,
+        &load,
+        &run,
+        progress,
+        |b, pred| {
+            let hw = b.width * b.height;
+            for (i, s) in b.samples.iter().enumerate() {
+                for &f in formats {
+                    write_prediction(
+                        out,
+                        &s.token,
+                        &pred[i * hw..(i + 1) * hw],
+                        b.width,
+                        b.height,
+                        f,
+                    )?;
+                }
+                n += 1;
             }
-            n += 1;
-        }
-        Ok(())
-    })?;
-    Ok((report, n))
+            Ok(())
+        },
+    )?;
+    Ok(n)
 }
 
 #[cfg(test)]

@@ -22,7 +22,8 @@ use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::Camera;
 use depthsense_prep::layout::{
-    FRAME_H, FRAME_W, IMAGE_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
+    FRAME_H, FRAME_W, IMAGE_FILE, INDEX_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE,
+    RADAR_RAW_FILE,
 };
 use depthsense_prep::maps::{image_to_frame, radar_maps, radar_positions, Raster};
 use serde::Deserialize;
@@ -47,10 +48,23 @@ pub struct PredictInput {
 /// Read a prepared sample directory.
 pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
     if !dir.join(META_FILE).exists() {
-        return Err(TrainError::Data(format!(
-            "{}: not a prepared sample directory (no {META_FILE})",
-            dir.display()
-        )));
+        let d = dir.display();
+        return Err(TrainError::Other(if dir.join(INDEX_FILE).exists() {
+            format!(
+                "{d} is a prepared folder, not one sample: pass --sample {d}/<sample token> \
+                 for one of its samples, or --data {d} for a split of them"
+            )
+        } else if dir.is_dir() {
+            format!(
+                "{d}: not a prepared sample folder (no {META_FILE}); --sample takes one \
+                 PREPARED/<sample token> folder written by `depthsense prepare`"
+            )
+        } else {
+            format!(
+                "{d}: no such folder; --sample takes one PREPARED/<sample token> folder \
+                 written by `depthsense prepare`"
+            )
+        }));
     }
     let gt_path = dir.join(LIDAR_SPARSE_FILE);
     Ok(PredictInput {

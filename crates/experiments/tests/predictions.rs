@@ -75,7 +75,7 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     let by_checkpoint = run_eval(&eo, &pb).unwrap();
     let (loaded, _) = load_model(&eo.checkpoint, None, &[], Device::Cpu).unwrap();
     let out = tmp.path().join("preds");
-    let (_, n) =
+    let n =
         write_predictions(&eo, &loaded, &out, &[PredFormat::Npy, PredFormat::Png], &pb).unwrap();
     assert_eq!(n, 10);
 

@@ -632,16 +632,18 @@ pub fn train_pda(
     progress: &Progress,
 ) -> Result<MerTrainSummary, TrainError> {
     let started = Instant::now();
-    let mut run = Run::new(opts)?;
-    progress.println(run.start_line());
-    let fitted = fit(&mut run, progress)?;
-    Ok(MerTrainSummary {
-        run_dir: opts.out.clone(),
-        val: fitted.val,
-        best_auc: run.state.best_auc.unwrap_or(f64::NAN),
-        parameters: pda::parameter_count(&run.vs),
-        iterations: run.state.iteration,
-        seconds: started.elapsed().as_secs_f64(),
+    depthsense_train::trainer::removing_new_folder_on_failure(&opts.out, || {
+        let mut run = Run::new(opts)?;
+        progress.println(run.start_line());
+        let fitted = fit(&mut run, progress)?;
+        Ok(MerTrainSummary {
+            run_dir: opts.out.clone(),
+            val: fitted.val,
+            best_auc: run.state.best_auc.unwrap_or(f64::NAN),
+            parameters: pda::parameter_count(&run.vs),
+            iterations: run.state.iteration,
+            seconds: started.elapsed().as_secs_f64(),
+        })
     })
 }
 

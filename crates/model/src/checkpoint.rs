@@ -354,15 +354,61 @@ pub fn load(path: &Path, device: Device) -> Result<Loaded, ModelError> {
     })
 }
 
+/// `path` exists; otherwise an error that says what the flag takes (`what`) and lists the
+/// checkpoints in the folder it names, if any.
+pub fn require_file(path: &Path, what: &str) -> Result<(), ModelError> {
+    if path.exists() {
+        return Ok(());
+    }
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut near: Vec<String> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| e.path())
+                .filter(|p| {
+                    p.extension()
+                        .is_some_and(|x| x == "safetensors" || x == "pth" || x == "pt")
+                })
+                .map(|p| p.display().to_string())
+                .collect()
+        })
+        .unwrap_or_default();
+    near.sort();
+    let beside = if near.is_empty() {
+        String::new()
+    } else {
+        format!("; checkpoints in {}: {}", dir.display(), near.join(", "))
+    };
+    Err(ModelError::format(
+        path,
+        format!("no such file ({what}){beside}"),
+    ))
+}
+
 /// Is `path` a `torch.save` file (zip or legacy pickle) rather than a safetensors file?
 /// Decided by content: zip files start with `PK\x03\x04`, legacy `torch.save` pickles with
 /// the protocol opcode 0x80; a safetensors file starts with its header length.
 pub fn is_torch_file(path: &Path) -> Result<bool, ModelError> {
     use std::io::Read;
-    let mut head = [0u8; 4];
+    let mut head = [0u8; 9];
     let mut f = std::fs::File::open(path).map_err(|e| ModelError::io(path, e))?;
+    let len = f.metadata().map_err(|e| ModelError::io(path, e))?.len();
     let n = f.read(&mut head).map_err(|e| ModelError::io(path, e))?;
-    Ok((n >= 4 && head == *b"PK\x03\x04") || (n >= 1 && head[0] == 0x80))
+    // A safetensors file first: its header length (little-endian u64) may well start with the
+    // byte 0x80 (a header of 128 + 256·k bytes), the legacy pickle's first opcode.
+    let header_len = u64::from_le_bytes([
+        head[0], head[1], head[2], head[3], head[4], head[5], head[6], head[7],
+    ]);
+    if n == 9 && head[8] == b'{' && header_len >= 2 && header_len <= len.saturating_sub(8) {
+        return Ok(false);
+    }
+    let zip = n >= 4 && head[..4] == *b"PK\x03\x04";
+    // PROTO 2..5: what torch.save's legacy format starts with.
+    let legacy_pickle = n >= 2 && head[0] == 0x80 && (2..=5).contains(&head[1]);
+    Ok(zip || legacy_pickle)
 }
 
 /// Loads a network for inference from either
@@ -380,6 +426,11 @@ pub fn load_any(
     config: Option<&ModelConfig>,
     device: Device,
 ) -> Result<(Loaded, Option<crate::weights::LoadReport>), ModelError> {
+    require_file(
+        path,
+        "--checkpoint takes RUN/best.safetensors or RUN/last.safetensors of `depthsense train`, \
+         or a PyTorch .pth with --config",
+    )?;
     if !is_torch_file(path)? {
         let Some(cfg) = config else {
             return Ok((load(path, device)?, None));

@@ -41,7 +41,7 @@ pub enum ModelError {
     #[error("invalid device `{0}` (expected auto, cpu, cuda or cuda:N)")]
     InvalidDevice(String),
     /// CUDA was asked for explicitly but libtorch sees no usable GPU.
-    #[error("device `{0}` requested but CUDA is not available (libtorch sees {1} GPUs; is libtorch_cuda linked and a driver present?)")]
+    #[error("device `{0}` requested but CUDA is not available (libtorch sees {1} GPUs; is libtorch_cuda linked and a driver present?): use --device cpu, or auto (CUDA when there is one)")]
     CudaUnavailable(String, i64),
     /// Reading or writing a file failed.
     #[error("{path}: {source}")]

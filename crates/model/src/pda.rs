@@ -544,6 +544,10 @@ pub fn save(
 
 /// Loads a checkpoint written by [`save`], building the network from its stored config.
 pub fn load(path: &Path, device: Device) -> Result<LoadedPda, ModelError> {
+    crate::checkpoint::require_file(
+        path,
+        "a PDA checkpoint is RUN/best.safetensors of `depthsense mer train`",
+    )?;
     let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
     let (tensors, meta) = parse_safetensors(path, &bytes)?;
     if meta.get(KEY_FORMAT).map(String::as_str) != Some(FORMAT) {

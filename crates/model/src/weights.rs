@@ -431,6 +431,63 @@ pub fn released_key(key: &str) -> Option<String> {
     }
 }
 
+/// Fine-tuning (`train --init-from`): copies into `vs` the tensors of `path` that belong to the
+/// network — a depthsense checkpoint (safetensors), a state dict under depthsense's names
+/// (`export --format pytorch`) or the authors' released `.pth` (its keys mapped with
+/// [`released_key`]). Network variables the file lacks keep their initialisation (the report's
+/// `left random`: the new parts); file tensors the network lacks are reported unused. The
+/// first conv of the RGB encoder or the radar branch may differ in its input channels (early
+/// fusion, another radar input): the channels both have are copied. Any other shape mismatch is
+/// an error naming every offending tensor.
+pub fn init_from(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
+    crate::checkpoint::require_file(
+        path,
+        "--init-from takes a depthsense checkpoint (RUN/best.safetensors), an `export --format \
+         pytorch` .pth or the authors' released .pth",
+    )?;
+    let file = if crate::checkpoint::is_torch_file(path)? {
+        pickle::read_torch_file(path)?
+    } else {
+        let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
+        crate::checkpoint::parse_safetensors(path, &bytes)?.0
+    };
+    let ours: std::collections::HashSet<String> = vs.variables().into_keys().collect();
+    import(
+        path,
+        vs,
+        file,
+        |key| {
+            let k = strip_wrappers(key);
+            if ours.contains(k) {
+                return Ok(k.to_string());
+            }
+            released_key(key).ok_or_else(|| "not a variable of this network".into())
+        },
+        |target, _, _| matches!(target, "rgb.conv1.weight" | "radar.conv1.weight"),
+    )
+    .map_err(|e| match e {
+        ModelError::ShapeMismatch { path, mismatches } => ModelError::Format {
+            msg: format!(
+                "{} tensor(s) differ in shape from this network:{}\n--init-from copies the \
+                 tensors of the same name and shape: build the network the file holds (for a \
+                 depthsense checkpoint, --config {}) and add only --set options that add \
+                 tensors (attention=on, radar-skip changes the head: not one of them)",
+                mismatches.len(),
+                mismatches
+                    .iter()
+                    .map(|m| format!(
+                        "\n  {}: network {:?}, file {:?}",
+                        m.name, m.expected, m.found
+                    ))
+                    .collect::<String>(),
+                path.display()
+            ),
+            path,
+        },
+        other => other,
+    })
+}
+
 /// Loads the authors' released PyTorch checkpoint (a state dict, `{"state_dict": …}` or a
 /// pickled module; `module.` prefixes removed) into a network built with the `released`
 /// preset — or any PyTorch state dict under depthsense's own variable names (what

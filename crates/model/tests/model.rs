@@ -786,3 +786,91 @@ fn import_report_summary_by_hand() {
         "weights: 1 tensors loaded, 0 partly loaded, 0 left random; file tensors: 0 skipped, 0 unused\n  loaded: rgb.stem 1\n"
     );
 }
+
+/// `train --init-from`: a depthsense checkpoint or a state dict under depthsense's names fills
+/// every tensor of the same name and shape; tensors the file lacks stay as initialised and are
+/// named new; a shape that differs is an error that names it and the next step.
+#[test]
+fn init_from_fills_matching_tensors_and_names_the_new_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let plain = narrow(
+        ModelConfig::tiny()
+            .with_options(&["attention=off"])
+            .unwrap(),
+    );
+    tch::manual_seed(1);
+    let (vs_a, _) = build(&plain);
+    let ckpt = dir.path().join("a.safetensors");
+    checkpoint::save(&ckpt, &vs_a, &plain, &serde_json::Value::Null).unwrap();
+    let pth = dir.path().join("a.pth");
+    let named: Vec<(String, Tensor)> = vs_a.variables().into_iter().collect();
+    pickle::write_torch_state_dict(&pth, &named).unwrap();
+
+    // The same network, from either file: every tensor loaded, equal.
+    for file in [&ckpt, &pth] {
+        tch::manual_seed(2);
+        let (mut vs_b, _) = build(&plain);
+        let r = weights::init_from(&mut vs_b, file).unwrap();
+        assert_eq!(r.loaded.len(), vs_a.variables().len(), "{r}");
+        assert!(r.left_random.is_empty() && r.unused.is_empty(), "{r}");
+        for (k, v) in vs_b.variables() {
+            assert!(v.equal(&vs_a.variables()[&k]), "{k} differs");
+        }
+    }
+
+    // With attention: its conv is new, everything else comes from the file.
+    let with = narrow(ModelConfig::tiny().with_options(&["attention=on"]).unwrap());
+    tch::manual_seed(3);
+    let (mut vs_c, _) = build(&with);
+    let fresh_attention = vs_c.variables()["attention.conv.weight"].copy();
+    let r = weights::init_from(&mut vs_c, &ckpt).unwrap();
+    assert_eq!(r.loaded.len(), vs_a.variables().len());
+    assert!(
+        r.left_random.iter().all(|k| k.starts_with("attention.")),
+        "{r}"
+    );
+    assert!(!r.left_random.is_empty(), "{r}");
+    assert!(vs_c.variables()["attention.conv.weight"].equal(&fresh_attention));
+    assert!(vs_c.variables()["head.conv1.weight"].equal(&vs_a.variables()["head.conv1.weight"]));
+
+    // Another head: an error naming the tensor and what to do.
+    let other = narrow(ModelConfig::tiny().with_options(&["bins=40"]).unwrap());
+    let (mut vs_d, _) = build(&other);
+    let e = weights::init_from(&mut vs_d, &ckpt)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("head.conv2.weight") && e.contains("--config"),
+        "{e}"
+    );
+    let e = weights::init_from(&mut vs_d, &dir.path().join("none.safetensors"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no such file") && e.contains("a.safetensors"),
+        "{e}"
+    );
+}
+
+/// A safetensors checkpoint whose header length starts with the byte 0x80 (the legacy pickle's
+/// PROTO opcode) is still read as safetensors.
+#[test]
+fn a_checkpoint_whose_header_length_starts_with_0x80_is_not_taken_for_a_pickle() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = narrow(ModelConfig::tiny());
+    let (vs, _) = build(&cfg);
+    let path = dir.path().join("c.safetensors");
+    let mut found = false;
+    for pad in 0..256 {
+        let extra = serde_json::json!({ "pad": "x".repeat(pad) });
+        checkpoint::save(&path, &vs, &cfg, &extra).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        if bytes[0] == 0x80 {
+            found = true;
+            break;
+        }
+    }
+    assert!(found, "no padding gave a header length starting with 0x80");
+    assert!(!checkpoint::is_torch_file(&path).unwrap());
+    checkpoint::load_any(&path, None, Device::Cpu).unwrap();
+}

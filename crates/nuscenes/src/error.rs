@@ -39,8 +39,38 @@ pub enum NuError {
     },
     #[error("{path}: cannot decode image: {reason}")]
     Image { path: String, reason: String },
+    /// `--version` names no folder of the dataroot; `found` lists the version folders there
+    /// (folders holding `scene.json`).
+    #[error("{}", version_not_found(.dataroot, .version, .found))]
+    VersionNotFound {
+        dataroot: String,
+        version: String,
+        found: Vec<String>,
+    },
     #[error("{0}")]
     Other(String),
+}
+
+fn version_not_found(dataroot: &str, version: &str, found: &[String]) -> String {
+    let head = format!("{dataroot}: no version folder `{version}`");
+    match found {
+        [] if !Path::new(dataroot).is_dir() => {
+            format!("{dataroot}: no such dataroot folder (the folder that holds samples/, sweeps/ and the version folder)")
+        }
+        [] => format!(
+            "{head}, and no version folder at all (a folder holding scene.json, sample.json, …): \
+             is this the nuScenes dataroot (the folder that holds samples/, sweeps/ and \
+             v1.0-*/)? A synthetic world is made by `depthsense synth --out {dataroot}`"
+        ),
+        [one] => format!("{head}; it holds `{one}`: pass --version {one}"),
+        many => format!(
+            "{head}; it holds {}: pass one of them with --version",
+            many.iter()
+                .map(|v| format!("`{v}`"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
 }
 
 impl NuError {

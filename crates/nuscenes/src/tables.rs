@@ -1320,17 +1320,29 @@ macro_rules! getter {
     };
 }
 
+/// The version folders of `dataroot` (its sub-folders holding `scene.json`), sorted.
+pub fn version_folders(dataroot: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dataroot)
+        .map(|rd| {
+            rd.flatten()
+                .filter(|e| e.path().join("scene.json").is_file())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
 impl NuScenes {
     /// Load `dataroot/version/*.json`.
     pub fn load(dataroot: &Path, version: &str) -> Result<NuScenes> {
         let dir = dataroot.join(version);
         if !dir.is_dir() {
-            return Err(NuError::Io {
-                path: dir.display().to_string(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::NotFound,
-                    "version folder not found",
-                ),
+            return Err(NuError::VersionNotFound {
+                dataroot: dataroot.display().to_string(),
+                version: version.to_string(),
+                found: version_folders(dataroot),
             });
         }
         Self::load_from(&Source::Dir(dir), dataroot, version)

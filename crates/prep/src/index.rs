@@ -26,8 +26,9 @@ use crate::layout::{self, IndexEntry, PreparedIndex};
 /// How long to wait for another process's index lock.
 pub const LOCK_WAIT: Duration = Duration::from_secs(120);
 
-/// Whether process `pid` is running. Without `/proc` nothing can be told: every other process
-/// counts as running.
+/// Whether process `pid` is running: it exists and is neither a zombie (killed, not yet reaped
+/// by its parent — a `prepare` killed under a shell or a job runner stays one for a while) nor
+/// dead. Without `/proc` nothing can be told: every other process counts as running.
 pub fn pid_alive(pid: u32) -> bool {
     if pid == std::process::id() {
         return true;
@@ -36,7 +37,14 @@ pub fn pid_alive(pid: u32) -> bool {
     if !proc_dir.join("self").exists() {
         return true;
     }
-    proc_dir.join(pid.to_string()).exists()
+    let Ok(stat) = std::fs::read_to_string(proc_dir.join(pid.to_string()).join("stat")) else {
+        return false;
+    };
+    // `pid (comm) S …`: the state follows the last ')' (comm may hold anything).
+    let state = stat
+        .rsplit_once(')')
+        .and_then(|(_, rest)| rest.trim_start().chars().next());
+    !matches!(state, None | Some('Z') | Some('X') | Some('x'))
 }
 
 /// The held index lock (an advisory `flock` on `out/.index.lock`, released on drop or when the
@@ -292,7 +300,11 @@ fn merge_sources(out: &Path, others: &[PathBuf], target: &Path) -> Result<Vec<So
     if sources.is_empty() {
         return Err(PrepError::Output {
             path: out.display().to_string(),
-            reason: "nothing to merge: no index.shard-*.json here and no other folder given".into(),
+            reason: "nothing to merge: no index.shard-*.json here and no other folder given \
+                     (`index merge OUT` combines the index.shard-I-of-N.json files that \
+                     `prepare --shard I/N --out OUT` wrote; `index merge OUT OTHER…` adds the \
+                     samples of other prepared folders)"
+                .into(),
         });
     }
     Ok(sources)
@@ -456,6 +468,35 @@ fn interleave_shards(sources: &[Source], set: &ShardSet, ordered: &mut Vec<Index
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_killed_process_not_yet_reaped_is_not_alive() {
+        if !Path::new("/proc/self/stat").exists() {
+            return; // nothing can be told without /proc
+        }
+        let mut running = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .unwrap();
+        assert!(pid_alive(running.id()));
+        running.kill().unwrap();
+        // Killed, not reaped yet: a zombie until `wait`.
+        let t = std::time::Instant::now();
+        while pid_alive(running.id()) {
+            assert!(
+                t.elapsed() < Duration::from_secs(10),
+                "still alive after SIGKILL"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert!(
+            Path::new("/proc").join(running.id().to_string()).exists(),
+            "a zombie"
+        );
+        running.wait().unwrap();
+        assert!(!pid_alive(running.id()));
+        assert!(pid_alive(std::process::id()));
+    }
 
     #[test]
     fn temp_dir_names_carry_the_pid() {

@@ -35,6 +35,9 @@ pub const LOWHEIGHT_MASK_FILE: &str = "lowheight_mask.png";
 pub const RADAR_RAW_FILE: &str = "radar_raw.png";
 pub const RADAR_HEIGHT_FILE: &str = "radar_height.png";
 pub const META_FILE: &str = "meta.json";
+/// Written into a sample folder by `depthsense mer apply` (SPEC §5), not by `prepare`.
+pub const MER_DEPTH_FILE: &str = "radar_mer_depth.png";
+pub const MER_CONF_FILE: &str = "radar_mer_conf.png";
 
 /// Scene condition derived from the lower-cased scene description (SPEC §2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]

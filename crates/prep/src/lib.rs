@@ -11,5 +11,6 @@ pub mod motion;
 pub mod pipeline;
 pub mod radar_points;
 pub mod splits;
+pub mod verify;
 
 pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary, Shard};

@@ -47,6 +47,9 @@ pub struct PrepareOptions {
     /// `--shard I/N`: prepare only the I-th of N disjoint parts (by scene) of the selection;
     /// its index goes to `index.shard-I-of-N.json` (merge with `depthsense index merge`).
     pub shard: Option<Shard>,
+    /// `--verify`: re-read every sample already in `out` ([`crate::verify`]) and prepare the
+    /// broken ones again.
+    pub verify: bool,
 }
 
 /// One part of a sharded `prepare` (`--shard I/N`, 0 ≤ I < N).
@@ -98,6 +101,7 @@ impl Default for PrepareOptions {
             jobs: 0,
             keep_going: false,
             shard: None,
+            verify: false,
         }
     }
 }
@@ -109,6 +113,12 @@ pub struct PrepareSummary {
     pub skipped_existing: usize,
     /// (sample token, reason) of every sample that could not be prepared.
     pub failed: Vec<(String, String)>,
+    /// `--verify`: samples already there that were checked, and (token, what was wrong) of
+    /// those found broken and prepared again.
+    pub verified: usize,
+    pub rebuilt: Vec<(String, String)>,
+    /// Of the rebuilt samples, how many had MER maps (`mer apply` must run again for them).
+    pub mer_lost: usize,
 }
 
 pub use crate::error::PrepError;
@@ -1044,7 +1054,14 @@ pub fn prepare_timed(
             .join(layout::META_FILE)
             .is_file()
     };
-    let (existing, todo): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| done(s));
+    let (mut existing, mut todo): (Vec<&Sample>, Vec<&Sample>) =
+        samples.iter().partition(|s| done(s));
+    let verified = existing.len();
+    let (rebuilt, mer_lost) = if opts.verify {
+        verify_existing(opts, &mut existing, &mut todo, progress)?
+    } else {
+        (vec![], 0)
+    };
     if !indexed {
         // A folder from before settings lived in the index: compare with a finished sample.
         if let Some(s) = existing.first() {
@@ -1073,10 +1090,48 @@ pub fn prepare_timed(
         times: &times,
     };
     let results = prepare_all(&job, &todo, progress)?;
-    let (summary, ok) = summarise(&existing, results);
+    let (mut summary, ok) = summarise(&existing, results);
+    if opts.verify {
+        summary.verified = verified;
+        summary.rebuilt = rebuilt;
+        summary.mer_lost = mer_lost;
+    }
     write_index(&nu, opts, &samples, &ok, &assignment, shard_info)?;
     let t = times.into_inner().unwrap_or_default();
     Ok((summary, t))
+}
+
+/// `--verify`: re-reads every sample of `existing` (on all cores); each broken one is removed
+/// from `out`, moved to `todo` and returned with what was wrong, with how many of them had MER
+/// maps.
+fn verify_existing<'a>(
+    opts: &PrepareOptions,
+    existing: &mut Vec<&'a Sample>,
+    todo: &mut Vec<&'a Sample>,
+    progress: &depthsense_progress::Progress,
+) -> Result<(Vec<(String, String)>, usize), PrepError> {
+    progress.set_message(format!("verifying {} samples", existing.len()));
+    let dir = |s: &Sample| opts.out.join(s.token.to_string());
+    let problems: Vec<Option<String>> = existing
+        .par_iter()
+        .map(|s| crate::verify::verify_sample(&dir(s)).err())
+        .collect();
+    let (mut rebuilt, mut mer_lost, mut keep) = (vec![], 0, vec![]);
+    for (s, problem) in existing.iter().zip(problems) {
+        match problem {
+            None => keep.push(*s),
+            Some(why) => {
+                let d = dir(s);
+                mer_lost += usize::from(crate::verify::has_mer_maps(&d));
+                std::fs::remove_dir_all(&d).map_err(|e| PrepError::io(&d, e))?;
+                progress.println(format!("broken, prepared again: {why}"));
+                rebuilt.push((s.token.to_string(), why));
+                todo.push(*s);
+            }
+        }
+    }
+    *existing = keep;
+    Ok((rebuilt, mer_lost))
 }
 
 /// The samples of `--shard I/N` (all of `selected` without one) and the shard's record for

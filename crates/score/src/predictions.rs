@@ -174,6 +174,13 @@ pub fn run_eval_predictions(
     opts: &PredictionsOptions,
     progress: &Progress,
 ) -> Result<(Report, PredictionsSummary), DataError> {
+    if !opts.dir.is_dir() {
+        return Err(DataError::Data(format!(
+            "{}: no such folder; --predictions takes a folder of <sample token>.png (16-bit, \
+             depth×256) or .npy (float32 metres) files, as `depthsense predict --data` writes",
+            opts.dir.display()
+        )));
+    }
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(
         &select_split(&ds, &opts.split, opts.val_every_scene)?,

@@ -22,7 +22,7 @@ use crate::error::TrainError;
 
 mod session;
 pub use crate::validate::evaluate_net;
-pub use session::{train, train_distributed, Trainer};
+pub use session::{removing_new_folder_on_failure, train, train_distributed, Trainer};
 
 pub use crate::metrics_log::{
     append_jsonl, read_metrics, truncate_metrics, write_curves, LossCurve, ValRecord,
@@ -101,6 +101,17 @@ pub struct TrainOptions {
     /// when false.
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub force: bool,
+    /// `--init-from`: the weights a fresh network starts from (fine-tuning): a depthsense
+    /// checkpoint, an `export --format pytorch` file or the authors' `.pth` (with the
+    /// `released` config). Tensors of the network that the file lacks keep their
+    /// initialisation; the report names them. Absent from the JSON when not given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<PathBuf>,
+    /// `--extend`: continue the run in `out` from its last checkpoint to `epochs` epochs with a
+    /// new learning-rate schedule from there (`lr`, poly decay to 0 at the new end), recorded
+    /// in RUN/config.json. Absent from the JSON when false.
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub extend: bool,
 }
 
 /// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
@@ -139,6 +150,8 @@ impl Default for TrainOptions {
             train_radar_drop: 0.0,
             warmup_iters: 0,
             force: false,
+            init_from: None,
+            extend: false,
         }
     }
 }
@@ -181,8 +194,28 @@ struct State {
     best_val_rmse: Option<f64>,
     batch_size: usize,
     epochs: usize,
+    /// The learning rate of the current schedule segment (the run's `--lr`, or the last
+    /// `--extend`'s).
     lr: f64,
     val_rmse: Option<f64>,
+    /// The learning-rate schedule in segments: empty for a run never extended (one poly decay
+    /// over the whole run); one segment more per `--extend`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    schedule: Vec<Segment>,
+    /// What `--init-from` loaded into the fresh network (kept across resumes for config.json).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    init_from: Option<serde_json::Value>,
+}
+
+/// One segment of the learning-rate schedule: a poly decay from `lr` at `start_iteration` to 0
+/// at `end_iteration` (after `warmup` iterations of linear warmup).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Segment {
+    pub start_iteration: u64,
+    pub end_iteration: u64,
+    pub lr: f64,
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub warmup: u64,
 }
 
 /// Radar input for a model config (fusion None → no radar): `requested` when given (it must

@@ -52,6 +52,12 @@ pub struct Args {
     /// OUT/index.shard-I-of-N.json; combine the parts with `depthsense index merge OUT`.
     #[arg(long, value_name = "I/N")]
     shard: Option<String>,
+    /// Re-read every sample already in --out (each PNG, meta.json, radar_points.bin) and
+    /// prepare the broken ones again (a truncated copy, a disk error); the others are kept.
+    /// Add it to the command that wrote the folder when `train`, `eval` or `predict` report an
+    /// unreadable sample.
+    #[arg(long)]
+    verify: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -69,6 +75,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         jobs: a.jobs,
         keep_going: a.keep_going,
         shard,
+        verify: a.verify,
     };
     let pb = Progress::new("prepare");
     pb.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -78,6 +85,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let secs = t.elapsed().as_secs_f64();
     for (token, reason) in &s.failed {
         eprintln!("failed {token}: {reason}");
+    }
+    if opts.verify {
+        eprintln!(
+            "verified {} samples already there: {} broken, prepared again{}",
+            s.verified,
+            s.rebuilt.len(),
+            if s.mer_lost > 0 {
+                format!(
+                    " ({} of them had MER maps: run `depthsense mer apply --checkpoint PDA --data {}` again)",
+                    s.mer_lost,
+                    opts.out.display()
+                )
+            } else {
+                String::new()
+            }
+        );
     }
     eprintln!(
         "prepared {} keyframes in {secs:.1} s ({:.1}/s), {} already done, {} failed → {}",

@@ -56,12 +56,26 @@ pub struct Args {
     /// Mixed precision (bf16 autocast of the forward pass; CUDA only, ignored on CPU).
     #[arg(long)]
     pub amp: bool,
-    /// torchvision ResNet state dict (e.g. resnet101.pth) to initialise the RGB encoder.
+    /// torchvision ResNet state dict to initialise the RGB encoder: ImageNet weights such as
+    /// torchvision's resnet101-63fe2227.pth (docs/guide/train.md, "Weights" says where they
+    /// come from and which layouts are read).
     #[arg(long)]
     pub backbone_weights: Option<PathBuf>,
-    /// Continue exactly from OUT/last.safetensors (same options required).
+    /// Fine-tune: start the fresh network from these weights — a depthsense checkpoint
+    /// (RUN/best.safetensors), an `export --format pytorch` .pth, or the authors' .pth with
+    /// `--config released`. Prints (and config.json records) which tensors were loaded and
+    /// which are new; the run's own schedule starts at iteration 0.
+    #[arg(long, value_name = "CHECKPOINT", conflicts_with = "resume")]
+    pub init_from: Option<PathBuf>,
+    /// Continue exactly from OUT/last.safetensors (same options required). A finished run is
+    /// reported as finished (exit status 0); train it longer with --extend.
     #[arg(long)]
     pub resume: bool,
+    /// Train the run in OUT longer: continue from OUT/last.safetensors to --epochs (more than
+    /// it had) with a new learning-rate schedule from there (poly decay from --lr to 0 at the
+    /// new end; the same batch size and seed). config.json records every schedule segment.
+    #[arg(long, conflicts_with_all = ["force", "init_from"])]
+    pub extend: bool,
     /// Start over in an --out that holds a run: its config.json, metrics.jsonl, curves.png and
     /// checkpoints are removed first (other files stay). Without --resume or --force such a
     /// folder is refused.

@@ -93,13 +93,9 @@ impl<'o> Trainer<'o> {
         let main = check_options(opts, dist.as_ref())?;
         // One writer per run folder, and a finished run is never replaced silently
         // (crate::outputs): refused unless --resume or --force.
+        let continues = opts.resume || opts.extend;
         let lock = if main {
-            Some(lock_run_folder(
-                &opts.out,
-                "train",
-                opts.resume,
-                opts.force,
-            )?)
+            Some(lock_run_folder(&opts.out, "train", continues, opts.force)?)
         } else {
             None
         };
@@ -110,12 +106,25 @@ impl<'o> Trainer<'o> {
         let run = opts.out.clone();
         std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
-        let ((vs, net, state, sgd), optim_matches) = if opts.resume && run.join(LAST_CKPT).exists()
-        {
-            resume(opts, &run, &cfg, device, main)?
+        let bpe = batches_per_epoch(opts, part.train.len());
+        let ((vs, net, state, sgd), optim_matches) = if continues && run.join(LAST_CKPT).exists() {
+            resume(opts, &run, &cfg, device, main, bpe)?
+        } else if opts.extend {
+            return Err(TrainError::Config(format!(
+                "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
+                 without --extend",
+                run.display()
+            )));
         } else {
             (fresh(opts, &run, &cfg, device, main)?, true)
         };
+        if opts.resume && !opts.extend && state.iteration >= bpe * opts.epochs as u64 {
+            return Err(TrainError::RunFinished {
+                run: run.display().to_string(),
+                epochs: opts.epochs,
+                iteration: state.iteration,
+            });
+        }
         if let Some(d) = dist.as_mut() {
             if part.train.len() < opts.batch_size {
                 return Err(TrainError::Config(format!(
@@ -127,11 +136,6 @@ impl<'o> Trainer<'o> {
             d.attach(&vs)?;
         }
         let load = train_load_options(opts, &cfg)?;
-        let full_batches = part.train.len() / opts.batch_size;
-        let natural = if full_batches > 0 { full_batches } else { 1 };
-        let bpe = opts
-            .max_batches_per_epoch
-            .map_or(natural, |m| m.min(natural).max(1)) as u64;
         let trainer = Trainer {
             opts,
             device,
@@ -178,7 +182,7 @@ impl<'o> Trainer<'o> {
 
     fn write_config(&self) -> Result<(), TrainError> {
         let part = &self.part;
-        let config_json = serde_json::json!({
+        let mut config_json = serde_json::json!({
             "train": self.opts,
             "model": self.cfg,
             "device": depthsense_model::device::describe(self.device),
@@ -190,6 +194,13 @@ impl<'o> Trainer<'o> {
                 "val_scenes": part.val_scenes,
             },
         });
+        if !self.state.schedule.is_empty() {
+            // An extended run (`--extend`): every learning-rate segment, the last one current.
+            config_json["schedule"] = serde_json::json!(self.state.schedule);
+        }
+        if let Some(init) = &self.state.init_from {
+            config_json["init_from"] = init.clone();
+        }
         let path = self.path(CONFIG_FILE);
         let text = serde_json::to_string_pretty(&config_json)
             .map_err(|e| TrainError::Other(e.to_string()))?;
@@ -257,7 +268,22 @@ impl<'o> Trainer<'o> {
     /// The learning rate of iteration `it`: poly decay (SPEC §8) after the optional warmup.
     fn lr_at(&self, it: u64) -> f64 {
         let o = self.opts;
-        warmup_poly_lr(o.lr, it, self.total, o.lr_power, o.warmup_iters)
+        match self
+            .state
+            .schedule
+            .iter()
+            .rev()
+            .find(|s| s.start_iteration <= it)
+        {
+            None => warmup_poly_lr(o.lr, it, self.total, o.lr_power, o.warmup_iters),
+            Some(s) => warmup_poly_lr(
+                s.lr,
+                it - s.start_iteration,
+                s.end_iteration - s.start_iteration,
+                o.lr_power,
+                s.warmup,
+            ),
+        }
     }
 
     /// One SGD step on `batch`. Its loss stays on the device unless losses are read every
@@ -597,6 +623,15 @@ impl Learner for Trainer<'_> {
     }
 }
 
+/// Iterations per epoch: full batches of the training samples (at least one), at most
+/// `--max-batches-per-epoch`.
+fn batches_per_epoch(opts: &TrainOptions, train_samples: usize) -> u64 {
+    let full_batches = train_samples / opts.batch_size;
+    let natural = if full_batches > 0 { full_batches } else { 1 };
+    opts.max_batches_per_epoch
+        .map_or(natural, |m| m.min(natural).max(1)) as u64
+}
+
 /// The options every rank checks before touching the run folder; returns whether this is the
 /// main process (rank 0, or a single process).
 fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, TrainError> {
@@ -709,6 +744,25 @@ fn fresh(
         let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
         eprintln!("backbone weights from {}:\n{report}", w.display());
     }
+    let init_from = match &opts.init_from {
+        Some(p) => {
+            let r = depthsense_model::weights::init_from(&mut vs, p)?;
+            if main {
+                eprintln!(
+                    "initialised from {} (tensors it lacks are new, \"left random\"):\n{r}",
+                    p.display()
+                );
+            }
+            Some(serde_json::json!({
+                "file": p.display().to_string(),
+                "loaded": r.loaded.len(),
+                "partly_loaded": r.partial.iter().map(|(k, _)| k).collect::<Vec<_>>(),
+                "new": r.left_random,
+                "unused_file_tensors": r.unused.len() + r.skipped.len(),
+            }))
+        }
+        None => None,
+    };
     if main {
         let _ = std::fs::remove_file(run.join(METRICS_FILE));
     }
@@ -723,6 +777,8 @@ fn fresh(
         epochs: opts.epochs,
         lr: opts.lr,
         val_rmse: None,
+        schedule: vec![],
+        init_from,
     };
     Ok((vs, net, state, sgd))
 }
@@ -736,6 +792,7 @@ fn resume(
     cfg: &ModelConfig,
     device: Device,
     main: bool,
+    bpe: u64,
 ) -> Result<(Built, bool), TrainError> {
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
@@ -756,11 +813,14 @@ fn resume(
             cfg.name
         )));
     }
-    let state: State =
+    let mut state: State =
         serde_json::from_value(extra["train_state"].clone()).map_err(|e| TrainError::Parse {
             path: last.display().to_string(),
             reason: format!("train_state: {e}"),
         })?;
+    if opts.extend {
+        extend_schedule(opts, &last, &mut state, bpe)?;
+    }
     if state.batch_size != opts.batch_size
         || state.epochs != opts.epochs
         || state.lr != opts.lr
@@ -788,9 +848,56 @@ fn resume(
     Ok(((vs, net, state, sgd), matches))
 }
 
+/// `--extend`: a new learning-rate segment from the checkpoint's iteration to the end of
+/// `opts.epochs` (poly decay from `opts.lr` to 0); the run's first segment is written out when
+/// this is its first extension. Batch size and seed must stay.
+fn extend_schedule(
+    opts: &TrainOptions,
+    last: &Path,
+    state: &mut State,
+    bpe: u64,
+) -> Result<(), TrainError> {
+    if opts.epochs <= state.epochs {
+        return Err(TrainError::Config(format!(
+            "--extend: {} has {} epochs; give more with --epochs (e.g. --epochs {})",
+            last.display(),
+            state.epochs,
+            2 * state.epochs
+        )));
+    }
+    if state.batch_size != opts.batch_size || state.seed != opts.seed {
+        return Err(TrainError::Config(format!(
+            "--extend: {} was trained with batch {} seed {}; an extension keeps them (got \
+             batch {} seed {})",
+            last.display(),
+            state.batch_size,
+            state.seed,
+            opts.batch_size,
+            opts.seed
+        )));
+    }
+    if state.schedule.is_empty() {
+        state.schedule.push(super::Segment {
+            start_iteration: 0,
+            end_iteration: bpe * state.epochs as u64,
+            lr: state.lr,
+            warmup: opts.warmup_iters,
+        });
+    }
+    state.schedule.push(super::Segment {
+        start_iteration: state.iteration,
+        end_iteration: bpe * opts.epochs as u64,
+        lr: opts.lr,
+        warmup: 0,
+    });
+    state.epochs = opts.epochs;
+    state.lr = opts.lr;
+    Ok(())
+}
+
 /// Train a network. See the module docs for what lands in `opts.out`.
 pub fn train(opts: &TrainOptions, progress: &Progress) -> Result<TrainSummary, TrainError> {
-    Trainer::new(opts)?.run(progress)
+    removing_new_folder_on_failure(&opts.out, || Trainer::new(opts)?.run(progress))
 }
 
 /// [`train`] as one rank of a data-parallel job (only rank 0 writes RUN/; pass a hidden
@@ -800,5 +907,25 @@ pub fn train_distributed(
     dist: Dist,
     progress: &Progress,
 ) -> Result<TrainSummary, TrainError> {
-    Trainer::with_dist(opts, Some(dist))?.run(progress)
+    if !dist.is_main() {
+        return Trainer::with_dist(opts, Some(dist))?.run(progress);
+    }
+    removing_new_folder_on_failure(&opts.out, || {
+        Trainer::with_dist(opts, Some(dist))?.run(progress)
+    })
+}
+
+/// Runs `run`; when it fails, `out` did not exist before and holds no checkpoint, `out` is
+/// removed: a run that failed before its first checkpoint (a wrong `--data`, a config no
+/// network can be built with, a non-finite first loss) leaves no folder behind.
+pub fn removing_new_folder_on_failure<T>(
+    out: &Path,
+    run: impl FnOnce() -> Result<T, TrainError>,
+) -> Result<T, TrainError> {
+    let existed = out.exists();
+    let result = run();
+    if result.is_err() && !existed && !out.join(LAST_CKPT).exists() {
+        let _ = std::fs::remove_dir_all(out);
+    }
+    result
 }

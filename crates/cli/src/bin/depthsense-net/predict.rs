@@ -42,7 +42,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
     let device = depthsense_model::device::parse_device(&a.device)?;
     let loaded = super::model_source::load(&a.model, device)?;
     let pb = progress_bar("predict");
-    let (_, n) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
+    let n = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
     pb.finish_and_clear();
     eprintln!(
         "{n} predictions ({}) written to {}",

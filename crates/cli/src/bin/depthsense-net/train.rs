@@ -3,7 +3,7 @@
 use depthsense_cli::cmd::progress::progress_bar;
 /// This process's arguments without `--nproc N` (what each worker runs).
 use depthsense_cli::cmd::train::Args;
-use depthsense_data::{RadarInput, TargetKind};
+use depthsense_data::{RadarInput, TargetKind, TrainError};
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_model::{Fusion, ModelConfig};
 use depthsense_progress::Progress;
@@ -41,7 +41,19 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let out = a.out.clone();
     let model = model_config(&a)?;
     let opts = train_options(a, model)?;
-    let Some((s, pb)) = train_this_process(opts, &dist)? else {
+    let trained = match train_this_process(opts, &dist) {
+        // `--resume` of a finished run: said, nothing to do.
+        Err(e) => match e.downcast::<TrainError>() {
+            Ok(finished @ TrainError::RunFinished { .. }) => {
+                eprintln!("{finished}");
+                return Ok(ExitCode::SUCCESS);
+            }
+            Ok(other) => return Err(other.into()),
+            Err(other) => return Err(other),
+        },
+        Ok(t) => t,
+    };
+    let Some((s, pb)) = trained else {
         // a rank other than 0: rank 0 reports
         return Ok(ExitCode::SUCCESS);
     };
@@ -54,7 +66,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 /// (each this command without `--nproc`) and wait for them.
 fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
     // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
-    if !a.resume && !a.force {
+    if !a.resume && !a.extend && !a.force {
         depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
     }
     // Another writer fails us here, at once (taken and released: rank 0 holds it next).
@@ -114,6 +126,8 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         backbone_weights: a.backbone_weights,
         resume: a.resume,
         force: a.force,
+        init_from: a.init_from,
+        extend: a.extend,
         jobs: a.jobs,
         prefetch: a.prefetch,
         radar_input: a
