@@ -49,6 +49,9 @@ pub enum Command {
     Eval(cmd::eval::Args),
     /// Predict depth for a prepared sample, a sample token, or raw files.
     Predict(cmd::predict::Args),
+    /// Write the calibration JSON of `predict --image` for a sample of a dataroot (the camera
+    /// and every radar sweep prepare reads, with their transforms).
+    Calibration(cmd::calibration::Args),
     /// A trained network as ONNX, TorchScript or a PyTorch state dict, with a sidecar JSON.
     Export(cmd::export::Args),
     /// Synthesise a world, prepare, train, evaluate and write a report, end to end.
@@ -78,6 +81,7 @@ pub fn run_without_torch(command: Command) -> Result<anyhow::Result<ExitCode>, B
         Command::Index(a) => Ok(cmd::index::run(a)),
         Command::Inspect(a) => Ok(cmd::inspect::run(a)),
         Command::Synth(a) => Ok(cmd::synth::run(a)),
+        Command::Calibration(a) => Ok(cmd::calibration::run(a)),
         Command::Report(a) => Ok(cmd::report::run(a)),
         Command::HelpMarkdown(a) => Ok(cmd::help_markdown::run(a)),
         Command::Eval(a) => match a.predictions.clone() {

@@ -1,14 +1,12 @@
 //! `depthsense predict`: depth for one input, from
 //! - a prepared sample directory (`prepare` output),
-//! - a sample token of a nuScenes-format dataroot (the `prepare` code runs for that sample), or
-//! - raw files: a 1600x900 CAM_FRONT JPEG, radar `.pcd` files and a calibration JSON:
-//!
-//! ```json
-//! { "camera_intrinsic": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]],
-//!   "cam_from_radar": { "<radar file name>": [[r, r, r, t], [r, r, r, t], [r, r, r, t], [0, 0, 0, 1]] } }
-//! ```
-//! (`camera_intrinsic` at full 1600x900 resolution, row-major; each radar file, by its file
-//! name without directories, gets its own 4x4 row-major camera-from-radar transform, metres).
+//! - a sample token of a nuScenes-format dataroot (the `prepare` code runs for that sample,
+//!   with the radar settings the checkpoint was trained on), or
+//! - raw files: a 1600x900 CAM_FRONT JPEG, radar `.pcd` files and a calibration JSON
+//!   ([`depthsense_prep::calibration`]: the camera intrinsics and, per radar file, its channel,
+//!   sweep index, time and sweep-sensor → keyframe-camera transform; `depthsense calibration`
+//!   writes one from a nuScenes sample). The radar goes through `prepare`'s own function for
+//!   every sweep, so the three inputs of one keyframe give the same maps, bit for bit.
 //!
 //! Outputs: `depth.png` (16-bit, depth×256, SPEC §3), `depth_color.png` (turbo),
 //! `radar_overlay.png` (radar points over the image), `image.png` (the 800x350 frame).
@@ -18,15 +16,17 @@ use std::path::{Path, PathBuf};
 
 use depthsense_data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
 use depthsense_model::DepthNet;
-use depthsense_nuscenes::depth_png::{encode_png, DepthMap};
+use depthsense_nuscenes::depth_png::{decode_png, encode_png, DepthMap};
 use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_nuscenes::geometry::Camera;
+use depthsense_nuscenes::geometry::{Camera, Rigid};
+use depthsense_prep::calibration::{Calibration, RadarEntry, RadarSettings};
 use depthsense_prep::layout::{
     FRAME_H, FRAME_W, IMAGE_FILE, INDEX_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE,
     RADAR_RAW_FILE,
 };
-use depthsense_prep::maps::{image_to_frame, radar_maps, radar_positions, Raster};
-use serde::Deserialize;
+use depthsense_prep::maps::image_to_frame;
+use depthsense_prep::pipeline::{add_sweep, velocity_dt_s, RadarSweep};
+use depthsense_prep::radar_points::RadarPoints;
 use tch::{Device, Kind, Tensor};
 
 use depthsense_data::error::TrainError;
@@ -43,6 +43,9 @@ pub struct PredictInput {
     /// MER (depth, confidence) maps (SPEC §5): read from a prepared sample where `mer apply`
     /// wrote them, or computed by [`attach_mer`] (`--mer-checkpoint`).
     pub mer: Option<(DepthMap, DepthMap)>,
+    /// How the radar of this input was gathered (sweeps, channels, filters, velocity
+    /// compensation), when known: compared with the checkpoint's ([`radar_warnings`]).
+    pub radar_settings: Option<RadarSettings>,
 }
 
 /// Read a prepared sample directory.
@@ -67,6 +70,9 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         }));
     }
     let gt_path = dir.join(LIDAR_SPARSE_FILE);
+    let meta = depthsense_data::read_meta(dir)?;
+    let settings: BTreeMap<String, serde_json::Value> =
+        serde_json::from_value(meta.settings.clone()).unwrap_or_default();
     Ok(PredictInput {
         name: dir
             .file_name()
@@ -85,10 +91,19 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         } else {
             None
         },
+        radar_settings: RadarSettings::from_map(&settings),
     })
 }
 
-/// Run the `prepare` computation for one sample token of a dataroot (nothing is written).
+/// A map as `prepare` stores it and the loader reads it back: through the 16-bit PNG
+/// (depth × 256, SPEC §3), so that a map computed here equals the prepared file bit for bit.
+pub fn as_stored(map: DepthMap) -> Result<DepthMap, TrainError> {
+    let bytes = encode_png(&map).map_err(|e| TrainError::Data(e.to_string()))?;
+    decode_png(&bytes, "radar map").map_err(|e| TrainError::Data(e.to_string()))
+}
+
+/// Run the `prepare` computation for one sample token of a dataroot (nothing is written); the
+/// maps are those `prepare` with `opts` writes, bit for bit.
 pub fn input_from_token(
     dataroot: &Path,
     version: &str,
@@ -111,33 +126,69 @@ pub fn input_from_token(
     Ok(PredictInput {
         name: token.to_string(),
         image,
-        radar_raw: maps.radar_raw,
-        radar_height: maps.radar_height,
-        gt: Some(maps.lidar_sparse),
+        radar_raw: as_stored(maps.radar_raw)?,
+        radar_height: as_stored(maps.radar_height)?,
+        gt: Some(as_stored(maps.lidar_sparse)?),
         mer: None,
+        radar_settings: Some(RadarSettings::of(opts)),
     })
 }
 
-#[derive(Debug, Deserialize)]
-struct Calibration {
-    camera_intrinsic: [[f64; 3]; 3],
-    cam_from_radar: BTreeMap<String, [[f64; 4]; 4]>,
+/// The radar files of `calib` that `files` names (by file name), or all of its files; in the
+/// calibration's order (that of `prepare`).
+fn chosen_entries<'a>(
+    calibration: &Path,
+    calib: &'a Calibration,
+    files: &[PathBuf],
+) -> Result<Vec<(&'a RadarEntry, PathBuf)>, TrainError> {
+    let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    if files.is_empty() {
+        return Ok(calib
+            .radar
+            .iter()
+            .map(|e| (e, depthsense_prep::calibration::file_of(calibration, e)))
+            .collect());
+    }
+    let mut chosen = vec![];
+    for f in files {
+        let i = calib
+            .radar
+            .iter()
+            .position(|e| name(Path::new(&e.file)) == name(f))
+            .ok_or_else(|| {
+                TrainError::Data(format!(
+                    "{}: no cam_from_radar entry for radar file {:?} (entries: {:?}); write \
+                     the calibration with `depthsense calibration`, which lists every sweep",
+                    calibration.display(),
+                    name(f).unwrap_or_default(),
+                    calib
+                        .radar
+                        .iter()
+                        .filter_map(|e| name(Path::new(&e.file)))
+                        .collect::<Vec<_>>()
+                ))
+            })?;
+        chosen.push((i, f.clone()));
+    }
+    chosen.sort_by_key(|(i, _)| *i);
+    Ok(chosen
+        .into_iter()
+        .map(|(i, f)| (&calib.radar[i], f))
+        .collect())
 }
 
-/// Build the input from raw files (see the module docs for the calibration JSON).
+/// Build the input from raw files (see the module docs and docs/guide/deploy.md for the
+/// calibration JSON): the radar goes through `prepare`'s own sweep function and storage, so
+/// that a calibration written by `depthsense calibration` gives the prepared maps bit for bit.
+/// `radar_files` empty: every file the calibration lists.
 pub fn input_from_raw(
     jpeg: &Path,
     radar_files: &[PathBuf],
     calibration: &Path,
     radar_filters: bool,
 ) -> Result<PredictInput, TrainError> {
-    let bytes = std::fs::read(calibration).map_err(|e| TrainError::io(calibration, e))?;
-    let calib: Calibration = serde_json::from_slice(&bytes).map_err(|e| TrainError::Parse {
-        path: calibration.display().to_string(),
-        reason: format!(
-            "{e} (expected {{\"camera_intrinsic\": 3x3, \"cam_from_radar\": {{file name: 4x4}}}})"
-        ),
-    })?;
+    let calib = depthsense_prep::calibration::read(calibration)
+        .map_err(|e| TrainError::Data(e.to_string()))?;
     let full = decode_rgb(jpeg)?;
     let (w, h) = full.dimensions();
     let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| {
@@ -149,47 +200,74 @@ pub fn input_from_raw(
     let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, frame)
         .ok_or_else(|| TrainError::Data("frame has the wrong size".into()))?;
     let cam = Camera::from_intrinsic(&calib.camera_intrinsic, w, h);
-    let mut raw = Raster::default();
-    let mut height = Raster::default();
-    for f in radar_files {
-        let name = f
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let m = calib.cam_from_radar.get(&name).ok_or_else(|| {
-            TrainError::Data(format!(
-                "{}: no cam_from_radar entry for radar file {name:?} (entries: {:?})",
-                calibration.display(),
-                calib.cam_from_radar.keys().collect::<Vec<_>>()
-            ))
-        })?;
-        let scan = depthsense_nuscenes::pcd::read_radar_pcd(f)
+    let filters = radar_filters && calib.settings.radar_filters;
+    let velocity = calib.settings.radar_velocity_compensation;
+    let mut points = RadarPoints::new(cam);
+    let mut sweeps: BTreeMap<String, usize> = BTreeMap::new();
+    for (e, path) in chosen_entries(calibration, &calib, radar_files)? {
+        let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path)
             .map_err(|e| TrainError::Data(e.to_string()))?;
-        let (points, _) = scan.filtered(radar_filters);
-        let cam_pts: Vec<[f32; 3]> = radar_positions(&points, None)
-            .into_iter()
-            .map(|p| {
-                let p = [p[0] as f64, p[1] as f64, p[2] as f64];
-                let mut q = [0f32; 3];
-                for (r, qr) in q.iter_mut().enumerate() {
-                    *qr = (m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]) as f32;
-                }
-                q
-            })
-            .collect();
-        radar_maps(&cam_pts, &cam, &mut raw, &mut height);
+        let dt_s = match (velocity, calib.camera_timestamp_us, e.timestamp_us) {
+            (true, Some(c), Some(s)) => Some(velocity_dt_s(c, s)),
+            _ => None,
+        };
+        let tf = Rigid::from_mat4(&e.cam_from_radar);
+        let sweep = RadarSweep {
+            channel: &e.channel,
+            index: e.sweep,
+            cam_from_radar: &tf,
+            dt_s,
+        };
+        add_sweep(&mut points, &sweep, &scan, filters);
+        *sweeps.entry(e.channel.clone()).or_default() += 1;
     }
+    let maps = points.rasterise();
     Ok(PredictInput {
         name: jpeg
             .file_stem()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default(),
         image,
-        radar_raw: raw.to_depth_map(),
-        radar_height: height.to_depth_map(),
+        radar_raw: as_stored(maps.raw.to_depth_map())?,
+        radar_height: as_stored(maps.height.to_depth_map())?,
         gt: None,
         mer: None,
+        radar_settings: Some(RadarSettings {
+            radar_sweeps: sweeps.values().copied().min().unwrap_or(0),
+            radar_channels: sweeps.keys().cloned().collect(),
+            radar_filters: filters,
+            radar_velocity_compensation: velocity && calib.camera_timestamp_us.is_some(),
+        }),
     })
+}
+
+/// The radar settings a checkpoint's training data was prepared with (recorded by `train` in
+/// the checkpoint, or in an export sidecar), when known.
+pub fn trained_radar_settings(extra: &serde_json::Value) -> Option<RadarSettings> {
+    let m = extra
+        .get("train_state")
+        .and_then(|s| s.get("data_settings"))
+        .or_else(|| extra.get("data_settings"))?;
+    RadarSettings::from_map(&serde_json::from_value(m.clone()).ok()?)
+}
+
+/// One warning per way the input's radar differs from training's (empty when either is
+/// unknown): a model fed fewer sweeps or other filters than it was trained on is silently worse.
+pub fn radar_warnings(trained: Option<&RadarSettings>, input: &PredictInput) -> Vec<String> {
+    let (Some(t), Some(i)) = (trained, input.radar_settings.as_ref()) else {
+        return vec![];
+    };
+    t.differences(i)
+        .into_iter()
+        .map(|d| {
+            format!(
+                "warning: {}: this input's radar has {d}; the model sees another radar than \
+                 in training (a calibration written by `depthsense calibration` lists every \
+                 sweep: docs/guide/deploy.md, \"Raw files\")",
+                input.name
+            )
+        })
+        .collect()
 }
 
 /// Predict a depth map (metres, the input's frame size).

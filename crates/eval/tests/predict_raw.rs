@@ -47,29 +47,20 @@ fn raw_files_give_the_prepared_maps() {
     let raw = depthsense_eval::predict::input_from_raw(&jpeg, &[pcd], &calib, true).unwrap();
     assert_eq!(raw.image.as_raw(), &maps.image_rgb);
     assert!(maps.radar_raw.valid_count() > 10);
-    // Same pixels; depths equal up to f32 rounding of the transform (prepare composes the
-    // transforms itself, the JSON carries the composed 4x4).
-    let same = |a: &depthsense_nuscenes::depth_png::DepthMap,
-                b: &depthsense_nuscenes::depth_png::DepthMap| {
-        let mut differ = 0;
-        for (x, y) in a.depth_m.iter().zip(&b.depth_m) {
-            if (*x > 0.0) != (*y > 0.0) {
-                differ += 1;
-            } else {
-                assert!((x - y).abs() < 1e-3, "{x} vs {y}");
-            }
-        }
-        differ
+    // The maps as prepare stores them (16-bit PNG), bit for bit: the JSON carries the 4x4
+    // prepare composed, and the radar goes through prepare's own sweep function.
+    let stored = |m: &depthsense_nuscenes::depth_png::DepthMap| {
+        depthsense_eval::predict::as_stored(m.clone()).unwrap()
     };
-    let d_raw = same(&raw.radar_raw, &maps.radar_raw);
-    let d_h = same(&raw.radar_height, &maps.radar_height);
-    eprintln!("differing pixels: raw {d_raw}, height {d_h}");
-    assert_eq!(d_raw, 0);
-    assert!(d_h <= 4, "{d_h} height pixels differ");
+    assert!(raw.radar_raw == stored(&maps.radar_raw), "raw maps differ");
+    assert!(
+        raw.radar_height == stored(&maps.radar_height),
+        "height maps differ"
+    );
     // Through the token path as well.
     let tok = depthsense_eval::predict::input_from_token(&root, "v1.0-mini", token, &opts).unwrap();
-    assert_eq!(tok.radar_raw, maps.radar_raw);
-    assert_eq!(tok.gt.unwrap(), maps.lidar_sparse);
+    assert!(tok.radar_raw == stored(&maps.radar_raw));
+    assert!(tok.gt.unwrap() == stored(&maps.lidar_sparse));
     // A calibration without the radar file is a clear error naming it.
     std::fs::write(
         &calib,
@@ -87,5 +78,106 @@ fn raw_files_give_the_prepared_maps() {
     assert!(
         err.contains("no cam_from_radar entry") && err.contains(&name),
         "{err}"
+    );
+}
+
+/// Every sweep (issue 33): raw files with a calibration written by `depthsense calibration`
+/// (`calibration::for_sample`), a sample token and the prepared sample give the same radar
+/// maps, image and ground truth bit for bit, so the same depth; the keyframe sweeps alone give
+/// a sparser radar, and `predict` warns about it.
+#[test]
+fn raw_files_token_and_prepared_sample_give_one_input_bit_for_bit() {
+    use depthsense_eval::predict::{
+        input_from_prepared, input_from_raw, input_from_token, predict, radar_warnings,
+    };
+    use depthsense_prep::calibration::{for_sample, write, RadarSettings};
+    use depthsense_progress::Progress;
+    use depthsense_synth::{generate, SynthConfig, Weather};
+
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("world");
+    let cfg = SynthConfig {
+        scenes: 1,
+        keyframes_per_scene: 3,
+        conditions: vec![(Weather::Day, 1.0)],
+        ..SynthConfig::default()
+    };
+    generate(&root, &cfg, &Progress::hidden()).unwrap();
+    let out = tmp.path().join("prepared");
+    let opts = PrepareOptions {
+        dataroot: root.clone(),
+        version: cfg.version_name.clone(),
+        out: out.clone(),
+        lidar_sweeps: 0,
+        jobs: 1,
+        ..Default::default()
+    };
+    let s = depthsense_prep::prepare(&opts, &Progress::hidden()).unwrap();
+    assert_eq!(s.failed.len(), 0, "{:?}", s.failed);
+    let nu = depthsense_nuscenes::tables::NuScenes::load(&root, &cfg.version_name).unwrap();
+    let sample = nu.sample.last().unwrap();
+    let token = sample.token.to_string();
+
+    let calib = for_sample(&nu, sample, &opts).unwrap();
+    assert_eq!(calib.radar.iter().filter(|r| r.sweep == 0).count(), 3);
+    assert!(
+        calib.radar.len() > 6,
+        "earlier sweeps listed: {}",
+        calib.radar.len()
+    );
+    let calib_path = tmp.path().join("calib.json");
+    write(&calib_path, &calib).unwrap();
+    let jpeg = std::path::PathBuf::from(calib.camera_file.clone().unwrap());
+
+    let prepared = input_from_prepared(&out.join(&token)).unwrap();
+    let raw = input_from_raw(&jpeg, &[], &calib_path, true).unwrap();
+    let tok = input_from_token(&root, &cfg.version_name, &token, &opts).unwrap();
+    for other in [&raw, &tok] {
+        assert_eq!(other.image, prepared.image);
+        assert!(
+            other.radar_raw == prepared.radar_raw,
+            "raw radar maps differ"
+        );
+        assert!(
+            other.radar_height == prepared.radar_height,
+            "height maps differ"
+        );
+    }
+    assert!(tok.gt == prepared.gt, "ground truth differs");
+    let trained = prepared.radar_settings.clone().unwrap();
+    assert_eq!(trained, RadarSettings::of(&opts));
+    assert!(radar_warnings(Some(&trained), &raw).is_empty());
+
+    // The same depth from a network (random weights) on the three.
+    tch::manual_seed(0);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let mc = depthsense_model::ModelConfig::tiny()
+        .with_options(&["width=8", "decoder-channels=16", "head-channels=16"])
+        .unwrap();
+    let net = depthsense_model::DepthNet::new(&vs.root(), &mc).unwrap();
+    let radar = Some(depthsense_data::RadarInput::Height);
+    let d = |i| predict(&net, i, radar, tch::Device::Cpu).unwrap();
+    let want = d(&prepared);
+    assert!(d(&raw) == want && d(&tok) == want, "depth differs");
+
+    // The keyframe sweeps alone: fewer radar pixels, and a warning naming what is missing.
+    let keyframe_files: Vec<std::path::PathBuf> = calib
+        .radar
+        .iter()
+        .filter(|r| r.sweep == 0)
+        .map(|r| r.file.clone().into())
+        .collect();
+    let sparse = input_from_raw(&jpeg, &keyframe_files, &calib_path, true).unwrap();
+    assert!(
+        sparse.radar_raw.valid_count() < prepared.radar_raw.valid_count(),
+        "{} vs {}",
+        sparse.radar_raw.valid_count(),
+        prepared.radar_raw.valid_count()
+    );
+    let w = radar_warnings(Some(&trained), &sparse);
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert!(
+        w[0].contains("1 radar sweep(s) per channel where training had 5"),
+        "{w:?}"
     );
 }

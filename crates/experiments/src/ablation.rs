@@ -642,7 +642,11 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
                 .filter(|x| &x.variant == name)
                 .filter_map(|x| x.report.row("combined", region, cap_m))
                 .collect();
-            let mut cells = vec![name.clone(), region.to_string(), rows.len().to_string()];
+            let mut cells = vec![
+                name.clone(),
+                depthsense_metrics::region_label(region).to_string(),
+                rows.len().to_string(),
+            ];
             cells.extend(cols.iter().map(|g| {
                 Stat::md_cell(Stat::of(
                     &rows.iter().map(|x| g(&x.metrics)).collect::<Vec<_>>(),

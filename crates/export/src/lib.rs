@@ -216,7 +216,13 @@ pub fn export_many(
     )?;
     let infos = per_target
         .iter()
-        .map(|o| Sidecar::new(o, &loaded.config))
+        .map(|o| {
+            Sidecar::new(
+                o,
+                &loaded.config,
+                depthsense_eval::predict::trained_radar_settings(&loaded.extra),
+            )
+        })
         .collect::<Result<Vec<_>, _>>()?;
     let work = tempfile::tempdir().map_err(|e| ExportError::io(&std::env::temp_dir(), e))?;
     let weights = work.path().join("weights.safetensors");

@@ -7,6 +7,7 @@ use std::io::Read;
 use std::path::Path;
 
 use depthsense_model::{Fusion, ModelConfig, RadarInput, SidConfig};
+use depthsense_prep::calibration::RadarSettings;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -74,6 +75,12 @@ pub struct Sidecar {
     pub sid: SidConfig,
     pub frame: Frame,
     pub radar_maps: RadarMaps,
+    /// The radar the network was trained on — sweeps per channel, channels, the devkit
+    /// filters, velocity compensation — as `prepare` recorded it for the training data (absent
+    /// when the checkpoint does not record it: a `.pth`, or one trained before this field).
+    /// Feed the deployed model radar gathered the same way.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trained_radar: Option<RadarSettings>,
 }
 
 /// The radar channels of `input`, in the order the graph takes them.
@@ -110,7 +117,11 @@ pub fn sha256_file(path: &Path) -> Result<String, ExportError> {
 
 impl Sidecar {
     /// The sidecar of exporting `opts.checkpoint` as the network `cfg`.
-    pub fn new(opts: &ExportOptions, cfg: &ModelConfig) -> Result<Self, ExportError> {
+    pub fn new(
+        opts: &ExportOptions,
+        cfg: &ModelConfig,
+        trained_radar: Option<RadarSettings>,
+    ) -> Result<Self, ExportError> {
         let n = match opts.batch {
             Batch::Dynamic => serde_json::json!("N"),
             Batch::Fixed(n) => serde_json::json!(n),
@@ -161,6 +172,7 @@ impl Sidecar {
             sid: cfg.sid,
             frame: frame(),
             radar_maps: radar_maps(),
+            trained_radar,
         })
     }
 }

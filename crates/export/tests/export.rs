@@ -127,6 +127,7 @@ fn sample(w: u32, h: u32, seed: u64) -> PredictInput {
         radar_height,
         gt: None,
         mer: Some((mer_depth, mer_conf)),
+        radar_settings: None,
     }
 }
 

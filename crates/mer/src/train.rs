@@ -581,7 +581,10 @@ pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
             _ => {}
         }
     }
-    let bytes = depthsense_viz::plot::curves_png(&[("train loss", &loss)], &[("val AUC", &auc)])?;
+    let bytes = depthsense_viz::plot::curves_png_labelled(
+        ("training loss", "loss", &[("train loss", &loss)]),
+        ("validation", "AUC", &[("val AUC", &auc)]),
+    )?;
     write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
 }
 

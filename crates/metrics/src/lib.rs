@@ -307,8 +307,16 @@ impl RowAcc {
 
 /// Condition rows of the report (SPEC §9, §10.1).
 pub const CONDITIONS: [&str; 4] = ["combined", "day", "night", "rain"];
-/// Region rows of the report (SPEC §4 low-height region).
+/// Region rows of the report (SPEC §4 low-height region): the keys of the JSON files.
 pub const REGIONS: [&str; 2] = ["full", "lowheight"];
+
+/// How tables and pictures print a region key: `full`, `low-height`.
+pub fn region_label(region: &str) -> &str {
+    match region {
+        "lowheight" => "low-height",
+        other => other,
+    }
+}
 
 /// One row of a report: a condition × region × cap and its metrics.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -110,7 +110,7 @@ pub fn region_table(models: &[(&str, &Report)]) -> Table {
         let cap = rep.config.main_cap();
         cap_txt = format!("{cap:.0} m");
         for region in crate::REGIONS {
-            let mut row = vec![name.to_string(), region.to_string()];
+            let mut row = vec![name.to_string(), crate::region_label(region).to_string()];
             row.extend(empty_or(rep.row("combined", region, cap), 6, |r| {
                 let m = &r.metrics;
                 let mut v = counts(r).to_vec();

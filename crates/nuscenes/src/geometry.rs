@@ -108,6 +108,17 @@ impl Rigid {
     }
 
     /// 4x4 row-major homogeneous matrix.
+    /// The rotation and translation of a 4x4 row-major rigid transform (its last row is not
+    /// read); `Rigid::from_mat4(&r.to_mat4()) == r` exactly.
+    pub fn from_mat4(m: &[[f64; 4]; 4]) -> Rigid {
+        let mut r = Rigid::IDENTITY;
+        for (i, row) in m.iter().take(3).enumerate() {
+            r.r[i].copy_from_slice(&row[..3]);
+            r.t[i] = row[3];
+        }
+        r
+    }
+
     pub fn to_mat4(&self) -> [[f64; 4]; 4] {
         let mut m = [[0.0; 4]; 4];
         for (i, row) in m.iter_mut().take(3).enumerate() {

@@ -2,6 +2,7 @@
 //! inputs, and the `prepare` pipeline with caching.
 
 pub mod bench;
+pub mod calibration;
 pub mod error;
 pub mod index;
 pub mod inspect;

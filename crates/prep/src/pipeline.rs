@@ -203,13 +203,13 @@ impl Clock {
 }
 
 /// The keyframe's camera and lidar records and the full-resolution camera model.
-struct KeyframeSensors<'a> {
-    cam_sd: &'a SampleData,
-    lidar_sd: &'a SampleData,
-    cam: Camera,
+pub(crate) struct KeyframeSensors<'a> {
+    pub(crate) cam_sd: &'a SampleData,
+    pub(crate) lidar_sd: &'a SampleData,
+    pub(crate) cam: Camera,
 }
 
-fn keyframe_sensors<'a>(
+pub(crate) fn keyframe_sensors<'a>(
     nu: &'a NuScenes,
     sample: &Sample,
 ) -> Result<KeyframeSensors<'a>, PrepError> {
@@ -666,23 +666,64 @@ fn add_radar_sweep(
     let scan = clock.decode(|| read_radar_pcd(&p))?;
     let t = Instant::now();
     out.nan_dropped += scan.nan_dropped as u64;
-    let (pts, filtered_out) = scan.filtered(opts.radar_filters);
-    out.filtered_out += filtered_out as u64;
-    out.points_read += pts.len() as u64;
     let dt = opts
         .radar_velocity_compensation
-        .then(|| (ks.cam_sd.timestamp_us - sw.timestamp_us) as f32 * 1e-6);
-    let pos = maps::radar_positions(&pts, dt);
+        .then(|| velocity_dt_s(ks.cam_sd.timestamp_us, sw.timestamp_us));
     let tf = cam_from_sensor(nu, sw, ks.cam_sd)?;
     if si == 0 {
         out.cam_from_radar.insert(ch.to_string(), tf.to_mat4());
     }
-    let m = tf.to_f32();
-    let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
-    let origin_cam = tf.t.map(|v| v as f32);
-    out.points.push_sweep(ch, si, origin_cam, &points_cam);
+    let (kept, filtered_out) = add_sweep(
+        &mut out.points,
+        &RadarSweep {
+            channel: ch,
+            index: si,
+            cam_from_radar: &tf,
+            dt_s: dt,
+        },
+        &scan,
+        opts.radar_filters,
+    );
+    out.filtered_out += filtered_out as u64;
+    out.points_read += kept as u64;
     clock.project_s += t.elapsed().as_secs_f64();
     Ok(())
+}
+
+/// One radar sweep as [`add_sweep`] places it.
+pub struct RadarSweep<'a> {
+    /// `RADAR_FRONT`, …
+    pub channel: &'a str,
+    /// 0 = the keyframe sweep, 1 = the one before, …
+    pub index: usize,
+    /// The sweep's sensor into the keyframe camera (ego motion between the two included).
+    pub cam_from_radar: &'a Rigid,
+    /// Velocity compensation: the returns move by (vx_comp, vy_comp) × dt_s.
+    pub dt_s: Option<f32>,
+}
+
+/// Adds the returns of `scan` (the devkit filters applied when `filters`) to `points` in the
+/// camera frame, as `prepare` does for every sweep; returns (kept, filtered out). `predict
+/// --image` builds its radar through the same function, so that it feeds a model what
+/// training fed it.
+pub fn add_sweep(
+    points: &mut RadarPoints,
+    sweep: &RadarSweep,
+    scan: &depthsense_nuscenes::pcd::RadarScan,
+    filters: bool,
+) -> (usize, usize) {
+    let (pts, filtered_out) = scan.filtered(filters);
+    let pos = maps::radar_positions(&pts, sweep.dt_s);
+    let m = sweep.cam_from_radar.to_f32();
+    let points_cam: Vec<[f32; 3]> = pos.iter().map(|q| apply_f32(&m, *q)).collect();
+    let origin_cam = sweep.cam_from_radar.t.map(|v| v as f32);
+    points.push_sweep(sweep.channel, sweep.index, origin_cam, &points_cam);
+    (pts.len(), filtered_out)
+}
+
+/// Seconds from a radar sweep to the camera frame it is drawn into (velocity compensation).
+pub fn velocity_dt_s(camera_timestamp_us: i64, sweep_timestamp_us: i64) -> f32 {
+    (camera_timestamp_us - sweep_timestamp_us) as f32 * 1e-6
 }
 
 /// The settings recorded in `meta.json`.

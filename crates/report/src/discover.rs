@@ -33,6 +33,8 @@ pub struct Found {
     pub images: Vec<ImageSource>,
     /// Cells index `images`.
     pub grid: Option<FigureGrid>,
+    /// Models this output evaluated or trained, for the comparison table.
+    pub models: Vec<super::runs::ModelRow>,
 }
 
 /// Everything found under the run folders.
@@ -95,6 +97,13 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
     }
     let mut claimed: BTreeSet<PathBuf> = BTreeSet::new();
     let before = d.sections.len();
+    if let Some(run) = super::runs::training_run(dir, &files, &names) {
+        claimed.extend(run.files.iter().cloned());
+        d.sections.push(run);
+    }
+    for export in super::runs::exports(dir, &files, &mut claimed) {
+        d.sections.push(export);
+    }
     for kind in Kind::ALL {
         let Some(stem) = kind.stem() else { continue };
         let json = dir.join(format!("{stem}.json"));
@@ -115,6 +124,14 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
             d.skipped
                 .push(skip(f, "not an experiment output the report knows".into()));
         }
+    }
+    // An experiment of many training runs summarises them itself: its run folders are not
+    // sections of their own.
+    let summarises_runs = d.sections[before..]
+        .iter()
+        .any(|s| matches!(s.kind, Kind::Ablation | Kind::ReducedData));
+    if summarises_runs {
+        return vec![];
     }
     dirs
 }
@@ -140,7 +157,7 @@ fn list(dir: &Path) -> std::io::Result<(Vec<PathBuf>, Vec<PathBuf>)> {
     Ok((files, dirs))
 }
 
-fn file_name(p: &Path) -> Option<&str> {
+pub(crate) fn file_name(p: &Path) -> Option<&str> {
     p.file_name().and_then(|n| n.to_str())
 }
 
@@ -151,7 +168,7 @@ fn skip(p: &Path, reason: String) -> Skipped {
     }
 }
 
-fn read_json(p: &Path) -> Result<Value, String> {
+pub(crate) fn read_json(p: &Path) -> Result<Value, String> {
     let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read: {e}"))?;
     serde_json::from_str(&text).map_err(|e| format!("not valid JSON: {e}"))
 }
@@ -178,6 +195,7 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         markdown,
         images: vec![],
         grid: None,
+        models: vec![],
     };
     for name in ["val_rmse.png", "curves_rgb.png", "curves_fusion.png"] {
         let p = dir.join(name);
@@ -232,6 +250,7 @@ fn probe_mer(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>, d: 
             markdown: report_markdown(&r),
             images: vec![],
             grid: None,
+            models: vec![],
         });
     }
 }
@@ -268,7 +287,7 @@ fn as_mer(v: &Value) -> Option<MerReport> {
     })
 }
 
-fn string_at(v: &Value, path: &[&str]) -> Option<String> {
+pub(crate) fn string_at(v: &Value, path: &[&str]) -> Option<String> {
     let mut cur = v;
     for k in path {
         cur = cur.get(k)?;
@@ -329,6 +348,7 @@ fn found(
         markdown: String::new(),
         images: vec![],
         grid: None,
+        models: vec![],
     };
     for ext in ["md", "csv"] {
         let name = format!("{stem}.{ext}");
@@ -342,6 +362,9 @@ fn found(
     } else {
         format!("(no `{stem}.md` beside `{stem}.json`)\n")
     };
+    if kind == Kind::Eval {
+        f.models = super::runs::eval_models(dir, v);
+    }
     if kind == Kind::Explain {
         explain_images(&mut f, v, names);
     } else if names.contains(format!("{stem}.png").as_str()) {

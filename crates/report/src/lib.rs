@@ -20,6 +20,7 @@ mod discover;
 mod html;
 mod images;
 pub mod markdown;
+mod runs;
 
 use std::path::{Path, PathBuf};
 
@@ -68,6 +69,8 @@ impl ReportError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Kind {
+    /// The comparison of every model found (built from the other sections).
+    Models,
     Ablation,
     ReducedData,
     Failure,
@@ -76,11 +79,16 @@ pub enum Kind {
     Explain,
     Eval,
     Mer,
+    /// A training run (`train`, `mer train`): config.json + metrics.jsonl.
+    Train,
+    /// An exported model beside its sidecar (`export`).
+    Export,
     Demo,
 }
 
 impl Kind {
-    pub const ALL: [Kind; 9] = [
+    pub const ALL: [Kind; 12] = [
+        Kind::Models,
         Kind::Demo,
         Kind::Ablation,
         Kind::ReducedData,
@@ -90,6 +98,8 @@ impl Kind {
         Kind::Explain,
         Kind::Eval,
         Kind::Mer,
+        Kind::Train,
+        Kind::Export,
     ];
 
     /// The file stem of the writer's outputs (`<stem>.{md,csv,json,png}`); the MER report has
@@ -103,7 +113,7 @@ impl Kind {
             Kind::Cost => "cost",
             Kind::Explain => "explain",
             Kind::Eval => "tables",
-            Kind::Mer | Kind::Demo => return None,
+            Kind::Mer | Kind::Demo | Kind::Models | Kind::Train | Kind::Export => return None,
         })
     }
 
@@ -119,6 +129,9 @@ impl Kind {
             Kind::Eval => "eval",
             Kind::Mer => "mer",
             Kind::Demo => "demo",
+            Kind::Models => "models",
+            Kind::Train => "train",
+            Kind::Export => "export",
         }
     }
 
@@ -134,6 +147,9 @@ impl Kind {
             Kind::Eval => "Evaluation: main, region and distance-cap tables (SPEC §10.1–10.3)",
             Kind::Mer => "MER: radar map coverage and error (SPEC §5)",
             Kind::Demo => "Demo: RGB-only vs radar fusion on a synthetic world",
+            Kind::Models => "Models compared",
+            Kind::Train => "Training run",
+            Kind::Export => "Exported model",
         }
     }
 
@@ -149,6 +165,9 @@ impl Kind {
             Kind::Eval => "depthsense eval",
             Kind::Mer => "depthsense mer report --json FILE",
             Kind::Demo => "depthsense demo",
+            Kind::Models => "depthsense report",
+            Kind::Train => "depthsense train / mer train",
+            Kind::Export => "depthsense export",
         }
     }
 }
@@ -262,6 +281,9 @@ pub fn render(opts: &ReportOptions) -> Result<(ReportSummary, String), ReportErr
     found
         .sections
         .sort_by(|a, b| (a.kind, &a.dir).cmp(&(b.kind, &b.dir)));
+    if let Some(models) = runs::comparison(&found.sections) {
+        found.sections.insert(0, models);
+    }
     if found.sections.is_empty() {
         let dirs: Vec<String> = opts.runs.iter().map(|p| p.display().to_string()).collect();
         return Err(ReportError::Nothing(dirs.join(", ")));

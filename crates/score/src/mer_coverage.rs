@@ -162,16 +162,56 @@ pub fn report_markdown(r: &MerReport) -> String {
         r.cap_m,
         r.rows.first().map_or(0, |x| x.gt_pixels)
     );
+    // A map that covers no GT pixel has no error to report: "–", never "NaN %".
+    let pct = |v: f64, decimals: usize| {
+        if v.is_finite() {
+            format!("{:.*} %", decimals, 100.0 * v)
+        } else {
+            "–".to_string()
+        }
+    };
     for x in &r.rows {
         s.push_str(&format!(
-            "| {} | {:.0} | {} | {:.2} % | {:.2} % | {:.1} % |\n",
+            "| {} | {:.0} | {} | {} | {} | {} |\n",
             x.map,
             x.pixels_per_image,
             x.covered_gt_pixels,
-            100.0 * x.coverage,
-            100.0 * x.median_rel_error,
-            100.0 * x.p90_rel_error
+            pct(x.coverage, 2),
+            pct(x.median_rel_error, 2),
+            pct(x.p90_rel_error, 1)
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_map_without_covered_pixels_prints_no_nan() {
+        let row = |map: &str, covered: u64, err: f64| CoverageRow {
+            map: map.into(),
+            pixels_per_image: 3.0,
+            covered_gt_pixels: covered,
+            gt_pixels: 100,
+            coverage: covered as f64 / 100.0,
+            median_rel_error: err,
+            p90_rel_error: err,
+        };
+        let md = report_markdown(&MerReport {
+            data: "p".into(),
+            split: "test".into(),
+            images: 2,
+            cap_m: 80.0,
+            rows: vec![row("raw", 5, 0.12), row("mer>0.95", 0, f64::NAN)],
+            command_line: None,
+        });
+        assert!(!md.contains("NaN"), "{md}");
+        assert!(md.contains("| mer>0.95 | 3 | 0 | 0.00 % | – | – |"), "{md}");
+        assert!(
+            md.contains("| raw | 3 | 5 | 5.00 % | 12.00 % | 12.0 % |"),
+            "{md}"
+        );
+    }
 }

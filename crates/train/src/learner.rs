@@ -135,6 +135,11 @@ impl Checkpointer {
         write_optim(&optim)?;
         write_model(&self.run.join(LAST_CKPT))?;
         self.optim_matches = true;
+        // The pair on disk belongs together now: the state kept for a kill in between goes.
+        let prev = optim_state::prev_path(&optim);
+        if prev.exists() {
+            std::fs::remove_file(&prev).map_err(|e| TrainError::io(&prev, e))?;
+        }
         Ok(())
     }
 }
@@ -273,8 +278,9 @@ mod tests {
             .save_last(write("optim 3"), write("model 3"))
             .unwrap();
         assert_eq!(
-            (read(&optim), read(&prev), read(&last)),
-            ("optim 3".into(), "optim 1".into(), "model 3".into())
+            (read(&optim), read(&last)),
+            ("optim 3".into(), "model 3".into())
         );
+        assert!(!prev.exists(), "a consistent pair keeps no previous state");
     }
 }

@@ -205,6 +205,11 @@ struct State {
     /// What `--init-from` loaded into the fresh network (kept across resumes for config.json).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     init_from: Option<serde_json::Value>,
+    /// The map settings of the prepared data it is trained on (`index.json`'s `settings`:
+    /// radar sweeps, channels, filters, velocity compensation, …), so that `predict` and
+    /// `export` can tell what radar input the network expects.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    data_settings: std::collections::BTreeMap<String, serde_json::Value>,
 }
 
 /// One segment of the learning-rate schedule: a poly decay from `lr` at `start_iteration` to 0

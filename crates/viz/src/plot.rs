@@ -150,14 +150,39 @@ fn curve_ranges(series: &[Series<'_>]) -> (std::ops::Range<f64>, std::ops::Range
     (x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
 }
 
-fn panel(area: &Area<'_>, title: &str, series: &[Series<'_>], text: bool) -> Result<(), VizError> {
+/// The iteration ticks of a curves panel over `xs`: at most 10, on whole iterations, so that
+/// each tick label is an integer (`iteration_tick` prints them).
+fn iteration_ticks(xs: &std::ops::Range<f64>) -> usize {
+    ((xs.end - xs.start).round() as usize + 1).clamp(2, 10)
+}
+
+/// An iteration tick's label: the integer, or nothing between two iterations.
+fn iteration_tick(x: &f64) -> String {
+    if (x - x.round()).abs() < 1e-6 {
+        format!("{}", x.round() as i64)
+    } else {
+        String::new()
+    }
+}
+
+fn panel(
+    area: &Area<'_>,
+    title: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+    text: bool,
+) -> Result<(), VizError> {
     let (xs, ys) = curve_ranges(series);
-    let mut chart = chart_builder(area, title, text, 12, (30, 50))
+    let x_ticks = iteration_ticks(&xs);
+    let mut chart = chart_builder(area, title, text, 12, (40, 60))
         .build_cartesian_2d(xs, ys)
         .map_err(plot_err)?;
     let mut mesh = chart.configure_mesh();
     if text {
-        mesh.x_desc("iteration");
+        mesh.x_desc("iteration")
+            .y_desc(y_label)
+            .x_labels(x_ticks)
+            .x_label_formatter(&iteration_tick);
     } else {
         mesh.disable_x_mesh()
             .disable_y_mesh()
@@ -182,6 +207,17 @@ fn panel(area: &Area<'_>, title: &str, series: &[Series<'_>], text: bool) -> Res
 
 /// Two panels side by side (left: e.g. training loss; right: e.g. validation RMSE), PNG bytes.
 pub fn curves_png(left: &[Series<'_>], right: &[Series<'_>]) -> Result<Vec<u8>, VizError> {
+    curves_png_labelled(
+        ("training loss", "loss", left),
+        ("validation", "RMSE (m)", right),
+    )
+}
+
+/// [`curves_png`] with each panel's (title, y-axis label, series).
+pub fn curves_png_labelled(
+    left: (&str, &str, &[Series<'_>]),
+    right: (&str, &str, &[Series<'_>]),
+) -> Result<Vec<u8>, VizError> {
     let (w, h) = (1200u32, 450u32);
     let mut buf = vec![0u8; (w * h * 3) as usize];
     let text = fonts_available();
@@ -189,8 +225,8 @@ pub fn curves_png(left: &[Series<'_>], right: &[Series<'_>]) -> Result<Vec<u8>, 
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(plot_err)?;
         let (a, b) = root.split_horizontally(w / 2);
-        panel(&a, "training loss", left, text)?;
-        panel(&b, "validation", right, text)?;
+        panel(&a, left.0, left.1, left.2, text)?;
+        panel(&b, right.0, right.1, right.2, text)?;
         root.present().map_err(plot_err)?;
     }
     let img = image::RgbImage::from_raw(w, h, buf)
@@ -686,4 +722,28 @@ fn line_panel(area: &Area<'_>, p: &LinePanel<'_>, text: bool) -> Result<(), VizE
 /// Line charts side by side (one per panel, 520 px wide each), PNG bytes.
 pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, VizError> {
     panels_png(panels, 520, line_panel)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn iteration_ticks_are_whole_iterations() {
+        assert_eq!(iteration_ticks(&(0.0..6.0)), 7);
+        assert_eq!(iteration_ticks(&(0.0..1.0)), 2);
+        assert_eq!(iteration_ticks(&(0.0..350.0)), 10);
+        assert_eq!(iteration_tick(&3.0), "3");
+        assert_eq!(iteration_tick(&2.5), "");
+        assert_eq!(iteration_tick(&350.0000001), "350");
+    }
+
+    #[test]
+    fn curves_of_a_short_run_draw() {
+        let loss = [(1u64, 3.0), (2, 2.0), (3, 1.5)];
+        let val = [(0u64, 9.0), (3, 7.5)];
+        let png = curves_png(&[("train loss", &loss)], &[("val RMSE (m)", &val)]).unwrap();
+        let img = image::load_from_memory(&png).unwrap();
+        assert_eq!((img.width(), img.height()), (1200, 450));
+    }
 }

@@ -33,14 +33,16 @@ pub struct Args {
     /// Version folder for --token.
     #[arg(long, default_value = "v1.0-mini")]
     pub version: String,
-    /// Input 3: a 1600x900 CAM_FRONT JPEG (with --radar and --calibration).
+    /// Input 3: a 1600x900 CAM_FRONT JPEG (with --calibration).
     #[arg(long, requires = "calibration")]
     pub image: Option<PathBuf>,
-    /// Radar .pcd files for --image (repeat the flag or separate with commas).
+    /// Radar .pcd files for --image (repeat the flag or separate with commas); each must be
+    /// in the calibration. Default: every file the calibration lists.
     #[arg(long, value_delimiter = ',')]
     pub radar: Vec<PathBuf>,
-    /// Calibration JSON for --image: {"camera_intrinsic": 3x3 (full resolution),
-    /// "cam_from_radar": {"<radar file name>": 4x4 row-major}}.
+    /// Calibration JSON for --image: the camera intrinsics and, per radar file, its channel,
+    /// sweep, time and sweep → camera transform — `depthsense calibration` writes one from a
+    /// nuScenes sample (docs/guide/deploy.md, "Raw files").
     #[arg(long)]
     pub calibration: Option<PathBuf>,
     /// Keep every radar point (disable the devkit filters) for --image / --token.

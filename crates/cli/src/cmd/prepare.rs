@@ -21,26 +21,11 @@ pub struct Args {
     /// official-val or all (synthetic worlds have their own scene tokens: use all).
     #[arg(long, default_value = "all")]
     split: String,
-    /// Radar sweeps per channel: the keyframe sweep and N−1 previous ones.
-    #[arg(long, default_value_t = 5)]
-    radar_sweeps: usize,
-    /// Radar channels to accumulate (comma-separated).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "RADAR_FRONT,RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT"
-    )]
-    radar_channels: Vec<String>,
+    #[command(flatten)]
+    radar: super::radar_args::RadarArgs,
     /// K: the dense lidar target accumulates the keyframe sweep ±K sweeps (0 = keyframe only).
     #[arg(long, default_value_t = 0)]
     lidar_sweeps: usize,
-    /// Keep every radar point (disable the devkit filters invalid_state == 0,
-    /// dyn_prop 0..=6, ambig_state == 3).
-    #[arg(long)]
-    no_radar_filters: bool,
-    /// Move radar points of older sweeps by (vx_comp, vy_comp) × Δt to the camera time.
-    #[arg(long)]
-    radar_velocity_compensation: bool,
     /// Worker threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     jobs: usize,
@@ -62,21 +47,19 @@ pub struct Args {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let shard = a.shard.as_deref().map(str::parse::<Shard>).transpose()?;
-    let opts = PrepareOptions {
+    let mut opts = PrepareOptions {
         dataroot: a.dataroot,
         version: a.version,
         out: a.out,
         split: a.split,
-        radar_sweeps: a.radar_sweeps,
-        radar_channels: a.radar_channels,
         lidar_sweeps: a.lidar_sweeps,
-        radar_filters: !a.no_radar_filters,
-        radar_velocity_compensation: a.radar_velocity_compensation,
         jobs: a.jobs,
         keep_going: a.keep_going,
         shard,
         verify: a.verify,
+        ..PrepareOptions::default()
     };
+    a.radar.apply(&mut opts);
     let pb = Progress::new("prepare");
     pb.enable_steady_tick(std::time::Duration::from_millis(200));
     let t = std::time::Instant::now();

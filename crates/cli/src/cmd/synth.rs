@@ -8,8 +8,8 @@ use depthsense_synth::{SynthConfig, SynthSummary, Weather};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Output dataroot (created; a previous synthetic world there is replaced, any other
-    /// non-empty folder is refused).
+    /// Output dataroot (created; a synthetic world already there is refused unless --force,
+    /// any other non-empty folder always).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Number of scenes.

@@ -107,17 +107,21 @@ impl<'o> Trainer<'o> {
         std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
         let bpe = batches_per_epoch(opts, part.train.len());
-        let ((vs, net, state, sgd), optim_matches) = if continues && run.join(LAST_CKPT).exists() {
-            resume(opts, &run, &cfg, device, main, bpe)?
-        } else if opts.extend {
-            return Err(TrainError::Config(format!(
-                "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
+        let ((vs, net, mut state, sgd), optim_matches) =
+            if continues && run.join(LAST_CKPT).exists() {
+                resume(opts, &run, &cfg, device, main, bpe)?
+            } else if opts.extend {
+                return Err(TrainError::Config(format!(
+                    "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
                  without --extend",
-                run.display()
-            )));
-        } else {
-            (fresh(opts, &run, &cfg, device, main)?, true)
-        };
+                    run.display()
+                )));
+            } else {
+                (fresh(opts, &run, &cfg, device, main)?, true)
+            };
+        if state.data_settings.is_empty() {
+            state.data_settings = ds.index.settings.clone();
+        }
         if opts.resume && !opts.extend && state.iteration >= bpe * opts.epochs as u64 {
             return Err(TrainError::RunFinished {
                 run: run.display().to_string(),
@@ -779,6 +783,7 @@ fn fresh(
         val_rmse: None,
         schedule: vec![],
         init_from,
+        data_settings: Default::default(),
     };
     Ok((vs, net, state, sgd))
 }

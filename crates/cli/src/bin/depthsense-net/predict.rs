@@ -3,10 +3,11 @@
 use depthsense_cli::cmd::predict::Args;
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_eval::predict::{
-    input_from_prepared, input_from_raw, input_from_token, predict, write_outputs, PredictInput,
-    OUTPUT_FILES,
+    input_from_prepared, input_from_raw, input_from_token, predict, radar_warnings,
+    trained_radar_settings, write_outputs, PredictInput, OUTPUT_FILES,
 };
 use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_prep::calibration::RadarSettings;
 use depthsense_train::outputs::refuse_existing;
 use depthsense_train::trainer::radar_input_for;
 use std::path::PathBuf;
@@ -56,11 +57,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(data) = a.data.clone() {
         return run_dataset(&a, &data);
     }
-    let mut input = read_input(&a)?;
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
     let loaded = super::model_source::load(&a.model, device)?;
+    let trained = trained_radar_settings(&loaded.extra).or_else(|| sidecar_radar(&a));
+    let mut input = read_input(&a, trained.as_ref())?;
+    for w in radar_warnings(trained.as_ref(), &input) {
+        eprintln!("{w}");
+    }
     let radar = radar_input_for(&loaded.config, None)?;
     if let Some(ck) = &a.mer_checkpoint {
         let pda = depthsense_model::pda::load(ck, device)?;
@@ -75,9 +80,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The radar settings an export sidecar given as `--config` records (`trained_radar`).
+fn sidecar_radar(a: &Args) -> Option<RadarSettings> {
+    let path = std::path::Path::new(a.model.config.as_deref()?);
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(path).ok()?).ok()?;
+    serde_json::from_value(json.get("trained_radar")?.clone()).ok()
+}
+
 /// The one input of the command line: a prepared sample, a sample token of a dataroot (its
-/// maps computed like `prepare` does), or raw files.
-fn read_input(a: &Args) -> anyhow::Result<PredictInput> {
+/// maps computed like `prepare` computed the training data's, from `trained`), or raw files.
+fn read_input(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<PredictInput> {
     Ok(if let Some(dir) = &a.sample {
         input_from_prepared(dir)?
     } else if let Some(token) = &a.token {
@@ -85,12 +97,18 @@ fn read_input(a: &Args) -> anyhow::Result<PredictInput> {
             .dataroot
             .as_ref()
             .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
-        let opts = depthsense_prep::PrepareOptions {
+        let mut opts = depthsense_prep::PrepareOptions {
             dataroot: dataroot.clone(),
             version: a.version.clone(),
-            radar_filters: !a.no_radar_filters,
             ..depthsense_prep::PrepareOptions::default()
         };
+        if let Some(t) = trained {
+            opts.radar_sweeps = t.radar_sweeps;
+            opts.radar_channels = t.radar_channels.clone();
+            opts.radar_filters = t.radar_filters;
+            opts.radar_velocity_compensation = t.radar_velocity_compensation;
+        }
+        opts.radar_filters &= !a.no_radar_filters;
         input_from_token(dataroot, &a.version, token, &opts)?
     } else if let Some(jpeg) = &a.image {
         let calib = a
