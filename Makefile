@@ -22,7 +22,7 @@ export LIBTORCH_USE_PYTORCH := 1
 CARGO ?= cargo
 BIN := target/release/depthsense
 
-.PHONY: all setup build demo test test-browser bench fmt clippy check clean-venv gpu-bundle
+.PHONY: all setup build install demo test test-browser bench fmt clippy check clean-venv gpu-bundle
 
 all: build
 
@@ -41,6 +41,15 @@ setup: $(STAMP)
 
 build: setup
 	$(CARGO) build --release -p depthsense-cli
+
+# Both binaries into $(PREFIX)/bin (depthsense-net must stay beside depthsense; it finds
+# libtorch in this checkout's .venv through its rpath).
+PREFIX ?= $(HOME)/.local
+install: build
+	install -d $(PREFIX)/bin
+	install -m 755 target/release/depthsense target/release/depthsense-net $(PREFIX)/bin/
+	@echo "installed depthsense and depthsense-net into $(PREFIX)/bin"
+	@case ":$$PATH:" in *":$(PREFIX)/bin:"*) ;; *) echo "$(PREFIX)/bin is not on your PATH: export PATH=$(PREFIX)/bin:\$$PATH";; esac
 
 # A finished demo in runs/demo is never replaced silently: `make demo DEMO_ARGS=--force`.
 DEMO_ARGS ?=

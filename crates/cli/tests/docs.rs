@@ -61,7 +61,18 @@ fn depthsense_args(w: &[String]) -> Option<Vec<String>> {
     }
     let prog = w.get(i)?;
     let name = prog.rsplit('/').next().unwrap_or(prog);
-    (name == "depthsense" || name == "depthsense-net").then(|| w[i + 1..].to_vec())
+    // The command ends at a shell redirection or the next command (`> log 2>&1`, `| tee`,
+    // `&&`, `;`).
+    let end = w[i + 1..]
+        .iter()
+        .position(|x| {
+            matches!(
+                x.as_str(),
+                ">" | ">>" | "2>" | "2>&1" | "|" | "&&" | "||" | ";" | "&"
+            )
+        })
+        .map_or(w.len(), |p| i + 1 + p);
+    (name == "depthsense" || name == "depthsense-net").then(|| w[i + 1..end].to_vec())
 }
 
 fn is_assignment(w: &str) -> bool {

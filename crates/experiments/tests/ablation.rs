@@ -206,7 +206,7 @@ fn ablation_runs_reports_and_resumes() {
         Some(stat.fmt(3).as_str()),
         "{line}"
     );
-    assert!(table.contains("| rgb | lowheight | 2 |"), "{table}");
+    assert!(table.contains("| rgb | low-height | 2 |"), "{table}");
 
     let csv = std::fs::read_to_string(out.join(CSV_FILE)).unwrap();
     let lines: Vec<&str> = csv.lines().collect();

@@ -217,6 +217,8 @@ fn every_section_and_image_is_in_the_page() {
     assert_eq!(
         kinds,
         [
+            // The eval tables' model, compared at the top.
+            Kind::Models,
             Kind::Ablation,
             Kind::ReducedData,
             Kind::Failure,
@@ -282,8 +284,9 @@ fn every_section_and_image_is_in_the_page() {
     }
     let j: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(j["sections"].as_array().unwrap().len(), 8);
-    assert_eq!(j["sections"][6]["kind"], "eval");
+    assert_eq!(j["sections"].as_array().unwrap().len(), 9);
+    assert_eq!(j["sections"][0]["kind"], "models");
+    assert_eq!(j["sections"][7]["kind"], "eval");
     assert_eq!(j["html_bytes"].as_u64().unwrap() as usize, html.len());
 }
 

@@ -300,7 +300,7 @@ fn tables_layout_and_values() {
     assert!(csv.contains("model,region,images,pixels,δ1,δ2,δ3,RMSE (m),AbsRel,RMSE_log\n"));
     assert!(csv
         .lines()
-        .any(|l| l == "fusion,lowheight,1,2,0.500,0.500,0.500,21.260,0.350,0.507"));
+        .any(|l| l == "fusion,low-height,1,2,0.500,0.500,0.500,21.260,0.350,0.507"));
 }
 
 #[test]

@@ -67,6 +67,16 @@ pub fn discover(runs: &[PathBuf], out: &Path, max_depth: usize) -> Result<Discov
             }
         }
     }
+    // The demo's section (in DEMO/report/) shows its two training runs (DEMO/rgb, DEMO/fusion)
+    // itself: they are not sections of their own.
+    let demos: Vec<PathBuf> = d
+        .sections
+        .iter()
+        .filter(|s| s.kind == Kind::Demo)
+        .filter_map(|s| s.dir.parent().map(Path::to_path_buf))
+        .collect();
+    d.sections
+        .retain(|s| s.kind != Kind::Train || !demos.iter().any(|demo| s.dir.starts_with(demo)));
     Ok(d)
 }
 

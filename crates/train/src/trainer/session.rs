@@ -920,16 +920,18 @@ pub fn train_distributed(
     })
 }
 
-/// Runs `run`; when it fails, `out` did not exist before and holds no checkpoint, `out` is
-/// removed: a run that failed before its first checkpoint (a wrong `--data`, a config no
-/// network can be built with, a non-finite first loss) leaves no folder behind.
+/// Runs `run`; when it fails before it recorded anything — `out` did not exist before and
+/// holds neither a checkpoint nor a `metrics.jsonl` (a wrong `--data`, a config no network can
+/// be built with) — `out` is removed, so that such a failure leaves no folder behind. A run
+/// that failed after it started logging (a non-finite loss) keeps its log for the diagnosis.
 pub fn removing_new_folder_on_failure<T>(
     out: &Path,
     run: impl FnOnce() -> Result<T, TrainError>,
 ) -> Result<T, TrainError> {
     let existed = out.exists();
     let result = run();
-    if result.is_err() && !existed && !out.join(LAST_CKPT).exists() {
+    let recorded = out.join(LAST_CKPT).exists() || out.join(METRICS_FILE).exists();
+    if result.is_err() && !existed && !recorded {
         let _ = std::fs::remove_dir_all(out);
     }
     result
