@@ -2,7 +2,7 @@
 
 use super::images::base64;
 use super::markdown::{escape, to_html};
-use super::{ReportSummary, Section};
+use super::{Kind, ReportSummary, Section};
 
 /// The Files line of a section names at most this many (report.json has them all).
 const MAX_FILES_SHOWN: usize = 8;
@@ -74,11 +74,17 @@ fn intro_html(s: &ReportSummary) -> String {
 fn contents_html(s: &ReportSummary) -> String {
     let mut h = String::from("<nav id=\"contents\">\n<h2>Contents</h2>\n<ol>\n");
     for (i, sec) in s.sections.iter().enumerate() {
+        let dir = match sec.kind {
+            Kind::Models => String::new(),
+            _ => format!(
+                " <code>{}</code>",
+                escape(&sec.source_dir.display().to_string())
+            ),
+        };
         h.push_str(&format!(
-            "<li><a href=\"#{}\">{}</a> <code>{}</code></li>\n",
+            "<li><a href=\"#{}\">{}</a>{dir}</li>\n",
             sec.anchor,
-            escape(&section_title(i, sec)),
-            escape(&sec.source_dir.display().to_string())
+            escape(&section_title(i, sec))
         ));
     }
     h.push_str(&format!(
@@ -98,7 +104,10 @@ fn section_html(i: usize, sec: &Section) -> String {
         sec.anchor,
         escape(&section_title(i, sec))
     );
-    h.push_str(&meta_html(sec));
+    // The comparison is built from the other sections: no folder, files or command of its own.
+    if sec.kind != Kind::Models {
+        h.push_str(&meta_html(sec));
+    }
     h.push_str("<div class=\"scroll\">\n");
     h.push_str(&to_html(&sec.markdown, 2));
     h.push_str("</div>\n");
@@ -238,12 +247,15 @@ pub fn markdown_page(s: &ReportSummary) -> String {
     }
     m.push_str("## Contents\n\n");
     for (i, sec) in s.sections.iter().enumerate() {
+        let dir = match sec.kind {
+            Kind::Models => String::new(),
+            _ => format!(" `{}`", sec.source_dir.display()),
+        };
         m.push_str(&format!(
-            "{}. [{}](#{}) `{}`\n",
+            "{}. [{}](#{}){dir}\n",
             i + 1,
             sec.title,
-            sec.anchor,
-            sec.source_dir.display()
+            sec.anchor
         ));
     }
     m.push_str(&format!(
@@ -271,6 +283,14 @@ pub fn markdown_page(s: &ReportSummary) -> String {
 }
 
 fn section_markdown(i: usize, sec: &Section) -> String {
+    if sec.kind == Kind::Models {
+        return format!(
+            "<a id=\"{}\"></a>\n\n## {}\n\n{}\n",
+            sec.anchor,
+            section_title(i, sec),
+            shift_headings(&sec.markdown, 2)
+        );
+    }
     let mut m = format!(
         "<a id=\"{}\"></a>\n\n## {}\n\n- Source: `{}` (written by `{}`)\n",
         sec.anchor,

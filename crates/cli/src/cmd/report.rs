@@ -52,11 +52,20 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let s = build_report(&opts).with_context(|| format!("report → {}", opts.out.display()))?;
     for sec in &s.sections {
+        // Pictures embedded in the page (not the images a table evaluated).
+        let pictures = match sec.images.len() {
+            0 => String::new(),
+            1 => " (1 picture)".to_string(),
+            n => format!(" ({n} pictures)"),
+        };
         eprintln!(
-            "{:<13} {} ({} images)",
+            "{:<13} {}{pictures}",
             serde_json::to_value(sec.kind)?.as_str().unwrap_or("?"),
-            sec.source_dir.display(),
-            sec.images.len()
+            if sec.source_dir.as_os_str().is_empty() {
+                "every model found".to_string()
+            } else {
+                sec.source_dir.display().to_string()
+            },
         );
     }
     eprintln!(
