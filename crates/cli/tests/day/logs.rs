@@ -7,8 +7,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-mod common;
-use common::{tiny_train, Guard};
+use crate::common::{tiny_train, Guard};
 
 /// Runs `c` with stderr into `log` (a file, as `2> log` does) and returns the log's lines.
 fn run_logged(mut c: Command, log: &Path) -> Vec<String> {

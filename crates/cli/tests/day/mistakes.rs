@@ -8,8 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-mod common;
-use common::tiny_train;
+use crate::common::tiny_train;
 
 const BIN: &str = env!("CARGO_BIN_EXE_depthsense");
 
