@@ -38,6 +38,19 @@ fn repeated(err: &str) -> Option<String> {
     })
 }
 
+/// How the setup prepares its world (and `--verify` rebuilds it).
+const PREPARE: [&str; 9] = [
+    "prepare",
+    "--dataroot",
+    "world",
+    "--version",
+    "v1.0-synth",
+    "--lidar-sweeps",
+    "0",
+    "--out",
+    "prepared",
+];
+
 /// A small world, its prepared folder, a toy prepared folder and a checkpoint trained on it.
 struct Setup {
     tmp: tempfile::TempDir,
@@ -59,20 +72,7 @@ impl Setup {
             ],
             t,
         ));
-        ok(&run(
-            &[
-                "prepare",
-                "--dataroot",
-                "world",
-                "--version",
-                "v1.0-synth",
-                "--lidar-sweeps",
-                "0",
-                "--out",
-                "prepared",
-            ],
-            t,
-        ));
+        ok(&run(&PREPARE, t));
         depthsense_data::write_toy_dataset(&t.join("toy"), 6, 4, 128, 64, 3).unwrap();
         let mut c = tiny_train(&t.join("toy"), &t.join("run"), 1);
         c.args(["--max-batches-per-epoch", "1"]);
@@ -276,21 +276,7 @@ fn unreadable_samples_are_named_together_and_rebuilt_by_prepare_verify() {
         err.contains(&format!("{first}/image.png")) && err.contains("--verify"),
         "{err}"
     );
-    let o = run(
-        &[
-            "prepare",
-            "--dataroot",
-            "world",
-            "--version",
-            "v1.0-synth",
-            "--lidar-sweeps",
-            "0",
-            "--out",
-            "prepared",
-            "--verify",
-        ],
-        t,
-    );
+    let o = run(&[&PREPARE[..], &["--verify"]].concat(), t);
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
