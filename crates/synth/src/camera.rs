@@ -22,6 +22,26 @@ pub struct CamFrame {
     pub depth_m: Vec<f32>,
 }
 
+/// The pixel grid rays are cast on: the full IMG_W × IMG_H image (`scale` 1), or a coarser
+/// grid whose cells are `scale` × `scale` pixels, one ray through each cell's centre.
+#[derive(Clone, Copy)]
+struct Grid {
+    w: usize,
+    h: usize,
+    scale: f64,
+}
+
+impl Grid {
+    fn new(scale: u32) -> Grid {
+        let s = scale.max(1);
+        Grid {
+            w: (IMG_W / s) as usize,
+            h: (IMG_H / s) as usize,
+            scale: s as f64,
+        }
+    }
+}
+
 /// Camera pose in the global frame: origin and rotation global_from_camera.
 pub struct CamPose {
     pub origin: DVec3,
@@ -92,20 +112,23 @@ fn light_of(weather: Weather, rng: &mut Rng) -> Light {
     }
 }
 
-/// The camera at one time: origin, rotation global_from_camera (and its columns) and
-/// camera_from_global.
+/// The camera at one time: origin, rotation global_from_camera (and its columns),
+/// camera_from_global, and the grid its rays are cast on.
 struct View {
     o: DVec3,
     cx: DVec3,
     cy: DVec3,
     cz: DVec3,
     rt: DMat3,
+    grid: Grid,
 }
 
 impl View {
-    /// Global, un-normalised ray direction of pixel (u, v): its parameter is the z-depth.
+    /// Global, un-normalised ray direction of grid cell (u, v) (a pixel at scale 1): its
+    /// parameter is the z-depth.
     fn dir_at(&self, u: usize, v: usize) -> DVec3 {
-        let c = cam_dir(u as f64 + 0.5, v as f64 + 0.5);
+        let s = self.grid.scale;
+        let c = cam_dir((u as f64 + 0.5) * s, (v as f64 + 0.5) * s);
         self.cx * c.x + self.cy * c.y + self.cz * c.z
     }
 }
@@ -129,6 +152,15 @@ struct Lights<'a> {
 
 /// Render CAM_FRONT at time `t` (s since scene start). `salt` seeds per-frame noise.
 pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
+    render_scaled(world, t, salt, 1)
+}
+
+/// [`render`] with one ray per `scale` × `scale` pixels (`synth --camera-scale`): each ray's
+/// colour and depth fill its cell, so the image is still IMG_W × IMG_H and the 2×2 average of
+/// the training frame (SPEC §3) is, at scale 2, the coarse render itself. Scale 1 is [`render`]
+/// exactly.
+pub fn render_scaled(world: &World, t: f64, salt: u64, scale: u32) -> CamFrame {
+    let grid = Grid::new(scale);
     let pose = camera_pose(world, t);
     let o = pose.origin;
     let r = pose.rot;
@@ -143,6 +175,7 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
         cy: r.y_axis,
         cz: r.z_axis,
         rt,
+        grid,
     };
 
     // Pass 1: ground for every pixel.
@@ -172,20 +205,42 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
     // Rain: wet-road reflections (mirror about the horizon row) and streaks.
     if lights.rain {
         rain_reflections(&view, &raster.hit, &mut lin);
-        rain_streaks(&mut rng, &mut lin);
+        rain_streaks(&mut rng, &mut lin, grid);
         lower_contrast(&mut lin);
     }
 
-    CamFrame {
-        rgb: tone_map(&lin, lights.night, &mut rng),
-        depth_m: depth,
+    let rgb = tone_map(&lin, lights.night, &mut rng);
+    if grid.scale == 1.0 {
+        return CamFrame {
+            rgb,
+            depth_m: depth,
+        };
     }
+    CamFrame {
+        rgb: upscale(&rgb, grid, 3),
+        depth_m: upscale(&depth, grid, 1),
+    }
+}
+
+/// A grid's values (`channels` per cell) repeated over each cell's pixels: IMG_W × IMG_H.
+fn upscale<T: Copy + Default>(cells: &[T], grid: Grid, channels: usize) -> Vec<T> {
+    let (w, h) = (IMG_W as usize, IMG_H as usize);
+    let s = grid.scale as usize;
+    let mut out = vec![T::default(); w * h * channels];
+    for y in 0..h {
+        let gy = (y / s).min(grid.h - 1);
+        for x in 0..w {
+            let gx = (x / s).min(grid.w - 1);
+            let (o, c) = ((y * w + x) * channels, (gy * grid.w + gx) * channels);
+            out[o..o + channels].copy_from_slice(&cells[c..c + channels]);
+        }
+    }
+    out
 }
 
 /// Pass 1: the ground for every pixel.
 fn ground_pass(world: &World, view: &View) -> Raster {
-    let w = IMG_W as usize;
-    let h = IMG_H as usize;
+    let (w, h) = (view.grid.w, view.grid.h);
     let n = w * h;
     let mut best_t = vec![f64::INFINITY; n];
     let mut hit = vec![Hit::Sky; n];
@@ -226,22 +281,23 @@ fn screen_boxes(view: &View, prims: &[Prim]) -> Vec<ScreenBox> {
 /// The screen bounds of primitive `pi` (the whole image when it reaches behind the camera),
 /// or None when it is wholly behind or off screen.
 fn screen_box(view: &View, pi: usize, p: &Prim) -> Option<ScreenBox> {
-    let (w, h) = (IMG_W as usize, IMG_H as usize);
+    let (w, h) = (view.grid.w, view.grid.h);
+    let s = view.grid.scale;
     let mut umin = f64::INFINITY;
     let mut umax = f64::NEG_INFINITY;
     let mut vmin = f64::INFINITY;
     let mut vmax = f64::NEG_INFINITY;
     let mut zmin = f64::INFINITY;
     let mut behind = 0;
-    for c in p.corners() {
+    for c in p.hull_corners() {
         let q = view.rt * (c - view.o);
         zmin = zmin.min(q.z);
         if q.z < 0.05 {
             behind += 1;
             continue;
         }
-        let u = CAM_FX * q.x / q.z + CAM_CX;
-        let v = CAM_FY * q.y / q.z + CAM_CY;
+        let u = (CAM_FX * q.x / q.z + CAM_CX) / s;
+        let v = (CAM_FY * q.y / q.z + CAM_CY) / s;
         umin = umin.min(u);
         umax = umax.max(u);
         vmin = vmin.min(v);
@@ -270,7 +326,7 @@ fn screen_box(view: &View, pi: usize, p: &Prim) -> Option<ScreenBox> {
 
 /// Pass 2: intersect each primitive inside its screen box (boxes sorted nearest first).
 fn prim_pass(view: &View, prims: &[Prim], boxes: &[ScreenBox], raster: &mut Raster) {
-    let w = IMG_W as usize;
+    let w = view.grid.w;
     for &(znear, pi, u0, u1, v0, v1) in boxes {
         let p = &prims[pi];
         for v in v0..v1 {
@@ -297,8 +353,7 @@ fn shade_pixels(
     raster: &Raster,
     lights: &Lights,
 ) -> (Vec<[f32; 3]>, Vec<f32>) {
-    let w = IMG_W as usize;
-    let h = IMG_H as usize;
+    let (w, h) = (view.grid.w, view.grid.h);
     let n = w * h;
     let light = lights.light;
     let mut lin = vec![[0f32; 3]; n];
@@ -375,8 +430,8 @@ fn shade_hit(
 
 /// Rain: wet-road reflections (mirror about the horizon row).
 fn rain_reflections(view: &View, hit: &[Hit], lin: &mut [[f32; 3]]) {
-    let w = IMG_W as usize;
-    let h = IMG_H as usize;
+    let (w, h) = (view.grid.w, view.grid.h);
+    let s = view.grid.scale;
     let (cx, cy, cz) = (view.cx, view.cy, view.cz);
     let src = lin.to_vec();
     for v in 0..h {
@@ -384,9 +439,9 @@ fn rain_reflections(view: &View, hit: &[Hit], lin: &mut [[f32; 3]]) {
             let i = v * w + u;
             if let Hit::Ground(Ground::Road | Ground::Marking) = hit[i] {
                 // Horizon row in this column: d.z = 0.
-                let xu = (u as f64 + 0.5 - CAM_CX) / CAM_FX;
+                let xu = ((u as f64 + 0.5) * s - CAM_CX) / CAM_FX;
                 let yv = -(cx.z * xu + cz.z) / cy.z;
-                let vh = yv * CAM_FY + CAM_CY;
+                let vh = (yv * CAM_FY + CAM_CY) / s;
                 let vm = (2.0 * vh - v as f64).round();
                 if vm >= 0.0 && (vm as usize) < h {
                     let j = vm as usize * w + u;
@@ -400,14 +455,13 @@ fn rain_reflections(view: &View, hit: &[Hit], lin: &mut [[f32; 3]]) {
     }
 }
 
-/// Rain: 900 light streaks.
-fn rain_streaks(rng: &mut Rng, lin: &mut [[f32; 3]]) {
-    let w = IMG_W as usize;
-    let h = IMG_H as usize;
+/// Rain: 900 light streaks (their lengths in grid cells).
+fn rain_streaks(rng: &mut Rng, lin: &mut [[f32; 3]], grid: Grid) {
+    let (w, h) = (grid.w, grid.h);
     for _ in 0..900 {
         let x0 = rng.range(0.0, w as f64);
         let y0 = rng.range(0.0, h as f64);
-        let len = rng.range(15.0, 60.0);
+        let len = rng.range(15.0, 60.0) / grid.scale;
         let slant = rng.range(0.12, 0.22);
         let a = rng.range(0.05, 0.14) as f32;
         let steps = len as usize;
@@ -749,6 +803,32 @@ fn add_spec(c: [f64; 3], gloss: f64, l: &Light, n: DVec3, view: DVec3, rain: boo
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_coarse_render_fills_each_cell_and_scale_one_is_the_full_render() {
+        let world = World::build(3, 0, Weather::Day, 4.0);
+        let full = render(&world, 1.0, 9);
+        assert!(full.rgb == render_scaled(&world, 1.0, 9, 1).rgb);
+        let coarse = render_scaled(&world, 1.0, 9, 2);
+        let (w, h) = (IMG_W as usize, IMG_H as usize);
+        assert_eq!((coarse.rgb.len(), coarse.depth_m.len()), (w * h * 3, w * h));
+        for y in (0..h).step_by(2) {
+            for x in (0..w).step_by(2) {
+                let px = |dx: usize, dy: usize| {
+                    let i = (y + dy) * w + x + dx;
+                    (&coarse.rgb[3 * i..3 * i + 3], coarse.depth_m[i].to_bits())
+                };
+                assert!(px(1, 0) == px(0, 0) && px(0, 1) == px(0, 0) && px(1, 1) == px(0, 0));
+            }
+        }
+        // The same scene: mean depth of the valid pixels within 2 %.
+        let mean = |d: &[f32]| {
+            let v: Vec<f64> = d.iter().filter(|x| **x > 0.0).map(|x| *x as f64).collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        let (a, b) = (mean(&full.depth_m), mean(&coarse.depth_m));
+        assert!((a - b).abs() < 0.02 * a, "{a} vs {b}");
+    }
 
     #[test]
     fn pixel_ray_depth_is_camera_z() {

@@ -40,9 +40,16 @@ fn q_wxyz(q: DQuat) -> [f64; 4] {
 
 #[derive(Debug, Clone)]
 enum JobKind {
-    Cam { truth: String },
+    /// The truth depth map's path when written, and the camera's rays per pixel side.
+    Cam {
+        truth: Option<String>,
+        scale: u32,
+        jpeg_420: bool,
+    },
     Lidar,
-    Radar { mount: Mount },
+    Radar {
+        mount: Mount,
+    },
 }
 
 #[derive(Debug, Clone)]
@@ -167,7 +174,7 @@ fn generate_into(
 
     // Plan scenes.
     let plans = plan_scenes(seed, m, &weathers);
-    let tl = plan_frames(&mut tb, seed, &plans, &mounts);
+    let tl = plan_frames(&mut tb, cfg, &plans, &mounts);
 
     create_dirs(root, &mounts, &cfg.version_name)?;
     let outs_ok = render_frames(root, cfg, &tl.jobs, &plans, progress)?;
@@ -186,7 +193,10 @@ fn generate_into(
         keyframes: cfg.scenes * m,
         scenes: cfg.scenes,
         sample_data: tb.sample_data.len(),
-        files: tl.jobs.len() + m * cfg.scenes + 14 + crate::splits::SPLIT_NAMES.len(),
+        files: tl.jobs.len()
+            + if cfg.truth { m * cfg.scenes } else { 0 }
+            + 14
+            + crate::splits::SPLIT_NAMES.len(),
         bytes,
         version_dir: vdir,
         seconds: 0.0,
@@ -293,7 +303,13 @@ fn plan_scenes(seed: u64, m: usize, weathers: &[Weather]) -> Vec<ScenePlan> {
 }
 
 /// Every scene's table rows (log, scene, sample, calibrated_sensor) and frame timeline.
-fn plan_frames(tb: &mut Tables, seed: u64, plans: &[ScenePlan], mounts: &[Mount]) -> Timeline {
+fn plan_frames(
+    tb: &mut Tables,
+    cfg: &SynthConfig,
+    plans: &[ScenePlan],
+    mounts: &[Mount],
+) -> Timeline {
+    let seed = cfg.seed;
     let radar_mounts: Vec<Mount> = calib::RADAR_CHANNELS
         .iter()
         .map(|c| calib::radar(c))
@@ -303,10 +319,10 @@ fn plan_frames(tb: &mut Tables, seed: u64, plans: &[ScenePlan], mounts: &[Mount]
         let mut jr = Rng::stream(seed, &[hash_str("timing"), si as u64]);
         push_scene_tables(tb, seed, si, plan, mounts);
         let ids = SceneIds { seed, si };
-        tl.add_camera(&ids, plan, &mut jr);
-        tl.add_lidar(&ids, plan, &mut jr);
+        tl.add_camera(&ids, plan, &mut jr, cfg);
+        tl.add_lidar(&ids, plan, &mut jr, cfg.lidar_sweeps);
         for rm in &radar_mounts {
-            tl.add_radar(&ids, plan, rm, &mut jr);
+            tl.add_radar(&ids, plan, rm, &mut jr, cfg.radar_sweeps);
         }
     }
     tl
@@ -438,7 +454,7 @@ struct Timeline {
 
 impl Timeline {
     /// CAM_FRONT at the keyframes.
-    fn add_camera(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng) {
+    fn add_camera(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng, cfg: &SynthConfig) {
         let si = ids.si;
         let mut rows = Vec::new();
         for k in 0..plan.kf_t.len() {
@@ -451,7 +467,9 @@ impl Timeline {
             self.jobs.push(Job {
                 scene: si,
                 kind: JobKind::Cam {
-                    truth: format!("{TRUTH_DIR}/{tok}.png"),
+                    truth: cfg.truth.then(|| format!("{TRUTH_DIR}/{tok}.png")),
+                    scale: cfg.camera_scale.max(1),
+                    jpeg_420: cfg.jpeg_420,
                 },
                 t,
                 filename: format!(
@@ -466,8 +484,10 @@ impl Timeline {
         self.chans.push((si, calib::CAM_FRONT, rows));
     }
 
-    /// LIDAR_TOP at 20 Hz, keyframes every 10th sweep.
-    fn add_lidar(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng) {
+    /// LIDAR_TOP at 20 Hz, keyframes every 10th sweep; with `keep` = Some(K) only the keyframes
+    /// and the K sweeps on each side of them (the others' jitter is still drawn, so the sweeps
+    /// kept are those of the full world).
+    fn add_lidar(&mut self, ids: &SceneIds, plan: &ScenePlan, jr: &mut Rng, keep: Option<usize>) {
         let si = ids.si;
         let m = plan.kf_t.len();
         let kf_t0 = first_keyframe_t();
@@ -488,6 +508,21 @@ impl Timeline {
                         + jr.range(-0.0008, 0.0008)
                 }
             };
+            if let Some(k) = keep {
+                // Sweeps from the nearest keyframe sweep (index LIDAR_PAD + i·per).
+                let rel = j as i64 - LIDAR_PAD as i64;
+                let nearest = rel.clamp(0, ((m - 1) * per) as i64);
+                let off = (rel - nearest).unsigned_abs() as usize;
+                let inside = rel.rem_euclid(per as i64) as usize;
+                let dist = if rel == nearest {
+                    inside.min(per - inside)
+                } else {
+                    off
+                };
+                if dist > k {
+                    continue;
+                }
+            }
             let folder = if kf.is_some() { "samples" } else { "sweeps" };
             rows.push(ChanRow {
                 job: self.jobs.len(),
@@ -510,11 +545,33 @@ impl Timeline {
     }
 
     /// A radar at ≈13 Hz with its own phase; the sweep nearest each keyframe is the keyframe.
-    fn add_radar(&mut self, ids: &SceneIds, plan: &ScenePlan, rm: &Mount, jr: &mut Rng) {
+    /// With `keep` = Some(N), only the N sweeps up to each keyframe sweep are written.
+    fn add_radar(
+        &mut self,
+        ids: &SceneIds,
+        plan: &ScenePlan,
+        rm: &Mount,
+        jr: &mut Rng,
+        keep: Option<usize>,
+    ) {
         let si = ids.si;
         let (times, kf_of) = radar_times(plan, jr);
         let mut rows = Vec::new();
+        // For each sweep, how many sweeps on the next keyframe sweep is.
+        let mut to_next = vec![usize::MAX; times.len()];
+        let mut next: Option<usize> = None;
+        for j in (0..times.len()).rev() {
+            if kf_of[j].is_some() {
+                next = Some(j);
+            }
+            if let Some(n) = next {
+                to_next[j] = n - j;
+            }
+        }
         for (j, &t) in times.iter().enumerate() {
+            if keep.is_some_and(|n| to_next[j] >= n.max(1)) {
+                continue;
+            }
             let folder = if kf_of[j].is_some() {
                 "samples"
             } else {
@@ -890,7 +947,7 @@ fn write_splits(vdir: &Path, tb: &Tables, weathers: &[Weather]) -> Result<u64, S
 
 /// The marker file at the dataroot (the configuration).
 fn write_marker(root: &Path, cfg: &SynthConfig) -> Result<(), SynthError> {
-    let marker = serde_json::json!({
+    let mut marker = serde_json::json!({
         "generator": "depthsense synth",
         "version_name": cfg.version_name,
         "seed": cfg.seed,
@@ -899,6 +956,22 @@ fn write_marker(root: &Path, cfg: &SynthConfig) -> Result<(), SynthError> {
         "conditions": cfg.conditions.iter().map(|(w, p)| (format!("{w:?}").to_lowercase(), *p)).collect::<Vec<_>>(),
         "map_resolution_m": MAP_RES_M,
     });
+    // What a leaner world left out (absent for a full world, whose marker is unchanged).
+    if cfg.camera_scale > 1 {
+        marker["camera_scale"] = serde_json::json!(cfg.camera_scale);
+    }
+    if let Some(k) = cfg.lidar_sweeps {
+        marker["lidar_sweeps"] = serde_json::json!(k);
+    }
+    if !cfg.truth {
+        marker["truth"] = serde_json::json!(false);
+    }
+    if let Some(n) = cfg.radar_sweeps {
+        marker["radar_sweeps"] = serde_json::json!(n);
+    }
+    if cfg.jpeg_420 {
+        marker["jpeg"] = serde_json::json!("4:2:0");
+    }
     let p = root.join(MARKER_FILE);
     std::fs::write(
         &p,
@@ -910,23 +983,29 @@ fn write_marker(root: &Path, cfg: &SynthConfig) -> Result<(), SynthError> {
 fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> {
     let path = root.join(&job.filename);
     match &job.kind {
-        JobKind::Cam { truth } => {
-            let f = camera::render(world, job.t, job.salt);
-            let mut jpg = Vec::with_capacity(400_000);
-            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
-                .encode(&f.rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
+        JobKind::Cam {
+            truth,
+            scale,
+            jpeg_420,
+        } => {
+            let f = camera::render_scaled(world, job.t, job.salt, *scale);
+            let jpg = encode_jpeg(&f.rgb, *jpeg_420)
                 .map_err(|e| SynthError::Encode(format!("{}: {e}", job.filename)))?;
             std::fs::write(&path, &jpg).map_err(io_err(&path))?;
-            let png = encode_png(&DepthMap {
-                width: IMG_W,
-                height: IMG_H,
-                depth_m: f.depth_m,
-            })
-            .map_err(|e| SynthError::Encode(format!("{truth}: {e}")))?;
-            let tp = root.join(truth);
-            std::fs::write(&tp, &png).map_err(io_err(&tp))?;
+            let mut bytes = jpg.len() as u64;
+            if let Some(truth) = truth {
+                let png = encode_png(&DepthMap {
+                    width: IMG_W,
+                    height: IMG_H,
+                    depth_m: f.depth_m,
+                })
+                .map_err(|e| SynthError::Encode(format!("{truth}: {e}")))?;
+                let tp = root.join(truth);
+                std::fs::write(&tp, &png).map_err(io_err(&tp))?;
+                bytes += png.len() as u64;
+            }
             Ok(JobOut {
-                bytes: (jpg.len() + png.len()) as u64,
+                bytes,
                 counts: Vec::new(),
             })
         }
@@ -953,6 +1032,28 @@ fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> 
             })
         }
     }
+}
+
+/// CAM_FRONT as JPEG, quality 90: 4:4:4 by the `image` crate, or 4:2:0 (as nuScenes' images)
+/// by `jpeg-encoder`.
+fn encode_jpeg(rgb: &[u8], jpeg_420: bool) -> Result<Vec<u8>, String> {
+    let mut jpg = Vec::with_capacity(400_000);
+    if jpeg_420 {
+        let mut e = jpeg_encoder::Encoder::new(&mut jpg, 90);
+        e.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_0);
+        e.encode(
+            rgb,
+            IMG_W as u16,
+            IMG_H as u16,
+            jpeg_encoder::ColorType::Rgb,
+        )
+        .map_err(|e| e.to_string())?;
+    } else {
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+            .encode(rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
+            .map_err(|e| e.to_string())?;
+    }
+    Ok(jpg)
 }
 
 fn count_objs(it: impl Iterator<Item = u32>) -> Vec<(u32, u32)> {

@@ -163,6 +163,23 @@ impl Prim {
         (dx * dx + dy * dy).sqrt()
     }
 
+    /// The 8 corners of the primitive's own box: an oriented box's corners (tighter than its
+    /// axis-aligned bounds when it is turned), the bounds' corners for the other shapes. The
+    /// primitive lies in their convex hull.
+    pub fn hull_corners(&self) -> [DVec3; 8] {
+        let Shape::Box { c, h, cos, sin } = self.shape else {
+            return self.corners();
+        };
+        let mut out = [DVec3::ZERO; 8];
+        for (i, o) in out.iter_mut().enumerate() {
+            let sx = if i & 1 == 0 { -h.x } else { h.x };
+            let sy = if i & 2 == 0 { -h.y } else { h.y };
+            let sz = if i & 4 == 0 { -h.z } else { h.z };
+            *o = c + DVec3::new(cos * sx - sin * sy, sin * sx + cos * sy, sz);
+        }
+        out
+    }
+
     /// The 8 corners of the bounds.
     pub fn corners(&self) -> [DVec3; 8] {
         let (a, b) = (self.lo, self.hi);

@@ -69,6 +69,25 @@ pub struct SynthConfig {
     pub version_name: String,
     /// Worker threads (0 = all cores). Output does not depend on it.
     pub jobs: usize,
+    /// CAM_FRONT rays per pixel: 1 = one ray per pixel (default); 2 = one ray per 2×2 pixels,
+    /// its colour and depth filling them (4× fewer rays; the training frame, a 2×2 average of
+    /// the image, then equals that coarse render). `synth --camera-scale`.
+    pub camera_scale: u32,
+    /// LIDAR_TOP sweeps written: every 20 Hz sweep (None, default: nuScenes-complete), or the
+    /// keyframe sweeps and the K sweeps on each side of them (Some(K): what `prepare
+    /// --lidar-sweeps K` reads; the others are left out of the files and the tables, and the
+    /// sweeps kept are those of the full world). `synth --lidar-sweeps`.
+    pub lidar_sweeps: Option<usize>,
+    /// Write the exact camera depth of every camera frame (`truth/`, not a nuScenes file; used
+    /// by tests and the contact sheet). `synth --no-truth` leaves it out.
+    pub truth: bool,
+    /// Radar sweeps written per radar: every ≈13 Hz sweep (None, default), or only the N
+    /// sweeps up to each keyframe (Some(N): what `prepare --radar-sweeps N` reads).
+    pub radar_sweeps: Option<usize>,
+    /// Encode CAM_FRONT as 4:2:0 JPEG (as nuScenes' own images are) with the `jpeg-encoder`
+    /// crate, four times faster; default false: 4:4:4 by the `image` crate, the encoder of every
+    /// world made before this option.
+    pub jpeg_420: bool,
 }
 
 impl Default for SynthConfig {
@@ -84,6 +103,11 @@ impl Default for SynthConfig {
             ],
             version_name: "v1.0-synth".into(),
             jobs: 0,
+            camera_scale: 1,
+            lidar_sweeps: None,
+            truth: true,
+            radar_sweeps: None,
+            jpeg_420: false,
         }
     }
 }
@@ -96,6 +120,17 @@ impl SynthConfig {
             keyframes_per_scene: 10,
             ..SynthConfig::default()
         }
+    }
+
+    /// The lean world of the experiments (`synth --lean`): one camera ray per 2×2 pixels, the
+    /// lidar sweeps `prepare --lidar-sweeps 2` reads and the radar sweeps `prepare` reads by
+    /// default (5), no truth maps, 4:2:0 JPEG.
+    pub fn apply_lean(&mut self) {
+        self.camera_scale = 2;
+        self.lidar_sweeps = Some(2);
+        self.radar_sweeps = Some(5);
+        self.truth = false;
+        self.jpeg_420 = true;
     }
 
     /// Tiny, for tests: 3 scenes (day, night, rain) × 2 keyframes.

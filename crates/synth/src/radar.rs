@@ -149,9 +149,55 @@ struct RadarView {
     o: DVec3,
     r: DMat3,
     prims: Vec<Prim>,
+    /// Per primitive, the azimuths (rad, sensor frame) its hull spans; (−∞, ∞) when part of
+    /// it is not in front of the sensor. A ray of another azimuth cannot hit it.
+    az_spans: Vec<(f64, f64)>,
 }
 
 impl RadarView {
+    fn new(o: DVec3, r: DMat3, prims: Vec<Prim>) -> RadarView {
+        let rt = r.transpose();
+        let az_spans = prims
+            .iter()
+            .map(|p| {
+                let mut span = (f64::INFINITY, f64::NEG_INFINITY);
+                for c in p.hull_corners() {
+                    let l = rt * (c - o);
+                    if l.x <= 0.0 {
+                        return (f64::NEG_INFINITY, f64::INFINITY);
+                    }
+                    let az = l.y.atan2(l.x);
+                    span = (span.0.min(az), span.1.max(az));
+                }
+                // A margin far above rounding, far below the fan's steps.
+                (span.0 - 1e-6, span.1 + 1e-6)
+            })
+            .collect();
+        RadarView {
+            o,
+            r,
+            prims,
+            az_spans,
+        }
+    }
+
+    /// [`RadarView::nearest_hit`] for a ray of azimuth `az` (sensor frame): the primitives
+    /// whose azimuth span leaves it out are not tested (the same result, fewer tests).
+    fn nearest_hit_at(&self, d: DVec3, az: f64, max_r: f64) -> (f64, Option<u32>) {
+        let mut best = max_r;
+        let mut who = None;
+        for (p, &(lo, hi)) in self.prims.iter().zip(&self.az_spans) {
+            if az < lo || az > hi {
+                continue;
+            }
+            if let Some(tp) = p.intersect(self.o, d, 0.5, best) {
+                best = tp;
+                who = Some(p.obj);
+            }
+        }
+        (best, who)
+    }
+
     /// Nearest primitive hit along global direction `d` within `max_r`: (distance, object).
     fn nearest_hit(&self, d: DVec3, max_r: f64) -> (f64, Option<u32>) {
         let mut best = max_r;
@@ -174,7 +220,7 @@ impl RadarView {
                 let (se, ce) = el.to_radians().sin_cos();
                 let ds = DVec3::new(ce * az.cos(), ce * az.sin(), se);
                 let d = self.r * ds;
-                let (best, who) = self.nearest_hit(d, max_r);
+                let (best, who) = self.nearest_hit_at(d, az, max_r);
                 if let Some(obj) = who {
                     // Range in the horizontal plane (the radar reports no elevation).
                     hits.entry(obj).or_default().push((best * ce, az));
@@ -244,7 +290,7 @@ pub fn scan(world: &World, m: &Mount, t: f64, salt: u64) -> RadarSweep {
         .into_iter()
         .filter(|p| p.corners().iter().any(|c| (rt * (*c - o)).x > 0.0))
         .collect();
-    let view = RadarView { o, r, prims };
+    let view = RadarView::new(o, r, prims);
     let (ego_v, ego_w) = world.ego_motion(t);
     let (ep, _) = world.ego_pose(t);
     // Velocity of the sensor: ego velocity + ω × lever arm.

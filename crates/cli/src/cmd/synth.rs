@@ -45,6 +45,31 @@ pub struct Args {
     /// non-empty folder is always refused).
     #[arg(long)]
     force: bool,
+    /// CAM_FRONT rays per pixel side: 2 casts one ray per 2×2 pixels (4× fewer; the training
+    /// frame, a 2×2 average, then equals that coarse render). Default 1: every pixel.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    camera_scale: u32,
+    /// Write only the lidar keyframe sweeps and the K sweeps on each side of them (what
+    /// `prepare --lidar-sweeps K` reads) instead of every 20 Hz sweep.
+    #[arg(long, value_name = "K")]
+    lidar_sweeps: Option<usize>,
+    /// Leave out the exact camera depth maps (`truth/`: not a nuScenes file; the contact
+    /// sheet and some tests read it).
+    #[arg(long)]
+    no_truth: bool,
+    /// Write only the N radar sweeps up to each keyframe (what `prepare --radar-sweeps N`
+    /// reads) instead of every ≈13 Hz sweep.
+    #[arg(long, value_name = "N")]
+    radar_sweeps: Option<usize>,
+    /// Encode CAM_FRONT as 4:2:0 JPEG, as nuScenes' own images are (four times faster than the
+    /// default 4:4:4 encoder, which made every world so far).
+    #[arg(long)]
+    jpeg_420: bool,
+    /// The lean world of the experiments: --camera-scale 2 --lidar-sweeps 2 --radar-sweeps 5
+    /// --no-truth --jpeg-420 (what prepare reads with its defaults and --lidar-sweeps ≤ 2; about
+    /// three times faster; still devkit-loadable). docs/guide/prepare.md.
+    #[arg(long, conflicts_with_all = ["camera_scale", "lidar_sweeps", "no_truth", "radar_sweeps", "jpeg_420"])]
+    lean: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
@@ -105,6 +130,13 @@ fn synth_config(args: &Args) -> anyhow::Result<SynthConfig> {
     cfg.conditions = SynthConfig::parse_conditions(&args.conditions)?;
     cfg.version_name = args.version_name.clone();
     cfg.jobs = args.jobs;
+    if args.lean {
+        cfg.apply_lean();
+    } else {
+        (cfg.camera_scale, cfg.lidar_sweeps, cfg.truth) =
+            (args.camera_scale, args.lidar_sweeps, !args.no_truth);
+        (cfg.radar_sweeps, cfg.jpeg_420) = (args.radar_sweeps, args.jpeg_420);
+    }
     Ok(cfg)
 }
 
