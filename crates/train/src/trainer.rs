@@ -112,6 +112,17 @@ pub struct TrainOptions {
     /// in RUN/config.json. Absent from the JSON when false.
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub extend: bool,
+    /// Train on the first N training samples only, in a fixed order of the samples (a hash of
+    /// their tokens), so that the subsets of growing N are nested and every seed and variant
+    /// sees the same ones (`experiment data-scale`). Validation and test are unchanged.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_subset: Option<usize>,
+    /// Each epoch is this many iterations, drawn from consecutive passes over the training
+    /// samples (each pass a fresh shuffle), whatever their number: so runs on 100 or 3,000
+    /// images take the same iterations and validate as often (`experiment data-scale`). None:
+    /// an epoch is one pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epoch_iterations: Option<u64>,
 }
 
 /// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
@@ -152,6 +163,8 @@ impl Default for TrainOptions {
             force: false,
             init_from: None,
             extend: false,
+            train_subset: None,
+            epoch_iterations: None,
         }
     }
 }

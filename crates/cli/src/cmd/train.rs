@@ -119,6 +119,16 @@ pub struct Args {
     /// "Reduced training data"). Validation and test scenes are unchanged.
     #[arg(long, value_delimiter = ',', value_name = "CONDITION=FRACTION")]
     pub exclude: Vec<String>,
+    /// Train on the first N training samples only, in a fixed order of the samples (nested for
+    /// growing N, the same for every seed): training-set size experiments. Validation and test
+    /// scenes are unchanged.
+    #[arg(long, value_name = "N")]
+    pub train_subset: Option<usize>,
+    /// Make each epoch N iterations drawn from consecutive passes over the training samples
+    /// (each pass a fresh shuffle), whatever their number: runs on 100 or 3,000 images then take
+    /// --epochs × N iterations and validate every N. Default: an epoch is one pass.
+    #[arg(long, value_name = "N")]
+    pub epoch_iterations: Option<u64>,
     /// Validate on at most this many validation samples (evenly spaced).
     #[arg(long)]
     pub max_val_samples: Option<usize>,

@@ -456,12 +456,20 @@ impl<'o> Trainer<'o> {
     ) -> Result<EpochEnd<ValRecord>, TrainError> {
         let opts = self.opts;
         let skip = (self.state.iteration - epoch * self.bpe) as usize;
+        // An epoch of `epoch_iterations` draws its samples from the stream of passes itself.
+        let (entries, shuffle) = match opts.epoch_iterations {
+            Some(block) => (
+                block_entries(&self.part.train, opts.seed, epoch, block, opts.batch_size),
+                false,
+            ),
+            None => (self.part.train.clone(), true),
+        };
         let plan = EpochPlan {
-            entries: self.part.train.clone(),
+            drop_last: entries.len() / opts.batch_size > 0,
+            entries,
             batch_size: opts.batch_size,
             epoch,
-            shuffle: true,
-            drop_last: self.part.train.len() / opts.batch_size > 0,
+            shuffle,
             skip_batches: skip,
             jobs: opts.jobs,
             prefetch: opts.prefetch,
@@ -630,6 +638,9 @@ impl Learner for Trainer<'_> {
 /// Iterations per epoch: full batches of the training samples (at least one), at most
 /// `--max-batches-per-epoch`.
 fn batches_per_epoch(opts: &TrainOptions, train_samples: usize) -> u64 {
+    if let Some(n) = opts.epoch_iterations {
+        return n.max(1);
+    }
     let full_batches = train_samples / opts.batch_size;
     let natural = if full_batches > 0 { full_batches } else { 1 };
     opts.max_batches_per_epoch
@@ -666,8 +677,59 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainErro
     let ds = Dataset::open(&opts.data)?;
     let mut part = partition(&ds, opts.val_every_scene)?;
     depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
+    if let Some(n) = opts.train_subset {
+        if n > part.train.len() {
+            return Err(TrainError::Config(format!(
+                "--train-subset {n}: {} holds only {} training samples",
+                opts.data.display(),
+                part.train.len()
+            )));
+        }
+        part.train = training_subset(&part.train, n);
+    }
     part.require_train_and_val(&opts.data)?;
     Ok((ds, part))
+}
+
+/// The first `n` of `train` in a fixed order (SplitMix64 of each sample token's FNV-1a hash):
+/// nested for growing `n`, the same for every seed and variant; returned in `train`'s order.
+pub fn training_subset(train: &[IndexEntry], n: usize) -> Vec<IndexEntry> {
+    let key = |e: &IndexEntry| {
+        mix64(depthsense_nuscenes::hash::fnv1a64(
+            e.sample_token.as_bytes(),
+        ))
+    };
+    let mut order: Vec<usize> = (0..train.len()).collect();
+    order.sort_by_key(|&i| (key(&train[i]), i));
+    let mut keep: Vec<usize> = order.into_iter().take(n).collect();
+    keep.sort_unstable();
+    keep.into_iter().map(|i| train[i].clone()).collect()
+}
+
+/// The training samples of epoch `epoch` when epochs are `block` iterations of `batch` samples
+/// (`epoch_iterations`): positions `epoch·block·batch ..` of the stream of passes over
+/// `train`, each pass in the loader's shuffled order of that pass.
+fn block_entries(
+    train: &[IndexEntry],
+    seed: u64,
+    epoch: u64,
+    block: u64,
+    batch: usize,
+) -> Vec<IndexEntry> {
+    let n = train.len().max(1);
+    let len = block as usize * batch;
+    let start = epoch as usize * len;
+    let mut out = Vec::with_capacity(len);
+    let mut pass = usize::MAX;
+    let mut order = vec![];
+    for s in start..start + len {
+        if s / n != pass {
+            pass = s / n;
+            order = depthsense_data::epoch_order(n, seed, pass as u64, true);
+        }
+        out.push(train[order[s % n]].clone());
+    }
+    out
 }
 
 /// What the training loader reads and how (SPEC §8 augmentation, `--train-radar-drop`).
@@ -935,4 +997,62 @@ pub fn removing_new_folder_on_failure<T>(
         let _ = std::fs::remove_dir_all(out);
     }
     result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entries(n: usize) -> Vec<IndexEntry> {
+        (0..n)
+            .map(|i| IndexEntry {
+                sample_token: format!("{i:032x}"),
+                scene_token: String::new(),
+                scene_name: String::new(),
+                splits: vec!["train".into()],
+                conditions: vec![],
+                dir: format!("{i:032x}"),
+            })
+            .collect()
+    }
+
+    #[test]
+    fn training_subsets_are_nested_and_keep_the_partition_order() {
+        let all = entries(50);
+        let small = training_subset(&all, 10);
+        let large = training_subset(&all, 30);
+        assert_eq!((small.len(), large.len()), (10, 30));
+        assert!(small.iter().all(|e| large.contains(e)), "nested");
+        let pos = |e: &IndexEntry| all.iter().position(|x| x == e).unwrap();
+        assert!(
+            large.windows(2).all(|w| pos(&w[0]) < pos(&w[1])),
+            "in order"
+        );
+        assert_ne!(small, all[..10].to_vec(), "not simply the first ten");
+        assert_eq!(training_subset(&all, 50), all);
+    }
+
+    #[test]
+    fn block_epochs_walk_consecutive_passes() {
+        let train = entries(10);
+        // 3 iterations of batch 4 per epoch: epochs 0..5 cover 60 draws = 6 passes.
+        let stream: Vec<IndexEntry> = (0..5)
+            .flat_map(|e| block_entries(&train, 7, e, 3, 4))
+            .collect();
+        assert_eq!(stream.len(), 60);
+        for (p, pass) in stream.chunks(10).enumerate() {
+            let mut tokens: Vec<&str> = pass.iter().map(|e| e.sample_token.as_str()).collect();
+            let order = depthsense_data::epoch_order(10, 7, p as u64, true);
+            assert_eq!(
+                tokens,
+                order
+                    .iter()
+                    .map(|&i| train[i].sample_token.as_str())
+                    .collect::<Vec<_>>()
+            );
+            tokens.sort();
+            tokens.dedup();
+            assert_eq!(tokens.len(), 10, "pass {p} sees every sample once");
+        }
+    }
 }

@@ -128,6 +128,8 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         force: a.force,
         init_from: a.init_from,
         extend: a.extend,
+        train_subset: a.train_subset,
+        epoch_iterations: a.epoch_iterations,
         jobs: a.jobs,
         prefetch: a.prefetch,
         radar_input: a
