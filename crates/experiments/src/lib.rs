@@ -9,6 +9,7 @@
 
 pub mod ablation;
 pub mod cost;
+pub mod data_scale;
 pub mod demo;
 pub mod failure;
 pub mod paired;

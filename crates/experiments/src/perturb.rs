@@ -223,6 +223,8 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
             x_label: "rotation (degrees, random sign)",
             y_label: "RMSE (m)",
             series: &rot,
+            error_bars: &[],
+            log10_x: false,
         });
     }
     if !tr.is_empty() {
@@ -231,6 +233,8 @@ fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
             x_label: "translation (m, random sign)",
             y_label: "RMSE (m)",
             series: &tr,
+            error_bars: &[],
+            log10_x: false,
         });
     }
     Ok(depthsense_viz::plot::line_charts_png(&panels)?)

@@ -139,7 +139,7 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
     // sections of their own.
     let summarises_runs = d.sections[before..]
         .iter()
-        .any(|s| matches!(s.kind, Kind::Ablation | Kind::ReducedData));
+        .any(|s| matches!(s.kind, Kind::Ablation | Kind::ReducedData | Kind::DataScale));
     if summarises_runs {
         return vec![];
     }

@@ -4,6 +4,7 @@
 //! coverage report and the demo's report folder.
 //!
 //! Outputs are recognised by their file names (`ablation.json`, `reduced_data.json`,
+//! `data_scale.json`,
 //! `failure.json`, `perturb.json`, `cost.json`, `explain.json`, `tables.json`) or, for the MER
 //! report (`mer report --json FILE`, any name), by its JSON fields; the demo's `OUT/report/` by
 //! its `summary.json` (its README, tables, curves and every sample row). Each becomes one section:
@@ -73,6 +74,7 @@ pub enum Kind {
     Models,
     Ablation,
     ReducedData,
+    DataScale,
     Failure,
     Perturb,
     Cost,
@@ -87,11 +89,12 @@ pub enum Kind {
 }
 
 impl Kind {
-    pub const ALL: [Kind; 12] = [
+    pub const ALL: [Kind; 13] = [
         Kind::Models,
         Kind::Demo,
         Kind::Ablation,
         Kind::ReducedData,
+        Kind::DataScale,
         Kind::Failure,
         Kind::Perturb,
         Kind::Cost,
@@ -108,6 +111,7 @@ impl Kind {
         Some(match self {
             Kind::Ablation => "ablation",
             Kind::ReducedData => "reduced_data",
+            Kind::DataScale => "data_scale",
             Kind::Failure => "failure",
             Kind::Perturb => "perturb",
             Kind::Cost => "cost",
@@ -122,6 +126,7 @@ impl Kind {
         match self {
             Kind::Ablation => "ablation",
             Kind::ReducedData => "reduced-data",
+            Kind::DataScale => "data-scale",
             Kind::Failure => "failure",
             Kind::Perturb => "perturb",
             Kind::Cost => "cost",
@@ -140,6 +145,7 @@ impl Kind {
         match self {
             Kind::Ablation => "Ablation: fusion variants and loss (SPEC §10.1, §10.4)",
             Kind::ReducedData => "Reduced training data (SPEC §10.5)",
+            Kind::DataScale => "Radar's margin against training-set size",
             Kind::Failure => "Sensor failure (SPEC §10.8)",
             Kind::Perturb => "Calibration perturbation (SPEC §10.7)",
             Kind::Cost => "Parameters, MACs, inference time (SPEC §10.9)",
@@ -158,6 +164,7 @@ impl Kind {
         match self {
             Kind::Ablation => "depthsense experiment ablation",
             Kind::ReducedData => "depthsense experiment reduced-data",
+            Kind::DataScale => "depthsense experiment data-scale",
             Kind::Failure => "depthsense experiment failure",
             Kind::Perturb => "depthsense experiment perturb",
             Kind::Cost => "depthsense experiment cost",

@@ -96,7 +96,7 @@ fn draw_line(
     let line = chart
         .draw_series(LineSeries::new(data.clone(), c.stroke_width(2)))
         .map_err(plot_err)?;
-    if text {
+    if text && !name.is_empty() {
         line.label(name)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c));
     }
@@ -668,15 +668,48 @@ pub struct LinePanel<'a> {
     pub x_label: &'a str,
     pub y_label: &'a str,
     pub series: &'a [(&'a str, Vec<(f64, f64)>)],
+    /// Per series (same order), per point: the half-height of a vertical error bar in the
+    /// series' colour (NaN: none). Empty: no error bars.
+    pub error_bars: &'a [Vec<f64>],
+    /// The x values are log10 of the quantity: ticks are labelled with 10^x.
+    pub log10_x: bool,
+}
+
+/// The (x, y − e, y + e) error bars of series `i` of a panel (finite ones only).
+fn error_bars(p: &LinePanel<'_>, i: usize) -> Vec<(f64, f64, f64)> {
+    let (Some((_, pts)), Some(errs)) = (p.series.get(i), p.error_bars.get(i)) else {
+        return vec![];
+    };
+    pts.iter()
+        .zip(errs)
+        .filter(|((x, y), e)| x.is_finite() && y.is_finite() && e.is_finite())
+        .map(|(&(x, y), &e)| (x, y - e.abs(), y + e.abs()))
+        .collect()
+}
+
+/// A tick label of a log10 axis: 10^x to 2 significant digits (2.0 → "100", 2.2 → "160").
+fn log10_tick(x: &f64) -> String {
+    let v = 10f64.powf(*x);
+    let k = v.log10().floor() as i32;
+    let unit = 10f64.powi(k - 1);
+    let r = (v / unit).round() * unit;
+    if k >= 1 {
+        format!("{r:.0}")
+    } else {
+        format!("{r:.prec$}", prec = (1 - k) as usize)
+    }
 }
 
 /// Axis ranges of a line panel: the finite points' extent (0..1 each when none, at least
-/// 1e-6 wide), y padded by 8 %.
+/// 1e-6 wide, error bars included), y padded by 8 %, x by 3 % when there are error bars.
 fn line_ranges(p: &LinePanel<'_>) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
-    let pts = p.series.iter().flat_map(|(_, s)| s.iter());
+    let pts = p.series.iter().flat_map(|(_, s)| s.iter().copied());
+    let bars = (0..p.series.len())
+        .flat_map(|i| error_bars(p, i))
+        .flat_map(|(x, lo, hi)| [(x, lo), (x, hi)]);
     let finite: Vec<(f64, f64)> = pts
+        .chain(bars)
         .filter(|(x, y)| x.is_finite() && y.is_finite())
-        .copied()
         .collect();
     let lo_hi = |f: fn(&(f64, f64)) -> f64| {
         finite
@@ -694,7 +727,13 @@ fn line_ranges(p: &LinePanel<'_>) -> (std::ops::Range<f64>, std::ops::Range<f64>
     x1 = x1.max(x0 + 1e-6);
     y1 = y1.max(y0 + 1e-6);
     let pad = (y1 - y0) * 0.08;
-    (x0..x1, (y0 - pad)..(y1 + pad))
+    // Error bars at the first and last x stay inside the plot.
+    let x_pad = if p.error_bars.is_empty() {
+        0.0
+    } else {
+        (x1 - x0) * 0.03
+    };
+    ((x0 - x_pad)..(x1 + x_pad), (y0 - pad)..(y1 + pad))
 }
 
 fn line_panel(area: &Area<'_>, p: &LinePanel<'_>, text: bool) -> Result<(), VizError> {
@@ -705,13 +744,30 @@ fn line_panel(area: &Area<'_>, p: &LinePanel<'_>, text: bool) -> Result<(), VizE
     let mut mesh = chart.configure_mesh();
     if text {
         mesh.x_desc(p.x_label).y_desc(p.y_label);
+        if p.log10_x {
+            mesh.x_label_formatter(&log10_tick);
+        }
     } else {
         mesh.x_labels(0).y_labels(0);
     }
     mesh.draw().map_err(plot_err)?;
+    let cap = (chart.x_range().end - chart.x_range().start) * 0.008;
     for (i, (name, s)) in p.series.iter().enumerate() {
         let data: Vec<(f64, f64)> = s.iter().filter(|(_, y)| y.is_finite()).copied().collect();
         draw_line(&mut chart, i, name, data, text, true)?;
+        let c = COLOURS[i % COLOURS.len()];
+        for (x, lo, hi) in error_bars(p, i) {
+            let segments = [
+                vec![(x, lo), (x, hi)],
+                vec![(x - cap, lo), (x + cap, lo)],
+                vec![(x - cap, hi), (x + cap, hi)],
+            ];
+            for seg in segments {
+                chart
+                    .draw_series(std::iter::once(PathElement::new(seg, c.stroke_width(2))))
+                    .map_err(plot_err)?;
+            }
+        }
     }
     if text {
         draw_legend(&mut chart, Some(SeriesLabelPosition::UpperLeft))?;
@@ -736,6 +792,32 @@ mod tests {
         assert_eq!(iteration_tick(&3.0), "3");
         assert_eq!(iteration_tick(&2.5), "");
         assert_eq!(iteration_tick(&350.0000001), "350");
+    }
+
+    #[test]
+    fn log10_ticks_and_error_bars() {
+        assert_eq!(log10_tick(&2.0), "100");
+        assert_eq!(log10_tick(&2.2), "160");
+        assert_eq!(log10_tick(&3.4771212547), "3000");
+        assert_eq!(log10_tick(&1.3), "20");
+        assert_eq!(log10_tick(&0.0), "1.0");
+        assert_eq!(log10_tick(&-1.0), "0.10");
+        let series = [("a", vec![(2.0, 1.0), (3.0, 2.0)])];
+        let errs = [vec![0.5, f64::NAN]];
+        let p = LinePanel {
+            title: "t",
+            x_label: "x",
+            y_label: "y",
+            series: &series,
+            error_bars: &errs,
+            log10_x: true,
+        };
+        assert_eq!(error_bars(&p, 0), vec![(2.0, 0.5, 1.5)]);
+        // the y range holds the bars: 0.5 .. 2.0, padded 8 %
+        let (_, ys) = line_ranges(&p);
+        assert!((ys.start - (0.5 - 0.12)).abs() < 1e-9 && (ys.end - 2.12).abs() < 1e-9);
+        let png = line_charts_png(&[p]).unwrap();
+        assert_eq!(image::load_from_memory(&png).unwrap().width(), 520);
     }
 
     #[test]

@@ -9,6 +9,10 @@ use std::path::PathBuf;
 /// rain (our reading of SPEC §10.5; the paper's exact fractions are not in the SPEC).
 pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
 
+/// The default training-set sizes of `experiment data-scale` (≈ 100, 300, 1,000 and ≥ 3,000
+/// distinct training images).
+pub const DEFAULT_SIZES: &str = "100,300,1000,3000";
+
 /// The default scenarios of `experiment failure`.
 pub const DEFAULT_SCENARIOS: &str =
     "none;radar-drop=0.5;radar-drop=1;drop-radars=all;beyond=50;beyond=30;beyond=15;clutter=10;clutter=50";
@@ -31,6 +35,12 @@ pub enum Experiment {
     /// run on the same test scenes, table the test metrics per test condition:
     /// OUT/reduced_data.{md,csv,json,png}. Resumable like `ablation`.
     ReducedData(ReducedDataArgs),
+    /// Radar's margin against training-set size at matched compute: each arm (rgb, late-sam,
+    /// …) trains on N distinct training samples for each size — nested subsets, the same for
+    /// every seed — with the same number of iterations at every N, selected on the same
+    /// validation scenes, tested on the same test scenes; the margin over the first arm is
+    /// paired over seeds per N: OUT/data_scale.{md,csv,json,png}. Resumable like `ablation`.
+    DataScale(DataScaleArgs),
     /// Sensor failure (SPEC §10.8): one checkpoint evaluated under failure scenarios (random
     /// point drop, whole radars absent, returns beyond a range absent, clutter added):
     /// OUT/failure.{md,csv,json,png}.
@@ -142,6 +152,36 @@ pub struct ReducedDataArgs {
     /// Number of seeds: 0, 1, …, N−1.
     #[arg(long, default_value_t = 1)]
     pub seeds: u64,
+}
+
+#[derive(clap::Args)]
+pub struct DataScaleArgs {
+    #[command(flatten)]
+    pub run: RunArgs,
+    /// Output directory: runs/n<N>/<arm>/seed<k>/ and data_scale.{md,csv,json,png}.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training-set sizes N (distinct training samples), comma separated; the largest must
+    /// not exceed the training samples of --data.
+    #[arg(long, value_delimiter = ',', default_value = DEFAULT_SIZES)]
+    pub sizes: Vec<usize>,
+    /// Arms trained at every size, comma separated: an ablation variant (rgb, early, late,
+    /// late-sam, l1, l2, late-sam-mer), optionally with model options joined by `+`
+    /// (`late-sam+radar-skip=8`). The first is the baseline of the margins.
+    #[arg(long, value_delimiter = ',', default_value = "rgb,late-sam")]
+    pub arms: Vec<String>,
+    /// Arms trained at the largest size only (same form as --arms), e.g.
+    /// `late-sam+radar-skip=8,late-sam-mer`.
+    #[arg(long, value_delimiter = ',')]
+    pub at_largest: Vec<String>,
+    /// Number of seeds: 0, 1, …, N−1.
+    #[arg(long, default_value_t = 5)]
+    pub seeds: u64,
+    /// Training iterations of every run (the same at every size), rounded up to a multiple
+    /// of --epochs (the validations). Default: the fewest that show the largest size each
+    /// image once, ⌈N_max / batch⌉; fewer are refused.
+    #[arg(long)]
+    pub iterations: Option<u64>,
 }
 
 #[derive(clap::Args)]

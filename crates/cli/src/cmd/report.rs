@@ -10,8 +10,8 @@ use depthsense_report::{build_report, ReportOptions};
 #[derive(clap::Args)]
 pub struct Args {
     /// Folders searched, recursively, for experiment outputs: ablation.json, reduced_data.json,
-    /// failure.json, perturb.json, cost.json, explain.json, tables.json (eval) and MER
-    /// reports (`mer report --json`), each with its .md/.csv/.png beside it.
+    /// data_scale.json, failure.json, perturb.json, cost.json, explain.json, tables.json (eval)
+    /// and MER reports (`mer report --json`), each with its .md/.csv/.png beside it.
     #[arg(long, required = true, num_args = 1.., value_name = "DIR")]
     pub runs: Vec<PathBuf>,
     /// Output folder: report.html (self-contained), report.md with img/, report.json. A report

@@ -1,7 +1,8 @@
 //! `depthsense experiment …`: SPEC §10 experiments built from training runs. (the network side; its flags: `depthsense_cli::cmd::experiment`).
 
 use depthsense_cli::cmd::experiment::{
-    AblationArgs, Args, CostArgs, Experiment, FailureArgs, PerturbArgs, ReducedDataArgs, RunArgs,
+    AblationArgs, Args, CostArgs, DataScaleArgs, Experiment, FailureArgs, PerturbArgs,
+    ReducedDataArgs, RunArgs,
 };
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_experiments::ablation::{
@@ -17,6 +18,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     match a.command {
         Experiment::Ablation(a) => ablation(a),
         Experiment::ReducedData(a) => reduced_data(a),
+        Experiment::DataScale(a) => data_scale(a),
         Experiment::Failure(a) => failure(a),
         Experiment::Perturb(a) => perturb(a),
         Experiment::Cost(a) => cost(a),
@@ -87,6 +89,30 @@ fn reduced_data(a: ReducedDataArgs) -> anyhow::Result<ExitCode> {
     let r = run_reduced_data(&opts, &Board::new(16))?;
     let md = std::fs::read_to_string(opts.out.join(MD_FILE))?;
     println!("{md}");
+    eprintln!("{} runs in {:.1} s", r.runs.len(), r.total_seconds);
+    Ok(ExitCode::SUCCESS)
+}
+
+fn data_scale(a: DataScaleArgs) -> anyhow::Result<ExitCode> {
+    use depthsense_experiments::data_scale::{run_data_scale, Arm, DataScaleOptions, MD_FILE};
+    let arms = |v: &[String]| -> anyhow::Result<Vec<Arm>> {
+        Ok(v.iter()
+            .map(|s| s.parse::<Arm>())
+            .collect::<Result<_, _>>()?)
+    };
+    let opts = DataScaleOptions {
+        run: run_settings(a.run),
+        out: a.out,
+        sizes: a.sizes,
+        arms: arms(&a.arms)?,
+        at_largest: arms(&a.at_largest)?,
+        seeds: (0..a.seeds).collect(),
+        iterations: a.iterations,
+        eval: EvalConfig::default(),
+        command_line: command_line(),
+    };
+    let r = run_data_scale(&opts, &Board::new(16))?;
+    println!("{}", std::fs::read_to_string(opts.out.join(MD_FILE))?);
     eprintln!("{} runs in {:.1} s", r.runs.len(), r.total_seconds);
     Ok(ExitCode::SUCCESS)
 }
