@@ -17,7 +17,7 @@ use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};
 use depthsense_train::trainer::{
-    evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
+    radar_input_for, train, validate_net, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
 };
 use serde::{Deserialize, Serialize};
 
@@ -532,7 +532,7 @@ fn test_best(
     pb.set_length(test.len() as u64);
     pb.set_position(0);
     pb.set_message("test evaluation");
-    evaluate_net(
+    validate_net(
         &loaded.net,
         ds,
         test,
@@ -542,6 +542,5 @@ fn test_best(
         topts.jobs,
         device,
         pb,
-        |_, _| Ok(()),
     )
 }

@@ -206,6 +206,22 @@ impl DepthNet {
         }
     }
 
+    /// [`DepthNet::decode`] at the pixels of `at` only (its grid `(B, out_height, out_width)`):
+    /// depth `[N]` in metres, float — the scorer reads nothing else, so validation need not
+    /// build the full-resolution `[B,K,H,W]` ordinal tensor. Equal to gathering `decode` at
+    /// those pixels up to float rounding of the interpolation ([`ordinal::upsample_at`]).
+    pub fn decode_at(&self, out: &Tensor, at: &ordinal::SparseTarget) -> Tensor {
+        let ac = self.cfg.align_corners;
+        match self.cfg.head {
+            HeadKind::Ordinal => ordinal::ordinal_decode_at(out, at, &self.cfg.sid, ac),
+            HeadKind::L1 | HeadKind::L2 => (ordinal::upsample_at(out, at, ac)
+                .squeeze_dim(1)
+                .to_kind(Kind::Float)
+                - self.cfg.sid.decode_offset_m)
+                .clamp_min(0.0),
+        }
+    }
+
     /// Resolution of the head output for an input of `height`×`width`.
     pub fn head_resolution(&self, height: i64, width: i64) -> (i64, i64) {
         let mut rows = MacRows::new();

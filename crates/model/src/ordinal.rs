@@ -141,9 +141,11 @@ pub fn ordinal_loss_at(
     sid_cfg: &SidConfig,
     align_corners: bool,
 ) -> Tensor {
-    let (b, k, h, w) = z.size4().expect("ordinal_loss: z must be [B,K,h,w]");
-    let (tb, th, tw) = target.shape;
-    assert_eq!(b, tb, "ordinal_loss: batch of z and target differ");
+    let (b, k, _, _) = z.size4().expect("ordinal_loss: z must be [B,K,h,w]");
+    assert_eq!(
+        b, target.shape.0,
+        "ordinal_loss: batch of z and target differ"
+    );
     let z = if z.kind() == Kind::Double {
         z.shallow_clone()
     } else {
@@ -153,28 +155,53 @@ pub fn ordinal_loss_at(
     if n == 0 {
         return z.sum(z.kind()) * 0.0;
     }
-    let idx = &target.index;
+    let zp = upsample_at(&z, target, align_corners); // [N,K]
+    let label = sid::labels(sid_cfg, &target.depth_m).unsqueeze(1); // [N,1]
+    let ks = Tensor::arange(k, (Kind::Int64, z.device())).unsqueeze(0);
+    let y = ks.lt_tensor(&label).to_kind(z.kind()); // [N,K]
+    (zp.softplus() - y * &zp).sum(z.kind()) / n as f64
+}
+
+/// Bilinear upsampling of `x` `[B,C,h,w]` to the `(B, H, W)` grid of `at`, evaluated at its
+/// pixels only: `[N,C]` (x's kind), row n = `upsample(x)[b_n, :, y_n, x_n]` with the four taps
+/// and weights `upsample_bilinear2d` uses (equal to it up to float rounding; the identity when
+/// h×w = H×W). A fraction of the dense upsampling's time and memory when the pixels are few.
+pub fn upsample_at(x: &Tensor, at: &SparseTarget, align_corners: bool) -> Tensor {
+    let (b, c, h, w) = x.size4().expect("upsample_at: x must be [B,C,h,w]");
+    let (tb, th, tw) = at.shape;
+    assert_eq!(b, tb, "upsample_at: batch of x and the pixels differ");
+    let idx = &at.index;
     let bi = idx.divide_scalar_mode(th * tw, "floor");
     let rem = idx.remainder(th * tw);
     let yi = rem.divide_scalar_mode(tw, "floor");
     let xi = rem.remainder(tw);
     let (y0, y1, wy) = taps(&yi, th, h, align_corners);
     let (x0, x1, wx) = taps(&xi, tw, w, align_corners);
-    let rows = z.permute([0, 2, 3, 1]).reshape([b * h * w, k]); // [B·h·w, K]
+    let rows = x.permute([0, 2, 3, 1]).reshape([b * h * w, c]); // [B·h·w, C]
     let base = &bi * (h * w);
     let tap = |yy: &Tensor, xx: &Tensor| rows.index_select(0, &(&base + yy * w + xx));
     let (wy, wx) = (
-        wy.to_kind(z.kind()).unsqueeze(1),
-        wx.to_kind(z.kind()).unsqueeze(1),
+        wy.to_kind(x.kind()).unsqueeze(1),
+        wx.to_kind(x.kind()).unsqueeze(1),
     );
     let (vy, vx): (Tensor, Tensor) = (1.0 - &wy, 1.0 - &wx);
     let top: Tensor = tap(&y0, &x0) * &vx + tap(&y0, &x1) * &wx;
     let bottom: Tensor = tap(&y1, &x0) * &vx + tap(&y1, &x1) * &wx;
-    let zp: Tensor = top * vy + bottom * wy; // [N,K]
-    let label = sid::labels(sid_cfg, &target.depth_m).unsqueeze(1); // [N,1]
-    let ks = Tensor::arange(k, (Kind::Int64, z.device())).unsqueeze(0);
-    let y = ks.lt_tensor(&label).to_kind(z.kind()); // [N,K]
-    (zp.softplus() - y * &zp).sum(z.kind()) / n as f64
+    top * vy + bottom * wy
+}
+
+/// [`ordinal_decode`] at the pixels of `at` only: depth `[N]` in metres (float), level
+/// Σ_k [z_k ≥ 0] of the bilinearly interpolated differences ([`upsample_at`]).
+pub fn ordinal_decode_at(
+    z: &Tensor,
+    at: &SparseTarget,
+    sid_cfg: &SidConfig,
+    align_corners: bool,
+) -> Tensor {
+    let levels = upsample_at(z, at, align_corners)
+        .ge(0.0)
+        .sum_dim_intlist(1, false, Kind::Int64);
+    sid::levels_to_depth(sid_cfg, &levels)
 }
 
 /// Source taps of bilinear upsampling from `inp` to `out` samples along one axis for the
@@ -333,6 +360,45 @@ mod tests {
             if valid == 0.0 {
                 assert_eq!(at, 0.0);
             }
+        }
+    }
+
+    #[test]
+    fn decode_at_equals_the_dense_decode_at_those_pixels() {
+        let s = SidConfig::default();
+        // upsampled 6x9 → 23x41 (both corner conventions), and the identity (23x41)
+        for (h, w, align) in [(6, 9, false), (6, 9, true), (23, 41, false)] {
+            let z = tch::Tensor::randn([2, 80, h, w], (Kind::Float, Device::Cpu)) * 3.0;
+            let t = target(2, 23, 41, 0.3);
+            let host: Vec<f32> = Vec::try_from(t.reshape([-1])).unwrap();
+            let at = SparseTarget::from_host(&host, (2, 23, 41), Device::Cpu);
+            let sparse: Vec<f32> = Vec::try_from(ordinal_decode_at(&z, &at, &s, align)).unwrap();
+            let dense: Vec<f32> =
+                Vec::try_from(ordinal_decode(&z, &s, 23, 41, align).reshape([-1])).unwrap();
+            let gathered: Vec<f32> = host
+                .iter()
+                .zip(&dense)
+                .filter(|(d, _)| **d > 0.0)
+                .map(|(_, p)| *p)
+                .collect();
+            assert_eq!(sparse.len(), gathered.len());
+            // Interpolation rounding may move a z_k that is ~0 across 0: one bin at most, rarely.
+            let differ = sparse.iter().zip(&gathered).filter(|(a, b)| a != b).count();
+            assert!(
+                differ * 1000 <= sparse.len(),
+                "{differ} of {} differ",
+                sparse.len()
+            );
+            if (h, w) == (23, 41) {
+                assert_eq!(sparse, gathered, "the identity is exact");
+            }
+            let zv = upsample_at(&z, &at, align);
+            let zd = upsample(&z, 23, 41, align)
+                .permute([0, 2, 3, 1])
+                .reshape([-1, 80]);
+            let zd = zd.index_select(0, &at.index);
+            let max = (zv - zd).abs().max().double_value(&[]);
+            assert!(max < 1e-5, "interpolated values differ by {max}");
         }
     }
 

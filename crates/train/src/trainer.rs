@@ -21,7 +21,7 @@ use tch::nn::VarStore;
 use crate::error::TrainError;
 
 mod session;
-pub use crate::validate::evaluate_net;
+pub use crate::validate::{evaluate_net, validate_net};
 pub use session::{removing_new_folder_on_failure, train, train_distributed, Trainer};
 
 pub use crate::metrics_log::{

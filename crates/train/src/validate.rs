@@ -3,10 +3,11 @@
 
 use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader, TargetKind};
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
+use depthsense_model::ordinal::SparseTarget;
 use depthsense_model::DepthNet;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
-use tch::{Device, Kind};
+use tch::{Device, Kind, Tensor};
 
 use crate::error::TrainError;
 use crate::upload::upload_inputs;
@@ -25,31 +26,109 @@ pub fn evaluate_net(
     jobs: usize,
     device: Device,
     progress: &Progress,
+    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
+) -> Result<Report, TrainError> {
+    let run = RunPlan {
+        batch_size,
+        jobs,
+        device,
+    };
+    score_net(
+        net,
+        ds,
+        entries,
+        load,
+        eval_cfg,
+        &run,
+        Decode::Every,
+        progress,
+        on_batch,
+    )
+}
+
+/// [`evaluate_net`] decoding the depth only at the pixels the scorer reads (valid ground
+/// truth, [`DepthNet::decode_at`]): the same report up to float rounding of the bilinear
+/// interpolation (tested), without the full-resolution `[B,K,H,W]` ordinal tensor — the
+/// validation of training and the test runs of the experiments.
+#[allow(clippy::too_many_arguments)]
+pub fn validate_net(
+    net: &DepthNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    load: &LoadOptions,
+    eval_cfg: &EvalConfig,
+    batch_size: usize,
+    jobs: usize,
+    device: Device,
+    progress: &Progress,
+) -> Result<Report, TrainError> {
+    let run = RunPlan {
+        batch_size,
+        jobs,
+        device,
+    };
+    let decode = Decode::AtGroundTruth;
+    score_net(
+        net,
+        ds,
+        entries,
+        load,
+        eval_cfg,
+        &run,
+        decode,
+        progress,
+        |_, _| Ok(()),
+    )
+}
+
+/// Which pixels of a batch are decoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Decode {
+    /// Every pixel: [`DepthNet::decode`].
+    Every,
+    /// The valid ground-truth pixels only ([`DepthNet::decode_at`]); the others stay 0.
+    AtGroundTruth,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn score_net(
+    net: &DepthNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    load: &LoadOptions,
+    eval_cfg: &EvalConfig,
+    run: &RunPlan,
+    decode: Decode,
+    progress: &Progress,
     mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
 ) -> Result<Report, TrainError> {
     let mut ev = Evaluator::new(eval_cfg.clone())?;
     let mut load = load.clone();
     load.eval_maps = true;
     load.target = TargetKind::Sparse;
-    let run = RunPlan {
-        batch_size,
-        jobs,
-        device,
-    };
-    run_net(net, ds, entries, &load, &run, progress, |batch, pred_v| {
-        let hw = batch.width * batch.height;
-        for (i, s) in batch.samples.iter().enumerate() {
-            // The one scorer, shared with `eval --predictions`.
-            score_image(
-                &mut ev,
-                &s.sparse_m,
-                &s.lowheight,
-                &s.conditions,
-                &pred_v[i * hw..(i + 1) * hw],
-            )?;
-        }
-        on_batch(batch, pred_v)
-    })?;
+    run_batches(
+        net,
+        ds,
+        entries,
+        &load,
+        run,
+        decode,
+        progress,
+        |batch, pred_v| {
+            let hw = batch.width * batch.height;
+            for (i, s) in batch.samples.iter().enumerate() {
+                // The one scorer, shared with `eval --predictions`.
+                score_image(
+                    &mut ev,
+                    &s.sparse_m,
+                    &s.lowheight,
+                    &s.conditions,
+                    &pred_v[i * hw..(i + 1) * hw],
+                )?;
+            }
+            on_batch(batch, pred_v)
+        },
+    )?;
     Ok(ev.finish())
 }
 
@@ -72,6 +151,29 @@ pub fn run_net(
     entries: &[IndexEntry],
     load: &LoadOptions,
     run: &RunPlan,
+    progress: &Progress,
+    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
+) -> Result<(), TrainError> {
+    run_batches(
+        net,
+        ds,
+        entries,
+        load,
+        run,
+        Decode::Every,
+        progress,
+        on_batch,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run_batches(
+    net: &DepthNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    load: &LoadOptions,
+    run: &RunPlan,
+    decode: Decode,
     progress: &Progress,
     mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
 ) -> Result<(), TrainError> {
@@ -98,7 +200,7 @@ pub fn run_net(
             }
             Err(e) => return Err(e),
         };
-        let pred_v = predict_batch(net, &batch, run.device)?;
+        let pred_v = predict_batch(net, &batch, run.device, decode)?;
         on_batch(&batch, &pred_v)?;
         progress.inc(batch.size as u64);
     }
@@ -108,9 +210,19 @@ pub fn run_net(
     }
 }
 
-/// The decoded depth of one batch, [B,H,W] metres row-major, on the host.
-fn predict_batch(net: &DepthNet, batch: &Batch, device: Device) -> Result<Vec<f32>, TrainError> {
+/// The decoded depth of one batch, [B,H,W] metres row-major, on the host (0 where `decode`
+/// leaves a pixel out).
+fn predict_batch(
+    net: &DepthNet,
+    batch: &Batch,
+    device: Device,
+    decode: Decode,
+) -> Result<Vec<f32>, TrainError> {
     let (image, radar) = upload_inputs(batch, device);
+    let hw = batch.width * batch.height;
+    if decode == Decode::AtGroundTruth {
+        return predict_at_ground_truth(net, batch, &image, &radar, device);
+    }
     let pred = tch::no_grad(|| {
         let out = net.forward_t(&image, &radar, false);
         net.decode(&out)
@@ -119,7 +231,6 @@ fn predict_batch(net: &DepthNet, batch: &Batch, device: Device) -> Result<Vec<f3
         .to_device(Device::Cpu)
         .to_kind(Kind::Float)
         .contiguous();
-    let hw = batch.width * batch.height;
     if pred.numel() != batch.size * hw {
         return Err(TrainError::Other(format!(
             "decoded prediction has shape {:?}, expected [{}, 1, {}, {}]",
@@ -130,4 +241,54 @@ fn predict_batch(net: &DepthNet, batch: &Batch, device: Device) -> Result<Vec<f3
         )));
     }
     Ok(Vec::<f32>::try_from(pred.view([-1]))?)
+}
+
+/// [`predict_batch`] at the samples' valid ground-truth pixels only (the rest 0).
+fn predict_at_ground_truth(
+    net: &DepthNet,
+    batch: &Batch,
+    image: &Tensor,
+    radar: &Tensor,
+    device: Device,
+) -> Result<Vec<f32>, TrainError> {
+    let hw = batch.width * batch.height;
+    let mut gt: Vec<f32> = Vec::with_capacity(batch.size * hw);
+    for s in &batch.samples {
+        if s.sparse_m.len() != hw {
+            return Err(TrainError::Other(format!(
+                "sample {}: ground truth of {} pixels, expected {hw}",
+                s.token,
+                s.sparse_m.len()
+            )));
+        }
+        gt.extend(
+            s.sparse_m
+                .iter()
+                .map(|&d| if d.is_finite() { d } else { 0.0 }),
+        );
+    }
+    let shape = (batch.size as i64, batch.height as i64, batch.width as i64);
+    let at = SparseTarget::from_host(&gt, shape, device);
+    let depth = tch::no_grad(|| {
+        let out = net.forward_t(image, radar, false);
+        net.decode_at(&out, &at)
+    });
+    let depth = Vec::<f32>::try_from(depth.to_device(Device::Cpu).to_kind(Kind::Float))?;
+    if depth.len() as i64 != at.count {
+        return Err(TrainError::Other(format!(
+            "decoded {} depths at {} ground-truth pixels",
+            depth.len(),
+            at.count
+        )));
+    }
+    let mut pred = vec![0f32; batch.size * hw];
+    let valid = gt
+        .iter()
+        .enumerate()
+        .filter(|(_, &d)| d > 0.0)
+        .map(|(i, _)| i);
+    for (i, d) in valid.zip(depth) {
+        pred[i] = d;
+    }
+    Ok(pred)
 }

@@ -18,9 +18,9 @@ use std::ops::Range;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, evaluate_net, radar_input_for, read_metrics, save_ckpt, subsample,
-    truncate_metrics, upload_batch, write_curves, State, TrainOptions, TrainSummary, ValRecord,
-    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    all_finite, append_jsonl, radar_input_for, read_metrics, save_ckpt, subsample,
+    truncate_metrics, upload_batch, validate_net, write_curves, State, TrainOptions, TrainSummary,
+    ValRecord, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
@@ -217,7 +217,7 @@ impl<'o> Trainer<'o> {
             Some(d) => &self.val_entries[d.shard(self.val_entries.len())],
             None => &self.val_entries[..],
         };
-        let r = evaluate_net(
+        let r = validate_net(
             &self.net,
             &self.ds,
             shard,
@@ -227,7 +227,6 @@ impl<'o> Trainer<'o> {
             self.opts.jobs,
             self.device,
             &Progress::hidden(),
-            |_, _| Ok(()),
         )?;
         let r = match &self.dist {
             Some(d) => d.reduce_report(&r)?,
