@@ -31,6 +31,7 @@ pub mod error;
 pub mod exclusion;
 pub mod mer_maps;
 pub mod radar_failure;
+pub mod radar_oracle;
 
 // The torch-free part (index, partition, a sample's files, MER maps on disk) lives in
 // depthsense-dataset, so that `depthsense` runs the data commands without libtorch; the
@@ -91,6 +92,10 @@ pub struct LoadOptions {
     /// draw is made: runs without it are unchanged).
     #[serde(default, skip_serializing_if = "crate::is_default")]
     pub train_radar_drop: f64,
+    /// The oracle radar ([`radar_oracle`]): every return's depth replaced by the training
+    /// target's. false = the sensor's returns (absent from the JSON).
+    #[serde(default, skip_serializing_if = "crate::is_default")]
+    pub radar_oracle: bool,
 }
 
 impl Default for LoadOptions {
@@ -105,6 +110,7 @@ impl Default for LoadOptions {
             seed: 0,
             failure: Default::default(),
             train_radar_drop: 0.0,
+            radar_oracle: false,
         }
     }
 }
@@ -318,7 +324,10 @@ fn read_sample(
     let (radar, radar_channels) = if opts.no_radar {
         (Vec::new(), 0)
     } else {
-        let maps = read_radar_maps(&dir, w, h)?;
+        let mut maps = read_radar_maps(&dir, w, h)?;
+        if opts.radar_oracle {
+            (maps.raw, maps.height) = radar_oracle::oracle_maps(&dir, &target_m, w, h)?;
+        }
         let (raw, height) = corrupt_radar(&dir, entry, opts, draws.train_drop, maps)?;
         (
             radar_planes(&dir, opts.radar, &raw, &height)?,
@@ -429,6 +438,13 @@ fn corrupt_radar(
         width: w,
         height_px: h,
     } = maps;
+    if opts.radar_oracle && (opts.failure.is_active() || opts.radar == RadarInput::Mer) {
+        return Err(TrainError::Config(
+            "the oracle radar is not combined with sensor failures or MER inputs (it replaces \
+             the maps those are built from): drop one of them"
+                .into(),
+        ));
+    }
     let failure_seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
     let meta = match opts.failure.is_active() {
         true => Some(read_meta(dir)?),

@@ -200,7 +200,8 @@ impl RadarFailure {
 }
 
 /// A raster as the loader reads its PNG: depth rounded to 1/256 m (SPEC §3 storage).
-fn quantised(r: &Raster) -> DepthMap {
+/// A raster as the loader reads its stored PNG (1/256 m steps).
+pub(crate) fn quantised(r: &Raster) -> DepthMap {
     let mut m = r.to_depth_map();
     for d in &mut m.depth_m {
         *d = decode_value(encode_value(*d));

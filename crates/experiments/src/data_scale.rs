@@ -35,14 +35,21 @@ pub const JSON_FILE: &str = "data_scale.json";
 pub const PNG_FILE: &str = "data_scale.png";
 
 /// One arm of the comparison: an ablation variant and model options on top of it
-/// (`late-sam+radar-skip=8`: the options joined by `+`, each a `--set` key=value).
+/// (`late-sam+radar-skip=8`: the options joined by `+`, each a `--set` key=value), and the
+/// word `oracle` for the oracle radar (`late-sam+oracle`, `train --radar-oracle`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Arm {
     /// The text it was given, its name in the tables and its run folder.
     pub label: String,
     pub variant: Variant,
     pub set: Vec<String>,
+    /// Train, validate and test on the oracle radar. Absent from the JSON when false.
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub radar_oracle: bool,
 }
+
+/// The arm word for the oracle radar.
+pub const ORACLE_WORD: &str = "oracle";
 
 impl FromStr for Arm {
     type Err = TrainError;
@@ -50,7 +57,16 @@ impl FromStr for Arm {
         let label = s.trim().to_string();
         let mut parts = label.split('+');
         let variant: Variant = parts.next().unwrap_or_default().parse()?;
-        let set: Vec<String> = parts.map(|p| p.trim().to_string()).collect();
+        let mut set: Vec<String> = parts.map(|p| p.trim().to_string()).collect();
+        let before = set.len();
+        set.retain(|p| p != ORACLE_WORD);
+        let radar_oracle = set.len() < before;
+        if radar_oracle && matches!(variant, Variant::Rgb | Variant::LateSamMer) {
+            return Err(TrainError::Config(format!(
+                "arm {label:?}: the oracle radar needs a variant that reads the radar maps \
+                 (early, late, late-sam, l1, l2), e.g. late-sam+oracle"
+            )));
+        }
         for kv in &set {
             let key = kv.split_once('=').map_or(kv.as_str(), |(k, _)| k).trim();
             if !kv.contains('=') || ["fusion", "attention", "head", "loss"].contains(&key) {
@@ -64,6 +80,7 @@ impl FromStr for Arm {
             label,
             variant,
             set,
+            radar_oracle,
         })
     }
 }
@@ -249,6 +266,7 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
         let t = TrainOptions {
             train_subset: Some(n),
             epoch_iterations: Some(per_epoch),
+            radar_oracle: arm.radar_oracle,
             ..opts
                 .run
                 .train_options(run_dir(&opts.out, n, arm, seed), &model, seed)
@@ -650,5 +668,15 @@ mod tests {
             .unwrap()
             .model(&ModelConfig::tiny())
             .is_err());
+        assert!(!a.radar_oracle);
+        let o: Arm = "late-sam+oracle+radar-skip=8".parse().unwrap();
+        assert!(o.radar_oracle);
+        assert_eq!(o.set, vec!["radar-skip=8".to_string()]);
+        assert_eq!(
+            run_dir(std::path::Path::new("o"), 3000, &o, 2),
+            std::path::Path::new("o/runs/n3000/late-sam_oracle_radar-skip_8/seed2")
+        );
+        let e = "rgb+oracle".parse::<Arm>().unwrap_err().to_string();
+        assert!(e.contains("late-sam+oracle"), "{e}");
     }
 }

@@ -527,6 +527,7 @@ fn test_best(
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),
+        radar_oracle: topts.radar_oracle,
         ..LoadOptions::default()
     };
     pb.set_length(test.len() as u64);

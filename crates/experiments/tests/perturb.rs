@@ -288,3 +288,60 @@ fn samples_without_radar_points_ask_for_a_new_prepare() {
         "{err}"
     );
 }
+
+/// The oracle radar (`train --radar-oracle`): every raw-map return holds the training
+/// target's depth at its pixel or at a valid target pixel within 3 px; there are no more
+/// returns than the sensor's; the oracle is refused with a sensor failure.
+#[test]
+fn oracle_radar_takes_the_lidar_target_depth_near_each_return() {
+    let (_tmp, data, _eo) = setup();
+    let ds = Dataset::open(&data).unwrap();
+    let (w, h) = (800usize, 350usize);
+    let mut checked = 0;
+    for e in &ds.index.samples {
+        let plain = raw_map(&ds, e, RadarFailure::default());
+        let opts = LoadOptions {
+            radar: RadarInput::RawHeight,
+            radar_oracle: true,
+            ..LoadOptions::default()
+        };
+        let s = load_sample(&ds, e, &opts, &mut Rng::new(0)).unwrap();
+        let (raw, height) = s.radar.split_at(w * h);
+        let target = &s.target_m;
+        let valid = |p: &[f32]| p.iter().filter(|d| **d > 0.0).count();
+        assert!(
+            valid(raw) > 0 && valid(raw) <= valid(&plain),
+            "{}",
+            e.sample_token
+        );
+        assert_ne!(raw, &plain[..], "the oracle must change the maps");
+        for (i, &d) in raw.iter().enumerate().filter(|(_, d)| **d > 0.0) {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let near = (-3i64..=3)
+                .flat_map(|dy| (-3i64..=3).map(move |dx| (dx, dy)))
+                .filter(|(dx, dy)| dx * dx + dy * dy <= 9)
+                .filter_map(|(dx, dy)| {
+                    let (xx, yy) = (x + dx, y + dy);
+                    ((0..w as i64).contains(&xx) && (0..h as i64).contains(&yy))
+                        .then(|| target[yy as usize * w + xx as usize])
+                })
+                .any(|t| t == d);
+            assert!(
+                near,
+                "pixel ({x}, {y}) = {d} m is no target depth within 3 px"
+            );
+            assert!(height[i] > 0.0, "a return's strip covers its own pixel");
+            checked += 1;
+        }
+        let refused = LoadOptions {
+            failure: RadarFailure {
+                drop_beyond_m: Some(30.0),
+                ..Default::default()
+            },
+            ..opts
+        };
+        let err = load_sample(&ds, e, &refused, &mut Rng::new(0)).unwrap_err();
+        assert!(err.to_string().contains("oracle"), "{err}");
+    }
+    assert!(checked > 10, "{checked} returns checked");
+}

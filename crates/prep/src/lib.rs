@@ -10,6 +10,7 @@ pub mod layout;
 pub mod maps;
 pub mod motion;
 pub mod pipeline;
+pub mod radar_oracle;
 pub mod radar_points;
 pub mod splits;
 pub mod verify;

@@ -92,6 +92,11 @@ pub struct TrainOptions {
     /// Absent from the JSON when 0.
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub train_radar_drop: f64,
+    /// The oracle radar (issue 34; [`depthsense_data::radar_oracle`]): every radar return's
+    /// depth replaced by the lidar target's, in training, validation and the experiments'
+    /// test runs. An upper bound, not a model. Absent from the JSON when false.
+    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
+    pub radar_oracle: bool,
     /// Linear learning-rate warmup over the first N iterations before the poly decay (0 = none,
     /// the paper). Absent from the JSON when 0.
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
@@ -159,6 +164,7 @@ impl Default for TrainOptions {
             exclude: Vec::new(),
             loss_read_every: 0,
             train_radar_drop: 0.0,
+            radar_oracle: false,
             warmup_iters: 0,
             force: false,
             init_from: None,

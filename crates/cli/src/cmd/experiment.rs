@@ -167,16 +167,22 @@ pub struct DataScaleArgs {
     pub sizes: Vec<usize>,
     /// Arms trained at every size, comma separated: an ablation variant (rgb, early, late,
     /// late-sam, l1, l2, late-sam-mer), optionally with model options joined by `+`
-    /// (`late-sam+radar-skip=8`). The first is the baseline of the margins.
+    /// (`late-sam+radar-skip=8`) and the word `oracle` for the oracle radar
+    /// (`late-sam+oracle`, see train --radar-oracle). The first is the baseline of the margins.
     #[arg(long, value_delimiter = ',', default_value = "rgb,late-sam")]
     pub arms: Vec<String>,
     /// Arms trained at the largest size only (same form as --arms), e.g.
-    /// `late-sam+radar-skip=8,late-sam-mer`.
+    /// `late-sam+radar-skip=8,late-sam+oracle,late-sam-mer`.
     #[arg(long, value_delimiter = ',')]
     pub at_largest: Vec<String>,
     /// Number of seeds: 0, 1, …, N−1.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, conflicts_with = "seed_list")]
     pub seeds: u64,
+    /// Explicit seeds instead of --seeds, comma separated (e.g. 3,4: a second process's share
+    /// of the runs; the tables of all seeds come from one more call with every seed, which
+    /// reads the finished runs back).
+    #[arg(long, value_delimiter = ',')]
+    pub seed_list: Option<Vec<u64>>,
     /// Training iterations of every run (the same at every size), rounded up to a multiple
     /// of --epochs (the validations). Default: the fewest that show the largest size each
     /// image once, ⌈N_max / batch⌉; fewer are refused.

@@ -104,6 +104,12 @@ pub struct Args {
     /// cannot read "no return here" as a depth cue. 0 = off. docs/guide/train.md.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub train_radar_drop: f64,
+    /// The oracle radar (an upper bound, not a model): every radar return keeps its pixel but
+    /// takes the lidar target's depth there (or the nearest valid target pixel within 3 px;
+    /// returns without one are dropped), strips redrawn as SPEC §5 draws them; in training and
+    /// validation. Needs radar_points.bin (prepare writes it). docs/guide/experiments.md.
+    #[arg(long)]
+    pub radar_oracle: bool,
     /// Linear learning-rate warmup over the first N iterations, then the poly decay (0 = none,
     /// the paper).
     #[arg(long, default_value_t = 0, value_name = "N")]

@@ -744,6 +744,7 @@ fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOpti
         seed: opts.seed,
         failure: Default::default(),
         train_radar_drop: opts.train_radar_drop,
+        radar_oracle: opts.radar_oracle,
     })
 }
 

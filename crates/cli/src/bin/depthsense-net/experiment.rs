@@ -106,7 +106,7 @@ fn data_scale(a: DataScaleArgs) -> anyhow::Result<ExitCode> {
         sizes: a.sizes,
         arms: arms(&a.arms)?,
         at_largest: arms(&a.at_largest)?,
-        seeds: (0..a.seeds).collect(),
+        seeds: a.seed_list.unwrap_or_else(|| (0..a.seeds).collect()),
         iterations: a.iterations,
         eval: EvalConfig::default(),
         command_line: command_line(),

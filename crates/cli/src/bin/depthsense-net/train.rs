@@ -154,6 +154,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         checkpoint_every: a.checkpoint_every,
         loss_read_every: a.loss_read_every,
         train_radar_drop: a.train_radar_drop,
+        radar_oracle: a.radar_oracle,
         warmup_iters: a.warmup,
         stop_after: a.stop_after,
         eval: EvalConfig {

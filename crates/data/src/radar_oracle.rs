@@ -1,0 +1,33 @@
+//! The oracle radar in the loader (issue 34, `train --radar-oracle`): a sample's radar maps
+//! rebuilt from its `radar_points.bin` with every return's depth replaced by the lidar
+//! target's ([`depthsense_prep::radar_oracle`] has the rule), quantised like the stored PNGs.
+//! An upper bound on what radar could add: the returns' positions (and sparsity) are the
+//! sensor's, their depths are right. Applied before any corruption; combining it with the
+//! sensor-failure modes is refused.
+
+use std::path::Path;
+
+use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_prep::radar_oracle::oracle_points;
+use depthsense_prep::radar_points::RadarPoints;
+
+use crate::error::TrainError;
+use crate::radar_failure::quantised;
+
+/// (raw, height) oracle maps of the sample in `dir` whose training target (frame-sized,
+/// metres, 0 = invalid) is `target_m`.
+pub fn oracle_maps(
+    dir: &Path,
+    target_m: &[f32],
+    width: usize,
+    height: usize,
+) -> Result<(DepthMap, DepthMap), TrainError> {
+    let points = RadarPoints::read_from_sample(dir).map_err(|e| {
+        TrainError::Data(format!(
+            "{e} (the oracle radar is rebuilt from each sample's radar points)"
+        ))
+    })?;
+    let (oracle, _) = oracle_points(&points, target_m, width, height);
+    let maps = oracle.rasterise();
+    Ok((quantised(&maps.raw), quantised(&maps.height)))
+}
