@@ -442,13 +442,17 @@ fn finished_record(
     let eval_path = run.join(RUN_EVAL_FILE);
     if eval_path.exists() {
         let v = read_json(&eval_path)?;
-        let rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
+        let mut rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
             path: eval_path.display().to_string(),
             reason: e.to_string(),
         })?;
         if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
             return Err(mismatch(run, RUN_EVAL_FILE));
         }
+        // A run is recognised by its options, not by where it was trained: one moved here
+        // from another --out (a second process's share of the seeds) names its folder now.
+        rec.run_dir = run.clone();
+        rec.train_options.out = run.clone();
         return Ok(Some(rec));
     }
     let cfg_path = run.join(CONFIG_FILE);

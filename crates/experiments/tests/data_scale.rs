@@ -92,6 +92,30 @@ fn data_scale_trains_matched_iterations_and_writes_json_and_plot() {
     let again = run_data_scale(&opts, &hidden()).unwrap();
     assert_eq!(mtime(&eval_json), before);
     assert_eq!(again.rows, r.rows);
+    // runs trained by another process into another --out (`--seed-list`), moved into this
+    // one, are read back too, with their new folders
+    let moved = tmp.path().join("moved");
+    std::fs::create_dir_all(&moved).unwrap();
+    std::fs::rename(out.join("runs"), moved.join("runs")).unwrap();
+    let there = run_data_scale(
+        &DataScaleOptions {
+            out: moved.clone(),
+            ..opts.clone()
+        },
+        &hidden(),
+    )
+    .unwrap();
+    assert_eq!(there.rows, r.rows);
+    for rec in &there.runs {
+        assert!(rec.run_dir.starts_with(&moved), "{}", rec.run_dir.display());
+        assert!(rec.train_options.out.starts_with(&moved));
+    }
+    assert_eq!(
+        mtime(&moved.join("runs/n4/rgb/seed0/eval.json")),
+        before,
+        "nothing retrained"
+    );
+    std::fs::rename(moved.join("runs"), out.join("runs")).unwrap();
     // the report finds it: one section with its table and plot, not one per run
     let rep = tmp.path().join("report");
     let s = depthsense_report::build_report(&depthsense_report::ReportOptions {
