@@ -324,10 +324,10 @@ fn read_sample(
     let (radar, radar_channels) = if opts.no_radar {
         (Vec::new(), 0)
     } else {
-        let mut maps = read_radar_maps(&dir, w, h)?;
-        if opts.radar_oracle {
-            (maps.raw, maps.height) = radar_oracle::oracle_maps(&dir, &target_m, w, h)?;
-        }
+        let maps = match opts.radar_oracle {
+            true => oracle_radar_maps(&dir, &target_m, w, h)?,
+            false => read_radar_maps(&dir, w, h)?,
+        };
         let (raw, height) = corrupt_radar(&dir, entry, opts, draws.train_drop, maps)?;
         (
             radar_planes(&dir, opts.radar, &raw, &height)?,
@@ -413,6 +413,26 @@ fn read_radar_maps(dir: &Path, w: usize, h: usize) -> Result<RadarMaps, TrainErr
     check_size(&raw, w, h, &raw_path)?;
     let height = read_depth(&height_path)?;
     check_size(&height, w, h, &height_path)?;
+    Ok(RadarMaps {
+        raw,
+        height,
+        raw_path,
+        width: w,
+        height_px: h,
+    })
+}
+
+/// The oracle radar maps ([`radar_oracle`]) in place of the stored ones (which are not read),
+/// checked against the image size like them.
+fn oracle_radar_maps(
+    dir: &Path,
+    target_m: &[f32],
+    w: usize,
+    h: usize,
+) -> Result<RadarMaps, TrainError> {
+    let raw_path = dir.join(RADAR_RAW_FILE);
+    let (raw, height) = radar_oracle::oracle_maps(dir, target_m, w, h)?;
+    check_size(&raw, w, h, &raw_path)?;
     Ok(RadarMaps {
         raw,
         height,
