@@ -133,6 +133,15 @@ pub struct ScaleRow {
     pub margin_m: Option<Stat>,
     /// The same per seed as a percentage of the baseline's RMSE.
     pub margin_pct: Option<Stat>,
+    /// Standard error of the seed mean of `margin_m` (m; the table's "±").
+    #[serde(default)]
+    pub margin_se_m: Option<f64>,
+    /// Standard error of the seed mean of `margin_pct` (%; the table's "±").
+    #[serde(default)]
+    pub margin_se_pct: Option<f64>,
+    /// Paired t of the margin (positive = this arm is better; the table's "t (margin)").
+    #[serde(default)]
+    pub margin_t: Option<f64>,
     /// The paired test of the RMSE against the baseline (None for the baseline itself).
     pub vs_baseline: Option<Verdict>,
 }
@@ -345,6 +354,23 @@ fn summarise(opts: &DataScaleOptions, iterations: u64, runs: &[RunRecord]) -> Ve
                 }
                 _ => None,
             };
+            let margin_m = (!is_base)
+                .then(|| Stat::of(&p.iter().map(|x| x.2 - x.1).collect::<Vec<_>>()))
+                .flatten();
+            let margin_pct = (!is_base)
+                .then(|| {
+                    Stat::of(
+                        &p.iter()
+                            .map(|x| 100.0 * (x.2 - x.1) / x.2)
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .flatten();
+            let margin_t = vs_baseline
+                .as_ref()
+                .and_then(|v| v.paired.as_ref())
+                .and_then(|p| p.t)
+                .map(|t| -t);
             out.push(ScaleRow {
                 train_samples: n,
                 arm: arm.label.clone(),
@@ -353,18 +379,11 @@ fn summarise(opts: &DataScaleOptions, iterations: u64, runs: &[RunRecord]) -> Ve
                 mae: stat(|h| h.mae),
                 abs_rel: stat(|h| h.abs_rel),
                 delta1: stat(|h| h.delta1),
-                margin_m: (!is_base)
-                    .then(|| Stat::of(&p.iter().map(|x| x.2 - x.1).collect::<Vec<_>>()))
-                    .flatten(),
-                margin_pct: (!is_base)
-                    .then(|| {
-                        Stat::of(
-                            &p.iter()
-                                .map(|x| 100.0 * (x.2 - x.1) / x.2)
-                                .collect::<Vec<_>>(),
-                        )
-                    })
-                    .flatten(),
+                margin_se_m: margin_m.as_ref().and_then(standard_error),
+                margin_se_pct: margin_pct.as_ref().and_then(standard_error),
+                margin_m,
+                margin_pct,
+                margin_t,
                 vs_baseline,
             });
         }
@@ -539,8 +558,8 @@ fn markdown(r: &DataScaleResult) -> String {
         ("verdict", Align::Left),
     ]);
     for row in &r.rows {
-        let se_cell = |s: Option<Stat>, prec: usize| {
-            s.map_or("–".to_string(), |s| match standard_error(&s) {
+        let se_cell = |s: Option<Stat>, se: Option<f64>, prec: usize| {
+            s.map_or("–".to_string(), |s| match se {
                 Some(se) => format!("{} ± {se:.prec$}", super::signed(s.mean, prec)),
                 None => super::signed(s.mean, prec),
             })
@@ -552,10 +571,9 @@ fn markdown(r: &DataScaleResult) -> String {
             row.arm.clone(),
             Stat::md_cell(row.rmse),
             Stat::md_cell(row.delta1),
-            se_cell(row.margin_m, 3),
-            se_cell(row.margin_pct, 1),
-            p.and_then(|p| p.t)
-                .map_or("–".into(), |t| super::signed(-t, 2)),
+            se_cell(row.margin_m, row.margin_se_m, 3),
+            se_cell(row.margin_pct, row.margin_se_pct, 1),
+            row.margin_t.map_or("–".into(), |t| super::signed(t, 2)),
             match p.and_then(|p| p.significant) {
                 Some(true) => "significant (5 %)".into(),
                 Some(false) => "inside the seed noise".into(),
