@@ -1,9 +1,9 @@
 //! Curves (plotters bitmap backend into a buffer, PNG-encoded with `image`) and depth pictures
 //! (colorous turbo colour map, radar overlays, error maps).
 //!
-//! Text needs a TrueType font: plotters' `ab_glyph` backend has none built in, so one is
-//! looked up among common system font files at run time. Without one the curves are drawn
-//! without text (axes and lines only) rather than failing.
+//! Text needs a TrueType font: plotters' `ab_glyph` backend has none built in, so DejaVu Sans
+//! (the `dejavu` crate's copy of DejaVu 2.37) is compiled into the binary and registered once:
+//! every machine draws the same labels, with or without system fonts.
 
 use std::sync::OnceLock;
 
@@ -11,30 +11,14 @@ use plotters::prelude::*;
 
 use crate::VizError;
 
-const FONT_CANDIDATES: &[&str] = &[
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    "/usr/share/fonts/liberation/LiberationSans-Regular.ttf",
-    "/Library/Fonts/Arial.ttf",
-    "/System/Library/Fonts/Supplemental/Arial.ttf",
-    "C:\\Windows\\Fonts\\arial.ttf",
-];
-
-/// Register a system font with plotters once; true when text can be drawn.
+/// Register the embedded font with plotters once; true when text can be drawn (false only if
+/// the embedded font failed to parse, which the tests rule out; the pictures then go without
+/// text rather than failing).
 pub fn fonts_available() -> bool {
     static OK: OnceLock<bool> = OnceLock::new();
     *OK.get_or_init(|| {
-        for p in FONT_CANDIDATES {
-            if let Ok(bytes) = std::fs::read(p) {
-                let leaked: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                if plotters::style::register_font("sans-serif", FontStyle::Normal, leaked).is_ok() {
-                    return true;
-                }
-            }
-        }
-        false
+        plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular())
+            .is_ok()
     })
 }
 
@@ -503,7 +487,7 @@ pub fn bar_chart_png(
 /// three would make the picture wider than 2400 px — each with its caption above it, and one
 /// shared colour bar in metres (0..`max_m`, the [`colorize_depth`] map: near = red) at the
 /// bottom. Panels of different sizes are centred in cells of the largest size. PNG bytes.
-/// Without a system font the captions and tick labels are left out.
+/// Captions, tick labels and the colour bar's metres in the embedded DejaVu Sans.
 pub fn picture_row_png(
     panels: &[(&str, image::RgbImage)],
     max_m: f32,
@@ -783,6 +767,25 @@ pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, VizError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_embedded_font_draws_text() {
+        assert!(
+            fonts_available(),
+            "the embedded DejaVu Sans did not register"
+        );
+        // A white panel under a caption: the caption band above the panel holds dark glyph
+        // pixels (the colour bar is at the bottom).
+        let panel = image::RgbImage::from_pixel(200, 100, image::Rgb([255, 255, 255]));
+        let png = picture_row_png(&[("WWWW", panel)], 80.0).unwrap();
+        let img = image::load_from_memory(&png).unwrap().to_rgb8();
+        let band = img.height() / 5;
+        let dark = img
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y < band && p.0.iter().all(|&c| c < 100))
+            .count();
+        assert!(dark > 20, "no caption drawn ({dark} dark pixels)");
+    }
 
     #[test]
     fn iteration_ticks_are_whole_iterations() {
