@@ -78,13 +78,14 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Vec<f32>, usize, usize), Dat
         s => return Err(bad(path, format!("shape {s:?} is not (H, W)"))),
     };
     let body = &bytes[start + hlen..];
-    let n = h * w;
+    // Checked: the shape is read from the file (a huge one must not wrap to a small size).
+    let size = |item: usize| h.checked_mul(w).and_then(|n| n.checked_mul(item));
     let values: Vec<f32> = match descr {
-        "<f4" if body.len() == 4 * n => body
+        "<f4" if size(4) == Some(body.len()) => body
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect(),
-        "<f8" if body.len() == 8 * n => body
+        "<f8" if size(8) == Some(body.len()) => body
             .chunks_exact(8)
             .map(|c| {
                 let mut a = [0u8; 8];
@@ -128,5 +129,17 @@ mod tests {
         assert_eq!((d, h, w), (vec![2.5, 4.0], 1, 2));
         let e = decode(&b[..b.len() - 1], Path::new("z.npy")).unwrap_err();
         assert!(e.to_string().contains("z.npy"), "{e}");
+    }
+
+    #[test]
+    fn a_shape_whose_size_overflows_is_refused() {
+        // 2^32 × 2^32 × 4 wraps to 0 in usize: with 0 data bytes an unchecked product matched.
+        let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296), }";
+        let mut b = MAGIC.to_vec();
+        b.extend_from_slice(&[1, 0]);
+        b.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        b.extend_from_slice(dict.as_bytes());
+        let e = decode(&b, Path::new("huge.npy")).unwrap_err().to_string();
+        assert!(e.contains("huge.npy") && e.contains("data bytes"), "{e}");
     }
 }
