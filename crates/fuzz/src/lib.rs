@@ -16,12 +16,14 @@ use std::time::{Duration, Instant};
 use depthsense_model::checkpoint::{parse_safetensors, safetensors_bytes};
 use depthsense_model::pickle::{collect_tensors, parse_pickle, read_torch_bytes};
 use depthsense_nuscenes::depth_png::{decode_png, encode_png, encode_png_fast, DepthMap};
+use depthsense_nuscenes::geometry::Camera;
 use depthsense_nuscenes::pcd::{
     encode_lidar_pcd_bin, encode_radar_pcd_ascii, encode_radar_pcd_binary,
     encode_radar_pcd_binary_compressed, parse_lidar_pcd_bin, parse_pcd, parse_radar_pcd,
     RadarPoint,
 };
 use depthsense_nuscenes::NuScenes;
+use depthsense_prep::radar_points::RadarPoints;
 
 /// The readers under test.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,10 +46,14 @@ pub enum Reader {
     Safetensors,
     /// 16-bit depth PNGs (seeds: the depth-map encoder).
     DepthPng,
+    /// `.npy` float arrays that `score` reads (seeds: its encoder).
+    Npy,
+    /// A prepared sample's `radar_points.bin` (seeds: its encoder).
+    RadarPointsBin,
 }
 
 impl Reader {
-    pub const ALL: [Reader; 9] = [
+    pub const ALL: [Reader; 11] = [
         Reader::PcdBinary,
         Reader::PcdAscii,
         Reader::PcdBinaryCompressed,
@@ -57,6 +63,8 @@ impl Reader {
         Reader::Pickle,
         Reader::Safetensors,
         Reader::DepthPng,
+        Reader::Npy,
+        Reader::RadarPointsBin,
     ];
 
     pub fn name(self) -> &'static str {
@@ -70,6 +78,8 @@ impl Reader {
             Reader::Pickle => "pickle",
             Reader::Safetensors => "safetensors",
             Reader::DepthPng => "depth-png",
+            Reader::Npy => "npy",
+            Reader::RadarPointsBin => "radar-points-bin",
         }
     }
 
@@ -91,6 +101,7 @@ impl Reader {
                 | Reader::PcdBinaryCompressed
                 | Reader::TableJson
                 | Reader::Safetensors
+                | Reader::Npy
         )
     }
 }
@@ -300,6 +311,8 @@ pub fn seeds(reader: Reader, fixtures: &Path) -> Option<Vec<Vec<u8>>> {
             .collect(),
         Reader::Safetensors => safetensors_seeds()?,
         Reader::DepthPng => depth_png_seeds()?,
+        Reader::Npy => npy_seeds(),
+        Reader::RadarPointsBin => radar_points_bin_seeds(),
     })
 }
 
@@ -446,6 +459,46 @@ fn depth_png_seeds() -> Option<Vec<Vec<u8>>> {
     Some(v)
 }
 
+fn npy_seeds() -> Vec<Vec<u8>> {
+    [(2usize, 3usize), (1, 1), (5, 7)]
+        .iter()
+        .map(|&(h, w)| {
+            let v: Vec<f32> = (0..h * w).map(|i| i as f32 * 0.5 - 1.0).collect();
+            depthsense_score::npy::encode_f32(&v, h, w)
+        })
+        .collect()
+}
+
+fn radar_points_bin_seeds() -> Vec<Vec<u8>> {
+    let camera = Camera {
+        fx: 1266.4,
+        fy: 1266.4,
+        cx: 816.3,
+        cy: 491.5,
+        width: 1600,
+        height: 900,
+    };
+    let mut one = RadarPoints::new(camera);
+    one.push_sweep(
+        "RADAR_FRONT",
+        0,
+        [0.0, 1.0, -1.5],
+        &[[0.0, 0.5, 10.0], [1.0, 0.3, 20.0]],
+    );
+    let mut two = one.clone();
+    two.push_sweep(
+        "RADAR_FRONT_LEFT",
+        1,
+        [-0.5, 1.0, -1.0],
+        &[[-3.0, 0.4, 15.0]],
+    );
+    vec![
+        RadarPoints::new(camera).encode(),
+        one.encode(),
+        two.encode(),
+    ]
+}
+
 const TABLES: [&str; 7] = [
     "scene",
     "sample",
@@ -563,6 +616,10 @@ pub fn execute(reader: Reader, input: &[u8], rng_hint: u64) -> Outcome {
         },
         Reader::Safetensors => parse_safetensors(Path::new("fuzz.safetensors"), input).is_ok(),
         Reader::DepthPng => decode_png(input, "fuzz.png").is_ok(),
+        Reader::Npy => depthsense_score::npy::decode(input, Path::new("fuzz.npy")).is_ok(),
+        Reader::RadarPointsBin => {
+            RadarPoints::decode(input, Path::new("fuzz/radar_points.bin")).is_ok()
+        }
     };
     if ok {
         Outcome::Accepted
