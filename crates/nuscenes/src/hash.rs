@@ -9,6 +9,18 @@ const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
 /// SplitMix64's increment (2^64 / φ).
 pub const GOLDEN_GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
 
+/// FNV-1a 128 offset basis (the hash of no bytes).
+pub const FNV128_OFFSET: u128 = 0x6c62_272e_07bb_0142_62b8_2175_6295_c58d;
+/// FNV-1a 128 prime.
+const FNV128_PRIME: u128 = 0x0000_0000_0100_0000_0000_0000_0000_013B;
+
+/// FNV-1a 128 of `bytes` (the table reader's id of a non-hex token).
+pub fn fnv1a128(bytes: &[u8]) -> u128 {
+    bytes.iter().fold(FNV128_OFFSET, |h, b| {
+        (h ^ *b as u128).wrapping_mul(FNV128_PRIME)
+    })
+}
+
 /// FNV-1a 64 of `bytes`.
 pub fn fnv1a64(bytes: &[u8]) -> u64 {
     bytes
@@ -65,6 +77,13 @@ mod tests {
         assert_eq!(fnv1a64(b""), 0xcbf2_9ce4_8422_2325);
         assert_eq!(fnv1a64(b"a"), 0xaf63_dc4c_8601_ec8c);
         assert_eq!(fnv1a64(b"foobar"), 0x8594_4171_f739_67e8);
+        // and FNV-1a 128
+        assert_eq!(fnv1a128(b""), FNV128_OFFSET);
+        assert_eq!(fnv1a128(b"a"), 0xd228_cb69_6f1a_8caf_7891_2b70_4e4a_8964);
+        assert_eq!(
+            fnv1a128(b"foobar"),
+            0x343e_1662_793c_64bf_6f0d_3597_ba44_6f18
+        );
     }
 
     #[test]

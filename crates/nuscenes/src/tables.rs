@@ -36,11 +36,9 @@ pub struct Token {
 impl Default for Token {
     /// The token of the empty string (a placeholder "no token").
     fn default() -> Self {
-        Token::from_bits(FNV_OFFSET)
+        Token::from_bits(crate::hash::FNV128_OFFSET)
     }
 }
-
-const FNV_OFFSET: u128 = 0x6c62272e07bb014262b821756295c58d;
 
 /// Hex digit values; 0x80 marks a non-digit (upper case is not a nuScenes token).
 static HEX: [u8; 256] = {
@@ -102,12 +100,7 @@ impl Token {
             }
         }
         // Non-hex token: FNV-1a 128-bit hash, text kept for display.
-        let mut h: u128 = FNV_OFFSET;
-        for &b in s {
-            h ^= b as u128;
-            h = h.wrapping_mul(0x0000000001000000000000000000013B);
-        }
-        let t = Token::from_bits(h);
+        let t = Token::from_bits(crate::hash::fnv1a128(s));
         if let Ok(mut g) = EXOTIC.lock() {
             g.get_or_insert_with(HashMap::new)
                 .entry(t.as_u128())
@@ -120,10 +113,7 @@ impl Token {
     /// A well-mixed 64-bit hash (splitmix64 finaliser): every output bit depends on every
     /// input bit, so masking the low bits works for sequential and random tokens alike.
     fn hash64(self) -> u64 {
-        let mut x = self.lo ^ self.hi.get().rotate_left(32);
-        x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        x ^ (x >> 31)
+        crate::hash::splitmix64_mix(self.lo ^ self.hi.get().rotate_left(32))
     }
 }
 
