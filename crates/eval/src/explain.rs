@@ -28,6 +28,7 @@ use std::path::{Path, PathBuf};
 
 use depthsense_data::error::TrainError;
 use depthsense_data::{normalise_image, Augment};
+use depthsense_metrics::table::{md_num, Align, MdTable};
 use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_nuscenes::fsutil::write_atomic;
@@ -384,21 +385,29 @@ fn grid_image(rows: &[Vec<image::RgbImage>]) -> image::RgbImage {
 fn markdown(r: &ExplainResult) -> String {
     let mut md = String::from(
         "# Grad-CAM++ by distance class (SPEC §10.6)\n\nTarget, band and heat fraction: docs/guide/experiments.md, \
-         \"Grad-CAM++ by distance class\". Heat in band vs chance (the fraction an even heat map would give).\n\n\
-         | sample | d (m) | layer | radar | band px | heat in band | chance |\n|---|---:|---|---|---:|---:|---:|\n",
+         \"Grad-CAM++ by distance class\". Heat in band vs chance (the fraction an even heat map would give).\n\n",
     );
+    let mut t = MdTable::new(&[
+        ("sample", Align::Left),
+        ("d (m)", Align::Right),
+        ("layer", Align::Left),
+        ("radar", Align::Left),
+        ("band px", Align::Right),
+        ("heat in band", Align::Right),
+        ("chance", Align::Right),
+    ]);
     for x in &r.records {
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {:.3} |\n",
-            x.sample,
-            x.distance_m,
-            x.layer,
-            if x.radar { "yes" } else { "zeroed" },
-            x.band_pixels,
-            x.heat_in_band.map_or("–".into(), |f| format!("{f:.3}")),
-            x.chance
-        ));
+        t.row(&[
+            x.sample.to_string(),
+            x.distance_m.to_string(),
+            x.layer.to_string(),
+            (if x.radar { "yes" } else { "zeroed" }).to_string(),
+            x.band_pixels.to_string(),
+            md_num(x.heat_in_band, 3),
+            format!("{:.3}", x.chance),
+        ]);
     }
+    md.push_str(&t.finish());
     md.push_str(&format!(
         "\nGrid (`{}`): one row per sample; columns: for each radar state (with, then zeroed), \
          for each distance, each layer; white = lidar pixels in the band; colour bar: heat 0 → 1 \

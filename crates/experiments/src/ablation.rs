@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use depthsense_data::error::TrainError;
 use depthsense_data::{partition, Dataset, Partition};
-use depthsense_metrics::table::{csv_num, md_num, Align, MdTable};
+use depthsense_metrics::table::{csv_field, csv_num, csv_row, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use depthsense_progress::Board;
@@ -560,22 +560,29 @@ fn csv(r: &AblationResult) -> String {
     );
     for run in &r.runs {
         for x in &run.rows {
-            s.push_str(&format!(
-                "run,{},{},{},{},{},1,{},{:.6},,{:.6},,{:.6},,{:.6},,{:.2},{:.2},{:.2}\n",
-                run.variant,
-                run.seed,
-                x.condition,
-                x.region,
-                x.cap_m,
-                x.n_images,
-                x.delta1,
-                x.rmse,
-                x.abs_rel,
-                x.mae,
-                run.train_seconds,
-                run.eval_seconds,
-                run.wall_seconds
-            ));
+            let f6 = |v: f64| format!("{v:.6}");
+            let f2 = |v: f64| format!("{v:.2}");
+            s.push_str(&csv_row(&[
+                "run".to_string(),
+                csv_field(&run.variant),
+                run.seed.to_string(),
+                csv_field(&x.condition),
+                csv_field(&x.region),
+                x.cap_m.to_string(),
+                "1".into(),
+                x.n_images.to_string(),
+                f6(x.delta1),
+                String::new(),
+                f6(x.rmse),
+                String::new(),
+                f6(x.abs_rel),
+                String::new(),
+                f6(x.mae),
+                String::new(),
+                f2(run.train_seconds),
+                f2(run.eval_seconds),
+                f2(run.wall_seconds),
+            ]));
         }
     }
     for x in &r.summary {
@@ -589,14 +596,27 @@ fn csv(r: &AblationResult) -> String {
         let (rm, rs) = st(&x.rmse);
         let (a, as_) = st(&x.abs_rel);
         let (m, ms) = st(&x.mae);
-        s.push_str(&format!(
-            "mean,{},,{},{},{},{},,{d},{ds},{rm},{rs},{a},{as_},{m},{ms},,,\n",
-            x.variant,
-            x.condition,
-            x.region,
+        s.push_str(&csv_row(&[
+            "mean".to_string(),
+            csv_field(&x.variant),
+            String::new(),
+            csv_field(&x.condition),
+            csv_field(&x.region),
             csv_num(Some(x.cap_m), 0),
-            x.n
-        ));
+            x.n.to_string(),
+            String::new(),
+            d,
+            ds,
+            rm,
+            rs,
+            a,
+            as_,
+            m,
+            ms,
+            String::new(),
+            String::new(),
+            String::new(),
+        ]));
     }
     s
 }

@@ -13,7 +13,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use depthsense_data::error::TrainError;
-use depthsense_metrics::table::{Align, MdTable, MISSING};
+use depthsense_metrics::table::{csv_field, csv_row, Align, MdTable, MISSING};
 use depthsense_model::{report::model_report, DepthNet, ModelConfig};
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -204,15 +204,14 @@ fn csv(r: &CostResult) -> String {
     let mut s =
         String::from("preset,variant,params,macs_per_image,mean_ms_per_batch,min_ms_per_batch\n");
     for x in &r.rows {
-        s.push_str(&format!(
-            "{},{},{},{},{:.3},{:.3}\n",
-            x.preset,
-            x.variant,
-            x.params,
-            x.macs_per_image,
-            x.mean_ms_per_batch,
-            x.min_ms_per_batch
-        ));
+        s.push_str(&csv_row(&[
+            csv_field(&x.preset),
+            csv_field(&x.variant),
+            x.params.to_string(),
+            x.macs_per_image.to_string(),
+            format!("{:.3}", x.mean_ms_per_batch),
+            format!("{:.3}", x.min_ms_per_batch),
+        ]));
     }
     s.push_str(&format!(
         "paper-rtx3090,late-sam,,,{:.3},\ndorn-paper,,,,{:.3},\n",

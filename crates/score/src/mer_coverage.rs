@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 
 use depthsense_dataset::DataError;
 use depthsense_dataset::{partition, read_depth, Dataset};
+use depthsense_metrics::table::{Align, MdTable};
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -154,9 +155,7 @@ pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, Dat
 /// The report as a Markdown table.
 pub fn report_markdown(r: &MerReport) -> String {
     let mut s = format!(
-        "{} images of split `{}`, sparse lidar GT ≤ {} m ({} GT pixels)\n\n\
-         | radar map | pixels / image | GT pixels covered | coverage | median rel. error | p90 rel. error |\n\
-         |---|---:|---:|---:|---:|---:|\n",
+        "{} images of split `{}`, sparse lidar GT ≤ {} m ({} GT pixels)\n\n",
         r.images,
         r.split,
         r.cap_m,
@@ -170,17 +169,25 @@ pub fn report_markdown(r: &MerReport) -> String {
             "–".to_string()
         }
     };
+    let mut t = MdTable::new(&[
+        ("radar map", Align::Left),
+        ("pixels / image", Align::Right),
+        ("GT pixels covered", Align::Right),
+        ("coverage", Align::Right),
+        ("median rel. error", Align::Right),
+        ("p90 rel. error", Align::Right),
+    ]);
     for x in &r.rows {
-        s.push_str(&format!(
-            "| {} | {:.0} | {} | {} | {} | {} |\n",
-            x.map,
-            x.pixels_per_image,
-            x.covered_gt_pixels,
+        t.row(&[
+            x.map.to_string(),
+            format!("{:.0}", x.pixels_per_image),
+            x.covered_gt_pixels.to_string(),
             pct(x.coverage, 2),
             pct(x.median_rel_error, 2),
-            pct(x.p90_rel_error, 1)
-        ));
+            pct(x.p90_rel_error, 1),
+        ]);
     }
+    s.push_str(&t.finish());
     s
 }
 
