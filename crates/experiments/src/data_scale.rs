@@ -179,6 +179,13 @@ fn check(opts: &DataScaleOptions, available: usize) -> Result<(), TrainError> {
     if opts.sizes.contains(&0) {
         return cfg("a training-set size of 0".into());
     }
+    if opts.run.epoch_iterations.is_some() {
+        return cfg(
+            "data-scale sets the iterations per epoch itself (the largest size's pass split \
+             over --epochs); drop --epoch-iterations and use --iterations for the total"
+                .into(),
+        );
+    }
     let mut labels: Vec<&str> = opts
         .arms
         .iter()
@@ -660,6 +667,10 @@ mod tests {
             "24 × 4 < 100"
         );
         assert!(check(&opts(&[100], 4, 2, Some(25)), 200).is_ok());
+        let mut o = opts(&[100], 4, 2, None);
+        o.run.epoch_iterations = Some(10);
+        let e = check(&o, 200).unwrap_err().to_string();
+        assert!(e.contains("--epoch-iterations"), "{e}");
         let e = check(&opts(&[300], 4, 2, None), 200)
             .unwrap_err()
             .to_string();

@@ -94,6 +94,10 @@ pub struct DemoSummary {
     pub val_scenes: Vec<String>,
     pub test_scenes: Vec<String>,
     pub split_method: String,
+    /// Distinct training images (the training scenes' keyframes) and the iterations each
+    /// model trained: issue 34's curve chose their ratio.
+    pub train_samples: usize,
+    pub iterations: u64,
     /// The stages as separate depthsense commands with the demo's settings.
     pub commands: Vec<String>,
 }
@@ -103,9 +107,15 @@ pub struct DemoSummary {
 pub struct DemoPlan {
     pub scenes: usize,
     pub keyframes_per_scene: usize,
+    /// The experiments' lean world (`synth --lean`): half-resolution camera rays, the sweeps
+    /// `prepare` reads, no truth maps.
+    pub lean: bool,
     pub lidar_sweeps: usize,
     pub preset: String,
     pub epochs: usize,
+    /// Iterations per epoch (= per validation) whatever the training-set size (`train
+    /// --epoch-iterations`); None: an epoch is one pass.
+    pub epoch_iterations: Option<u64>,
     pub batch_size: usize,
     pub lr: f64,
     pub max_batches_per_epoch: Option<usize>,
@@ -121,13 +131,18 @@ pub struct DemoPlan {
 pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
     let tiny = depthsense_model::ModelConfig::tiny();
     let mut p = DemoPlan {
-        // More keyframes rather than epochs, and the tiny network at half input resolution
-        // (decoded and scored at 800x350): measured in BENCHMARKS.md ("demo budget").
-        scenes: 16,
+        // The tiny network at half input resolution (decoded and scored at 800x350), 350
+        // iterations of batch 4 spent on ≈ 420 distinct images (42 training scenes of a lean
+        // 60-scene world, ≈ 3.3 passes): at matched compute RGB-only gained most from more
+        // distinct images up to ≈ 3 passes (RESULTS.md, "Radar's margin against training-set
+        // size"); the time is in BENCHMARKS.md ("demo budget").
+        scenes: 60,
         keyframes_per_scene: 10,
+        lean: true,
         lidar_sweeps: 2,
         preset: "tiny".into(),
-        epochs: 14,
+        epochs: 10,
+        epoch_iterations: Some(35),
         batch_size: 4,
         lr: 2e-3,
         max_batches_per_epoch: None,
@@ -138,12 +153,11 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
         input_downscale: 2,
     };
     if cuda {
-        // A larger world and network: `tiny` at twice the widths, a ResNet-34 encoder
-        // (not measured here: no GPU on the development machine).
-        p.scenes = 20;
-        p.keyframes_per_scene = 10;
+        // The same world, a larger network (`tiny` at twice the widths, a ResNet-34 encoder)
+        // and 30 full passes (not measured here: no GPU on the development machine).
         p.preset = "tiny-wide".into();
         p.epochs = 30;
+        p.epoch_iterations = None;
         p.batch_size = 8;
         p.max_val_samples = None;
         p.input_downscale = 1;
@@ -154,6 +168,7 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
         p.keyframes_per_scene = p.keyframes_per_scene.min(4);
         p.lidar_sweeps = 1;
         p.epochs = 2;
+        p.epoch_iterations = None;
         p.batch_size = 2;
         p.max_batches_per_epoch = Some(4);
         p.max_val_samples = Some(4);
@@ -185,12 +200,14 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainErro
     let _writing = OutputLock::exclusive(out, "depthsense demo")?;
     clear_earlier_demo(opts)?;
     mp.println(format!(
-        "demo: a world of {} scenes × {} keyframes, `{}` RGB-only and radar fusion, {} epochs \
+        "demo: a world of {} scenes × {} keyframes, `{}` RGB-only and radar fusion, {} epochs{} \
          of batch {} on {} → {}",
         plan.scenes,
         plan.keyframes_per_scene,
         plan.preset,
         plan.epochs,
+        plan.epoch_iterations
+            .map_or(String::new(), |n| format!(" × {n} iterations")),
         plan.batch_size,
         depthsense_model::device::describe(device),
         out.display()
@@ -244,6 +261,8 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainErro
         val_scenes: part.val_scenes.clone(),
         test_scenes: part.test_scenes.clone(),
         split_method: part.method.clone(),
+        train_samples: part.train.len(),
+        iterations: iterations(&plan, part.train.len()),
         commands: stage_commands(opts, &plan, &scfg.version_name),
     };
     write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
@@ -287,6 +306,9 @@ fn synthesise(
     let mut scfg = depthsense_synth::SynthConfig::demo();
     scfg.scenes = plan.scenes;
     scfg.keyframes_per_scene = plan.keyframes_per_scene;
+    if plan.lean {
+        scfg.apply_lean();
+    }
     scfg.seed = opts.seed;
     scfg.jobs = opts.jobs;
     let pb = stage_bar(mp, "synth");
@@ -365,6 +387,7 @@ fn train_both(
             out: out.join(name),
             model: cfg,
             epochs: plan.epochs,
+            epoch_iterations: plan.epoch_iterations,
             batch_size: plan.batch_size,
             lr: plan.lr,
             seed: opts.seed,
@@ -507,13 +530,25 @@ fn demo_in(out: &Path) -> Option<String> {
     (!parts.is_empty()).then(|| format!("an unfinished demo ({}/)", parts.join("/, ")))
 }
 
+/// Training iterations of each demo model on `train_samples` images.
+fn iterations(plan: &DemoPlan, train_samples: usize) -> u64 {
+    let per_epoch = plan.epoch_iterations.unwrap_or_else(|| {
+        let pass = train_samples.div_ceil(plan.batch_size.max(1));
+        plan.max_batches_per_epoch.map_or(pass, |m| m.min(pass)) as u64
+    });
+    per_epoch * plan.epochs as u64
+}
+
 /// The demo's stages as separate commands with its settings (docs/guide/experiments.md, "The demo").
 fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<String> {
     let out = opts.out.display();
     let mut v = vec![
         format!(
-            "depthsense synth --out {out}/world --scenes {} --keyframes-per-scene {} --seed {}",
-            plan.scenes, plan.keyframes_per_scene, opts.seed
+            "depthsense synth --out {out}/world --scenes {} --keyframes-per-scene {} --seed {}{}",
+            plan.scenes,
+            plan.keyframes_per_scene,
+            opts.seed,
+            if plan.lean { " --lean" } else { "" }
         ),
         format!(
             "depthsense prepare --dataroot {out}/world --version {version} --split all \
@@ -522,6 +557,9 @@ fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<Str
         ),
     ];
     let mut extra = String::new();
+    if let Some(n) = plan.epoch_iterations {
+        extra.push_str(&format!(" --epoch-iterations {n}"));
+    }
     if let Some(m) = plan.max_batches_per_epoch {
         extra.push_str(&format!(" --max-batches-per-epoch {m}"));
     }
@@ -657,8 +695,23 @@ fn write_readme(
     scenes.dedup();
     let mut md = String::from("# depthsense demo report\n\n");
     md.push_str(&format!(
-        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes).\n\n",
-        s.device, s.preset, plan.epochs, plan.batch_size, plan.lr, plan.scenes, plan.keyframes_per_scene
+        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes{}).\n\n",
+        s.device,
+        s.preset,
+        plan.epochs,
+        plan.batch_size,
+        plan.lr,
+        plan.scenes,
+        plan.keyframes_per_scene,
+        if plan.lean { ", lean" } else { "" }
+    ));
+    md.push_str(&format!(
+        "Training set: **{} distinct images**; each model trained {} iterations of batch {} \
+         ({:.1} passes over them).\n\n",
+        s.train_samples,
+        s.iterations,
+        plan.batch_size,
+        (s.iterations as f64 * plan.batch_size as f64) / s.train_samples.max(1) as f64
     ));
     md.push_str(&format!(
         "Split ({}): validation scenes (select the best epoch → `best.safetensors`): {}; \

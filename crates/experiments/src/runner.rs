@@ -53,6 +53,10 @@ pub struct RunSettings {
     /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub warmup_iters: u64,
+    /// Iterations per epoch whatever the training-set size (`train --epoch-iterations`;
+    /// None: an epoch is one pass; absent from the JSON when None).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub epoch_iterations: Option<u64>,
 }
 
 impl Default for RunSettings {
@@ -73,6 +77,7 @@ impl Default for RunSettings {
             val_every_scene: t.val_every_scene,
             train_radar_drop: t.train_radar_drop,
             warmup_iters: t.warmup_iters,
+            epoch_iterations: t.epoch_iterations,
         }
     }
 }
@@ -97,6 +102,7 @@ impl RunSettings {
             val_every_scene: self.val_every_scene,
             train_radar_drop: self.train_radar_drop,
             warmup_iters: self.warmup_iters,
+            epoch_iterations: self.epoch_iterations,
             ..TrainOptions::default()
         }
     }

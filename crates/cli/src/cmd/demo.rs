@@ -17,10 +17,12 @@ pub struct Args {
     /// Seed of the world, initialisation and training (both models use the same).
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
-    /// Override the number of training epochs of each model.
+    /// Override the number of training epochs of each model (on a CPU an epoch is 35
+    /// iterations whatever the world's size: 10 by default).
     #[arg(long)]
     pub epochs: Option<usize>,
-    /// Override the number of scenes of the synthetic world (default 16 on a CPU).
+    /// Override the number of scenes of the synthetic world (default 60, a lean world: ≈ 420
+    /// training images).
     #[arg(long)]
     pub scenes: Option<usize>,
     /// Override the keyframes per scene of the synthetic world (default 10).

@@ -136,6 +136,10 @@ pub struct RunArgs {
     /// Linear learning-rate warmup over the first N iterations (0 = none, the paper).
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub warmup: u64,
+    /// An epoch (one validation) is N iterations whatever the training-set size, cycling
+    /// through the training set (the demo: 35); default: one pass. `data-scale` sets it itself.
+    #[arg(long, value_name = "N")]
+    pub epoch_iterations: Option<u64>,
 }
 
 #[derive(clap::Args)]

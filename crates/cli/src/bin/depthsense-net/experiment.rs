@@ -258,5 +258,6 @@ fn run_settings(a: RunArgs) -> RunSettings {
         val_every_scene: a.val_every_scene,
         train_radar_drop: a.train_radar_drop,
         warmup_iters: a.warmup,
+        epoch_iterations: a.epoch_iterations,
     }
 }
