@@ -14,7 +14,7 @@ USAGE: depthsense-fuzz [OPTIONS]
 OPTIONS:
   --readers LIST    comma-separated readers (default: all):
                     pcd-binary, pcd-ascii, pcd-binary-compressed, pcd-bin, table-json,
-                    pth, pickle, safetensors, depth-png
+                    pth, pickle, safetensors, depth-png, npy, radar-points-bin
   --execs N         executions per reader (default 100000; 1e7 accepted)
   --seconds S       wall-clock budget per reader (default: unlimited)
   --seed N          RNG seed (default 1)
