@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use depthsense_nuscenes::lock::{OutputLock, LOCK_FILE};
+use depthsense_base::lock::{OutputLock, LOCK_FILE};
 
 mod common;
 use common::{tiny_train, Guard};

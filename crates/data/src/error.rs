@@ -41,7 +41,7 @@ pub enum TrainError {
         advice: String,
     },
     #[error(transparent)]
-    Lock(#[from] depthsense_nuscenes::lock::LockError),
+    Lock(#[from] depthsense_base::lock::LockError),
     /// Prepared samples that cannot be read, every one with its reason (the loader reads on
     /// past them, so that `eval` and `predict` name them all at once), and how to rebuild them.
     #[error("{}", unreadable_text(.root, .samples))]

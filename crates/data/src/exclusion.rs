@@ -11,7 +11,7 @@
 use std::collections::BTreeSet;
 use std::str::FromStr;
 
-use depthsense_nuscenes::hash::fnv1a64;
+use depthsense_base::hash::fnv1a64;
 use depthsense_prep::layout::{Condition, IndexEntry};
 use serde::{Deserialize, Serialize};
 

@@ -18,8 +18,8 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
+use depthsense_base::hash::{fnv1a64, SplitMix64, GOLDEN_GAMMA};
 use depthsense_nuscenes::depth_png::DepthMap;
-use depthsense_nuscenes::hash::{fnv1a64, SplitMix64, GOLDEN_GAMMA};
 use depthsense_prep::layout::{
     Condition, IndexEntry, PreparedIndex, IMAGE_FILE, INDEX_FILE, LIDAR_DENSE_FILE,
     LIDAR_SPARSE_FILE, LOWHEIGHT_MASK_FILE, META_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
@@ -138,7 +138,7 @@ pub struct Sample {
 }
 
 /// splitmix64: the counter-based hash behind every random draw of the loader.
-pub use depthsense_nuscenes::hash::splitmix64 as mix64;
+pub use depthsense_base::hash::splitmix64 as mix64;
 
 /// A small deterministic generator: the SplitMix64 stream whose first draw is
 /// `mix64(mix64(seed) + γ)` (the loader's draws since issue 5; the synthetic world's `Rng`
@@ -798,7 +798,7 @@ pub fn write_toy_dataset(
     h: u32,
     seed: u64,
 ) -> Result<(), TrainError> {
-    use depthsense_nuscenes::fsutil::write_atomic;
+    use depthsense_base::fsutil::write_atomic;
     let mut index = PreparedIndex {
         version: "v1.0-toy".into(),
         samples: vec![],
@@ -906,8 +906,8 @@ impl ToyMaps {
 
     /// Write the four depth maps, the image and the low-height mask into `dir`.
     fn write(&self, dir: &Path) -> Result<(), TrainError> {
+        use depthsense_base::fsutil::write_atomic;
         use depthsense_nuscenes::depth_png::encode_png;
-        use depthsense_nuscenes::fsutil::write_atomic;
         let enc = |m: &DepthMap| encode_png(m).map_err(|e| TrainError::Data(e.to_string()));
         let write = |name: &str, bytes: &[u8]| {
             let p = dir.join(name);

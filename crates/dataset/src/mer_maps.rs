@@ -73,10 +73,7 @@ pub fn derive_channels(depth_m: &[f32], conf: &[f32]) -> Vec<f32> {
 /// FNV-1a 64 of a file's bytes, hex.
 pub fn file_fnv64(path: &Path) -> Result<String, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
-    Ok(format!(
-        "{:016x}",
-        depthsense_nuscenes::hash::fnv1a64(&bytes)
-    ))
+    Ok(format!("{:016x}", depthsense_base::hash::fnv1a64(&bytes)))
 }
 
 /// The depth and confidence maps of a prepared sample directory, with a clear error when

@@ -9,7 +9,7 @@
 //!   naming them; with `--force` it replaces exactly those files, each atomically (temporary
 //!   sibling, then rename), and leaves every other file alone.
 //! - While a command writes a run or a dataset in place, it holds the folder's lock
-//!   ([`depthsense_nuscenes::lock`]); a second writer fails at once.
+//!   ([`depthsense_base::lock`]); a second writer fails at once.
 
 use std::path::{Path, PathBuf};
 

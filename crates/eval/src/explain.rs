@@ -26,12 +26,12 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_data::error::TrainError;
 use depthsense_data::{normalise_image, Augment};
 use depthsense_metrics::table::{md_num, Align, MdTable};
 use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
 use depthsense_nuscenes::depth_png::DepthMap;
-use depthsense_nuscenes::fsutil::write_atomic;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 

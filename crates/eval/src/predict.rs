@@ -14,10 +14,10 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
 use depthsense_model::DepthNet;
 use depthsense_nuscenes::depth_png::{decode_png, encode_png, DepthMap};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_nuscenes::geometry::{Camera, Rigid};
 use depthsense_prep::calibration::{Calibration, RadarEntry, RadarSettings};
 use depthsense_prep::layout::{

@@ -449,10 +449,8 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
         )));
     }
     // One writer per experiment folder (each run's folder has its own lock too).
-    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
-        &opts.out,
-        "depthsense experiment ablation",
-    )?;
+    let _writing =
+        depthsense_base::lock::OutputLock::exclusive(&opts.out, "depthsense experiment ablation")?;
     let total = models.len() * opts.seeds.len();
     let overall = run_bar(mp, "ablation runs");
     overall.set_length(total as u64);

@@ -265,7 +265,7 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
             plan.push((largest, arm, seed, arm.model(&base)?));
         }
     }
-    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+    let _writing = depthsense_base::lock::OutputLock::exclusive(
         &opts.out,
         "depthsense experiment data-scale",
     )?;

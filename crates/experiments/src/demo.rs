@@ -15,11 +15,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_base::fsutil::write_atomic;
+use depthsense_base::lock::OutputLock;
 use depthsense_data::{partition, Dataset, LoadOptions};
 use depthsense_metrics::Report;
 use depthsense_model::{checkpoint, Fusion, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use serde::{Deserialize, Serialize};

@@ -108,7 +108,7 @@ pub(crate) fn save(
     path: &std::path::Path,
     bytes: &[u8],
 ) -> Result<(), depthsense_data::error::TrainError> {
-    depthsense_nuscenes::fsutil::write_atomic(path, bytes)
+    depthsense_base::fsutil::write_atomic(path, bytes)
         .map_err(|e| depthsense_data::error::TrainError::io(path, e))
 }
 

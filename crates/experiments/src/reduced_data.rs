@@ -141,7 +141,7 @@ pub fn run_reduced_data(
         )));
     }
     // One writer per experiment folder (each run's folder has its own lock too).
-    let _writing = depthsense_nuscenes::lock::OutputLock::exclusive(
+    let _writing = depthsense_base::lock::OutputLock::exclusive(
         &opts.out,
         "depthsense experiment reduced-data",
     )?;

@@ -8,11 +8,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_data::error::TrainError;
 use depthsense_data::{Dataset, LoadOptions, Partition};
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
 use depthsense_model::{checkpoint, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};

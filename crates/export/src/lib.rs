@@ -20,8 +20,8 @@ pub mod sidecar;
 
 use std::path::{Path, PathBuf};
 
+use depthsense_base::fsutil::{temp_sibling, write_atomic};
 use depthsense_data::error::TrainError;
-use depthsense_nuscenes::fsutil::{temp_sibling, write_atomic};
 
 pub use sidecar::Sidecar;
 

@@ -815,7 +815,7 @@ impl ReaderStats {
 }
 
 fn fnv(b: &[u8]) -> u64 {
-    depthsense_nuscenes::hash::fnv1a64(b)
+    depthsense_base::hash::fnv1a64(b)
 }
 
 /// Fuzz every reader of `cfg`; the JSON report.

@@ -11,11 +11,11 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_data::error::TrainError;
 use depthsense_data::{decode_rgb, read_depth, Dataset};
 use depthsense_model::pda::{self, PdaConfig, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use depthsense_progress::Progress;
 use rayon::prelude::*;
@@ -232,7 +232,7 @@ pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySumm
     let started = Instant::now();
     // It writes the prepared dataset in place: no `prepare`, merge or other `mer apply` meanwhile.
     let _writing =
-        depthsense_nuscenes::lock::OutputLock::exclusive(&opts.data, "depthsense mer apply")?;
+        depthsense_base::lock::OutputLock::exclusive(&opts.data, "depthsense mer apply")?;
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
     let loaded = pda::load(&opts.checkpoint, device)?;

@@ -18,11 +18,11 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use depthsense_base::fsutil::write_atomic;
+use depthsense_base::lock::OutputLock;
 use depthsense_data::error::TrainError;
 use depthsense_data::{epoch_order, mix64, partition, sample_rng, Dataset};
 use depthsense_model::pda::{self, balanced_bce, PdaConfig, PdaNet};
-use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use depthsense_train::adam::Adam;

@@ -216,7 +216,7 @@ pub fn parse_safetensors(path: &Path, bytes: &[u8]) -> Result<Parsed, ModelError
 }
 
 /// Writes `bytes` to `path` atomically: the workspace's one atomic write
-/// (`depthsense_nuscenes::fsutil::write_atomic`: temporary sibling, fsync, rename), with the
+/// (`depthsense_base::fsutil::write_atomic`: temporary sibling, fsync, rename), with the
 /// error as a [`ModelError`] naming `path`.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
     // The folder first, so that its failure names the folder (as before).
@@ -225,7 +225,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ModelError> {
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| ModelError::io(dir, e))?;
-    depthsense_nuscenes::fsutil::write_atomic(path, bytes).map_err(|e| ModelError::io(path, e))
+    depthsense_base::fsutil::write_atomic(path, bytes).map_err(|e| ModelError::io(path, e))
 }
 
 /// Saves every variable of `vs` (trainable and BN running statistics) with `cfg` and `extra`

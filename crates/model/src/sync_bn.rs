@@ -35,7 +35,7 @@ pub fn set_sample_seeds(seeds: Option<Vec<u64>>) {
     DROPOUT_CALL.with(|c| c.set(0));
 }
 
-use depthsense_nuscenes::hash::splitmix64 as mix64;
+use depthsense_base::hash::splitmix64 as mix64;
 
 /// Dropout2d (whole channels, kept ones scaled by 1/(1−p)). With sample seeds set, channel c
 /// of sample i in the k-th dropout layer of the forward is kept iff

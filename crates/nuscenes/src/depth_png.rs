@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use crate::fsutil::write_atomic;
+use depthsense_base::fsutil::write_atomic;
 
 /// Scale between metres and the stored 16-bit value.
 pub const DEPTH_SCALE: f32 = 256.0;

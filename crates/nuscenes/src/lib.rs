@@ -3,10 +3,7 @@
 
 pub mod depth_png;
 pub mod error;
-pub mod fsutil;
 pub mod geometry;
-pub mod hash;
-pub mod lock;
 pub mod pcd;
 pub mod tables;
 

@@ -36,7 +36,7 @@ pub struct Token {
 impl Default for Token {
     /// The token of the empty string (a placeholder "no token").
     fn default() -> Self {
-        Token::from_bits(crate::hash::FNV128_OFFSET)
+        Token::from_bits(depthsense_base::hash::FNV128_OFFSET)
     }
 }
 
@@ -100,7 +100,7 @@ impl Token {
             }
         }
         // Non-hex token: FNV-1a 128-bit hash, text kept for display.
-        let t = Token::from_bits(crate::hash::fnv1a128(s));
+        let t = Token::from_bits(depthsense_base::hash::fnv1a128(s));
         if let Ok(mut g) = EXOTIC.lock() {
             g.get_or_insert_with(HashMap::new)
                 .entry(t.as_u128())
@@ -113,7 +113,7 @@ impl Token {
     /// A well-mixed 64-bit hash (splitmix64 finaliser): every output bit depends on every
     /// input bit, so masking the low bits works for sequential and random tokens alike.
     fn hash64(self) -> u64 {
-        crate::hash::splitmix64_mix(self.lo ^ self.hi.get().rotate_left(32))
+        depthsense_base::hash::splitmix64_mix(self.lo ^ self.hi.get().rotate_left(32))
     }
 }
 

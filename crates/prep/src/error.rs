@@ -20,7 +20,7 @@ pub enum PrepError {
     #[error("{path}: {reason}")]
     Output { path: String, reason: String },
     #[error(transparent)]
-    Lock(#[from] depthsense_nuscenes::lock::LockError),
+    Lock(#[from] depthsense_base::lock::LockError),
     #[error("{path} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it")]
     SettingsMismatch {
         path: String,

@@ -17,8 +17,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_nuscenes::lock::OutputLock;
+use depthsense_base::fsutil::write_atomic;
+use depthsense_base::lock::OutputLock;
 
 use crate::error::PrepError;
 use crate::layout::{self, IndexEntry, PreparedIndex};
@@ -48,7 +48,7 @@ pub fn pid_alive(pid: u32) -> bool {
 }
 
 /// The held index lock (an advisory `flock` on `out/.index.lock`, released on drop or when the
-/// process ends; [`depthsense_nuscenes::lock`]).
+/// process ends; [`depthsense_base::lock`]).
 pub type IndexLock = OutputLock;
 
 /// Take `out/.index.lock`, waiting up to [`LOCK_WAIT`] for the running holder (the lock of a

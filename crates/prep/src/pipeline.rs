@@ -1199,11 +1199,11 @@ fn shard_selection(
 
 /// Create the output folder, take its shared lock (held while the returned guard lives) and
 /// remove the temporary folders of interrupted runs.
-fn open_output(opts: &PrepareOptions) -> Result<depthsense_nuscenes::lock::OutputLock, PrepError> {
+fn open_output(opts: &PrepareOptions) -> Result<depthsense_base::lock::OutputLock, PrepError> {
     std::fs::create_dir_all(&opts.out).map_err(|e| PrepError::io(&opts.out, e))?;
     // Several prepare processes (shards) may share one --out; `mer apply` and `index merge`
     // may not write it meanwhile (docs/guide/reliability.md).
-    let writing = depthsense_nuscenes::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
+    let writing = depthsense_base::lock::OutputLock::shared(&opts.out, "depthsense prepare")?;
     // Temporary folders of interrupted runs (never those of a running process).
     crate::index::remove_stale_temp_dirs(&opts.out);
     Ok(writing)

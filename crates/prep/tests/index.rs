@@ -153,7 +153,7 @@ fn temp_folders_of_running_processes_are_left_alone() {
     );
     assert!(!dead.exists());
     // The index lock is released: another process could take it at once.
-    let _l = depthsense_nuscenes::lock::OutputLock::wait_exclusive(
+    let _l = depthsense_base::lock::OutputLock::wait_exclusive(
         &out.join(layout::INDEX_LOCK_FILE),
         "test",
         std::time::Duration::ZERO,

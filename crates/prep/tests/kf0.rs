@@ -168,7 +168,7 @@ fn prepare_writes_skips_and_indexes() {
     let names: Vec<String> = std::fs::read_dir(out.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n != depthsense_nuscenes::lock::LOCK_FILE && n != ".index.lock")
+        .filter(|n| n != depthsense_base::lock::LOCK_FILE && n != ".index.lock")
         .collect();
     assert!(names.iter().all(|n| !n.starts_with('.')), "{names:?}");
 }

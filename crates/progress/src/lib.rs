@@ -431,7 +431,7 @@ pub fn human(d: Duration) -> String {
 /// `2026-12-03T15:40:01Z`.
 pub fn utc_stamp(t: SystemTime) -> String {
     let secs = t.duration_since(UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    depthsense_nuscenes::lock::utc_iso8601(secs)
+    depthsense_base::lock::utc_iso8601(secs)
 }
 
 #[cfg(test)]

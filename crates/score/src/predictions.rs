@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_dataset::{partition, read_depth, subsample, DataError, Dataset};
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
-use depthsense_nuscenes::fsutil::write_atomic;
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE};
 use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};

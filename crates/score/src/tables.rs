@@ -2,9 +2,9 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_dataset::DataError;
 use depthsense_metrics::{tables, Report};
-use depthsense_nuscenes::fsutil::write_atomic;
 
 /// The files [`write_tables`] writes.
 pub const TABLE_FILES: [&str; 3] = ["tables.md", "tables.csv", "tables.json"];

@@ -138,7 +138,7 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
         .write_image(sheet.as_raw(), w, h, image::ExtendedColorType::Rgb8)
         .map_err(|e| SynthError::Encode(format!("contact sheet: {e}")))?;
     }
-    depthsense_nuscenes::fsutil::write_atomic(out_png, &buf).map_err(|source| SynthError::Io {
+    depthsense_base::fsutil::write_atomic(out_png, &buf).map_err(|source| SynthError::Io {
         path: out_png.display().to_string(),
         source,
     })

@@ -1,11 +1,11 @@
 //! A small deterministic RNG (SplitMix64) with independent streams derived from ids, so that
 //! parallel generation gives byte-identical output for a seed regardless of scheduling. The
-//! generator and the hashes are the workspace's one copy (`depthsense_nuscenes::hash`).
+//! generator and the hashes are the workspace's one copy (`depthsense_base::hash`).
 
-use depthsense_nuscenes::hash::{fnv1a64, SplitMix64};
+use depthsense_base::hash::{fnv1a64, SplitMix64};
 
 /// SplitMix64 finaliser: a good 64-bit mixing function.
-pub use depthsense_nuscenes::hash::splitmix64_mix as mix;
+pub use depthsense_base::hash::splitmix64_mix as mix;
 
 /// Hash a list of ids under a seed.
 pub fn hash_ids(seed: u64, ids: &[u64]) -> u64 {

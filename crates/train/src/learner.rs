@@ -17,7 +17,7 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use depthsense_nuscenes::lock::OutputLock;
+use depthsense_base::lock::OutputLock;
 use depthsense_progress::Progress;
 use serde::Serialize;
 

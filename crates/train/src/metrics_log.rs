@@ -7,8 +7,8 @@
 use std::io::Write;
 use std::path::Path;
 
+use depthsense_base::fsutil::write_atomic;
 use depthsense_metrics::Report;
-use depthsense_nuscenes::fsutil::write_atomic;
 use serde::{Deserialize, Serialize};
 
 use crate::error::TrainError;

@@ -55,7 +55,7 @@ pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<
         .into_iter()
         .map(|(k, t)| (k, t.to_device(Device::Cpu)))
         .collect();
-    let tmp = depthsense_nuscenes::fsutil::temp_sibling(path);
+    let tmp = depthsense_base::fsutil::temp_sibling(path);
     Tensor::write_safetensors(&named, &tmp).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
         TrainError::Other(format!("{}: {e}", path.display()))

@@ -45,7 +45,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let report = run_bench_data(&cfg)?;
     let text = serde_json::to_string_pretty(&report)?;
-    depthsense_nuscenes::fsutil::write_atomic(&a.out, text.as_bytes())?;
+    depthsense_base::fsutil::write_atomic(&a.out, text.as_bytes())?;
     println!("{text}");
     Ok(ExitCode::SUCCESS)
 }

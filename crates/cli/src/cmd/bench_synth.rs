@@ -79,7 +79,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let report = report_json(&a, &world, stages);
     let text = serde_json::to_string_pretty(&report)?;
-    depthsense_nuscenes::fsutil::write_atomic(&a.out, text.as_bytes())
+    depthsense_base::fsutil::write_atomic(&a.out, text.as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;
     println!("{text}");
     Ok(ExitCode::SUCCESS)

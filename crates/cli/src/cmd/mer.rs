@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_nuscenes::fsutil::write_atomic;
+use depthsense_base::fsutil::write_atomic;
 use depthsense_score::mer_coverage::{mer_report, report_markdown};
 
 #[derive(clap::Args)]

@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
+use depthsense_base::fsutil::write_atomic;
+use depthsense_base::lock::OutputLock;
 use depthsense_data::{
     mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
 };
 use depthsense_model::{checkpoint, DepthNet, ModelConfig};
-use depthsense_nuscenes::fsutil::write_atomic;
-use depthsense_nuscenes::lock::OutputLock;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use std::ops::Range;
@@ -693,11 +693,7 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainErro
 /// The first `n` of `train` in a fixed order (SplitMix64 of each sample token's FNV-1a hash):
 /// nested for growing `n`, the same for every seed and variant; returned in `train`'s order.
 pub fn training_subset(train: &[IndexEntry], n: usize) -> Vec<IndexEntry> {
-    let key = |e: &IndexEntry| {
-        mix64(depthsense_nuscenes::hash::fnv1a64(
-            e.sample_token.as_bytes(),
-        ))
-    };
+    let key = |e: &IndexEntry| mix64(depthsense_base::hash::fnv1a64(e.sample_token.as_bytes()));
     let mut order: Vec<usize> = (0..train.len()).collect();
     order.sort_by_key(|&i| (key(&train[i]), i));
     let mut keep: Vec<usize> = order.into_iter().take(n).collect();

@@ -160,7 +160,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let text = serde_json::to_string_pretty(&res)?;
     println!("{text}");
     if let Some(p) = &a.out {
-        depthsense_nuscenes::fsutil::write_atomic(p, format!("{text}\n").as_bytes())
+        depthsense_base::fsutil::write_atomic(p, format!("{text}\n").as_bytes())
             .with_context(|| p.display().to_string())?;
     }
     Ok(ExitCode::SUCCESS)

@@ -23,7 +23,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     pb.finish_and_clear();
     let text = serde_json::to_string_pretty(&v)?;
     if let Some(p) = &a.out {
-        depthsense_nuscenes::fsutil::write_atomic(p, text.as_bytes())?;
+        depthsense_base::fsutil::write_atomic(p, text.as_bytes())?;
     }
     println!("{text}");
     Ok(ExitCode::SUCCESS)

@@ -57,8 +57,8 @@ fn claim_results(
     out: &std::path::Path,
     name: &str,
     force: bool,
-) -> anyhow::Result<depthsense_nuscenes::lock::OutputLock> {
-    let lock = depthsense_nuscenes::lock::OutputLock::exclusive(
+) -> anyhow::Result<depthsense_base::lock::OutputLock> {
+    let lock = depthsense_base::lock::OutputLock::exclusive(
         out,
         &format!("depthsense experiment {name}"),
     )?;

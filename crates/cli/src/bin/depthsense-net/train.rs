@@ -70,7 +70,7 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
         depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
     }
     // Another writer fails us here, at once (taken and released: rank 0 holds it next).
-    drop(depthsense_nuscenes::lock::OutputLock::exclusive(
+    drop(depthsense_base::lock::OutputLock::exclusive(
         &a.out,
         "depthsense train",
     )?);
