@@ -34,4 +34,12 @@ pub enum ConfigError {
     /// A field has a value the network cannot be built with, or an option is unknown.
     #[error("invalid model config: {0}")]
     Invalid(String),
+    /// A radar input asked of a model whose radar channels differ
+    /// ([`ModelConfig::radar_input_for`]).
+    #[error(
+        "radar input {} has {} channel(s) but the model expects radar_channels = {expected}",
+        .input.name(),
+        .input.channels()
+    )]
+    RadarChannels { input: RadarInput, expected: i64 },
 }

@@ -252,6 +252,27 @@ pub struct ModelConfig {
 }
 
 impl ModelConfig {
+    /// The radar input this model is fed (None for RGB-only): `requested` when given (it must
+    /// have the model's channel count), else the input it was trained on (SPEC §5). Training,
+    /// evaluation, prediction and export all ask here, so what deployment feeds a model is
+    /// what training fed it.
+    pub fn radar_input_for(
+        &self,
+        requested: Option<RadarInput>,
+    ) -> Result<Option<RadarInput>, crate::ConfigError> {
+        if self.fusion == Fusion::None {
+            return Ok(None);
+        }
+        let input = requested.unwrap_or(self.radar_input);
+        if input.channels() as i64 != self.radar_channels {
+            return Err(crate::ConfigError::RadarChannels {
+                input,
+                expected: self.radar_channels,
+            });
+        }
+        Ok(Some(input))
+    }
+
     /// The paper's network (SPEC §6): ResNet-101, top-down decoder over C2–C4, ResNet-18
     /// radar branch, late fusion with spatial attention, ordinal head K = 80.
     pub fn paper() -> Self {
@@ -453,4 +474,32 @@ pub fn is_one(v: &i64) -> bool {
 /// option existed read back unchanged, and new configs that do not use it look the same).
 fn is_default<T: Default + PartialEq>(v: &T) -> bool {
     *v == T::default()
+}
+
+#[cfg(test)]
+mod radar_input_tests {
+    use super::*;
+
+    #[test]
+    fn a_model_is_fed_the_radar_input_it_was_trained_on() {
+        let mut cfg = ModelConfig::tiny();
+        cfg.fusion = Fusion::None;
+        assert_eq!(cfg.radar_input_for(Some(RadarInput::Raw)), Ok(None));
+        cfg.fusion = Fusion::Late;
+        assert_eq!(cfg.radar_input_for(None), Ok(Some(cfg.radar_input)));
+        // a request with the model's channel count is honoured, another is refused naming both
+        let same = RadarInput::Raw;
+        assert_eq!(same.channels() as i64, cfg.radar_channels);
+        assert_eq!(cfg.radar_input_for(Some(same)), Ok(Some(same)));
+        let e = cfg
+            .radar_input_for(Some(RadarInput::RawHeight))
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "radar input raw-height has 2 channel(s) but the model expects radar_channels = {}",
+                cfg.radar_channels
+            )
+        );
+    }
 }

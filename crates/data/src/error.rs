@@ -137,7 +137,13 @@ impl From<depthsense_dist::DistError> for TrainError {
 /// An unknown preset or `--set` key, or a config no network can be built with.
 impl From<depthsense_model::config::ConfigError> for TrainError {
     fn from(e: depthsense_model::config::ConfigError) -> Self {
-        TrainError::Model(e.into())
+        use depthsense_model::config::ConfigError as C;
+        match e {
+            // a mismatch between a request and the model, not an invalid model (same message
+            // as when the trainer owned the rule)
+            C::RadarChannels { .. } => TrainError::Config(e.to_string()),
+            e => TrainError::Model(e.into()),
+        }
     }
 }
 

@@ -50,7 +50,7 @@ fn main() {
     let ds = depthsense_data::Dataset::open(&tmp.path().join("data")).unwrap();
     let e = &ds.split("all")[0];
     let inp = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
-    let radar = depthsense_train::trainer::radar_input_for(&l.config, None).unwrap();
+    let radar = l.config.radar_input_for(None).unwrap();
     let d = depthsense_eval::predict::predict(&l.net, &inp, radar, tch::Device::Cpu).unwrap();
     let gt = inp.gt.unwrap();
     for v in [5usize, 20, 30, 40, 50, 63] {

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use depthsense_data::error::TrainError;
 use depthsense_prep::layout::IndexEntry;
-use depthsense_train::trainer::{evaluate_net, radar_input_for, subsample};
+use depthsense_train::trainer::{evaluate_net, subsample};
 pub use depthsense_train::validate::{condition_names, score_image};
 use depthsense_train::validate::{run_net, RunPlan};
 // Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
@@ -150,7 +150,7 @@ fn eval_inputs(
         &select_split(&ds, &opts.split, opts.val_every_scene)?,
         opts.max_samples,
     );
-    let radar = radar_input_for(&loaded.config, opts.radar_input)?;
+    let radar = loaded.config.radar_input_for(opts.radar_input)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),

@@ -239,7 +239,7 @@ pub fn run_explain(
 ) -> Result<ExplainResult, TrainError> {
     std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
     let cfg = net.config().clone();
-    let radar_input = depthsense_train::trainer::radar_input_for(&cfg, None)?;
+    let radar_input = cfg.radar_input_for(None)?;
     let mut records = vec![];
     let mut tiles: Vec<Vec<image::RgbImage>> = vec![];
     for dir in dirs {

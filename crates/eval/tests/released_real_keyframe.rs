@@ -15,7 +15,6 @@ mod reference;
 
 use depthsense_eval::evaluate::load_model;
 use depthsense_eval::predict::{input_from_token, predict};
-use depthsense_train::trainer::radar_input_for;
 
 const SAMPLE: &str = "ca9a282c9e77460f8360f564131a8af5";
 
@@ -106,7 +105,7 @@ fn released_preset_predicts_like_the_authors_network_on_the_real_keyframe() {
     let report = report.expect("a .pth gives an import report");
     assert!(report.left_random.is_empty(), "{report}");
     assert!(report.unused.is_empty(), "{:?}", report.unused);
-    let radar = radar_input_for(&loaded.config, None).unwrap();
+    let radar = loaded.config.radar_input_for(None).unwrap();
     let ours = predict(&loaded.net, &input, radar, tch::Device::Cpu).unwrap();
     let theirs: Vec<f32> = std::fs::read(dir.path().join("depth.f32"))
         .unwrap()

@@ -476,7 +476,7 @@ fn train_resume_mismatch_eval_predict() {
     let e = &ds.split("all")[0];
     let input = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
     let loaded = checkpoint::load(&tmp.path().join("a").join(BEST_CKPT), tch::Device::Cpu).unwrap();
-    let radar = depthsense_train::trainer::radar_input_for(&loaded.config, None).unwrap();
+    let radar = loaded.config.radar_input_for(None).unwrap();
     let depth =
         depthsense_eval::predict::predict(&loaded.net, &input, radar, tch::Device::Cpu).unwrap();
     assert_eq!((depth.width, depth.height), (W, H));

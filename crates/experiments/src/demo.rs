@@ -28,8 +28,7 @@ use tch::Device;
 use depthsense_data::error::TrainError;
 use depthsense_eval::evaluate::write_tables;
 use depthsense_train::trainer::{
-    evaluate_net, radar_input_for, read_metrics, subsample, train, TrainOptions, BEST_CKPT,
-    METRICS_FILE,
+    evaluate_net, read_metrics, subsample, train, TrainOptions, BEST_CKPT, METRICS_FILE,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -430,7 +429,7 @@ fn evaluate_both(
     pb.set_length(2 * test.len() as u64);
     for (name, dir, _, _) in runs {
         let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
-        let radar = radar_input_for(&loaded.config, None)?;
+        let radar = loaded.config.radar_input_for(None)?;
         let load = LoadOptions {
             radar: radar.unwrap_or_default(),
             no_radar: radar.is_none(),

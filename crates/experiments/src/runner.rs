@@ -17,7 +17,7 @@ use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};
 use depthsense_train::trainer::{
-    radar_input_for, train, validate_net, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
+    train, validate_net, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
 };
 use serde::{Deserialize, Serialize};
 
@@ -533,7 +533,7 @@ fn test_best(
         )));
     }
     let loaded = checkpoint::load(&best, device)?;
-    let radar = radar_input_for(&loaded.config, None)?;
+    let radar = loaded.config.radar_input_for(None)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),

@@ -321,7 +321,7 @@ fn export_variant(py: &Path, cfg: &ModelConfig, formats: &[Format]) -> Exported 
     let dir = tempfile::tempdir().unwrap();
     let ckpt = checkpoint_of(cfg, dir.path(), 3);
     let (w, h) = (cfg.out_width as u32, cfg.out_height as u32);
-    let kind = depthsense_train::trainer::radar_input_for(cfg, None).unwrap();
+    let kind = cfg.radar_input_for(None).unwrap();
     let loaded = checkpoint::load(&ckpt, Device::Cpu).unwrap();
     let mut files = vec![];
     // every format from one load and one trace (`export_many`)

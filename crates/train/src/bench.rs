@@ -12,7 +12,7 @@ use tch::nn::VarStore;
 use crate::error::TrainError;
 use crate::sgd::Sgd;
 use crate::step::{forward_loss, step_precision};
-use crate::trainer::{radar_input_for, upload_batch};
+use crate::trainer::upload_batch;
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BenchTrainOptions {
@@ -71,7 +71,7 @@ pub fn bench_train(
     let ds = Dataset::open(&root)?;
     let entries = ds.split("all");
     let mut cfg = ModelConfig::preset(&opts.preset)?.with_options(&opts.set)?;
-    let radar = radar_input_for(&cfg, None)?;
+    let radar = cfg.radar_input_for(None)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),

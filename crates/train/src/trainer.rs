@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use depthsense_data::{Partition, RadarInput, TargetKind};
 use depthsense_metrics::EvalConfig;
-use depthsense_model::{checkpoint, Fusion, ModelConfig};
+use depthsense_model::{checkpoint, ModelConfig};
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
@@ -240,28 +240,6 @@ pub struct Segment {
     pub lr: f64,
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub warmup: u64,
-}
-
-/// Radar input for a model config (fusion None → no radar): `requested` when given (it must
-/// have the model's channel count), else the input the model was trained on (stored in its
-/// config, SPEC §5).
-pub fn radar_input_for(
-    cfg: &ModelConfig,
-    requested: Option<RadarInput>,
-) -> Result<Option<RadarInput>, TrainError> {
-    if cfg.fusion == Fusion::None {
-        return Ok(None);
-    }
-    let r = requested.unwrap_or(cfg.radar_input);
-    if r.channels() as i64 != cfg.radar_channels {
-        return Err(TrainError::Config(format!(
-            "radar input {} has {} channel(s) but the model expects radar_channels = {}",
-            r.name(),
-            r.channels(),
-            cfg.radar_channels
-        )));
-    }
-    Ok(Some(r))
 }
 
 pub use depthsense_dataset::subsample;

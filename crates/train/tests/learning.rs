@@ -7,9 +7,7 @@ use std::path::Path;
 use depthsense_data::{partition, Dataset, LoadOptions};
 use depthsense_model::{checkpoint, ModelConfig, RadarInput};
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{
-    evaluate_net, radar_input_for, train, TrainOptions, BEST_CKPT, LAST_CKPT,
-};
+use depthsense_train::trainer::{evaluate_net, train, TrainOptions, BEST_CKPT, LAST_CKPT};
 
 /// libtorch's generator is process-wide: tests that train hold this lock so that each run's
 /// initial weights come from its own seed.
@@ -64,7 +62,7 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
     train(&opts, &Progress::hidden()).unwrap();
     let loaded = checkpoint::load(&opts.out.join(LAST_CKPT), tch::Device::Cpu).unwrap();
     let part = partition(&ds, opts.val_every_scene).unwrap();
-    let radar = radar_input_for(&loaded.config, None).unwrap();
+    let radar = loaded.config.radar_input_for(None).unwrap();
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),
@@ -129,10 +127,13 @@ fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
     assert_eq!(loaded.config.radar_input, RadarInput::Raw);
     // eval / predict / demo derive the input from the checkpoint: raw, not height-extended.
     assert_eq!(
-        radar_input_for(&loaded.config, None).unwrap(),
+        loaded.config.radar_input_for(None).unwrap(),
         Some(RadarInput::Raw)
     );
     // An explicit request with the wrong channel count is refused, naming both.
-    let err = radar_input_for(&loaded.config, Some(RadarInput::RawHeight)).unwrap_err();
+    let err = loaded
+        .config
+        .radar_input_for(Some(RadarInput::RawHeight))
+        .unwrap_err();
     assert!(err.to_string().contains("raw-height"), "{err}");
 }

@@ -18,9 +18,9 @@ use std::ops::Range;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, radar_input_for, read_metrics, save_ckpt, subsample,
-    truncate_metrics, upload_batch, validate_net, write_curves, State, TrainOptions, TrainSummary,
-    ValRecord, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    all_finite, append_jsonl, read_metrics, save_ckpt, subsample, truncate_metrics, upload_batch,
+    validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord, BEST_CKPT,
+    CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
@@ -729,7 +729,7 @@ fn block_entries(
 
 /// What the training loader reads and how (SPEC §8 augmentation, `--train-radar-drop`).
 fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOptions, TrainError> {
-    let radar = radar_input_for(cfg, opts.radar_input)?;
+    let radar = cfg.radar_input_for(opts.radar_input)?;
     Ok(LoadOptions {
         radar: radar.unwrap_or_default(),
         target: opts.target,

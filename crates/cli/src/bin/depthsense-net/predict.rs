@@ -9,7 +9,6 @@ use depthsense_eval::predict::{
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::calibration::RadarSettings;
 use depthsense_train::outputs::refuse_existing;
-use depthsense_train::trainer::radar_input_for;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -66,7 +65,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     for w in radar_warnings(trained.as_ref(), &input) {
         eprintln!("{w}");
     }
-    let radar = radar_input_for(&loaded.config, None)?;
+    let radar = loaded.config.radar_input_for(None)?;
     if let Some(ck) = &a.mer_checkpoint {
         let pda = depthsense_model::pda::load(ck, device)?;
         depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
