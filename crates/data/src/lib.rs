@@ -1,4 +1,4 @@
-//! depthsense-data (layer 3, ARCHITECTURE.md): everything between `depthsense prepare`'s output
+//! depthsense-data (layer 4, ARCHITECTURE.md): everything between `depthsense prepare`'s output
 //! and a batch of tensors — withheld scenes ([`exclusion`]), SPEC §8 augmentation, radar
 //! corruption ([`radar_failure`]), MER's `mer.json` ([`mer_maps`]) and the prefetching loader;
 //! the dataset, index, partition and a sample's readers are `depthsense_dataset`'s

@@ -1,4 +1,4 @@
-//! depthsense-dataset (layer 2, ARCHITECTURE.md): a prepared data folder as the torch-free
+//! depthsense-dataset (layer 3, ARCHITECTURE.md): a prepared data folder as the torch-free
 //! commands and the training stack both read it — the index and its train / validation / test
 //! partition ([`index`]), a sample's files ([`maps`]), the MER maps on disk ([`mer_maps`]) and
 //! the one rule for output folders ([`outputs`]). No tensors: `depthsense` (the front that

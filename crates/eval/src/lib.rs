@@ -1,4 +1,4 @@
-//! depthsense-eval (layer 6, ARCHITECTURE.md): a trained network put to use —
+//! depthsense-eval (layer 7, ARCHITECTURE.md): a trained network put to use —
 //!
 //! - [`evaluate`]: `eval` (SPEC §10 tables 1–3 as Markdown, CSV, JSON; radar drop; scoring
 //!   other methods' depth maps with `--predictions`);

@@ -1,4 +1,4 @@
-//! depthsense-experiments (layer 7, ARCHITECTURE.md): the experiments of SPEC §10 built from
+//! depthsense-experiments (layer 8, ARCHITECTURE.md): the experiments of SPEC §10 built from
 //! ordinary training runs and evaluations, and the end-to-end [`demo`]:
 //!
 //! - [`ablation`]: the fusion variants of SPEC §6 (RGB only, early, late, late + spatial

@@ -1,4 +1,4 @@
-//! depthsense-export (layer 7, ARCHITECTURE.md): `depthsense export` — a trained network out of
+//! depthsense-export (layer 8, ARCHITECTURE.md): `depthsense export` — a trained network out of
 //! depthsense as ONNX, TorchScript or a PyTorch state dict, with a sidecar JSON that says how to
 //! feed it.
 //!

@@ -1,4 +1,4 @@
-//! depthsense-mer (layer 5, ARCHITECTURE.md) — MER, the multi-channel enhanced radar of RC-PDA (SPEC §5): association labels from
+//! depthsense-mer (layer 6, ARCHITECTURE.md) — MER, the multi-channel enhanced radar of RC-PDA (SPEC §5): association labels from
 //! `prepare` output ([`labels`]), training of the PDA network ([`train`]), writing the
 //! enhanced maps into every prepared sample ([`apply`], with preview pictures) and the
 //! coverage / error measurement against the sparse lidar GT ([`report`]).

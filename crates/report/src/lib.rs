@@ -1,4 +1,4 @@
-//! depthsense-report (layer 4, ARCHITECTURE.md) — `depthsense report`: one self-contained page of every experiment output found under some
+//! depthsense-report (layer 5, ARCHITECTURE.md) — `depthsense report`: one self-contained page of every experiment output found under some
 //! run folders — ablation, reduced data, sensor failure, calibration perturbation, cost,
 //! Grad-CAM++ (explain), evaluation tables (main, region and distance-cap tables), the MER
 //! coverage report and the demo's report folder.

@@ -1,4 +1,4 @@
-//! depthsense-score (layer 3, ARCHITECTURE.md): scoring depth maps on disk against a prepared
+//! depthsense-score (layer 4, ARCHITECTURE.md): scoring depth maps on disk against a prepared
 //! folder's ground truth, without tensors — the one scorer ([`score_image`], SPEC §9) every
 //! evaluation goes through, other methods' predictions (`eval --predictions`,
 //! [`predictions`]), the tables files `eval` writes ([`tables`]) and the radar maps' coverage

@@ -1,4 +1,4 @@
-//! depthsense-train (layer 4, ARCHITECTURE.md): the training engine — optimisers, the training
+//! depthsense-train (layer 5, ARCHITECTURE.md): the training engine — optimisers, the training
 //! step, validation, checkpoints and exact resume, run folders, data-parallel training.
 //!
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);

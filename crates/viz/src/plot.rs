@@ -32,7 +32,7 @@ const COLOURS: [RGBColor; 4] = [
 ];
 
 fn plot_err<E: std::fmt::Debug>(e: E) -> VizError {
-    VizError(format!("plotting failed: {e:?}"))
+    VizError::Plot(format!("{e:?}"))
 }
 
 /// A plotters drawing area on a bitmap buffer.
@@ -213,8 +213,7 @@ pub fn curves_png_labelled(
         panel(&b, right.0, right.1, right.2, text)?;
         root.present().map_err(plot_err)?;
     }
-    let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| VizError("plot buffer has the wrong size".into()))?;
+    let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| VizError::BufferSize("plot"))?;
     encode_rgb(&img)
 }
 
@@ -222,7 +221,7 @@ pub fn curves_png_labelled(
 pub fn encode_rgb(img: &image::RgbImage) -> Result<Vec<u8>, VizError> {
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| VizError(format!("PNG encoding failed: {e}")))?;
+        .map_err(VizError::Png)?;
     Ok(out.into_inner())
 }
 
@@ -461,8 +460,7 @@ fn panels_png<P>(
         }
         root.present().map_err(plot_err)?;
     }
-    let img = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| VizError("plot buffer has the wrong size".into()))?;
+    let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| VizError::BufferSize("plot"))?;
     encode_rgb(&img)
 }
 
@@ -493,7 +491,7 @@ pub fn picture_row_png(
     max_m: f32,
 ) -> Result<Vec<u8>, VizError> {
     if panels.is_empty() {
-        return Err(VizError("picture row: no panels".into()));
+        return Err(VizError::NoPanels);
     }
     let text = fonts_available();
     let g = PictureGrid::new(panels, text);
@@ -641,8 +639,7 @@ impl PictureGrid {
             .map_err(plot_err)?;
             root.present().map_err(plot_err)?;
         }
-        image::RgbImage::from_raw(w, h, buf)
-            .ok_or_else(|| VizError("picture buffer has the wrong size".into()))
+        image::RgbImage::from_raw(w, h, buf).ok_or_else(|| VizError::BufferSize("picture"))
     }
 }
 
@@ -767,6 +764,17 @@ pub fn line_charts_png(panels: &[LinePanel<'_>]) -> Result<Vec<u8>, VizError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn errors_are_typed_with_the_same_messages() {
+        let e = picture_row_png(&[], 80.0).unwrap_err();
+        assert!(matches!(e, VizError::NoPanels));
+        assert_eq!(e.to_string(), "picture row: no panels");
+        assert_eq!(
+            VizError::BufferSize("plot").to_string(),
+            "plot buffer has the wrong size"
+        );
+    }
 
     #[test]
     fn the_embedded_font_draws_text() {
