@@ -405,21 +405,34 @@ struct RadarMaps {
     height_px: usize,
 }
 
+impl RadarMaps {
+    /// The raw and height-extended maps of the sample in `dir`, checked against the image
+    /// size (a size error names the sample's stored file of that map).
+    fn checked(
+        dir: &Path,
+        raw: DepthMap,
+        height: DepthMap,
+        w: usize,
+        h: usize,
+    ) -> Result<RadarMaps, TrainError> {
+        let raw_path = dir.join(RADAR_RAW_FILE);
+        check_size(&raw, w, h, &raw_path)?;
+        check_size(&height, w, h, &dir.join(RADAR_HEIGHT_FILE))?;
+        Ok(RadarMaps {
+            raw,
+            height,
+            raw_path,
+            width: w,
+            height_px: h,
+        })
+    }
+}
+
 /// Read the raw and height-extended radar maps of a sample.
 fn read_radar_maps(dir: &Path, w: usize, h: usize) -> Result<RadarMaps, TrainError> {
-    let raw_path = dir.join(RADAR_RAW_FILE);
-    let height_path = dir.join(RADAR_HEIGHT_FILE);
-    let raw = read_depth(&raw_path)?;
-    check_size(&raw, w, h, &raw_path)?;
-    let height = read_depth(&height_path)?;
-    check_size(&height, w, h, &height_path)?;
-    Ok(RadarMaps {
-        raw,
-        height,
-        raw_path,
-        width: w,
-        height_px: h,
-    })
+    let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
+    let height = read_depth(&dir.join(RADAR_HEIGHT_FILE))?;
+    RadarMaps::checked(dir, raw, height, w, h)
 }
 
 /// The oracle radar maps ([`radar_oracle`]) in place of the stored ones (which are not read),
@@ -430,16 +443,8 @@ fn oracle_radar_maps(
     w: usize,
     h: usize,
 ) -> Result<RadarMaps, TrainError> {
-    let raw_path = dir.join(RADAR_RAW_FILE);
     let (raw, height) = radar_oracle::oracle_maps(dir, target_m, w, h)?;
-    check_size(&raw, w, h, &raw_path)?;
-    Ok(RadarMaps {
-        raw,
-        height,
-        raw_path,
-        width: w,
-        height_px: h,
-    })
+    RadarMaps::checked(dir, raw, height, w, h)
 }
 
 /// Radar corruption in the loader's order: failure re-rasterisation, `radar_drop`, the

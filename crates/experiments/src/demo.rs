@@ -261,7 +261,7 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainErro
         test_scenes: part.test_scenes.clone(),
         split_method: part.method.clone(),
         train_samples: part.train.len(),
-        iterations: iterations(&plan, part.train.len()),
+        iterations: runs[0].4,
         commands: stage_commands(opts, &plan, &scfg.version_name),
     };
     write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
@@ -358,8 +358,9 @@ fn prepare_world(
     Ok(prepared)
 }
 
-/// One trained run of the demo: name, folder, initial and best validation RMSE.
-type DemoRun = (&'static str, PathBuf, f64, f64);
+/// One trained run of the demo: name, folder, initial and best validation RMSE, and the
+/// iterations the trainer ran.
+type DemoRun = (&'static str, PathBuf, f64, f64, u64);
 
 /// 3. Train RGB-only and late fusion with the same seed.
 fn train_both(
@@ -402,7 +403,13 @@ fn train_both(
         let s = train(&topts, &pb)?;
         pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
         let initial = s.val.first().map_or(f64::NAN, |v| v.rmse);
-        runs.push((name, out.join(name), initial, s.best_val_rmse));
+        runs.push((
+            name,
+            out.join(name),
+            initial,
+            s.best_val_rmse,
+            s.total_iterations,
+        ));
         stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
     }
     Ok(runs)
@@ -427,7 +434,7 @@ fn evaluate_both(
     let mut reports: Vec<(String, Report)> = vec![];
     let pb = stage_bar(mp, "eval");
     pb.set_length(2 * test.len() as u64);
-    for (name, dir, _, _) in runs {
+    for (name, dir, ..) in runs {
         let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
         let radar = loaded.config.radar_input_for(None)?;
         let load = LoadOptions {
@@ -476,7 +483,7 @@ fn evaluate_both(
 /// Each run's curves.png copied into the report, and both runs on one picture: training loss
 /// (left) and validation RMSE (right).
 fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainError> {
-    for (name, dir, _, _) in runs {
+    for (name, dir, ..) in runs {
         let src = dir.join(depthsense_train::trainer::CURVES_FILE);
         if src.exists() {
             let dst = report_dir.join(format!("curves_{name}.png"));
@@ -486,7 +493,7 @@ fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainErro
     // Both runs on one picture: training loss (left) and validation RMSE (right).
     let mut losses = vec![];
     let mut val_series = vec![];
-    for (name, dir, _, _) in runs {
+    for (name, dir, ..) in runs {
         let (l, val) = read_metrics(&dir.join(METRICS_FILE))?;
         losses.push((name.to_string(), l));
         val_series.push((
@@ -527,15 +534,6 @@ fn demo_in(out: &Path) -> Option<String> {
         .filter(|d| out.join(d).exists())
         .collect();
     (!parts.is_empty()).then(|| format!("an unfinished demo ({}/)", parts.join("/, ")))
-}
-
-/// Training iterations of each demo model on `train_samples` images.
-fn iterations(plan: &DemoPlan, train_samples: usize) -> u64 {
-    let per_epoch = plan.epoch_iterations.unwrap_or_else(|| {
-        let pass = train_samples.div_ceil(plan.batch_size.max(1));
-        plan.max_batches_per_epoch.map_or(pass, |m| m.min(pass)) as u64
-    });
-    per_epoch * plan.epochs as u64
 }
 
 /// The demo's stages as separate commands with its settings (docs/guide/experiments.md, "The demo").
