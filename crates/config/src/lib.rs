@@ -14,6 +14,7 @@
 pub mod cli;
 mod model_config;
 pub mod options;
+pub mod pda;
 pub mod presets;
 
 pub use model_config::{

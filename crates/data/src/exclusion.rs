@@ -3,7 +3,7 @@
 //! The withholding rule ([`withheld_scenes`]), deterministic and independent of the seed:
 //! for each `condition=fraction`, take the distinct scene names of the training partition
 //! whose conditions include that condition (a night+rain scene counts for both), order them
-//! by the key `(mix64(fnv1a64(name)), name)` (a fixed pseudo-random order that does not
+//! by the key `(splitmix64(fnv1a64(name)), name)` (a fixed pseudo-random order that does not
 //! depend on the other scenes), and withhold the first `round(fraction × n)` (half away from
 //! zero). Exclusions of several conditions withhold the union. Validation and test scenes
 //! are never touched: every grid cell is selected and tested on the same scenes.
@@ -15,8 +15,9 @@ use depthsense_base::hash::fnv1a64;
 use depthsense_prep::layout::{Condition, IndexEntry};
 use serde::{Deserialize, Serialize};
 
-use crate::error::TrainError;
-use crate::{mix64, Partition};
+use depthsense_base::hash::splitmix64;
+use depthsense_dataset::DataError;
+use depthsense_dataset::Partition;
 
 /// Withhold `fraction` of the training scenes of `condition`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -40,9 +41,9 @@ impl std::fmt::Display for Exclusion {
 }
 
 impl FromStr for Exclusion {
-    type Err = TrainError;
+    type Err = DataError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let bad = |why: &str| TrainError::Config(format!("--exclude {s:?}: {why}"));
+        let bad = |why: &str| DataError::Config(format!("--exclude {s:?}: {why}"));
         let (c, f) = s
             .split_once('=')
             .ok_or_else(|| bad("expected CONDITION=FRACTION, e.g. night=1.0"))?;
@@ -67,7 +68,7 @@ impl FromStr for Exclusion {
 }
 
 /// Parse "night=1.0,rain=0.5" (empty or "full" = no exclusion).
-pub fn parse_exclusions(s: &str) -> Result<Vec<Exclusion>, TrainError> {
+pub fn parse_exclusions(s: &str) -> Result<Vec<Exclusion>, DataError> {
     let s = s.trim();
     if s.is_empty() || s == "full" {
         return Ok(vec![]);
@@ -98,7 +99,7 @@ pub fn withheld_scenes(train: &[IndexEntry], exclude: &[Exclusion]) -> Vec<Strin
             .collect();
         let mut order: Vec<(u64, &str)> = scenes
             .into_iter()
-            .map(|n| (mix64(fnv1a64(n.as_bytes())), n))
+            .map(|n| (splitmix64(fnv1a64(n.as_bytes())), n))
             .collect();
         order.sort();
         let k = (ex.fraction * order.len() as f64).round() as usize;

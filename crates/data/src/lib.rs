@@ -1,9 +1,9 @@
 //! depthsense-data (layer 4, ARCHITECTURE.md): everything between `depthsense prepare`'s output
-//! and a batch of tensors — withheld scenes ([`exclusion`]), SPEC §8 augmentation, radar
-//! corruption ([`radar_failure`]), MER's `mer.json` ([`mer_maps`]) and the prefetching loader;
-//! the dataset, index, partition and a sample's readers are `depthsense_dataset`'s
-//! (re-exported here). No training code: the training
-//! engine (`depthsense-train`) and everything above it read data only through this crate.
+//! and a batch — withheld scenes ([`exclusion`]), SPEC §8 augmentation, radar corruption
+//! ([`radar_failure`]) and the prefetching loader. Without libtorch: a batch is host memory
+//! (`Vec<f32>`), its errors are `depthsense_dataset::DataError`; the dataset, index, partition,
+//! a sample's readers and the MER maps on disk are `depthsense_dataset`'s (reached there). No
+//! training code: the training engine (`depthsense-train`) uploads the batches.
 //!
 //! The data loader: reads `depthsense prepare` output (`depthsense_prep::layout`), applies the
 //! SPEC §8 augmentation, normalises images (SPEC §6 ImageNet statistics) and assembles batches
@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver};
 use std::thread::JoinHandle;
 
-use depthsense_base::hash::{fnv1a64, SplitMix64, GOLDEN_GAMMA};
+use depthsense_base::hash::{fnv1a64, splitmix64, SplitMix64, GOLDEN_GAMMA};
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::layout::{
     Condition, IndexEntry, PreparedIndex, IMAGE_FILE, INDEX_FILE, LIDAR_DENSE_FILE,
@@ -27,21 +27,18 @@ use depthsense_prep::layout::{
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-pub mod error;
 pub mod exclusion;
-pub mod mer_maps;
 pub mod radar_failure;
 pub mod radar_oracle;
 
 // The torch-free part (index, partition, a sample's files, MER maps on disk) lives in
-// depthsense-dataset, so that `depthsense` runs the data commands without libtorch; the
-// loader's users keep reaching it through this crate.
-pub use depthsense_dataset::index::{partition, subsample, Dataset, Partition};
-pub use depthsense_dataset::maps::{
+// depthsense-dataset and is reached there (one path per item).
+use depthsense_dataset::index::Dataset;
+use depthsense_dataset::maps::{
     check_size, decode_rgb, read_depth, read_lowheight_mask, read_meta,
 };
 
-pub use error::TrainError;
+use depthsense_dataset::DataError;
 
 /// serde `skip_serializing_if` for optional settings that are off at their default (0, false,
 /// empty): the JSON of runs that do not use them stays as it was before they existed.
@@ -54,8 +51,7 @@ pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
 /// ImageNet standard deviation (SPEC §6).
 pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 
-/// Which prepared radar map(s) feed the network's radar channels (stored in the model config).
-pub use depthsense_model::RadarInput;
+use depthsense_config::RadarInput;
 
 /// Which lidar map is the training target.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -137,11 +133,8 @@ pub struct Sample {
     pub flipped: bool,
 }
 
-/// splitmix64: the counter-based hash behind every random draw of the loader.
-pub use depthsense_base::hash::splitmix64 as mix64;
-
 /// A small deterministic generator: the SplitMix64 stream whose first draw is
-/// `mix64(mix64(seed) + γ)` (the loader's draws since issue 5; the synthetic world's `Rng`
+/// `splitmix64(splitmix64(seed) + γ)` (the loader's draws since issue 5; the synthetic world's `Rng`
 /// starts from the seed itself — the two seedings differ and each keeps its stream).
 #[derive(Debug, Clone)]
 pub struct Rng(SplitMix64);
@@ -149,7 +142,7 @@ pub struct Rng(SplitMix64);
 impl Rng {
     pub fn new(seed: u64) -> Self {
         Self(SplitMix64::from_state(
-            mix64(seed).wrapping_add(GOLDEN_GAMMA),
+            splitmix64(seed).wrapping_add(GOLDEN_GAMMA),
         ))
     }
     pub fn next_u64(&mut self) -> u64 {
@@ -172,7 +165,7 @@ fn hash_str(s: &str) -> u64 {
 pub fn epoch_order(n: usize, seed: u64, epoch: u64, shuffle: bool) -> Vec<usize> {
     let mut v: Vec<usize> = (0..n).collect();
     if shuffle {
-        let mut rng = Rng::new(seed ^ mix64(epoch.wrapping_add(0x5eed)));
+        let mut rng = Rng::new(seed ^ splitmix64(epoch.wrapping_add(0x5eed)));
         for i in (1..n).rev() {
             let j = (rng.next_u64() % (i as u64 + 1)) as usize;
             v.swap(i, j);
@@ -243,7 +236,7 @@ pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, see
     let mut dropped: BTreeSet<(usize, u32)> = BTreeSet::new();
     for (i, d) in raw.depth_m.iter_mut().enumerate() {
         if *d > 0.0 {
-            let r = mix64(seed ^ mix64(i as u64 + 1));
+            let r = splitmix64(seed ^ splitmix64(i as u64 + 1));
             if ((r >> 11) as f64 / (1u64 << 53) as f64) < p {
                 dropped.insert((i % w, d.to_bits()));
                 *d = 0.0;
@@ -264,9 +257,9 @@ pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, see
 /// from `radar_mer_depth.png` / `radar_mer_conf.png`. A MER pixel carries the exact depth of
 /// one raw return, so MER pixels whose depth is no longer among the raw returns (dropped by
 /// `radar_drop` or a failure mode) are removed with them.
-fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), TrainError> {
-    let (mut depth, conf) = crate::mer_maps::read_mer_maps(dir)?;
-    let mp = dir.join(crate::mer_maps::MER_DEPTH_FILE);
+fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), DataError> {
+    let (mut depth, conf) = depthsense_dataset::mer_maps::read_mer_maps(dir)?;
+    let mp = dir.join(depthsense_prep::layout::MER_DEPTH_FILE);
     check_size(&depth, raw.width as usize, raw.height as usize, &mp)?;
     let kept: BTreeSet<u32> = raw.depth_m.iter().map(|d| d.to_bits()).collect();
     for d in depth.depth_m.iter_mut() {
@@ -275,7 +268,7 @@ fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), Trai
         }
     }
     out.extend_from_slice(&raw.depth_m);
-    out.extend_from_slice(&crate::mer_maps::derive_channels(
+    out.extend_from_slice(&depthsense_dataset::mer_maps::derive_channels(
         &depth.depth_m,
         &conf.depth_m,
     ));
@@ -283,21 +276,21 @@ fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), Trai
 }
 
 /// Read one sample directory. `draw` is the sample's random stream (augmentation). A file that
-/// is missing, truncated or corrupt is a [`TrainError::Unreadable`] naming the sample and how to
+/// is missing, truncated or corrupt is a [`DataError::Unreadable`] naming the sample and how to
 /// rebuild it.
 pub fn load_sample(
     ds: &Dataset,
     entry: &IndexEntry,
     opts: &LoadOptions,
     rng: &mut Rng,
-) -> Result<Sample, TrainError> {
-    let unreadable = |why: String| TrainError::Unreadable {
+) -> Result<Sample, DataError> {
+    let unreadable = |why: String| DataError::Unreadable {
         root: ds.root.display().to_string(),
         samples: vec![(entry.sample_token.clone(), why)],
     };
     read_sample(ds, entry, opts, rng).map_err(|e| match e {
-        TrainError::Data(why) => unreadable(why),
-        TrainError::Io { .. } | TrainError::Parse { .. } => unreadable(e.to_string()),
+        DataError::Data(why) => unreadable(why),
+        DataError::Io { .. } | DataError::Parse { .. } => unreadable(e.to_string()),
         other => other,
     })
 }
@@ -307,10 +300,10 @@ fn read_sample(
     entry: &IndexEntry,
     opts: &LoadOptions,
     rng: &mut Rng,
-) -> Result<Sample, TrainError> {
+) -> Result<Sample, DataError> {
     let dir = ds.sample_dir(entry);
     if !dir.join(META_FILE).exists() {
-        return Err(TrainError::Data(format!(
+        return Err(DataError::Data(format!(
             "{}: incomplete sample directory (no {META_FILE})",
             dir.display()
         )));
@@ -383,7 +376,7 @@ impl SampleDraws {
 }
 
 /// The training target (metres): the dense map when asked for and present, else the sparse.
-fn read_target(dir: &Path, kind: TargetKind, w: usize, h: usize) -> Result<Vec<f32>, TrainError> {
+fn read_target(dir: &Path, kind: TargetKind, w: usize, h: usize) -> Result<Vec<f32>, DataError> {
     let dense_path = dir.join(LIDAR_DENSE_FILE);
     let sparse_path = dir.join(LIDAR_SPARSE_FILE);
     let target_path = match kind {
@@ -414,7 +407,7 @@ impl RadarMaps {
         height: DepthMap,
         w: usize,
         h: usize,
-    ) -> Result<RadarMaps, TrainError> {
+    ) -> Result<RadarMaps, DataError> {
         let raw_path = dir.join(RADAR_RAW_FILE);
         check_size(&raw, w, h, &raw_path)?;
         check_size(&height, w, h, &dir.join(RADAR_HEIGHT_FILE))?;
@@ -429,7 +422,7 @@ impl RadarMaps {
 }
 
 /// Read the raw and height-extended radar maps of a sample.
-fn read_radar_maps(dir: &Path, w: usize, h: usize) -> Result<RadarMaps, TrainError> {
+fn read_radar_maps(dir: &Path, w: usize, h: usize) -> Result<RadarMaps, DataError> {
     let raw = read_depth(&dir.join(RADAR_RAW_FILE))?;
     let height = read_depth(&dir.join(RADAR_HEIGHT_FILE))?;
     RadarMaps::checked(dir, raw, height, w, h)
@@ -442,7 +435,7 @@ fn oracle_radar_maps(
     target_m: &[f32],
     w: usize,
     h: usize,
-) -> Result<RadarMaps, TrainError> {
+) -> Result<RadarMaps, DataError> {
     let (raw, height) = radar_oracle::oracle_maps(dir, target_m, w, h)?;
     RadarMaps::checked(dir, raw, height, w, h)
 }
@@ -455,7 +448,7 @@ fn corrupt_radar(
     opts: &LoadOptions,
     train_drop: Option<(f64, u64)>,
     maps: RadarMaps,
-) -> Result<(DepthMap, DepthMap), TrainError> {
+) -> Result<(DepthMap, DepthMap), DataError> {
     let RadarMaps {
         mut raw,
         mut height,
@@ -464,7 +457,7 @@ fn corrupt_radar(
         height_px: h,
     } = maps;
     if opts.radar_oracle && (opts.failure.is_active() || opts.radar == RadarInput::Mer) {
-        return Err(TrainError::Config(
+        return Err(DataError::Config(
             "the oracle radar is not combined with sensor failures or MER inputs (it replaces \
              the maps those are built from): drop one of them"
                 .into(),
@@ -477,7 +470,7 @@ fn corrupt_radar(
     };
     // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
     if opts.radar == RadarInput::Mer && opts.failure.perturb.is_some() {
-        return Err(TrainError::Config(
+        return Err(DataError::Config(
             "a calibration perturbation of MER inputs would need `mer apply` on the \
              perturbed maps: not supported (use a raw / height-extended model)"
                 .into(),
@@ -509,7 +502,7 @@ fn radar_planes(
     radar: RadarInput,
     raw: &DepthMap,
     height: &DepthMap,
-) -> Result<Vec<f32>, TrainError> {
+) -> Result<Vec<f32>, DataError> {
     let mut planes = Vec::new();
     match radar {
         RadarInput::Height => planes.extend_from_slice(&height.depth_m),
@@ -524,7 +517,7 @@ fn radar_planes(
 }
 
 /// The evaluation maps: sparse GT (metres) and the low-height mask (empty when absent).
-fn read_eval_maps(dir: &Path, w: usize, h: usize) -> Result<(Vec<f32>, Vec<bool>), TrainError> {
+fn read_eval_maps(dir: &Path, w: usize, h: usize) -> Result<(Vec<f32>, Vec<bool>), DataError> {
     let sparse_path = dir.join(LIDAR_SPARSE_FILE);
     let s = read_depth(&sparse_path)?;
     check_size(&s, w, h, &sparse_path)?;
@@ -593,7 +586,7 @@ pub struct Batch {
 }
 
 impl Batch {
-    fn stack(index: usize, mut samples: Vec<Sample>) -> Result<Batch, TrainError> {
+    fn stack(index: usize, mut samples: Vec<Sample>) -> Result<Batch, DataError> {
         let (w, h, c) = (
             samples[0].width,
             samples[0].height,
@@ -603,7 +596,7 @@ impl Batch {
             .iter()
             .find(|s| s.width != w || s.height != h || s.radar_channels != c)
         {
-            return Err(TrainError::Data(format!(
+            return Err(DataError::Data(format!(
                 "sample {} is {}x{} with {} radar channels, but the batch is {w}x{h} with {c}",
                 s.token, s.width, s.height, s.radar_channels
             )));
@@ -633,13 +626,15 @@ impl Batch {
 
 /// Draw stream of the sample at position `pos` of epoch `epoch`.
 pub fn sample_rng(seed: u64, epoch: u64, pos: usize) -> Rng {
-    Rng::new(seed ^ mix64(epoch.wrapping_mul(0x1_0000_0001)) ^ mix64(pos as u64 ^ 0xa5a5_0000))
+    Rng::new(
+        seed ^ splitmix64(epoch.wrapping_mul(0x1_0000_0001)) ^ splitmix64(pos as u64 ^ 0xa5a5_0000),
+    )
 }
 
 /// The batches of one epoch, decoded in parallel on `jobs` threads and prefetched
 /// `prefetch` batches ahead through a bounded channel. Iterating yields them in order.
 pub struct Loader {
-    rx: Option<Receiver<Result<Batch, TrainError>>>,
+    rx: Option<Receiver<Result<Batch, DataError>>>,
     handle: Option<JoinHandle<()>>,
     pub batches: usize,
 }
@@ -662,7 +657,7 @@ pub struct EpochPlan {
 }
 
 impl Loader {
-    pub fn start(ds: &Dataset, opts: &LoadOptions, plan: &EpochPlan) -> Result<Loader, TrainError> {
+    pub fn start(ds: &Dataset, opts: &LoadOptions, plan: &EpochPlan) -> Result<Loader, DataError> {
         Self::start_shard(ds, opts, plan, 0, 1)
     }
 
@@ -676,9 +671,9 @@ impl Loader {
         plan: &EpochPlan,
         rank: usize,
         world: usize,
-    ) -> Result<Loader, TrainError> {
+    ) -> Result<Loader, DataError> {
         if plan.batch_size == 0 {
-            return Err(TrainError::Config("batch size must be at least 1".into()));
+            return Err(DataError::Config("batch size must be at least 1".into()));
         }
         let groups = batch_groups(opts, plan, rank, world)?;
         let batches = groups.len();
@@ -697,7 +692,7 @@ impl Loader {
             .name("loader".into())
             .spawn(move || {
                 for (bi, group) in groups {
-                    let res: Vec<Result<Sample, TrainError>> = pool.install(|| {
+                    let res: Vec<Result<Sample, DataError>> = pool.install(|| {
                         group
                             .par_iter()
                             .map(|&pos| {
@@ -707,24 +702,22 @@ impl Loader {
                             .collect()
                     });
                     let (ok, bad): (Vec<_>, Vec<_>) = res.into_iter().partition(Result::is_ok);
-                    let batch =
-                        match TrainError::merged(bad.into_iter().filter_map(Result::err).collect())
-                        {
-                            None => {
-                                Batch::stack(bi, ok.into_iter().filter_map(Result::ok).collect())
-                            }
-                            Some(e) => Err(e),
-                        };
+                    let batch = match DataError::merged(
+                        bad.into_iter().filter_map(Result::err).collect(),
+                    ) {
+                        None => Batch::stack(bi, ok.into_iter().filter_map(Result::ok).collect()),
+                        Some(e) => Err(e),
+                    };
                     // Past unreadable samples the stream goes on (a consumer that stops at
                     // the first error drops the loader); any other error ends it.
                     let stop =
-                        matches!(&batch, Err(e) if !matches!(e, TrainError::Unreadable { .. }));
+                        matches!(&batch, Err(e) if !matches!(e, DataError::Unreadable { .. }));
                     if tx.send(batch).is_err() || stop {
                         break;
                     }
                 }
             })
-            .map_err(|e| TrainError::Config(format!("cannot start loader thread: {e}")))?;
+            .map_err(|e| DataError::Config(format!("cannot start loader thread: {e}")))?;
         Ok(Loader {
             rx: Some(rx),
             handle: Some(handle),
@@ -741,7 +734,7 @@ fn batch_groups(
     plan: &EpochPlan,
     rank: usize,
     world: usize,
-) -> Result<Vec<Vec<usize>>, TrainError> {
+) -> Result<Vec<Vec<usize>>, DataError> {
     let order = epoch_order(plan.entries.len(), opts.seed, plan.epoch, plan.shuffle);
     let mut groups: Vec<Vec<usize>> = order.chunks(plan.batch_size).map(|c| c.to_vec()).collect();
     if plan.drop_last && groups.last().is_some_and(|g| g.len() < plan.batch_size) {
@@ -751,7 +744,7 @@ fn batch_groups(
         for g in groups.iter_mut() {
             let n = g.len();
             if n < world {
-                return Err(TrainError::Config(format!(
+                return Err(DataError::Config(format!(
                     "a batch of {n} sample(s) cannot be shared by {world} ranks"
                 )));
             }
@@ -762,7 +755,7 @@ fn batch_groups(
 }
 
 /// The decoding thread pool: `jobs` threads (0 = all cores).
-fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, TrainError> {
+fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, DataError> {
     let jobs = if jobs == 0 {
         std::thread::available_parallelism().map_or(2, |n| n.get())
     } else {
@@ -772,11 +765,11 @@ fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, TrainError> {
         .num_threads(jobs)
         .thread_name(|i| format!("loader-{i}"))
         .build()
-        .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))
+        .map_err(|e| DataError::Config(format!("cannot start loader threads: {e}")))
 }
 
 impl Iterator for Loader {
-    type Item = Result<Batch, TrainError>;
+    type Item = Result<Batch, DataError>;
     fn next(&mut self) -> Option<Self::Item> {
         self.rx.as_ref()?.recv().ok()
     }
@@ -802,7 +795,7 @@ pub fn write_toy_dataset(
     w: u32,
     h: u32,
     seed: u64,
-) -> Result<(), TrainError> {
+) -> Result<(), DataError> {
     use depthsense_base::fsutil::write_atomic;
     let mut index = PreparedIndex {
         version: "v1.0-toy".into(),
@@ -815,16 +808,16 @@ pub fn write_toy_dataset(
         for k in 0..per_scene {
             let token = format!("toy{s:03}{k:03}{:016x}", rng.next_u64());
             let dir = root.join(&token);
-            std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
+            std::fs::create_dir_all(&dir).map_err(|e| DataError::io(&dir, e))?;
             let offset = rng.range(0.8, 1.25) as f32;
             let mut maps = ToyMaps::ground(w, h, offset, cond);
             maps.add_radar(&mut rng);
             maps.write(&dir)?;
             let meta = toy_meta(&token, s, k, cond, w, h);
             let meta_bytes =
-                serde_json::to_vec_pretty(&meta).map_err(|e| TrainError::Data(e.to_string()))?;
+                serde_json::to_vec_pretty(&meta).map_err(|e| DataError::Data(e.to_string()))?;
             let p = dir.join(META_FILE);
-            write_atomic(&p, &meta_bytes).map_err(|e| TrainError::io(&p, e))?;
+            write_atomic(&p, &meta_bytes).map_err(|e| DataError::io(&p, e))?;
             index.samples.push(IndexEntry {
                 sample_token: token.clone(),
                 scene_token: format!("scene{s:04}"),
@@ -836,8 +829,8 @@ pub fn write_toy_dataset(
         }
     }
     let p = root.join(INDEX_FILE);
-    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| TrainError::Data(e.to_string()))?;
-    write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))
+    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| DataError::Data(e.to_string()))?;
+    write_atomic(&p, &bytes).map_err(|e| DataError::io(&p, e))
 }
 
 /// The maps and image of one toy sample (see [`write_toy_dataset`]).
@@ -910,13 +903,13 @@ impl ToyMaps {
     }
 
     /// Write the four depth maps, the image and the low-height mask into `dir`.
-    fn write(&self, dir: &Path) -> Result<(), TrainError> {
+    fn write(&self, dir: &Path) -> Result<(), DataError> {
         use depthsense_base::fsutil::write_atomic;
         use depthsense_nuscenes::depth_png::encode_png;
-        let enc = |m: &DepthMap| encode_png(m).map_err(|e| TrainError::Data(e.to_string()));
+        let enc = |m: &DepthMap| encode_png(m).map_err(|e| DataError::Data(e.to_string()));
         let write = |name: &str, bytes: &[u8]| {
             let p = dir.join(name);
-            write_atomic(&p, bytes).map_err(|e| TrainError::io(&p, e))
+            write_atomic(&p, bytes).map_err(|e| DataError::io(&p, e))
         };
         write(LIDAR_DENSE_FILE, &enc(&self.dense)?)?;
         write(LIDAR_SPARSE_FILE, &enc(&self.sparse)?)?;
@@ -925,12 +918,12 @@ impl ToyMaps {
         let mut buf = std::io::Cursor::new(Vec::new());
         self.img
             .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| TrainError::Data(e.to_string()))?;
+            .map_err(|e| DataError::Data(e.to_string()))?;
         write(IMAGE_FILE, buf.get_ref())?;
         let mut buf = std::io::Cursor::new(Vec::new());
         self.low
             .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| TrainError::Data(e.to_string()))?;
+            .map_err(|e| DataError::Data(e.to_string()))?;
         write(LOWHEIGHT_MASK_FILE, buf.get_ref())
     }
 }
@@ -979,8 +972,8 @@ mod tests {
     use super::*;
 
     /// The loader's stream as it has been since issue 5 (every augmentation, radar corruption
-    /// and toy dataset depends on it): state mix64(seed); each draw adds γ and returns
-    /// mix64(state), i.e. the finaliser of state + 2γ on the first draw. Values from a Python
+    /// and toy dataset depends on it): state splitmix64(seed); each draw adds γ and returns
+    /// splitmix64(state), i.e. the finaliser of state + 2γ on the first draw. Values from a Python
     /// transcription of that formula.
     #[test]
     fn the_loader_stream_is_unchanged() {

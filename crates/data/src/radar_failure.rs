@@ -37,8 +37,9 @@ use depthsense_prep::maps::Raster;
 use depthsense_prep::radar_points::{Perturbation, RadarPoints};
 use serde::{Deserialize, Serialize};
 
-use crate::error::TrainError;
-use crate::{mix64, Rng};
+use crate::Rng;
+use depthsense_base::hash::splitmix64;
+use depthsense_dataset::DataError;
 
 /// Height above the radar point covered by its strip (SPEC §5 h_up).
 const H_UP_M: f64 = 1.5;
@@ -101,19 +102,19 @@ impl RadarFailure {
         dir: &Path,
         meta: &SampleMeta,
         seed: u64,
-    ) -> Result<Option<(DepthMap, DepthMap)>, TrainError> {
+    ) -> Result<Option<(DepthMap, DepthMap)>, DataError> {
         if !self.needs_points(meta) {
             return Ok(None);
         }
         let points = RadarPoints::read_from_sample(dir)
-            .map_err(|e| TrainError::Data(format!("sample {}: {e}", meta.sample_token)))?;
+            .map_err(|e| DataError::Data(format!("sample {}: {e}", meta.sample_token)))?;
         let mut points = if self.drops_all(meta) {
             points.without_channels(|_| true)
         } else {
             points.without_channels(|c| self.drop_radars.iter().any(|d| d == c))
         };
         if let Some(p) = self.perturb {
-            let sign = if mix64(seed ^ 0x5167) & 1 == 0 {
+            let sign = if splitmix64(seed ^ 0x5167) & 1 == 0 {
                 1.0
             } else {
                 -1.0
@@ -150,17 +151,17 @@ impl RadarFailure {
         }
     }
 
-    pub fn validate(&self) -> Result<(), TrainError> {
+    pub fn validate(&self) -> Result<(), DataError> {
         if let Some(r) = self.drop_beyond_m {
             if !(r.is_finite() && r > 0.0) {
-                return Err(TrainError::Config(format!(
+                return Err(DataError::Config(format!(
                     "--drop-beyond-m must be a positive number of metres, got {r}"
                 )));
             }
         }
         if let Some(p) = self.perturb {
             if !(p.amount.is_finite() && p.amount >= 0.0) {
-                return Err(TrainError::Config(format!(
+                return Err(DataError::Config(format!(
                     "perturbation magnitude must be a non-negative number, got {}",
                     p.amount
                 )));
@@ -179,7 +180,7 @@ impl RadarFailure {
         height: &mut DepthMap,
         meta: &SampleMeta,
         seed: u64,
-    ) -> Result<(), TrainError> {
+    ) -> Result<(), DataError> {
         if !self.drop_radars.is_empty() && self.drops_all(meta) {
             raw.depth_m.iter_mut().for_each(|d| *d = 0.0);
             height.depth_m.iter_mut().for_each(|d| *d = 0.0);
@@ -227,7 +228,7 @@ pub fn add_clutter(
     let (w, h) = (raw.width as usize, raw.height as usize);
     let fy = meta.intrinsics_frame[1][1];
     let cy = meta.intrinsics_frame[1][2];
-    let mut rng = Rng::new(mix64(seed ^ 0xc1u64));
+    let mut rng = Rng::new(splitmix64(seed ^ 0xc1u64));
     for _ in 0..n {
         let u = ((rng.uniform() * w as f64) as usize).min(w - 1);
         let d = decode_value(encode_value(rng.range(CLUTTER_MIN_M, CLUTTER_MAX_M) as f32));

@@ -11,8 +11,8 @@ use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::radar_oracle::oracle_points;
 use depthsense_prep::radar_points::RadarPoints;
 
-use crate::error::TrainError;
 use crate::radar_failure::quantised;
+use depthsense_dataset::DataError;
 
 /// (raw, height) oracle maps of the sample in `dir` whose training target (frame-sized,
 /// metres, 0 = invalid) is `target_m`.
@@ -21,9 +21,9 @@ pub fn oracle_maps(
     target_m: &[f32],
     width: usize,
     height: usize,
-) -> Result<(DepthMap, DepthMap), TrainError> {
+) -> Result<(DepthMap, DepthMap), DataError> {
     let points = RadarPoints::read_from_sample(dir).map_err(|e| {
-        TrainError::Data(format!(
+        DataError::Data(format!(
             "{e} (the oracle radar is rebuilt from each sample's radar points)"
         ))
     })?;

@@ -1,5 +1,5 @@
 //! The error of the torch-free data layer: each names the file, record or setting at fault.
-//! `depthsense_data::TrainError` takes every variant over unchanged (`From`).
+//! `depthsense_train::TrainError` carries it whole (`TrainError::Dataset`), messages unchanged.
 
 use std::path::Path;
 
@@ -30,6 +30,15 @@ pub enum DataError {
     NoIndex { root: String, found: NotPrepared },
     #[error("{0}")]
     Other(String),
+    /// Prepared samples that cannot be read, every one with its reason (the loader reads on
+    /// past them, so that `eval` and `predict` name them all at once), and how to rebuild them.
+    #[error("{}", unreadable_text(.root, .samples))]
+    Unreadable {
+        /// The prepared folder.
+        root: String,
+        /// (sample token, what is wrong), in the order they were met.
+        samples: Vec<(String, String)>,
+    },
 }
 
 /// What a folder without `index.json` holds.
@@ -75,10 +84,59 @@ fn no_index_text(root: &str, found: &NotPrepared) -> String {
 }
 
 impl DataError {
+    /// One error for several: every [`DataError::Unreadable`] merged into one, unless another
+    /// kind is among them (then the first of those). `None` for none.
+    pub fn merged(errors: Vec<DataError>) -> Option<DataError> {
+        let mut root = None;
+        let mut samples = vec![];
+        for e in errors {
+            match e {
+                DataError::Unreadable {
+                    root: r,
+                    samples: s,
+                } => {
+                    root.get_or_insert(r);
+                    samples.extend(s);
+                }
+                other => return Some(other),
+            }
+        }
+        root.map(|root| DataError::Unreadable { root, samples })
+    }
+
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.display().to_string(),
             source,
         }
     }
+}
+
+fn unreadable_text(root: &str, samples: &[(String, String)]) -> String {
+    let mut s = format!(
+        "{} prepared sample(s) of {root} cannot be read:",
+        samples.len()
+    );
+    for (token, why) in samples {
+        // The reason names the sample's file (and so its token) when it has one.
+        if why.contains(token.as_str()) {
+            s += &format!("\n  {why}");
+        } else {
+            s += &format!("\n  {token}: {why}");
+        }
+    }
+    let mer = samples.iter().all(|(_, why)| why.contains("radar_mer_"));
+    s += &if mer {
+        format!(
+            "\nthe MER maps come from `depthsense mer apply --data {root} --checkpoint PDA.safetensors` \
+             (docs/guide/mer.md); a model trained with --radar-input mer needs them"
+        )
+    } else {
+        format!(
+            "\nto rebuild them, rerun the `depthsense prepare` command that wrote {root} with \
+             --verify added: it re-reads every sample and prepares the broken ones again \
+             (docs/guide/prepare.md, \"Checking a prepared folder\")"
+        )
+    };
+    s
 }

@@ -15,12 +15,14 @@ use std::path::Path;
 
 use depthsense_nuscenes::depth_png::{decode_png, encode_png16_fast, DepthMap};
 
+use depthsense_config::pda::PdaConfig;
+use serde::{Deserialize, Serialize};
+
 use crate::error::DataError;
 
-/// Per sample: depth × 256 of the most confident associated radar return (SPEC §5).
-pub const MER_DEPTH_FILE: &str = depthsense_prep::layout::MER_DEPTH_FILE;
-/// Per sample: that confidence × 65535.
-pub const MER_CONF_FILE: &str = depthsense_prep::layout::MER_CONF_FILE;
+// Per sample: depth × 256 of the most confident associated radar return (SPEC §5), and that
+// confidence × 65535: file names of the prepared layout (depthsense_prep::layout).
+use depthsense_prep::layout::{MER_CONF_FILE, MER_DEPTH_FILE};
 /// In the prepared root: which PDA model wrote the MER maps.
 pub const MER_RECORD_FILE: &str = "mer.json";
 /// MER thresholds θ of the 6 channels d·[conf > θ] (SPEC §5).
@@ -104,6 +106,35 @@ pub fn read_mer_maps(dir: &Path) -> Result<(DepthMap, DepthMap), DataError> {
         )));
     }
     Ok((depth, conf))
+}
+
+/// `O/mer.json`: the model behind the MER maps of a prepared directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MerRecord {
+    /// Checkpoint path as given to `mer apply`.
+    pub checkpoint: String,
+    /// FNV-1a 64 of the checkpoint bytes (hex): the identity of the model.
+    pub checkpoint_fnv64: String,
+    /// The PDA config stored in the checkpoint.
+    pub pda: PdaConfig,
+    pub thresholds: Vec<f32>,
+    pub depth_file: String,
+    pub conf_file: String,
+}
+
+/// Reads `O/mer.json` when present.
+pub fn read_record(root: &Path) -> Result<Option<MerRecord>, DataError> {
+    let p = root.join(MER_RECORD_FILE);
+    if !p.exists() {
+        return Ok(None);
+    }
+    let bytes = std::fs::read(&p).map_err(|e| DataError::io(&p, e))?;
+    serde_json::from_slice(&bytes)
+        .map(Some)
+        .map_err(|e| DataError::Parse {
+            path: p.display().to_string(),
+            reason: e.to_string(),
+        })
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! Train the tiny preset on a generated toy dataset and print the validation curve.
 //! `cargo run -p depthsense-eval --example toy_train -- EPOCHS LR [late|none]`
-use depthsense_model::{Fusion, ModelConfig};
+use depthsense_config::{Fusion, ModelConfig};
 use depthsense_train::trainer::{train, TrainOptions};
 
 fn main() {
@@ -47,7 +47,7 @@ fn main() {
         tch::Device::Cpu,
     )
     .unwrap();
-    let ds = depthsense_data::Dataset::open(&tmp.path().join("data")).unwrap();
+    let ds = depthsense_dataset::Dataset::open(&tmp.path().join("data")).unwrap();
     let e = &ds.split("all")[0];
     let inp = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();
     let radar = l.config.radar_input_for(None).unwrap();

@@ -9,29 +9,24 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_config::RadarInput;
 use depthsense_data::radar_failure::RadarFailure;
-use depthsense_data::{Dataset, LoadOptions, RadarInput};
+use depthsense_data::LoadOptions;
+use depthsense_dataset::Dataset;
 use depthsense_metrics::{EvalConfig, Report};
 use depthsense_model::checkpoint::{self, Loaded};
 use depthsense_model::weights::LoadReport;
 use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
-use depthsense_data::error::TrainError;
+use depthsense_dataset::subsample;
 use depthsense_prep::layout::IndexEntry;
-use depthsense_train::trainer::{evaluate_net, subsample};
-pub use depthsense_train::validate::{condition_names, score_image};
+use depthsense_train::trainer::evaluate_net;
 use depthsense_train::validate::{run_net, RunPlan};
+use depthsense_train::TrainError;
 // Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
-// `eval --predictions` without libtorch; re-exported for the network side's users.
-pub use depthsense_score::npy;
-pub use depthsense_score::predictions::{
-    find_prediction, load_ground_truth, read_prediction, run_eval_predictions, select_split,
-    write_prediction, GroundTruth, PredFormat, PredictionsOptions, PredictionsSummary, HELD_OUT,
-};
-pub use depthsense_score::tables::{
-    table_paths, write_tables, write_tables_with_command, TABLE_FILES,
-};
+// `eval --predictions` without libtorch; the network side's users reach it there.
+use depthsense_score::predictions::{select_split, write_prediction, PredFormat, HELD_OUT};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalOptions {
@@ -242,7 +237,8 @@ pub fn write_predictions(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use depthsense_model::{pickle, DepthNet, ModelConfig};
+    use depthsense_config::ModelConfig;
+    use depthsense_model::{pickle, DepthNet};
     use tch::{nn::VarStore, Device, Tensor};
 
     fn narrow_released() -> ModelConfig {

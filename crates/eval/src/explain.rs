@@ -27,11 +27,12 @@
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_data::error::TrainError;
+use depthsense_config::{HeadKind, SidConfig};
 use depthsense_data::{normalise_image, Augment};
 use depthsense_metrics::table::{md_num, Align, MdTable};
-use depthsense_model::{ordinal, sid, DepthNet, HeadKind, SidConfig};
+use depthsense_model::{ordinal, sid, DepthNet};
 use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 
@@ -306,7 +307,7 @@ pub fn run_explain(
 fn sample_tensors(
     input: &PredictInput,
     gt: &DepthMap,
-    radar_input: Option<depthsense_data::RadarInput>,
+    radar_input: Option<depthsense_config::RadarInput>,
     device: Device,
 ) -> Result<(Tensor, Tensor, Tensor), TrainError> {
     let (w, h) = input.image.dimensions();
@@ -315,8 +316,8 @@ fn sample_tensors(
         .to_device(device);
     let planes: Vec<f32> = match radar_input {
         None => vec![0.0; (w * h) as usize],
-        Some(depthsense_data::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
-        Some(depthsense_data::RadarInput::Height) => input.radar_height.depth_m.clone(),
+        Some(depthsense_config::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
+        Some(depthsense_config::RadarInput::Height) => input.radar_height.depth_m.clone(),
         Some(r) => {
             return Err(TrainError::Config(format!(
                 "explain supports the raw or height radar input, not {}",

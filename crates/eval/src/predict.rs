@@ -15,7 +15,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_data::{decode_rgb, normalise_image, read_depth, Augment, RadarInput};
+use depthsense_config::RadarInput;
+use depthsense_data::{normalise_image, Augment};
+use depthsense_dataset::{decode_rgb, read_depth};
 use depthsense_model::DepthNet;
 use depthsense_nuscenes::depth_png::{decode_png, encode_png, DepthMap};
 use depthsense_nuscenes::geometry::{Camera, Rigid};
@@ -29,7 +31,7 @@ use depthsense_prep::pipeline::{add_sweep, velocity_dt_s, RadarSweep};
 use depthsense_prep::radar_points::RadarPoints;
 use tch::{Device, Kind, Tensor};
 
-use depthsense_data::error::TrainError;
+use depthsense_train::TrainError;
 
 /// One network input in the training frame.
 #[derive(Debug, Clone)]
@@ -70,7 +72,7 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         }));
     }
     let gt_path = dir.join(LIDAR_SPARSE_FILE);
-    let meta = depthsense_data::read_meta(dir)?;
+    let meta = depthsense_dataset::read_meta(dir)?;
     let settings: BTreeMap<String, serde_json::Value> =
         serde_json::from_value(meta.settings.clone()).unwrap_or_default();
     Ok(PredictInput {
@@ -86,8 +88,8 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
         } else {
             None
         },
-        mer: if dir.join(depthsense_data::mer_maps::MER_DEPTH_FILE).exists() {
-            Some(depthsense_data::mer_maps::read_mer_maps(dir)?)
+        mer: if dir.join(depthsense_prep::layout::MER_DEPTH_FILE).exists() {
+            Some(depthsense_dataset::mer_maps::read_mer_maps(dir)?)
         } else {
             None
         },
@@ -298,7 +300,7 @@ pub fn predict(
                     input.name
                 ))
             })?;
-            mer_channels = depthsense_data::mer_maps::derive_channels(&d.depth_m, &c.depth_m);
+            mer_channels = depthsense_dataset::mer_maps::derive_channels(&d.depth_m, &c.depth_m);
             let n = d.depth_m.len();
             let mut v: Vec<&[f32]> = vec![&input.radar_raw.depth_m];
             v.extend(mer_channels.chunks(n));

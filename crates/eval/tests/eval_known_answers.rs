@@ -8,12 +8,14 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use depthsense_eval::evaluate::{
-    run_eval, run_eval_predictions, write_prediction, EvalOptions, PredFormat, PredictionsOptions,
-};
+use depthsense_config::ModelConfig;
+use depthsense_eval::evaluate::{run_eval, EvalOptions};
 use depthsense_metrics::{EvalConfig, Report, CONDITIONS};
-use depthsense_model::{checkpoint, sid, DepthNet, ModelConfig};
+use depthsense_model::{checkpoint, sid, DepthNet};
 use depthsense_progress::Progress;
+use depthsense_score::predictions::{
+    run_eval_predictions, write_prediction, PredFormat, PredictionsOptions,
+};
 use tch::{nn::VarStore, Device};
 
 const W: u32 = 128;

@@ -5,22 +5,23 @@
 
 use std::path::Path;
 
-use depthsense_data::{load_sample, Dataset, LoadOptions, Rng};
+use depthsense_config::pda::{MerWindow, PdaConfig};
+use depthsense_config::{ModelConfig, RadarInput};
+use depthsense_data::{load_sample, LoadOptions, Rng};
+use depthsense_dataset::mer_maps::{derive_channels, quantise_conf, read_mer_maps, THRESHOLDS};
+use depthsense_dataset::outputs::BEST_CKPT;
+use depthsense_dataset::Dataset;
 use depthsense_eval::predict::attach_mer;
 use depthsense_mer::apply::{apply, mer_maps, MerApplyOptions};
 use depthsense_mer::labels::{
     labels, load_labelled, neighbour, radar_pixels, Grid, RadarPixel, UNLABELLED,
 };
 use depthsense_mer::train::{train_pda, MerTrainOptions};
-use depthsense_mer::{
-    derive_channels, quantise_conf, read_mer_maps, MER_CONF_FILE, MER_DEPTH_FILE, THRESHOLDS,
-};
-use depthsense_model::pda::{MerWindow, PdaConfig};
-use depthsense_model::{ModelConfig, RadarInput};
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::layout::{LIDAR_DENSE_FILE, META_FILE};
+use depthsense_prep::layout::{MER_CONF_FILE, MER_DEPTH_FILE};
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
+use depthsense_train::trainer::{train, TrainOptions};
 
 /// libtorch's generator is process-wide; tests that train hold this lock (see workflow.rs).
 static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -312,7 +313,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let smp = load_sample(&ds, e, &lo, &mut Rng::new(0)).unwrap();
     assert_eq!(smp.radar_channels, 7);
     let n = smp.width * smp.height;
-    let raw = depthsense_data::read_depth(&dir.join("radar_raw.png")).unwrap();
+    let raw = depthsense_dataset::read_depth(&dir.join("radar_raw.png")).unwrap();
     assert_eq!(&smp.radar[..n], &raw.depth_m[..]);
     let (d, c) = read_mer_maps(&dir).unwrap();
     assert_eq!(
@@ -390,7 +391,7 @@ fn mer_channels_round_trip_through_the_stored_maps() {
     .unwrap();
     std::fs::write(
         tmp.path().join(MER_CONF_FILE),
-        depthsense_mer::encode_conf_png(&conf, w, h).unwrap(),
+        depthsense_dataset::mer_maps::encode_conf_png(&conf, w, h).unwrap(),
     )
     .unwrap();
     let (d, c) = read_mer_maps(tmp.path()).unwrap();

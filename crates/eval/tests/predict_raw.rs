@@ -151,11 +151,11 @@ fn raw_files_token_and_prepared_sample_give_one_input_bit_for_bit() {
     // The same depth from a network (random weights) on the three.
     tch::manual_seed(0);
     let vs = tch::nn::VarStore::new(tch::Device::Cpu);
-    let mc = depthsense_model::ModelConfig::tiny()
+    let mc = depthsense_config::ModelConfig::tiny()
         .with_options(&["width=8", "decoder-channels=16", "head-channels=16"])
         .unwrap();
     let net = depthsense_model::DepthNet::new(&vs.root(), &mc).unwrap();
-    let radar = Some(depthsense_data::RadarInput::Height);
+    let radar = Some(depthsense_config::RadarInput::Height);
     let d = |i| predict(&net, i, radar, tch::Device::Cpu).unwrap();
     let want = d(&prepared);
     assert!(d(&raw) == want && d(&tok) == want, "depth differs");

@@ -3,13 +3,15 @@
 
 use std::path::Path;
 
-use depthsense_data::{
-    drop_radar, load_sample, partition, Augment, Dataset, EpochPlan, LoadOptions, Loader, Rng,
-};
-use depthsense_eval::evaluate::{run_eval, write_tables, EvalOptions};
-use depthsense_model::{checkpoint, Fusion, HeadKind, ModelConfig};
+use depthsense_config::{Fusion, HeadKind, ModelConfig};
+use depthsense_data::{drop_radar, load_sample, Augment, EpochPlan, LoadOptions, Loader, Rng};
+use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
+use depthsense_dataset::{partition, Dataset};
+use depthsense_eval::evaluate::{run_eval, EvalOptions};
+use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{read_metrics, train, TrainOptions, BEST_CKPT, LAST_CKPT};
+use depthsense_score::tables::write_tables;
+use depthsense_train::trainer::{read_metrics, train, TrainOptions};
 use depthsense_train::TrainError;
 
 const W: u32 = 128;

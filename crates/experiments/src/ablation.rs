@@ -20,12 +20,12 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
 
-use depthsense_data::error::TrainError;
-use depthsense_data::{partition, Dataset, Partition};
+use depthsense_config::{Fusion, HeadKind, ModelConfig};
+use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_metrics::table::{csv_field, csv_num, csv_row, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
-use depthsense_model::{Fusion, HeadKind, ModelConfig};
 use depthsense_progress::Board;
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::paired::{paired_test, PairedTest};
@@ -106,7 +106,7 @@ impl Variant {
         cfg.attention = attention;
         cfg.head = head;
         if self == Variant::LateSamMer {
-            cfg.radar_input = depthsense_model::RadarInput::Mer;
+            cfg.radar_input = depthsense_config::RadarInput::Mer;
             cfg.radar_channels = cfg.radar_input.channels() as i64;
         }
         // Options of parts the variant does not have are reset to their defaults, so that a
@@ -937,7 +937,7 @@ mod tests {
         assert_eq!(gated[1].1.radar_skip_channels, 8);
         assert_eq!(
             gated[2].1.attention_gate,
-            depthsense_model::AttentionGate::Bounded
+            depthsense_config::AttentionGate::Bounded
         );
     }
 

@@ -12,9 +12,10 @@
 use std::path::Path;
 use std::time::Instant;
 
-use depthsense_data::error::TrainError;
+use depthsense_config::ModelConfig;
 use depthsense_metrics::table::{csv_field, csv_row, Align, MdTable, MISSING};
-use depthsense_model::{report::model_report, DepthNet, ModelConfig};
+use depthsense_model::{report::model_report, DepthNet};
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 

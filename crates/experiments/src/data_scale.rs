@@ -16,13 +16,13 @@ use std::path::PathBuf;
 use std::str::FromStr;
 use std::time::Instant;
 
-use depthsense_data::error::TrainError;
-use depthsense_data::{partition, Dataset};
+use depthsense_config::ModelConfig;
+use depthsense_dataset::{partition, Dataset};
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::EvalConfig;
-use depthsense_model::ModelConfig;
 use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::ablation::{verdict, Variant, Verdict};

@@ -17,19 +17,21 @@ use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_base::lock::OutputLock;
-use depthsense_data::{partition, Dataset, LoadOptions};
+use depthsense_config::{Fusion, ModelConfig};
+use depthsense_data::LoadOptions;
+use depthsense_dataset::{partition, Dataset};
 use depthsense_metrics::Report;
-use depthsense_model::{checkpoint, Fusion, ModelConfig};
+use depthsense_model::checkpoint;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use serde::{Deserialize, Serialize};
 use tch::Device;
 
-use depthsense_data::error::TrainError;
-use depthsense_eval::evaluate::write_tables;
-use depthsense_train::trainer::{
-    evaluate_net, read_metrics, subsample, train, TrainOptions, BEST_CKPT, METRICS_FILE,
-};
+use depthsense_dataset::outputs::{BEST_CKPT, METRICS_FILE};
+use depthsense_dataset::subsample;
+use depthsense_score::tables::write_tables;
+use depthsense_train::trainer::{evaluate_net, read_metrics, train, TrainOptions};
+use depthsense_train::TrainError;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemoOptions {
@@ -51,7 +53,7 @@ pub struct DemoOptions {
     /// Test samples drawn in the report.
     pub pictures: usize,
     /// Replace a demo already in `out` (its world, prepared data, runs and report);
-    /// without it such a folder is refused ([`depthsense_train::outputs`]).
+    /// without it such a folder is refused ([`depthsense_dataset::outputs`]).
     #[serde(default)]
     pub force: bool,
     /// The invocation, recorded in `report/summary.json` and shown on the report page.
@@ -128,7 +130,7 @@ pub struct DemoPlan {
 }
 
 pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
-    let tiny = depthsense_model::ModelConfig::tiny();
+    let tiny = depthsense_config::ModelConfig::tiny();
     let mut p = DemoPlan {
         // The tiny network at half input resolution (decoded and scored at 800x350), 350
         // iterations of batch 4 spent on ≈ 420 distinct images (42 training scenes of a lean
@@ -160,7 +162,7 @@ pub fn plan(opts: &DemoOptions, cuda: bool) -> DemoPlan {
         p.batch_size = 8;
         p.max_val_samples = None;
         p.input_downscale = 1;
-        p.dropout = depthsense_model::ModelConfig::dropout_for_head(128);
+        p.dropout = depthsense_config::ModelConfig::dropout_for_head(128);
     }
     if opts.quick {
         p.scenes = p.scenes.min(5);
@@ -484,7 +486,7 @@ fn evaluate_both(
 /// (left) and validation RMSE (right).
 fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainError> {
     for (name, dir, ..) in runs {
-        let src = dir.join(depthsense_train::trainer::CURVES_FILE);
+        let src = dir.join(depthsense_dataset::outputs::CURVES_FILE);
         if src.exists() {
             let dst = report_dir.join(format!("curves_{name}.png"));
             std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
@@ -608,7 +610,7 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
     write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
 }
 
-/// The demo's network: a model preset ([`depthsense_model::config::presets`]).
+/// The demo's network: a model preset ([`depthsense_config::presets`]).
 pub fn demo_model(preset: &str) -> Result<ModelConfig, TrainError> {
     Ok(ModelConfig::preset(preset)?)
 }

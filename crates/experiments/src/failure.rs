@@ -7,9 +7,9 @@ use depthsense_metrics::table::{csv_quoted, csv_row, md_num, Align, MdTable};
 use crate::runner::RowValues;
 use serde::{Deserialize, Serialize};
 
-use depthsense_data::error::TrainError;
+use depthsense_train::TrainError;
 
-pub use depthsense_data::radar_failure::RadarFailure;
+use depthsense_data::radar_failure::RadarFailure;
 
 // ---------------------------------------------------------------------------------------
 // `experiment failure`: one checkpoint evaluated under a list of failure scenarios.

@@ -107,9 +107,9 @@ impl Machine {
 pub(crate) fn save(
     path: &std::path::Path,
     bytes: &[u8],
-) -> Result<(), depthsense_data::error::TrainError> {
+) -> Result<(), depthsense_train::TrainError> {
     depthsense_base::fsutil::write_atomic(path, bytes)
-        .map_err(|e| depthsense_data::error::TrainError::io(path, e))
+        .map_err(|e| depthsense_train::TrainError::io(path, e))
 }
 
 pub(crate) fn signed(x: f64, prec: usize) -> String {

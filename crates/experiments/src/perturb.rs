@@ -10,14 +10,14 @@
 
 use std::path::Path;
 
-use depthsense_data::error::TrainError;
 use depthsense_eval::evaluate::EvalOptions;
 use depthsense_metrics::table::{csv_row, Align, MdTable};
 use depthsense_prep::radar_points::{PerturbAxis, Perturbation};
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
-use super::failure::RadarFailure;
 use super::runner::{row_values, run_bar, RowValues};
+use depthsense_data::radar_failure::RadarFailure;
 
 pub const PERTURB_MD: &str = "perturb.md";
 pub const PERTURB_CSV: &str = "perturb.csv";

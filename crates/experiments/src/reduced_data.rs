@@ -13,13 +13,13 @@ use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use depthsense_data::error::TrainError;
-use depthsense_data::{partition, Dataset};
+use depthsense_config::ModelConfig;
+use depthsense_dataset::{partition, Dataset};
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
-use depthsense_model::ModelConfig;
 use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::runner::{
@@ -32,7 +32,7 @@ pub const CSV_FILE: &str = "reduced_data.csv";
 pub const JSON_FILE: &str = "reduced_data.json";
 pub const PNG_FILE: &str = "reduced_data.png";
 
-pub use depthsense_data::exclusion::*;
+use depthsense_data::exclusion::*;
 
 /// One cell of the grid: a name and its exclusions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -9,16 +9,17 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_data::error::TrainError;
-use depthsense_data::{Dataset, LoadOptions, Partition};
+use depthsense_config::ModelConfig;
+use depthsense_data::LoadOptions;
+use depthsense_dataset::outputs::{BEST_CKPT, CONFIG_FILE, METRICS_FILE};
+use depthsense_dataset::{Dataset, Partition};
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
-use depthsense_model::{checkpoint, ModelConfig};
+use depthsense_model::checkpoint;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};
-use depthsense_train::trainer::{
-    train, validate_net, TrainOptions, BEST_CKPT, CONFIG_FILE, METRICS_FILE,
-};
+use depthsense_train::trainer::{train, validate_net, TrainOptions};
+use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::Stat;
@@ -88,7 +89,9 @@ impl RunSettings {
     pub fn train_options(&self, run_dir: PathBuf, model: &ModelConfig, seed: u64) -> TrainOptions {
         TrainOptions {
             data: self.data.clone(),
-            resume: run_dir.join(depthsense_train::trainer::LAST_CKPT).exists(),
+            resume: run_dir
+                .join(depthsense_dataset::outputs::LAST_CKPT)
+                .exists(),
             out: run_dir,
             model: model.clone(),
             epochs: self.epochs,

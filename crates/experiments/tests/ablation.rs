@@ -9,13 +9,14 @@ use std::path::Path;
 
 use common::{constant_depth_rmse, hidden, mtime, quick_runs};
 
+use depthsense_dataset::outputs::BEST_CKPT;
 use depthsense_experiments::ablation::{
     run_ablation, variant_models, AblationOptions, AblationResult, RunStatus, Variant, CSV_FILE,
     JSON_FILE, MD_FILE, PNG_FILE, RUN_EVAL_FILE,
 };
 use depthsense_experiments::Stat;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{train, TrainOptions, BEST_CKPT};
+use depthsense_train::trainer::{train, TrainOptions};
 use depthsense_viz::plot::{bar_chart_png, colorize_depth, picture_row_png};
 
 fn opts(data: &Path, out: &Path) -> AblationOptions {

@@ -4,11 +4,11 @@
 
 mod common;
 
+use depthsense_dataset::outputs::{CONFIG_FILE, METRICS_FILE};
 use depthsense_experiments::data_scale::{
     run_data_scale, schedule, DataScaleOptions, CSV_FILE, JSON_FILE, MD_FILE, PNG_FILE,
 };
 use depthsense_train::metrics_log::{read_log, BadLine};
-use depthsense_train::trainer::{CONFIG_FILE, METRICS_FILE};
 
 use common::{hidden, mtime, quick_runs};
 

@@ -142,7 +142,7 @@ fn demo_plans_fit_the_device() {
     assert!(cpu.lean);
     // The paper's fusion model: attention on, the preset's (width-scaled) head dropout.
     assert!(cpu.attention && cpu.dropout > 0.0);
-    assert_eq!(cpu.dropout, depthsense_model::ModelConfig::tiny().dropout);
+    assert_eq!(cpu.dropout, depthsense_config::ModelConfig::tiny().dropout);
     let gpu = plan(&DemoOptions::default(), true);
     assert!(gpu.scenes >= cpu.scenes && gpu.epochs > cpu.epochs);
     // The wide variant builds (names and shapes valid).

@@ -4,13 +4,16 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use depthsense_data::{load_sample, Dataset, LoadOptions, RadarInput, Rng};
+use depthsense_config::ModelConfig;
+use depthsense_config::RadarInput;
+use depthsense_data::radar_failure::RadarFailure;
+use depthsense_data::{load_sample, LoadOptions, Rng};
+use depthsense_dataset::Dataset;
 use depthsense_eval::evaluate::{run_eval, EvalOptions};
-use depthsense_experiments::failure::RadarFailure;
 use depthsense_experiments::perturb::{
     run_perturb, PerturbOptions, PERTURB_CSV, PERTURB_JSON, PERTURB_MD, PERTURB_PNG,
 };
-use depthsense_model::{checkpoint, DepthNet, ModelConfig};
+use depthsense_model::{checkpoint, DepthNet};
 use depthsense_nuscenes::depth_png::{decode_value, encode_value};
 use depthsense_nuscenes::geometry::to_frame;
 use depthsense_prep::layout::IndexEntry;

@@ -5,14 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
-use depthsense_eval::evaluate::{
-    load_model, run_eval, run_eval_predictions, write_predictions, EvalOptions, PredFormat,
-    PredictionsOptions,
-};
-use depthsense_experiments::failure::RadarFailure;
+use depthsense_config::ModelConfig;
+use depthsense_data::radar_failure::RadarFailure;
+use depthsense_eval::evaluate::{load_model, run_eval, write_predictions, EvalOptions};
 use depthsense_metrics::{tables, EvalConfig, Protocol, Report};
-use depthsense_model::{checkpoint, DepthNet, ModelConfig};
+use depthsense_model::{checkpoint, DepthNet};
 use depthsense_progress::Progress;
+use depthsense_score::predictions::{run_eval_predictions, PredFormat, PredictionsOptions};
 use tch::{nn::VarStore, Device};
 
 fn tiny_checkpoint(dir: &Path) -> PathBuf {
@@ -124,7 +123,10 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     assert_eq!(a, b);
 
     // a missing prediction is an error naming the folder, or skipped when allowed
-    let token = depthsense_data::Dataset::open(&data).unwrap().index.samples[0]
+    let token = depthsense_dataset::Dataset::open(&data)
+        .unwrap()
+        .index
+        .samples[0]
         .sample_token
         .clone();
     std::fs::remove_file(out.join(format!("{token}.npy"))).unwrap();
@@ -139,10 +141,14 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     // a prediction of the wrong size is refused
     let bad = tmp.path().join("bad");
     std::fs::create_dir_all(&bad).unwrap();
-    for s in &depthsense_data::Dataset::open(&data).unwrap().index.samples {
+    for s in &depthsense_dataset::Dataset::open(&data)
+        .unwrap()
+        .index
+        .samples
+    {
         std::fs::write(
             bad.join(format!("{}.npy", s.sample_token)),
-            depthsense_eval::evaluate::npy::encode_f32(&[1.0; 6], 2, 3),
+            depthsense_score::npy::encode_f32(&[1.0; 6], 2, 3),
         )
         .unwrap();
     }
@@ -175,7 +181,7 @@ fn dropping_every_radar_equals_radar_drop_one() {
     .unwrap();
     assert_eq!(all, full_drop);
     // by channel names: give every sample two radars, drop both
-    let ds = depthsense_data::Dataset::open(&data).unwrap();
+    let ds = depthsense_dataset::Dataset::open(&data).unwrap();
     for e in &ds.index.samples {
         let p = ds.sample_dir(e).join("meta.json");
         let mut m: serde_json::Value =

@@ -6,12 +6,14 @@ mod common;
 
 use std::collections::BTreeSet;
 
-use depthsense_data::{mix64, partition, Dataset};
+use depthsense_base::hash::splitmix64;
+use depthsense_data::exclusion::{parse_exclusions, withheld_scenes};
+use depthsense_dataset::outputs::CONFIG_FILE;
+use depthsense_dataset::{partition, Dataset};
 use depthsense_experiments::reduced_data::{
-    parse_exclusions, parse_grid, run_reduced_data, withheld_scenes, ReducedDataOptions, CSV_FILE,
-    JSON_FILE, MD_FILE, PNG_FILE,
+    parse_grid, run_reduced_data, ReducedDataOptions, CSV_FILE, JSON_FILE, MD_FILE, PNG_FILE,
 };
-use depthsense_train::trainer::{TrainOptions, Trainer, CONFIG_FILE};
+use depthsense_train::trainer::{TrainOptions, Trainer};
 
 use common::{constant_depth_rmse, hidden, mtime, quick_runs, small_model};
 
@@ -22,7 +24,7 @@ fn key(name: &str) -> (u64, String) {
         h ^= b as u64;
         h = h.wrapping_mul(0x100000001b3);
     }
-    (mix64(h), name.to_string())
+    (splitmix64(h), name.to_string())
 }
 
 #[test]
@@ -76,7 +78,7 @@ fn exclude_withholds_exactly_the_documented_scenes() {
     let opts = TrainOptions {
         data: data.clone(),
         out: tmp.path().join("run"),
-        model: depthsense_model::ModelConfig::tiny()
+        model: depthsense_config::ModelConfig::tiny()
             .with_options(&small_model())
             .unwrap(),
         device: "cpu".into(),

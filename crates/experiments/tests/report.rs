@@ -6,11 +6,11 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use depthsense_eval::evaluate::write_tables_with_command;
-use depthsense_mer::report::{CoverageRow, MerReport};
 use depthsense_metrics::{evaluate, EvalConfig, EvalImage};
 use depthsense_report::markdown::to_html;
 use depthsense_report::{build_report, Kind, ReportOptions, ReportSummary};
+use depthsense_score::mer_coverage::{CoverageRow, MerReport};
+use depthsense_score::tables::write_tables_with_command;
 use serde_json::json;
 
 fn write(p: &Path, text: &str) {

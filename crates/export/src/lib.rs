@@ -21,7 +21,7 @@ pub mod sidecar;
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::{temp_sibling, write_atomic};
-use depthsense_data::error::TrainError;
+use depthsense_train::TrainError;
 
 pub use sidecar::Sidecar;
 

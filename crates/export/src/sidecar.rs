@@ -6,7 +6,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use depthsense_model::{Fusion, ModelConfig, RadarInput, SidConfig};
+use depthsense_config::{Fusion, ModelConfig, RadarInput, SidConfig};
 use depthsense_prep::calibration::RadarSettings;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -85,7 +85,7 @@ pub struct Sidecar {
 
 /// The radar channels of `input`, in the order the graph takes them.
 pub fn radar_channel_names(input: RadarInput) -> Vec<String> {
-    let thresholds = depthsense_data::mer_maps::THRESHOLDS;
+    let thresholds = depthsense_dataset::mer_maps::THRESHOLDS;
     match input {
         RadarInput::Height => vec!["height-extended depth (m)".into()],
         RadarInput::Raw => vec!["raw depth (m)".into()],
@@ -209,7 +209,7 @@ fn radar_maps() -> RadarMaps {
               radar depth and its confidence; channel k is that depth where the confidence \
               exceeds mer_thresholds[k], else 0"
             .into(),
-        mer_thresholds: depthsense_data::mer_maps::THRESHOLDS
+        mer_thresholds: depthsense_dataset::mer_maps::THRESHOLDS
             .iter()
             .map(|&t| t as f64)
             .collect(),

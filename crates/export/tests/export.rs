@@ -13,12 +13,13 @@ use std::process::Command;
 #[path = "../../model/tests/support/reference.rs"]
 mod reference;
 
+use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_eval::predict::{predict, PredictInput};
 use depthsense_export::{
     export, export_many, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision,
     Sidecar,
 };
-use depthsense_model::{checkpoint, DepthNet, ModelConfig, RadarInput};
+use depthsense_model::{checkpoint, DepthNet};
 use depthsense_nuscenes::depth_png::DepthMap;
 use tch::{nn, Device, Tensor};
 
@@ -145,7 +146,7 @@ fn radar_planes(input: &PredictInput, kind: Option<RadarInput>) -> Vec<f32> {
         Some(RadarInput::Mer) => {
             let (d, c) = input.mer.as_ref().unwrap();
             let mut v = input.radar_raw.depth_m.clone();
-            v.extend(depthsense_data::mer_maps::derive_channels(
+            v.extend(depthsense_dataset::mer_maps::derive_channels(
                 &d.depth_m, &c.depth_m,
             ));
             v

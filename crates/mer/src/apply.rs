@@ -12,20 +12,22 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_data::error::TrainError;
-use depthsense_data::{decode_rgb, read_depth, Dataset};
-use depthsense_model::pda::{self, PdaConfig, PdaNet};
+use depthsense_config::pda::PdaConfig;
+use depthsense_dataset::{decode_rgb, read_depth, Dataset};
+use depthsense_model::pda::{self, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use depthsense_progress::Progress;
+use depthsense_train::TrainError;
 use rayon::prelude::*;
 use tch::{Device, Tensor};
 
 use super::labels::{load_input, neighbour, Grid, PdaInput, RadarPixel};
-use super::{
-    conf_to_u16, derive_channels, file_fnv64, read_mer_maps, read_record, MerRecord, MER_CONF_FILE,
-    MER_DEPTH_FILE, MER_RECORD_FILE, THRESHOLDS,
+use depthsense_dataset::mer_maps::{
+    conf_to_u16, derive_channels, file_fnv64, read_mer_maps, read_record, MerRecord,
+    MER_RECORD_FILE, THRESHOLDS,
 };
+use depthsense_prep::layout::{MER_CONF_FILE, MER_DEPTH_FILE};
 
 /// Options of `mer apply`.
 #[derive(Debug, Clone)]
@@ -402,7 +404,7 @@ fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, 
     } else {
         test
     };
-    let entries = depthsense_train::trainer::subsample(&pool, Some(opts.preview));
+    let entries = depthsense_dataset::subsample(&pool, Some(opts.preview));
     let mut out = vec![];
     for e in &entries {
         let p = dir.join(format!("{}.png", e.sample_token));
@@ -469,7 +471,10 @@ pub fn mer_maps_for_image(
     let (depth, conf) = mer_maps(&pi.pixels, &probs[0], g, cfg);
     let (w, h) = (g.frame_w as u32, g.frame_h as u32);
     // As `mer apply` stores them: confidence quantised to 16 bits (on the grid, then spread).
-    let conf_q: Vec<f32> = conf.iter().map(|&c| super::quantise_conf(c)).collect();
+    let conf_q: Vec<f32> = conf
+        .iter()
+        .map(|&c| depthsense_dataset::mer_maps::quantise_conf(c))
+        .collect();
     Ok((
         DepthMap {
             width: w,

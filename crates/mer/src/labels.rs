@@ -15,11 +15,12 @@
 
 use std::path::Path;
 
-use depthsense_data::{decode_rgb, read_depth, IMAGENET_MEAN, IMAGENET_STD};
-use depthsense_model::pda::PdaConfig;
+use depthsense_config::pda::PdaConfig;
+use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
+use depthsense_dataset::{decode_rgb, read_depth};
 use depthsense_prep::layout::{IMAGE_FILE, LIDAR_DENSE_FILE, META_FILE, RADAR_RAW_FILE};
 
-use depthsense_data::error::TrainError;
+use depthsense_train::TrainError;
 
 /// Label of a neighbour without lidar, outside the image, or beyond the depth limit.
 pub const UNLABELLED: i8 = -1;

@@ -19,19 +19,23 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
+use depthsense_base::hash::splitmix64;
 use depthsense_base::lock::OutputLock;
-use depthsense_data::error::TrainError;
-use depthsense_data::{epoch_order, mix64, partition, sample_rng, Dataset};
-use depthsense_model::pda::{self, balanced_bce, PdaConfig, PdaNet};
+use depthsense_config::pda::PdaConfig;
+use depthsense_data::{epoch_order, sample_rng};
+use depthsense_dataset::outputs::{
+    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+};
+use depthsense_dataset::subsample;
+use depthsense_dataset::{partition, Dataset};
+use depthsense_model::pda::{self, balanced_bce, PdaNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use depthsense_train::sgd::poly_lr;
-use depthsense_train::trainer::{
-    append_jsonl, subsample, truncate_metrics, BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT,
-    LAST_OPTIM, METRICS_FILE,
-};
+use depthsense_train::trainer::{append_jsonl, truncate_metrics};
+use depthsense_train::TrainError;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -52,7 +56,7 @@ pub struct MerTrainOptions {
     pub seed: u64,
     pub device: String,
     pub resume: bool,
-    /// Start over in a folder that holds a run ([`depthsense_train::outputs`]). Absent from the JSON when
+    /// Start over in a folder that holds a run ([`depthsense_dataset::outputs`]). Absent from the JSON when
     /// false.
     #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
     pub force: bool,
@@ -390,7 +394,7 @@ impl<'o> Run<'o> {
         self.opts.out.join(name)
     }
 
-    fn write_config(&self, part: &depthsense_data::Partition) -> Result<(), TrainError> {
+    fn write_config(&self, part: &depthsense_dataset::Partition) -> Result<(), TrainError> {
         let j = serde_json::json!({
             "mer_train": self.opts,
             "pda": self.opts.pda,
@@ -436,7 +440,9 @@ impl<'o> Run<'o> {
             let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
             let b = stack(&samples, self.device)?;
             let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
-            tch::manual_seed((mix64(o.seed ^ mix64(self.state.iteration + 1)) >> 1) as i64);
+            tch::manual_seed(
+                (splitmix64(o.seed ^ splitmix64(self.state.iteration + 1)) >> 1) as i64,
+            );
             self.state.iteration += 1;
             let Some((loss, _)) = batch_loss(&self.net, &b, true) else {
                 continue;

@@ -6,7 +6,8 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use crate::{DepthNet, ModelConfig, ModelError, ShapeMismatch};
+use crate::{DepthNet, ModelError, ShapeMismatch};
+use depthsense_config::ModelConfig;
 
 /// Named tensors and the string metadata of a safetensors file.
 pub type Parsed = (Vec<(String, Tensor)>, BTreeMap<String, String>);

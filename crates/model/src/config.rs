@@ -1,9 +1,9 @@
 //! The network's configuration (SPEC §6, §6.1, §7) lives in the torch-free `depthsense-config`
 //! — its presets and `--set` keys are the one registry every command parses with — and is
-//! re-exported here; [`resolve`] adds what needs this crate: reading a checkpoint's config.
+//! reached there; [`resolve`] adds what needs this crate: reading a checkpoint's config.
 
 use crate::ModelError;
-pub use depthsense_config::*;
+use depthsense_config::{presets, ModelConfig};
 
 /// Resolves `--config`: a preset name ([`presets::PRESETS`]), a JSON file holding a
 /// `ModelConfig` (or an export sidecar, whose `model_config` it is), or a depthsense checkpoint

@@ -3,8 +3,8 @@
 
 use tch::Tensor;
 
-use crate::config::DecoderKind;
 use crate::layers::{hw_of, resize_to, Conv, MacRows, P};
+use depthsense_config::DecoderKind;
 
 /// Image decoder over C2..C4 (SPEC §6).
 #[allow(clippy::large_enum_variant)] // built once per network

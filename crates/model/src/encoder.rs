@@ -3,8 +3,8 @@
 
 use tch::Tensor;
 
-use crate::config::StemKind;
 use crate::layers::{out_len, ConvBn, MacRows, P};
+use depthsense_config::StemKind;
 
 /// Residual block kind.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -34,6 +34,9 @@ pub enum ModelError {
     /// An unknown preset or `--set` key, or a config no network can be built with.
     #[error(transparent)]
     Config(#[from] depthsense_config::ConfigError),
+    /// A PDA preset or config file that is unknown, unreadable or invalid.
+    #[error(transparent)]
+    PdaConfig(#[from] depthsense_config::pda::PdaConfigError),
     /// A configuration field has a value the network cannot be built with.
     #[error("invalid model config: {0}")]
     InvalidConfig(String),

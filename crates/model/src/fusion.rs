@@ -5,9 +5,9 @@
 
 use tch::Tensor;
 
-use crate::config::{AttentionGate, Fusion, ModelConfig};
 use crate::layers::{hw_of, resize_to, Conv, ConvInit, MacRows, P};
 use crate::radar_branch::{RadarBranch, RadarSkip};
+use depthsense_config::{AttentionGate, Fusion, ModelConfig};
 
 /// Input channels of the RGB encoder: the image's 3, plus the radar's with early fusion.
 pub(crate) fn encoder_in_channels(cfg: &ModelConfig) -> i64 {

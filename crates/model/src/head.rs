@@ -3,8 +3,8 @@
 
 use tch::Tensor;
 
-use crate::config::{HeadKind, ModelConfig};
 use crate::layers::{Conv, MacRows, P};
+use depthsense_config::{HeadKind, ModelConfig};
 
 /// The two 1x1 convs `head.conv1` and `head.conv2`.
 pub(crate) struct Head {

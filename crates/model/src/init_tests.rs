@@ -3,7 +3,8 @@
 
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use crate::{DepthNet, ModelConfig};
+use crate::DepthNet;
+use depthsense_config::ModelConfig;
 
 fn tiny_net() -> (VarStore, DepthNet) {
     tch::manual_seed(3);
@@ -92,7 +93,7 @@ fn attention_is_the_identity_at_initialisation() {
 
 #[test]
 fn bounded_gate_starts_as_the_identity_and_never_closes() {
-    use crate::AttentionGate;
+    use depthsense_config::AttentionGate;
     let mut cfg = ModelConfig::tiny();
     cfg.attention_gate = AttentionGate::Bounded;
     let vs = VarStore::new(Device::Cpu);

@@ -1,6 +1,7 @@
 //! The DepthSense network, heads and losses on libtorch (SPEC §6–7).
 //!
-//! - [`ModelConfig`] with presets `paper`, `released`, `tiny` and per-field options;
+//! - the network is built from a `depthsense_config::ModelConfig` (torch-free: presets,
+//!   per-field options); [`config::resolve`] also reads one from a checkpoint or sidecar;
 //! - [`DepthNet`] (`net`): `forward_t` → low-resolution head output, `loss`, `decode`,
 //!   assembled from the paper's boxes (SPEC §6), one module each (crate-private):
 //!   `encoder` (the ResNet RGB encoder, VarStore `rgb.`, and the radar branch's backbone),
@@ -38,10 +39,6 @@ pub mod sid;
 pub mod sync_bn;
 pub mod weights;
 
-pub use config::{
-    AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind, RadarInput,
-    SidConfig, StemKind,
-};
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;
 pub use net::DepthNet;

@@ -5,7 +5,6 @@
 
 use tch::{nn, Kind, Tensor};
 
-use crate::config::{HeadKind, ModelConfig};
 use crate::decoder::Decoder;
 use crate::encoder::{ResNet, ResNetSpec};
 use crate::fusion::{self, LateFusion, SpatialAttention};
@@ -14,6 +13,7 @@ use crate::layers::{MacRows, P};
 use crate::ordinal::{self, RegressionLoss};
 use crate::radar_branch::nearest_depth_pool;
 use crate::ModelError;
+use depthsense_config::{HeadKind, ModelConfig};
 
 /// The DepthSense network. Build with [`DepthNet::new`]; variables live in the caller's
 /// VarStore under `rgb.`, `decoder.`, `radar.`, `radar_skip.`, `attention.`, `head.`.
@@ -249,7 +249,7 @@ impl DepthNet {
 #[cfg(test)]
 mod downscale_tests {
     use super::*;
-    use crate::config::Fusion;
+    use depthsense_config::Fusion;
 
     /// `tiny` seeing its 64x128 input at 1/2.
     fn tiny_half_64x128() -> ModelConfig {

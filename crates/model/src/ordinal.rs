@@ -7,7 +7,8 @@
 
 use tch::{Device, Kind, Tensor};
 
-use crate::{sid, SidConfig};
+use crate::sid;
+use depthsense_config::SidConfig;
 
 /// Pairwise logit differences: `[B,2K,h,w]` → `[B,K,h,w]`, z_k = b_k − a_k.
 pub fn pair_differences(logits: &Tensor) -> Tensor {

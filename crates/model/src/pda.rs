@@ -2,7 +2,8 @@
 //! low-resolution grid, 180 logits, one per neighbour of its window (2 px left/right, 30 up,
 //! 5 down), saying whether that neighbour shares the radar return's depth.
 //!
-//! - [`PdaConfig`]: presets `paper` and `tiny`, the window, the grid and the label thresholds;
+//! - [`PdaConfig`] (`depthsense_config::pda`, torch-free): presets, the window, the grid and
+//!   the label thresholds;
 //! - [`PdaNet`]: a small U-Net (conv3x3 + BN + ReLU levels, stride-2 downsampling, nearest
 //!   upsampling with skip concatenation, 1x1 head). Optical flow (an RC-PDA input) is optional
 //!   in SPEC §5 and left out: the inputs are the image and the raw radar only.
@@ -15,210 +16,18 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use serde::{Deserialize, Serialize};
 use tch::{nn, nn::ModuleT, Device, Kind, Tensor};
 
 use crate::checkpoint::{copy_into, parse_safetensors, safetensors_bytes, write_atomic};
 use crate::layers::{batch_norm2d, Conv, P};
 use crate::ModelError;
+use depthsense_config::pda::PdaConfig;
 
 /// Format tag of a PDA checkpoint's metadata.
 pub const FORMAT: &str = "depthsense-pda-v1";
 const KEY_FORMAT: &str = "format";
 const KEY_CONFIG: &str = "depthsense.pda_config";
 const KEY_EXTRA: &str = "depthsense.extra";
-
-/// The association window around a radar pixel, in grid pixels (SPEC §5: 2 left, 2 right,
-/// 30 up, 5 down → 5 × 36 = 180 neighbours, the radar pixel itself included).
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct MerWindow {
-    pub left: i64,
-    pub right: i64,
-    pub up: i64,
-    pub down: i64,
-}
-
-impl MerWindow {
-    /// SPEC §5.
-    pub const PAPER: MerWindow = MerWindow {
-        left: 2,
-        right: 2,
-        up: 30,
-        down: 5,
-    };
-
-    /// Number of neighbours (= logits per pixel).
-    pub fn len(&self) -> usize {
-        ((self.left + self.right + 1) * (self.up + self.down + 1)) as usize
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Offsets (dx, dy) in channel order: k = (dy + up)·(left + right + 1) + (dx + left),
-    /// dy from −up (above) to +down, dx from −left to +right.
-    pub fn offsets(&self) -> Vec<(i64, i64)> {
-        let mut out = Vec::with_capacity(self.len());
-        for dy in -self.up..=self.down {
-            for dx in -self.left..=self.right {
-                out.push((dx, dy));
-            }
-        }
-        out
-    }
-}
-
-/// The PDA network and the MER conventions it was trained with.
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-pub struct PdaConfig {
-    /// Preset name (informational).
-    pub name: String,
-    /// Channels of each U-Net level; level 0 runs at 1/`input_stride` of the grid, level i at
-    /// 1/(`input_stride`·2^i).
-    pub widths: Vec<i64>,
-    /// 1: level 0 runs at the grid resolution (RC-PDA). s = 2 or 4: the 5 input channels are
-    /// folded s×s into 5·s² channels (space to depth, the grid zero-padded to a
-    /// multiple of s), every level runs s times coarser, and the head predicts the K logits
-    /// for each of the s² positions inside a cell — the inverse fold (pixel shuffle), computed
-    /// only at the radar pixels. The labels, the window and the grid are those of SPEC §5
-    /// either way; only the network's cost changes (the `fast` preset, docs/guide/mer.md).
-    #[serde(
-        default = "depthsense_config::one",
-        skip_serializing_if = "depthsense_config::is_one"
-    )]
-    pub input_stride: i64,
-    pub window: MerWindow,
-    /// MER grid = training frame / `grid_scale` (2: 400x175, RC-PDA's 1/4 of the 1600x900
-    /// camera image, so that the window spans what SPEC §5's "1/4 resolution" window spans).
-    pub grid_scale: i64,
-    /// Radar and lidar beyond this depth are dropped (SPEC §5: 50 m).
-    pub max_depth_m: f64,
-    /// Association label: |Δd| < `abs_threshold_m` (1 m) and |Δd|/d < `rel_threshold` (5 %).
-    pub abs_threshold_m: f64,
-    pub rel_threshold: f64,
-    /// The network sees radar depth / `radar_scale_m` and a radar-present mask.
-    pub radar_scale_m: f64,
-    /// Channels E of the appearance-affinity term (0 = none: RC-PDA's plain 1x1 head). With
-    /// E > 0 the logit of neighbour n of radar pixel p is the 1x1 head at p plus
-    /// ⟨W_q f(p), W_k f(n)⟩ / √E, f = the U-Net's level-0 features: the head keeps the
-    /// per-offset prior, the dot product says whether n looks like p's surroundings — the
-    /// "same object" question that the plain head has to answer through 180 fixed channels.
-    /// Not in RC-PDA and off in every preset: measured no better (docs/guide/mer.md).
-    #[serde(default)]
-    pub affinity_channels: i64,
-}
-
-impl PdaConfig {
-    /// RC-PDA-sized: four levels 32/64/128/256 (receptive field > the 36-row window).
-    pub fn paper() -> Self {
-        PdaConfig {
-            name: "paper".into(),
-            widths: vec![32, 64, 128, 256],
-            window: MerWindow::PAPER,
-            grid_scale: 2,
-            max_depth_m: 50.0,
-            abs_threshold_m: 1.0,
-            rel_threshold: 0.05,
-            radar_scale_m: 80.0,
-            affinity_channels: 0,
-            input_stride: 1,
-        }
-    }
-
-    /// For CPU runs and demos: four levels 8/16/32/64.
-    pub fn tiny() -> Self {
-        PdaConfig {
-            name: "tiny".into(),
-            widths: vec![8, 16, 32, 64],
-            ..Self::paper()
-        }
-    }
-
-    /// `tiny`'s levels on the grid folded 2x2 (`input_stride` 2): level 0 at 200x88. For CPUs
-    /// and `mer apply` at `prepare`'s rate (BENCHMARKS.md, MER).
-    pub fn fast() -> Self {
-        PdaConfig {
-            name: "fast".into(),
-            input_stride: 2,
-            ..Self::tiny()
-        }
-    }
-
-    /// For tests only: three levels 4/8/8.
-    pub fn test() -> Self {
-        PdaConfig {
-            name: "test".into(),
-            widths: vec![4, 8, 8],
-            ..Self::paper()
-        }
-    }
-
-    /// `paper`, `tiny` or `test`, or a PDA config JSON file.
-    pub fn resolve(spec: &str) -> Result<Self, ModelError> {
-        match spec.trim().to_ascii_lowercase().as_str() {
-            "paper" => return Ok(Self::paper()),
-            "tiny" => return Ok(Self::tiny()),
-            "fast" => return Ok(Self::fast()),
-            "test" => return Ok(Self::test()),
-            _ => {}
-        }
-        let path = Path::new(spec);
-        if !path.is_file() {
-            return Err(ModelError::InvalidConfig(format!(
-                "unknown PDA preset `{spec}` (paper, tiny, fast, test, or a PDA config JSON file)"
-            )));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
-        let cfg: Self = serde_json::from_str(&text)
-            .map_err(|e| ModelError::format(path, format!("not a PDA config JSON: {e}")))?;
-        cfg.validate()?;
-        Ok(cfg)
-    }
-
-    pub fn validate(&self) -> Result<(), ModelError> {
-        let bad = |m: String| Err(ModelError::InvalidConfig(format!("PDA: {m}")));
-        if self.widths.is_empty() || self.widths.iter().any(|&w| w < 1) {
-            return bad(format!(
-                "widths {:?} (need ≥ 1 level, each ≥ 1)",
-                self.widths
-            ));
-        }
-        let w = &self.window;
-        if w.left < 0 || w.right < 0 || w.up < 0 || w.down < 0 {
-            return bad(format!("window {w:?} has a negative side"));
-        }
-        if !(0..=256).contains(&self.affinity_channels) {
-            return bad(format!(
-                "affinity_channels {} (0..=256)",
-                self.affinity_channels
-            ));
-        }
-        if ![1, 2, 4].contains(&self.input_stride) {
-            return bad(format!("input_stride {} (1, 2 or 4)", self.input_stride));
-        }
-        if !(1..=8).contains(&self.grid_scale) {
-            return bad(format!("grid_scale {} (1..=8)", self.grid_scale));
-        }
-        let positive = [
-            self.max_depth_m,
-            self.abs_threshold_m,
-            self.rel_threshold,
-            self.radar_scale_m,
-        ];
-        // `x > 0.0` is false for NaN too.
-        if positive
-            .iter()
-            .any(|x| x.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater))
-        {
-            return bad(format!(
-                "max_depth_m, abs_threshold_m, rel_threshold and radar_scale_m must be > 0 \
-                 (got {positive:?})"
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// conv3x3 (no bias) + BN + ReLU.
 struct Cbr {
@@ -582,17 +391,6 @@ pub fn load(path: &Path, device: Device) -> Result<LoadedPda, ModelError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn window_has_180_offsets_in_channel_order() {
-        let w = MerWindow::PAPER;
-        let o = w.offsets();
-        assert_eq!(o.len(), 180);
-        assert_eq!(o[0], (-2, -30));
-        assert_eq!(o[4], (2, -30));
-        assert_eq!(o[30 * 5 + 2], (0, 0), "the radar pixel itself");
-        assert_eq!(o[179], (2, 5));
-    }
 
     #[test]
     fn forward_shapes_and_pytorch_init() {

@@ -4,9 +4,9 @@
 
 use tch::Tensor;
 
-use crate::config::{ModelConfig, RadarBranchKind, StemKind};
 use crate::encoder::{BlockKind, ResNet, ResNetSpec};
 use crate::layers::{hw_of, resize_to, Conv, MacRows, P};
+use depthsense_config::{ModelConfig, RadarBranchKind, StemKind};
 
 /// Nearest non-zero depth of each `s`×`s` cell of `[B,C,H,W]` depth maps (0 = none):
 /// max-pool of 1/d over the cell (0 stays 0), then back to metres. Identity for s ≤ 1.

@@ -5,7 +5,8 @@
 use tch::{Kind, Tensor};
 
 use crate::ordinal::upsample;
-use crate::{sid, SidConfig};
+use crate::sid;
+use depthsense_config::SidConfig;
 
 /// Naive loss from the raw 2K logits `[B,2K,h,w]` and the target `[B,1,H,W]` (0 = invalid):
 /// −mean over valid pixels of Σ_k [y_k ln P_k + (1 − y_k) ln(1 − P_k)], P_k = softmax(a_k, b_k)[1].

@@ -2,7 +2,7 @@
 
 use tch::{Kind, Tensor};
 
-use crate::SidConfig;
+use depthsense_config::SidConfig;
 
 /// Threshold t_i = exp(ln α + ln(β/α)·i/K) in metres; defined for any real i (SPEC §7),
 /// so t_{K+1} (needed to decode level K) extends the same progression.

@@ -35,7 +35,7 @@ pub fn set_sample_seeds(seeds: Option<Vec<u64>>) {
     DROPOUT_CALL.with(|c| c.set(0));
 }
 
-use depthsense_base::hash::splitmix64 as mix64;
+use depthsense_base::hash::splitmix64;
 
 /// Dropout2d (whole channels, kept ones scaled by 1/(1−p)). With sample seeds set, channel c
 /// of sample i in the k-th dropout layer of the forward is kept iff
@@ -59,7 +59,7 @@ pub(crate) fn feature_dropout(x: &Tensor, p: f64, train: bool) -> Tensor {
     let mut mask = Vec::with_capacity(seeds.len() * channels as usize);
     for &s in &seeds {
         for c in 0..channels {
-            let r = mix64(s ^ mix64((k << 32) ^ c ^ 0xd209_u64));
+            let r = splitmix64(s ^ splitmix64((k << 32) ^ c ^ 0xd209_u64));
             let u = (r >> 11) as f64 / (1u64 << 53) as f64;
             mask.push(if u >= p { scale as f32 } else { 0.0 });
         }

@@ -16,7 +16,8 @@ use support::reference;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use depthsense_model::{weights, DepthNet, Fusion, ModelConfig};
+use depthsense_config::{Fusion, ModelConfig};
+use depthsense_model::{weights, DepthNet};
 use tch::{nn, Device, Kind, Tensor};
 
 /// Source key → (j, shape).

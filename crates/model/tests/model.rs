@@ -2,9 +2,10 @@
 
 use std::path::PathBuf;
 
+use depthsense_config::{Fusion, HeadKind, ModelConfig};
 use depthsense_model::{
     checkpoint, device::parse_device, ordinal, pickle, reference, report, sid, weights, DepthNet,
-    Fusion, HeadKind, ModelConfig, ModelError,
+    ModelError,
 };
 use tch::{nn, nn::OptimizerConfig, Device, Kind, Tensor};
 
@@ -135,7 +136,7 @@ fn output_shapes_of_every_option() {
         let (_vs, net) = build(&cfg);
         let (img, radar) = inputs(&cfg, b, h, w);
         let out = tch::no_grad(|| net.forward_t(&img, &radar, false));
-        let stride = if cfg.decoder == depthsense_model::DecoderKind::Released {
+        let stride = if cfg.decoder == depthsense_config::DecoderKind::Released {
             32
         } else {
             8
@@ -177,7 +178,7 @@ fn output_shapes_of_every_option() {
 
 #[test]
 fn efficient_ordinal_equals_naive_reference() {
-    let s = depthsense_model::SidConfig::default();
+    let s = depthsense_config::SidConfig::default();
     tch::manual_seed(1);
     let opts = (Kind::Double, Device::Cpu);
     for align in [true, false] {
@@ -213,7 +214,7 @@ fn efficient_ordinal_equals_naive_reference() {
 
 #[test]
 fn ordinal_decode_of_perfect_logits_recovers_each_bin() {
-    let s = depthsense_model::SidConfig::default();
+    let s = depthsense_config::SidConfig::default();
     let depths: Vec<f32> = (0..400).map(|i| 1.0 + i as f32 * 79.0 / 399.0).collect();
     let d = Tensor::from_slice(&depths).view([1, 1, 1, 400]);
     let l = sid::labels(&s, &d);
@@ -664,7 +665,7 @@ fn devices_and_config_serde() {
     assert_eq!(ModelConfig::preset("Paper").unwrap(), ModelConfig::paper());
     assert!(matches!(
         ModelConfig::preset("huge"),
-        Err(depthsense_model::config::ConfigError::UnknownPreset(_))
+        Err(depthsense_config::ConfigError::UnknownPreset(_))
     ));
     // --set options and --config resolution (preset, JSON file, checkpoint)
     let c = ModelConfig::paper()

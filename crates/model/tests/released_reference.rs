@@ -11,7 +11,8 @@ use std::path::Path;
 mod support;
 use support::reference;
 
-use depthsense_model::{checkpoint, ordinal, ModelConfig};
+use depthsense_config::ModelConfig;
+use depthsense_model::{checkpoint, ordinal};
 use tch::{Device, Kind, Tensor};
 
 const H: i64 = 64;

@@ -6,11 +6,11 @@
 //! loss = −mean over valid pixels of Σ_k y_k ln P_k + (1 − y_k) ln(1 − P_k);
 //! decode l̂ = Σ_k [P_k ≥ 0.5], depth = (t_l̂ + t_{l̂+1})/2.
 
+use depthsense_config::SidConfig;
 use depthsense_model::ordinal::{
     self, ordinal_decode, ordinal_loss, ordinal_loss_dense, pair_differences,
 };
 use depthsense_model::sid::{depth_of_level, label_of_depth, labels, levels_to_depth};
-use depthsense_model::SidConfig;
 use tch::{Device, Kind, Tensor};
 
 /// The paper's discretisation: K = 80, α = 1 m, β = 80 m.

@@ -9,7 +9,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use depthsense_model::{report, DepthNet, ModelConfig};
+use depthsense_config::ModelConfig;
+use depthsense_model::{report, DepthNet};
 use tch::{nn, Device, Kind, Tensor};
 
 fn workspace() -> PathBuf {

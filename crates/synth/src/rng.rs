@@ -5,7 +5,7 @@
 use depthsense_base::hash::{fnv1a64, SplitMix64};
 
 /// SplitMix64 finaliser: a good 64-bit mixing function.
-pub use depthsense_base::hash::splitmix64_mix as mix;
+use depthsense_base::hash::splitmix64_mix as mix;
 
 /// Hash a list of ids under a seed.
 pub fn hash_ids(seed: u64, ids: &[u64]) -> u64 {

@@ -10,9 +10,11 @@
 
 use std::time::Instant;
 
-use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
+use depthsense_config::{ModelConfig, SidConfig};
+use depthsense_data::{EpochPlan, LoadOptions, Loader};
+use depthsense_dataset::Dataset;
 use depthsense_model::ordinal::{ordinal_loss, ordinal_loss_at, SparseTarget};
-use depthsense_model::{DepthNet, ModelConfig, SidConfig};
+use depthsense_model::DepthNet;
 use depthsense_train::sgd::Sgd;
 use depthsense_train::trainer::upload_batch;
 use tch::{nn::VarStore, Device, Kind, Tensor};

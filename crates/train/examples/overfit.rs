@@ -1,6 +1,8 @@
 //! Overfit one batch of the toy dataset: a sanity check of model + loss + optimiser.
+use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::*;
-use depthsense_model::{DepthNet, Fusion, ModelConfig};
+use depthsense_dataset::Dataset;
+use depthsense_model::DepthNet;
 use tch::nn::OptimizerConfig;
 
 fn main() {
@@ -43,7 +45,7 @@ fn main() {
     cfg.fusion = Fusion::None;
     cfg.attention = false;
     if std::env::var("HEAD").is_ok() {
-        cfg.head = depthsense_model::HeadKind::L1;
+        cfg.head = depthsense_config::HeadKind::L1;
     }
     if std::env::var("NODROP").is_ok() {
         cfg.dropout = 0.0;

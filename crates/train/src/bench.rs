@@ -4,8 +4,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use depthsense_data::{Dataset, EpochPlan, LoadOptions, Loader};
-use depthsense_model::{DepthNet, ModelConfig};
+use depthsense_config::ModelConfig;
+use depthsense_data::{EpochPlan, LoadOptions, Loader};
+use depthsense_dataset::Dataset;
+use depthsense_model::DepthNet;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 

@@ -38,10 +38,8 @@ use depthsense_model::sync_bn::{set_batch_norm_hook, set_sample_seeds, BatchNorm
 use serde::{Deserialize, Serialize};
 use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
 
-use depthsense_data::mix64;
-pub use depthsense_dist::{
-    has_nccl, Backend, DistEnv, DistError, ProcessGroup, DEFAULT_BUCKET_BYTES, DEFAULT_TIMEOUT,
-};
+use depthsense_base::hash::splitmix64;
+use depthsense_dist::{Backend, DistEnv, ProcessGroup, DEFAULT_BUCKET_BYTES};
 
 use crate::error::TrainError;
 
@@ -211,7 +209,9 @@ impl Dist {
     ) -> Result<(), TrainError> {
         let first = self.rank() * local_batch;
         let seeds = (first..first + local_batch)
-            .map(|g| mix64(seed ^ mix64(iteration + 1) ^ mix64(g as u64 ^ 0xd20_5eed)))
+            .map(|g| {
+                splitmix64(seed ^ splitmix64(iteration + 1) ^ splitmix64(g as u64 ^ 0xd20_5eed))
+            })
             .collect();
         set_sample_seeds(Some(seeds));
         if !self.opts.sync_bn && !self.buffers.is_empty() {

@@ -23,7 +23,7 @@ use serde::Serialize;
 
 use crate::error::TrainError;
 use crate::optim_state;
-use crate::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
+use depthsense_dataset::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
 
 /// How one training run validates, logs and trains an epoch; [`fit`] drives it.
 pub trait Learner {
@@ -161,7 +161,7 @@ pub fn lock_run_folder(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::outputs::PREV_OPTIM;
+    use depthsense_dataset::outputs::PREV_OPTIM;
     use std::cell::RefCell;
 
     /// A learner that records what `fit` asked of it.

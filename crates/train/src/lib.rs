@@ -9,7 +9,6 @@
 //! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
 //!   (exact resume, [`optim_state`]);
 //! - [`distributed`]: data-parallel training on c10d (Gloo / NCCL), `--nproc` launcher;
-//! - [`outputs`]: run folders, their lock and the refusal to overwrite results;
 //! - [`bench`]: training and loader throughput.
 
 pub mod adam;
@@ -18,14 +17,12 @@ pub mod distributed;
 pub mod learner;
 pub mod metrics_log;
 pub mod optim_state;
-/// Run folders and the refusal to overwrite results: torch-free, in depthsense-dataset.
-pub use depthsense_dataset::outputs;
 pub mod sgd;
 pub mod step;
 pub mod trainer;
 pub mod upload;
 pub mod validate;
 
-/// The training stack's one error type (defined in `depthsense-data`, the lowest crate that
-/// reports it): every message stays the same whichever crate raises it.
-pub use depthsense_data::{error, TrainError};
+mod error;
+/// The training stack's one error type: every message stays the same whichever crate raises it.
+pub use error::TrainError;

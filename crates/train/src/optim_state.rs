@@ -154,8 +154,8 @@ mod tests {
         let p = d.path().join("last.optim.safetensors");
         assert_eq!(prev_path(&p), d.path().join("last.optim.prev.safetensors"));
         assert_eq!(
-            prev_path(Path::new(crate::trainer::LAST_OPTIM)),
-            Path::new(crate::trainer::PREV_OPTIM)
+            prev_path(Path::new(depthsense_dataset::outputs::LAST_OPTIM)),
+            Path::new(depthsense_dataset::outputs::PREV_OPTIM)
         );
         rotate(&p, true).unwrap(); // nothing there yet
         std::fs::write(&p, "9").unwrap();

@@ -12,9 +12,12 @@
 
 use std::path::{Path, PathBuf};
 
-use depthsense_data::{Partition, RadarInput, TargetKind};
+use depthsense_config::ModelConfig;
+use depthsense_config::RadarInput;
+use depthsense_data::TargetKind;
+use depthsense_dataset::Partition;
 use depthsense_metrics::EvalConfig;
-use depthsense_model::{checkpoint, ModelConfig};
+use depthsense_model::checkpoint;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
@@ -26,9 +29,6 @@ pub use session::{removing_new_folder_on_failure, train, train_distributed, Trai
 
 pub use crate::metrics_log::{
     append_jsonl, read_metrics, truncate_metrics, write_curves, LossCurve, ValRecord,
-};
-pub use crate::outputs::{
-    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE, PREV_OPTIM,
 };
 pub use crate::upload::{batch_tensors, upload_batch, upload_inputs, BatchTensors};
 
@@ -242,7 +242,7 @@ pub struct Segment {
     pub warmup: u64,
 }
 
-pub use depthsense_dataset::subsample;
+use depthsense_dataset::subsample;
 
 fn all_finite(vs: &VarStore) -> bool {
     tch::no_grad(|| {
@@ -273,7 +273,8 @@ fn save_ckpt(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader};
+    use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
+    use depthsense_dataset::Dataset;
     use depthsense_model::ordinal::SparseTarget;
     use tch::{Device, Kind, Tensor};
 

@@ -1,7 +1,9 @@
 //! Validation (SPEC §9): a network over a list of samples into the metrics, through the one
 //! scorer [`score_image`] that `eval`, `eval --predictions` and every experiment use too.
 
-use depthsense_data::{Batch, Dataset, EpochPlan, LoadOptions, Loader, TargetKind};
+use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader, TargetKind};
+use depthsense_dataset::DataError;
+use depthsense_dataset::Dataset;
 use depthsense_metrics::{EvalConfig, Evaluator, Report};
 use depthsense_model::ordinal::SparseTarget;
 use depthsense_model::DepthNet;
@@ -11,7 +13,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::error::TrainError;
 use crate::upload::upload_inputs;
-pub use depthsense_score::{condition_names, score_image};
+use depthsense_score::score_image;
 
 /// Run `net` over `entries` and feed the decoded depth to the metrics (SPEC §9). `on_batch`
 /// sees every batch with its predictions ([B,H,W] metres, row-major).
@@ -144,7 +146,7 @@ pub struct RunPlan {
 /// Run `net` over `entries` in order (no augmentation; the maps `load` asks for, so no ground
 /// truth unless `load.eval_maps`) and hand every batch with its decoded predictions ([B,H,W]
 /// metres, row-major) to `on_batch`. Samples that cannot be read do not stop the others: they
-/// are all named at the end in one [`TrainError::Unreadable`].
+/// are all named at the end in one [`DataError::Unreadable`].
 pub fn run_net(
     net: &DepthNet,
     ds: &Dataset,
@@ -194,18 +196,18 @@ fn run_batches(
     for batch in Loader::start(ds, &load, &plan)? {
         let batch = match batch {
             Ok(b) => b,
-            Err(e @ TrainError::Unreadable { .. }) => {
+            Err(e @ DataError::Unreadable { .. }) => {
                 unreadable.push(e);
                 continue;
             }
-            Err(e) => return Err(e),
+            Err(e) => return Err(e.into()),
         };
         let pred_v = predict_batch(net, &batch, run.device, decode)?;
         on_batch(&batch, &pred_v)?;
         progress.inc(batch.size as u64);
     }
-    match TrainError::merged(unreadable) {
-        Some(e) => Err(e),
+    match DataError::merged(unreadable) {
+        Some(e) => Err(e.into()),
         None => Ok(()),
     }
 }

@@ -4,10 +4,13 @@
 
 use std::path::Path;
 
-use depthsense_data::{partition, Dataset, LoadOptions};
-use depthsense_model::{checkpoint, ModelConfig, RadarInput};
+use depthsense_config::{ModelConfig, RadarInput};
+use depthsense_data::LoadOptions;
+use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
+use depthsense_dataset::{partition, Dataset};
+use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{evaluate_net, train, TrainOptions, BEST_CKPT, LAST_CKPT};
+use depthsense_train::trainer::{evaluate_net, train, TrainOptions};
 
 /// libtorch's generator is process-wide: tests that train hold this lock so that each run's
 /// initial weights come from its own seed.

@@ -2,9 +2,11 @@
 //! equals `evaluate_net`'s (every pixel decoded) up to the float rounding of the bilinear
 //! interpolation, for the ordinal and a regression head, with and without upsampling.
 
-use depthsense_data::{partition, Dataset, LoadOptions};
+use depthsense_config::{HeadKind, ModelConfig};
+use depthsense_data::LoadOptions;
+use depthsense_dataset::{partition, Dataset};
 use depthsense_metrics::Report;
-use depthsense_model::{DepthNet, HeadKind, ModelConfig};
+use depthsense_model::DepthNet;
 use depthsense_progress::Progress;
 use depthsense_train::trainer::{evaluate_net, validate_net};
 

@@ -122,7 +122,7 @@ fn documented() -> (BTreeSet<String>, BTreeSet<(String, String)>) {
             }
         }
     }
-    // PDA presets of `mer train --config` are another vocabulary (depthsense_model::pda).
+    // PDA presets of `mer train --config` are another vocabulary (depthsense_config::pda).
     for pda in ["fast", "test"] {
         presets.remove(pda);
     }

@@ -7,11 +7,13 @@ use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
+use depthsense_base::hash::splitmix64;
 use depthsense_base::lock::OutputLock;
-use depthsense_data::{
-    mix64, partition, Batch, Dataset, EpochPlan, LoadOptions, Loader, Partition, RadarInput,
-};
-use depthsense_model::{checkpoint, DepthNet, ModelConfig};
+use depthsense_config::ModelConfig;
+use depthsense_config::RadarInput;
+use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
+use depthsense_dataset::{partition, Dataset, Partition};
+use depthsense_model::{checkpoint, DepthNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use std::ops::Range;
@@ -19,14 +21,16 @@ use tch::{nn::VarStore, Device, Kind};
 
 use super::{
     all_finite, append_jsonl, read_metrics, save_ckpt, subsample, truncate_metrics, upload_batch,
-    validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord, BEST_CKPT,
-    CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+    validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
 use crate::error::TrainError;
 use crate::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use crate::optim_state;
 use crate::sgd::{warmup_poly_lr, Sgd};
+use depthsense_dataset::outputs::{
+    BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
+};
 
 /// A training run in progress.
 pub struct Trainer<'o> {
@@ -297,7 +301,7 @@ impl<'o> Trainer<'o> {
         let it = self.state.iteration;
         let lr = self.lr_at(it);
         // Dropout draws depend only on (seed, iteration): exact resume.
-        tch::manual_seed((mix64(opts.seed ^ mix64(it + 1)) >> 1) as i64);
+        tch::manual_seed((splitmix64(opts.seed ^ splitmix64(it + 1)) >> 1) as i64);
         let precision = step_precision(opts.amp);
         if let Some(d) = &self.dist {
             d.before_forward(opts.seed, it, batch.size)?;
@@ -693,7 +697,8 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainErro
 /// The first `n` of `train` in a fixed order (SplitMix64 of each sample token's FNV-1a hash):
 /// nested for growing `n`, the same for every seed and variant; returned in `train`'s order.
 pub fn training_subset(train: &[IndexEntry], n: usize) -> Vec<IndexEntry> {
-    let key = |e: &IndexEntry| mix64(depthsense_base::hash::fnv1a64(e.sample_token.as_bytes()));
+    let key =
+        |e: &IndexEntry| splitmix64(depthsense_base::hash::fnv1a64(e.sample_token.as_bytes()));
     let mut order: Vec<usize> = (0..train.len()).collect();
     order.sort_by_key(|&i| (key(&train[i]), i));
     let mut keep: Vec<usize> = order.into_iter().take(n).collect();
@@ -747,10 +752,10 @@ fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOpti
 /// `late fusion + attention`, `late fusion`, `early fusion` or `RGB only`.
 fn fusion_words(cfg: &ModelConfig) -> &'static str {
     match (cfg.fusion, cfg.attention) {
-        (depthsense_model::Fusion::Late, true) => "late fusion + attention",
-        (depthsense_model::Fusion::Late, false) => "late fusion",
-        (depthsense_model::Fusion::Early, _) => "early fusion",
-        (depthsense_model::Fusion::None, _) => "RGB only",
+        (depthsense_config::Fusion::Late, true) => "late fusion + attention",
+        (depthsense_config::Fusion::Late, false) => "late fusion",
+        (depthsense_config::Fusion::Early, _) => "early fusion",
+        (depthsense_config::Fusion::None, _) => "RGB only",
     }
 }
 

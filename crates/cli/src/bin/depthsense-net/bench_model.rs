@@ -2,8 +2,9 @@
 
 use anyhow::Context;
 use depthsense_cli::cmd::bench_model::Args;
+use depthsense_config::{HeadKind, ModelConfig};
 use depthsense_model::precision::{channels_last, vs_to_channels_last, with_autocast, Precision};
-use depthsense_model::{device, report, DepthNet, HeadKind, ModelConfig};
+use depthsense_model::{device, report, DepthNet};
 use serde::Serialize;
 use std::process::ExitCode;
 use std::time::Instant;

@@ -3,11 +3,10 @@
 use depthsense_cli::cmd::eval::{eval_config, Args};
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_cli::command_line;
-use depthsense_eval::evaluate::{
-    load_model, run_eval_loaded, table_paths, write_tables_with_command, EvalOptions,
-};
-use depthsense_experiments::failure::RadarFailure;
-use depthsense_train::outputs::refuse_existing;
+use depthsense_data::radar_failure::RadarFailure;
+use depthsense_dataset::outputs::refuse_existing;
+use depthsense_eval::evaluate::{load_model, run_eval_loaded, EvalOptions};
+use depthsense_score::tables::{table_paths, write_tables_with_command};
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -66,7 +66,7 @@ fn claim_results(
         .iter()
         .map(|e| out.join(format!("{name}.{e}")))
         .collect();
-    depthsense_train::outputs::refuse_existing(&files, force, &format!("experiment {name}"))?;
+    depthsense_dataset::outputs::refuse_existing(&files, force, &format!("experiment {name}"))?;
     Ok(lock)
 }
 

@@ -1,19 +1,18 @@
 //! `depthsense explain`: Grad-CAM++ maps by distance class (SPEC §10.6) of a checkpoint on (the network side; its flags: `depthsense_cli::cmd::explain`).
 
 use depthsense_cli::cmd::explain::Args;
-use depthsense_data::Dataset;
-use depthsense_eval::evaluate::{load_model, select_split};
+use depthsense_dataset::Dataset;
+use depthsense_eval::evaluate::load_model;
 use depthsense_eval::explain::run_explain;
+use depthsense_score::predictions::select_split;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let dirs = if let Some(data) = &a.data {
         let ds = Dataset::open(data)?;
-        let e = depthsense_train::trainer::subsample(
-            &select_split(&ds, &a.split, 5)?,
-            Some(a.max_samples),
-        );
+        let e =
+            depthsense_dataset::subsample(&select_split(&ds, &a.split, 5)?, Some(a.max_samples));
         e.iter().map(|x| ds.sample_dir(x)).collect()
     } else {
         a.sample.clone()
@@ -25,7 +24,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .iter()
         .map(|f| a.out.join(f))
         .collect();
-    depthsense_train::outputs::refuse_existing(&own, a.force, "explain")?;
+    depthsense_dataset::outputs::refuse_existing(&own, a.force, "explain")?;
     let device = depthsense_model::device::parse_device(&a.device)?;
     let (loaded, _) = load_model(&a.checkpoint, a.config.as_deref(), &[], device)?;
     let r = run_explain(

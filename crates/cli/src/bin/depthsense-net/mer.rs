@@ -2,9 +2,9 @@
 
 use depthsense_cli::cmd::mer::{ApplyArgs, Args, Command, TrainArgs};
 use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_config::pda::PdaConfig;
 use depthsense_mer::apply::{apply, MerApplyOptions};
 use depthsense_mer::train::{train_pda, MerTrainOptions};
-use depthsense_model::pda::PdaConfig;
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {

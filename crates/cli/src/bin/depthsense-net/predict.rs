@@ -2,18 +2,19 @@
 
 use depthsense_cli::cmd::predict::Args;
 use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_dataset::outputs::refuse_existing;
 use depthsense_eval::predict::{
     input_from_prepared, input_from_raw, input_from_token, predict, radar_warnings,
     trained_radar_settings, write_outputs, PredictInput, OUTPUT_FILES,
 };
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::calibration::RadarSettings;
-use depthsense_train::outputs::refuse_existing;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
-    use depthsense_eval::evaluate::{select_split, write_predictions, EvalOptions, PredFormat};
+    use depthsense_eval::evaluate::{write_predictions, EvalOptions};
+    use depthsense_score::predictions::{select_split, PredFormat};
     let formats = a
         .format
         .iter()
@@ -29,7 +30,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         device: a.device.clone(),
         ..EvalOptions::default()
     };
-    let ds = depthsense_data::Dataset::open(data)?;
+    let ds = depthsense_dataset::Dataset::open(data)?;
     let files: Vec<PathBuf> = select_split(&ds, &opts.split, opts.val_every_scene)?
         .iter()
         .flat_map(|e| {

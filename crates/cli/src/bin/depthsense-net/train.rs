@@ -3,12 +3,15 @@
 use depthsense_cli::cmd::progress::progress_bar;
 /// This process's arguments without `--nproc N` (what each worker runs).
 use depthsense_cli::cmd::train::Args;
-use depthsense_data::{RadarInput, TargetKind, TrainError};
+use depthsense_config::RadarInput;
+use depthsense_config::{Fusion, ModelConfig};
+use depthsense_data::TargetKind;
+use depthsense_dist::DistEnv;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
-use depthsense_model::{Fusion, ModelConfig};
 use depthsense_progress::Progress;
-use depthsense_train::distributed::{self, Dist, DistEnv, DistOptions};
+use depthsense_train::distributed::{self, Dist, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
+use depthsense_train::TrainError;
 use std::ffi::OsString;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -67,7 +70,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
     // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
     if !a.resume && !a.extend && !a.force {
-        depthsense_train::outputs::claim_run_folder(&a.out, "train", false, false)?;
+        depthsense_dataset::outputs::claim_run_folder(&a.out, "train", false, false)?;
     }
     // Another writer fails us here, at once (taken and released: rank 0 holds it next).
     drop(depthsense_base::lock::OutputLock::exclusive(
@@ -147,7 +150,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         exclude: a
             .exclude
             .iter()
-            .map(|x| x.parse::<depthsense_experiments::reduced_data::Exclusion>())
+            .map(|x| x.parse::<depthsense_data::exclusion::Exclusion>())
             .collect::<Result<Vec<_>, _>>()?,
         max_val_samples: a.max_val_samples,
         max_batches_per_epoch: a.max_batches_per_epoch,
@@ -216,10 +219,11 @@ fn train_this_process(
 /// The run's summary on stderr: iterations, times, validation RMSE over the whole history.
 fn print_summary(s: &TrainSummary, out: &std::path::Path) {
     // The whole history (a resumed run's summary only holds its own epochs).
-    let history =
-        depthsense_train::trainer::read_metrics(&out.join(depthsense_train::trainer::METRICS_FILE))
-            .map(|(_, v)| v)
-            .unwrap_or_else(|_| s.val.clone());
+    let history = depthsense_train::trainer::read_metrics(
+        &out.join(depthsense_dataset::outputs::METRICS_FILE),
+    )
+    .map(|(_, v)| v)
+    .unwrap_or_else(|_| s.val.clone());
     let first = history.first().map_or(f64::NAN, |v| v.rmse);
     let last = history.last().map_or(f64::NAN, |v| v.rmse);
     eprintln!(

@@ -1,0 +1,92 @@
+//! The training stack's error: each names the file, record or setting at fault. The data
+//! layer's [`depthsense_dataset::DataError`] comes in whole (`Dataset`), with its messages.
+
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: cannot parse: {reason}")]
+    Parse { path: String, reason: String },
+    #[error("data: {0}")]
+    Data(String),
+    #[error("configuration: {0}")]
+    Config(String),
+    #[error(transparent)]
+    Model(#[from] depthsense_model::ModelError),
+    #[error(transparent)]
+    Metrics(#[from] depthsense_metrics::MetricsError),
+    #[error(transparent)]
+    Viz(#[from] depthsense_viz::VizError),
+    #[error("libtorch: {0}")]
+    Torch(#[from] tch::TchError),
+    #[error(
+        "non-finite loss ({loss}) at epoch {epoch}, iteration {iteration}: training stopped; \
+         the last good checkpoint is kept at {kept}"
+    )]
+    NonFiniteLoss {
+        loss: f64,
+        epoch: u64,
+        iteration: u64,
+        kept: String,
+    },
+    #[error("{dir} already holds {what}; nothing was changed: {advice}")]
+    OutputExists {
+        dir: String,
+        what: String,
+        advice: String,
+    },
+    #[error(transparent)]
+    Lock(#[from] depthsense_base::lock::LockError),
+    /// `train --resume` of a run that has run all its epochs: nothing to do (exit status 0).
+    #[error(
+        "{run} is finished: {epochs} of {epochs} epochs (iteration {iteration}); nothing was \
+         changed. To train it longer, run the same command with --extend --epochs N (N > \
+         {epochs}): a new learning-rate schedule from its last checkpoint \
+         (docs/guide/train.md, \"Longer runs and fine-tuning\")"
+    )]
+    RunFinished {
+        run: String,
+        epochs: usize,
+        iteration: u64,
+    },
+    /// The data layer's errors (prepared folders, the loader, unreadable samples), with their
+    /// own messages.
+    #[error(transparent)]
+    Dataset(#[from] depthsense_dataset::DataError),
+    #[error("{0}")]
+    Other(String),
+}
+
+impl TrainError {
+    pub fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    }
+}
+
+impl From<depthsense_dist::DistError> for TrainError {
+    fn from(e: depthsense_dist::DistError) -> Self {
+        TrainError::Other(e.to_string())
+    }
+}
+
+/// An unknown preset or `--set` key, or a config no network can be built with.
+impl From<depthsense_config::ConfigError> for TrainError {
+    fn from(e: depthsense_config::ConfigError) -> Self {
+        use depthsense_config::ConfigError as C;
+        match e {
+            // a mismatch between a request and the model, not an invalid model (same message
+            // as when the trainer owned the rule)
+            C::RadarChannels { .. } => TrainError::Config(e.to_string()),
+            e => TrainError::Model(e.into()),
+        }
+    }
+}
