@@ -602,3 +602,242 @@ fn the_cli_reference_is_up_to_date() {
         "docs/guide/cli.md is stale: run `target/debug/depthsense help-markdown > docs/guide/cli.md`"
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// ARCHITECTURE.md's layer table and its rule ("a crate depends only on crates of lower layers;
+// inside a crate no two modules import each other in a circle")
+
+/// (crate directory, layer) of every row of ARCHITECTURE.md's layer table.
+fn layer_table(md: &str) -> Vec<(String, u32)> {
+    md.lines()
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.split('|').map(str::trim).collect();
+            let layer = cells.get(1)?.parse().ok()?;
+            let name = cells.get(2)?.strip_prefix('`')?.strip_suffix('`')?;
+            Some((name.to_string(), layer))
+        })
+        .collect()
+}
+
+/// The `depthsense-*` crates of a Cargo.toml's `[dependencies]` (without the prefix).
+fn normal_deps(toml: &str) -> Vec<String> {
+    let mut in_deps = false;
+    let mut out = vec![];
+    for l in toml.lines() {
+        let l = l.trim();
+        if l.starts_with('[') {
+            in_deps = l == "[dependencies]";
+        } else if in_deps {
+            if let Some(rest) = l.strip_prefix("depthsense-") {
+                let name: String = rest
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '-')
+                    .collect();
+                out.push(name);
+            }
+        }
+    }
+    out
+}
+
+fn layer_problems(table: &[(String, u32)], root: &Path) -> Vec<String> {
+    let layer = |n: &str| table.iter().find(|(c, _)| c == n).map(|(_, l)| *l);
+    let mut out = vec![];
+    for e in std::fs::read_dir(root.join("crates")).unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Ok(toml) = std::fs::read_to_string(e.path().join("Cargo.toml")) else {
+            continue;
+        };
+        let Some(own) = layer(&name) else {
+            out.push(format!(
+                "crates/{name} is not in ARCHITECTURE.md's layer table"
+            ));
+            continue;
+        };
+        for dep in normal_deps(&toml) {
+            match layer(&dep) {
+                Some(l) if l < own => {}
+                l => out.push(format!(
+                    "{name} (layer {own}) depends on {dep} (layer {l:?}): not a lower layer"
+                )),
+            }
+        }
+    }
+    out
+}
+
+/// The top-level modules of a crate's `src` and the ones each refers to through `crate::`
+/// (items re-exported by lib.rs count as their module; comments and `mod tests` ignored).
+fn module_graph(
+    src: &Path,
+) -> std::collections::BTreeMap<String, std::collections::BTreeSet<String>> {
+    fn files(dir: &Path, out: &mut Vec<PathBuf>) {
+        for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                files(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+    let code = |p: &Path| {
+        let s = std::fs::read_to_string(p).unwrap_or_default();
+        let s = s
+            .split("#[cfg(test)]\nmod tests")
+            .next()
+            .unwrap_or("")
+            .to_string();
+        s.lines()
+            .filter(|l| !l.trim_start().starts_with("//"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    // lib.rs `pub use module::{Item, …};` / `pub use module::Item;`
+    let mut alias = std::collections::BTreeMap::new();
+    for stmt in code(&src.join("lib.rs")).split(';') {
+        if let Some(rest) = stmt.trim().strip_prefix("pub use ") {
+            if let Some((module, items)) = rest.split_once("::") {
+                for it in items.trim_matches(|c| c == '{' || c == '}').split(',') {
+                    let it = it.split(" as ").last().unwrap_or("").trim();
+                    alias.insert(it.to_string(), module.to_string());
+                }
+            }
+        }
+    }
+    let mut all = vec![];
+    files(src, &mut all);
+    let mut graph: std::collections::BTreeMap<String, std::collections::BTreeSet<String>> =
+        Default::default();
+    for f in &all {
+        let rel = f.strip_prefix(src).unwrap();
+        let top = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy()
+            .trim_end_matches(".rs")
+            .to_string();
+        if matches!(top.as_str(), "lib" | "main" | "bin") {
+            continue;
+        }
+        let text = code(f);
+        let mut refs = std::collections::BTreeSet::new();
+        for part in text.split("crate::").skip(1) {
+            let names: Vec<String> = if let Some(body) = part.strip_prefix('{') {
+                body.split('}')
+                    .next()
+                    .unwrap_or("")
+                    .split(',')
+                    .map(|x| x.trim().split("::").next().unwrap_or("").to_string())
+                    .collect()
+            } else {
+                vec![part
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || *c == '_')
+                    .collect()]
+            };
+            for n in names {
+                refs.insert(alias.get(&n).cloned().unwrap_or(n));
+            }
+        }
+        graph
+            .entry(top.clone())
+            .or_default()
+            .extend(refs.into_iter().filter(|r| *r != top));
+    }
+    let names: std::collections::BTreeSet<String> = graph.keys().cloned().collect();
+    for refs in graph.values_mut() {
+        refs.retain(|r| names.contains(r));
+    }
+    graph
+}
+
+/// One circle of the graph, if any (`a → b → a`).
+fn a_circle(
+    g: &std::collections::BTreeMap<String, std::collections::BTreeSet<String>>,
+) -> Option<Vec<String>> {
+    fn visit(
+        u: &str,
+        g: &std::collections::BTreeMap<String, std::collections::BTreeSet<String>>,
+        state: &mut std::collections::BTreeMap<String, u8>,
+        path: &mut Vec<String>,
+    ) -> Option<Vec<String>> {
+        state.insert(u.to_string(), 1);
+        path.push(u.to_string());
+        for v in g.get(u).into_iter().flatten() {
+            match state.get(v) {
+                Some(1) => {
+                    let at = path.iter().position(|p| p == v).unwrap_or(0);
+                    let mut c = path[at..].to_vec();
+                    c.push(v.clone());
+                    return Some(c);
+                }
+                Some(_) => {}
+                None => {
+                    if let Some(c) = visit(v, g, state, path) {
+                        return Some(c);
+                    }
+                }
+            }
+        }
+        path.pop();
+        state.insert(u.to_string(), 2);
+        None
+    }
+    let mut state: std::collections::BTreeMap<String, u8> = Default::default();
+    g.keys().find_map(|k| {
+        if state.contains_key(k) {
+            None
+        } else {
+            visit(k, g, &mut state, &mut vec![])
+        }
+    })
+}
+
+#[test]
+fn the_layer_table_holds_and_no_crate_has_an_import_circle() {
+    let root = repo();
+    let table = layer_table(&std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap());
+    assert!(table.len() >= 20, "{table:?}");
+    let problems = layer_problems(&table, &root);
+    assert!(problems.is_empty(), "{}", problems.join("\n"));
+    for (name, _) in &table {
+        let g = module_graph(&root.join("crates").join(name).join("src"));
+        if let Some(c) = a_circle(&g) {
+            panic!(
+                "crates/{name}: modules import each other in a circle: {}",
+                c.join(" → ")
+            );
+        }
+    }
+}
+
+#[test]
+fn the_layer_checks_catch_an_upward_dependency_and_a_circle() {
+    let table = vec![("a".to_string(), 1), ("b".to_string(), 2)];
+    let dir = tempfile::tempdir().unwrap();
+    for (name, deps) in [("a", "depthsense-b.workspace = true"), ("b", "")] {
+        let c = dir.path().join("crates").join(name);
+        std::fs::create_dir_all(c.join("src")).unwrap();
+        std::fs::write(c.join("Cargo.toml"), format!("[dependencies]\n{deps}\n")).unwrap();
+    }
+    let p = layer_problems(&table, dir.path());
+    assert_eq!(
+        p,
+        ["a (layer 1) depends on b (layer Some(2)): not a lower layer"]
+    );
+    let src = dir.path().join("crates/a/src");
+    std::fs::write(src.join("lib.rs"), "mod x;\nmod y;\npub use y::Thing;\n").unwrap();
+    std::fs::write(src.join("x.rs"), "use crate::Thing;\n").unwrap();
+    std::fs::write(
+        src.join("y.rs"),
+        "// crate::z is a comment\nuse crate::{x::f, w};\n",
+    )
+    .unwrap();
+    let g = module_graph(&src);
+    assert_eq!(a_circle(&g).unwrap(), ["x", "y", "x"]);
+    std::fs::write(src.join("y.rs"), "pub struct Thing;\n").unwrap();
+    assert!(a_circle(&module_graph(&src)).is_none());
+}

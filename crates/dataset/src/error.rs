@@ -1,5 +1,5 @@
 //! The error of the torch-free data layer: each names the file, record or setting at fault.
-//! `depthsense_train::TrainError` carries it whole (`TrainError::Dataset`), messages unchanged.
+//! `depthsense_infer::NetError` carries it whole (`NetError::Dataset`), messages unchanged.
 
 use std::path::Path;
 

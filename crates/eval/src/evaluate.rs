@@ -20,10 +20,10 @@ use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
 use depthsense_dataset::subsample;
+use depthsense_infer::run::evaluate_net;
+use depthsense_infer::run::{run_net, RunPlan};
+use depthsense_infer::NetError;
 use depthsense_prep::layout::IndexEntry;
-use depthsense_train::trainer::evaluate_net;
-use depthsense_train::validate::{run_net, RunPlan};
-use depthsense_train::TrainError;
 // Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
 // `eval --predictions` without libtorch; the network side's users reach it there.
 use depthsense_score::predictions::{select_split, write_prediction, PredFormat, HELD_OUT};
@@ -96,15 +96,20 @@ pub fn load_model(
     config: Option<&str>,
     set: &[String],
     device: tch::Device,
-) -> Result<(Loaded, Option<LoadReport>), TrainError> {
+) -> Result<(Loaded, Option<LoadReport>), NetError> {
     let cfg = match (config, set.is_empty()) {
         (Some(c), _) => Some(depthsense_model::config::resolve(c)?.with_options(set)?),
         (None, true) => None,
-        (None, false) if !checkpoint::is_torch_file(checkpoint_path)? => Some(
-            checkpoint::read_config(checkpoint_path)?
-                .0
-                .with_options(set)?,
-        ),
+        (None, false)
+            if !depthsense_weights::torch_file::is_torch_file(checkpoint_path)
+                .map_err(depthsense_model::ModelError::from)? =>
+        {
+            Some(
+                checkpoint::read_config(checkpoint_path)?
+                    .0
+                    .with_options(set)?,
+            )
+        }
         (None, false) => None, // load_any names the missing --config
     };
     Ok(checkpoint::load_any(checkpoint_path, cfg.as_ref(), device)?)
@@ -112,7 +117,7 @@ pub fn load_model(
 
 /// Evaluate a checkpoint (see [`load_model`] for what `opts.checkpoint` may be). Returns the
 /// report (every row).
-pub fn run_eval(opts: &EvalOptions, progress: &Progress) -> Result<Report, TrainError> {
+pub fn run_eval(opts: &EvalOptions, progress: &Progress) -> Result<Report, NetError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let (loaded, _) = load_model(&opts.checkpoint, opts.config.as_deref(), &opts.set, device)?;
     run_eval_loaded(opts, &loaded, progress)
@@ -123,7 +128,7 @@ pub fn run_eval_loaded(
     opts: &EvalOptions,
     loaded: &Loaded,
     progress: &Progress,
-) -> Result<Report, TrainError> {
+) -> Result<Report, NetError> {
     eval_with(opts, loaded, progress, |_, _| Ok(()))
 }
 
@@ -133,9 +138,9 @@ fn eval_inputs(
     opts: &EvalOptions,
     loaded: &Loaded,
     progress: &Progress,
-) -> Result<(Dataset, Vec<IndexEntry>, LoadOptions), TrainError> {
+) -> Result<(Dataset, Vec<IndexEntry>, LoadOptions), NetError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--radar-drop must be within [0, 1], got {}",
             opts.radar_drop
         )));
@@ -172,8 +177,8 @@ fn eval_with(
     opts: &EvalOptions,
     loaded: &Loaded,
     progress: &Progress,
-    on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<Report, TrainError> {
+    on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<Report, NetError> {
     let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
     evaluate_net(
         &loaded.net,
@@ -197,9 +202,9 @@ pub fn write_predictions(
     out: &Path,
     formats: &[PredFormat],
     progress: &Progress,
-) -> Result<usize, TrainError> {
+) -> Result<usize, NetError> {
     let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let mut n = 0usize;
     let run = RunPlan {
         batch_size: opts.batch_size,
@@ -238,7 +243,7 @@ pub fn write_predictions(
 mod tests {
     use super::*;
     use depthsense_config::ModelConfig;
-    use depthsense_model::{pickle, DepthNet};
+    use depthsense_model::DepthNet;
     use tch::{nn::VarStore, Device, Tensor};
 
     fn narrow_released() -> ModelConfig {
@@ -279,7 +284,11 @@ mod tests {
             .map(|(k, v)| (theirs(&k), v.detach() * 1.5))
             .collect();
         let pth = dir.path().join("paper_weights.pth");
-        pickle::write_torch_state_dict(&pth, &sd).unwrap();
+        depthsense_weights::pth_writer::write_torch_state_dict(
+            &pth,
+            &depthsense_model::host::all_to_host(&sd).unwrap(),
+        )
+        .unwrap();
 
         // a .pth needs --config
         let e = load_model(&pth, None, &[], Device::Cpu)

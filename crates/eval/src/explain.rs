@@ -29,10 +29,10 @@ use std::path::{Path, PathBuf};
 use depthsense_base::fsutil::write_atomic;
 use depthsense_config::{HeadKind, SidConfig};
 use depthsense_data::{normalise_image, Augment};
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{md_num, Align, MdTable};
 use depthsense_model::{ordinal, sid, DepthNet};
 use depthsense_nuscenes::depth_png::DepthMap;
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor};
 
@@ -120,10 +120,10 @@ pub fn explain_image(
     band: f64,
     layers: &[String],
     with_radar: bool,
-) -> Result<Vec<CamMap>, TrainError> {
+) -> Result<Vec<CamMap>, NetError> {
     let cfg = net.config();
     if cfg.head != HeadKind::Ordinal || cfg.clamp_logits {
-        return Err(TrainError::Config(
+        return Err(NetError::Config(
             "explain needs an ordinal head at low resolution (not l1/l2, not clamp_logits)".into(),
         ));
     }
@@ -146,7 +146,7 @@ pub fn explain_image(
         let ch = channels_at(&cfg.sid, d, band);
         let s = evidence(&z, &mask, &ch);
         if taps.is_empty() {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "none of the layers {layers:?} exists in this network (rgb.layer1..4, decoder, radar)"
             )));
         }
@@ -237,8 +237,8 @@ pub fn run_explain(
     out: &Path,
     device: Device,
     command_line: Option<String>,
-) -> Result<ExplainResult, TrainError> {
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+) -> Result<ExplainResult, NetError> {
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let cfg = net.config().clone();
     let radar_input = cfg.radar_input_for(None)?;
     let mut records = vec![];
@@ -248,7 +248,7 @@ pub fn run_explain(
         let gt = input
             .gt
             .clone()
-            .ok_or_else(|| TrainError::Data(format!("{}: no lidar GT", dir.display())))?;
+            .ok_or_else(|| NetError::Data(format!("{}: no lidar GT", dir.display())))?;
         let (img, radar, gt_t) = sample_tensors(&input, &gt, radar_input, device)?;
         let states: &[bool] = if radar_input.is_some() {
             &[true, false]
@@ -272,7 +272,7 @@ pub fn run_explain(
                 );
                 let p = out.join(&name);
                 write_atomic(&p, &depthsense_viz::plot::encode_rgb(&ov)?)
-                    .map_err(|e| TrainError::io(&p, e))?;
+                    .map_err(|e| NetError::io(&p, e))?;
                 row_tiles.push(ov);
                 records.push(CamRecord {
                     sample: input.name.clone(),
@@ -309,7 +309,7 @@ fn sample_tensors(
     gt: &DepthMap,
     radar_input: Option<depthsense_config::RadarInput>,
     device: Device,
-) -> Result<(Tensor, Tensor, Tensor), TrainError> {
+) -> Result<(Tensor, Tensor, Tensor), NetError> {
     let (w, h) = input.image.dimensions();
     let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
         .view([1, 3, h as i64, w as i64])
@@ -319,7 +319,7 @@ fn sample_tensors(
         Some(depthsense_config::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
         Some(depthsense_config::RadarInput::Height) => input.radar_height.depth_m.clone(),
         Some(r) => {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "explain supports the raw or height radar input, not {}",
                 r.name()
             )))
@@ -339,18 +339,18 @@ fn write_results(
     out: &Path,
     r: &ExplainResult,
     tiles: &[Vec<image::RgbImage>],
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     let grid = out.join("grid.png");
     write_atomic(
         &grid,
         &depthsense_viz::plot::encode_rgb(&grid_image(tiles))?,
     )
-    .map_err(|e| TrainError::io(&grid, e))?;
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    .map_err(|e| NetError::io(&grid, e))?;
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     let jp = out.join("explain.json");
-    write_atomic(&jp, json.as_bytes()).map_err(|e| TrainError::io(&jp, e))?;
+    write_atomic(&jp, json.as_bytes()).map_err(|e| NetError::io(&jp, e))?;
     let mp = out.join("explain.md");
-    write_atomic(&mp, markdown(r).as_bytes()).map_err(|e| TrainError::io(&mp, e))?;
+    write_atomic(&mp, markdown(r).as_bytes()).map_err(|e| NetError::io(&mp, e))?;
     Ok(())
 }
 

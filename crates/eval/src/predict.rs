@@ -31,7 +31,7 @@ use depthsense_prep::pipeline::{add_sweep, velocity_dt_s, RadarSweep};
 use depthsense_prep::radar_points::RadarPoints;
 use tch::{Device, Kind, Tensor};
 
-use depthsense_train::TrainError;
+use depthsense_infer::NetError;
 
 /// One network input in the training frame.
 #[derive(Debug, Clone)]
@@ -51,10 +51,10 @@ pub struct PredictInput {
 }
 
 /// Read a prepared sample directory.
-pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
+pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, NetError> {
     if !dir.join(META_FILE).exists() {
         let d = dir.display();
-        return Err(TrainError::Other(if dir.join(INDEX_FILE).exists() {
+        return Err(NetError::Other(if dir.join(INDEX_FILE).exists() {
             format!(
                 "{d} is a prepared folder, not one sample: pass --sample {d}/<sample token> \
                  for one of its samples, or --data {d} for a split of them"
@@ -99,9 +99,9 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, TrainError> {
 
 /// A map as `prepare` stores it and the loader reads it back: through the 16-bit PNG
 /// (depth × 256, SPEC §3), so that a map computed here equals the prepared file bit for bit.
-pub fn as_stored(map: DepthMap) -> Result<DepthMap, TrainError> {
-    let bytes = encode_png(&map).map_err(|e| TrainError::Data(e.to_string()))?;
-    decode_png(&bytes, "radar map").map_err(|e| TrainError::Data(e.to_string()))
+pub fn as_stored(map: DepthMap) -> Result<DepthMap, NetError> {
+    let bytes = encode_png(&map).map_err(|e| NetError::Data(e.to_string()))?;
+    decode_png(&bytes, "radar map").map_err(|e| NetError::Data(e.to_string()))
 }
 
 /// Run the `prepare` computation for one sample token of a dataroot (nothing is written); the
@@ -111,20 +111,20 @@ pub fn input_from_token(
     version: &str,
     token: &str,
     opts: &depthsense_prep::PrepareOptions,
-) -> Result<PredictInput, TrainError> {
+) -> Result<PredictInput, NetError> {
     let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version)
-        .map_err(|e| TrainError::Data(e.to_string()))?;
+        .map_err(|e| NetError::Data(e.to_string()))?;
     let want = depthsense_nuscenes::tables::Token::parse(token);
     let sample = nu.sample.iter().find(|s| s.token == want).ok_or_else(|| {
-        TrainError::Data(format!(
+        NetError::Data(format!(
             "{}/{version}: no sample with token {token}",
             dataroot.display()
         ))
     })?;
     let maps = depthsense_prep::pipeline::compute_sample(&nu, sample, opts)
-        .map_err(|e| TrainError::Data(format!("sample {token}: {e}")))?;
+        .map_err(|e| NetError::Data(format!("sample {token}: {e}")))?;
     let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, maps.image_rgb)
-        .ok_or_else(|| TrainError::Data(format!("sample {token}: image has the wrong size")))?;
+        .ok_or_else(|| NetError::Data(format!("sample {token}: image has the wrong size")))?;
     Ok(PredictInput {
         name: token.to_string(),
         image,
@@ -142,7 +142,7 @@ fn chosen_entries<'a>(
     calibration: &Path,
     calib: &'a Calibration,
     files: &[PathBuf],
-) -> Result<Vec<(&'a RadarEntry, PathBuf)>, TrainError> {
+) -> Result<Vec<(&'a RadarEntry, PathBuf)>, NetError> {
     let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
     if files.is_empty() {
         return Ok(calib
@@ -158,7 +158,7 @@ fn chosen_entries<'a>(
             .iter()
             .position(|e| name(Path::new(&e.file)) == name(f))
             .ok_or_else(|| {
-                TrainError::Data(format!(
+                NetError::Data(format!(
                     "{}: no cam_from_radar entry for radar file {:?} (entries: {:?}); write \
                      the calibration with `depthsense calibration`, which lists every sweep",
                     calibration.display(),
@@ -188,19 +188,19 @@ pub fn input_from_raw(
     radar_files: &[PathBuf],
     calibration: &Path,
     radar_filters: bool,
-) -> Result<PredictInput, TrainError> {
+) -> Result<PredictInput, NetError> {
     let calib = depthsense_prep::calibration::read(calibration)
-        .map_err(|e| TrainError::Data(e.to_string()))?;
+        .map_err(|e| NetError::Data(e.to_string()))?;
     let full = decode_rgb(jpeg)?;
     let (w, h) = full.dimensions();
     let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| {
-        TrainError::Data(format!(
+        NetError::Data(format!(
             "{}: image is {w}x{h}; a nuScenes CAM_FRONT image is 1600x900",
             jpeg.display()
         ))
     })?;
     let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, frame)
-        .ok_or_else(|| TrainError::Data("frame has the wrong size".into()))?;
+        .ok_or_else(|| NetError::Data("frame has the wrong size".into()))?;
     let cam = Camera::from_intrinsic(&calib.camera_intrinsic, w, h);
     let filters = radar_filters && calib.settings.radar_filters;
     let velocity = calib.settings.radar_velocity_compensation;
@@ -208,7 +208,7 @@ pub fn input_from_raw(
     let mut sweeps: BTreeMap<String, usize> = BTreeMap::new();
     for (e, path) in chosen_entries(calibration, &calib, radar_files)? {
         let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path)
-            .map_err(|e| TrainError::Data(e.to_string()))?;
+            .map_err(|e| NetError::Data(e.to_string()))?;
         let dt_s = match (velocity, calib.camera_timestamp_us, e.timestamp_us) {
             (true, Some(c), Some(s)) => Some(velocity_dt_s(c, s)),
             _ => None,
@@ -278,7 +278,7 @@ pub fn predict(
     input: &PredictInput,
     radar: Option<RadarInput>,
     device: Device,
-) -> Result<DepthMap, TrainError> {
+) -> Result<DepthMap, NetError> {
     depthsense_model::device::autotune_fixed_size(device);
     let (w, h) = input.image.dimensions();
     let img = Tensor::from_slice(&normalise_image(&input.image, &Augment::NONE))
@@ -294,7 +294,7 @@ pub fn predict(
         }
         Some(RadarInput::Mer) => {
             let (d, c) = input.mer.as_ref().ok_or_else(|| {
-                TrainError::Config(format!(
+                NetError::Config(format!(
                     "{}: the model takes MER radar (SPEC §5) but the input has no MER maps: \
                      run `depthsense mer apply` on the prepared data or pass --mer-checkpoint",
                     input.name
@@ -321,7 +321,7 @@ pub fn predict(
         .to_kind(Kind::Float)
         .contiguous();
     if pred.numel() != (w * h) as usize {
-        return Err(TrainError::Other(format!(
+        return Err(NetError::Other(format!(
             "prediction has shape {:?}, expected [1, 1, {h}, {w}]",
             pred.size()
         )));
@@ -347,18 +347,18 @@ pub fn write_outputs(
     input: &PredictInput,
     depth: &DepthMap,
     max_m: f32,
-) -> Result<Vec<PathBuf>, TrainError> {
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+) -> Result<Vec<PathBuf>, NetError> {
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let mut written = vec![];
-    let mut w = |name: &str, bytes: Vec<u8>| -> Result<(), TrainError> {
+    let mut w = |name: &str, bytes: Vec<u8>| -> Result<(), NetError> {
         let p = out.join(name);
-        write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
+        write_atomic(&p, &bytes).map_err(|e| NetError::io(&p, e))?;
         written.push(p);
         Ok(())
     };
     w(
         "depth.png",
-        encode_png(depth).map_err(|e| TrainError::Data(e.to_string()))?,
+        encode_png(depth).map_err(|e| NetError::Data(e.to_string()))?,
     )?;
     let color =
         depthsense_viz::plot::colorize_depth(&depth.depth_m, depth.width, depth.height, max_m);
@@ -379,7 +379,7 @@ pub fn attach_mer(
     input: &mut PredictInput,
     net: &depthsense_model::pda::PdaNet,
     device: Device,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     input.mer = Some(depthsense_mer::apply::mer_maps_for_image(
         &input.image,
         &input.radar_raw,

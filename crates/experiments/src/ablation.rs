@@ -22,10 +22,10 @@ use std::time::Instant;
 
 use depthsense_config::{Fusion, HeadKind, ModelConfig};
 use depthsense_dataset::{partition, Dataset, Partition};
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{csv_field, csv_num, csv_row, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::paired::{paired_test, PairedTest};
@@ -134,14 +134,14 @@ impl Variant {
 }
 
 impl FromStr for Variant {
-    type Err = TrainError;
+    type Err = NetError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let s = s.trim().to_ascii_lowercase();
         Variant::ALL
             .into_iter()
             .find(|v| v.name() == s)
             .ok_or_else(|| {
-                TrainError::Config(format!(
+                NetError::Config(format!(
                     "unknown ablation variant {s:?} (rgb, early, late, late-sam, l1, l2, late-sam-mer)"
                 ))
             })
@@ -211,7 +211,7 @@ fn one_run(
     part: &Partition,
     device: tch::Device,
     mp: &Board,
-) -> Result<(RunRecord, RunStatus), TrainError> {
+) -> Result<(RunRecord, RunStatus), NetError> {
     let run = opts
         .out
         .join("runs")
@@ -260,16 +260,16 @@ impl AblationResult {
 }
 
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
-pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, TrainError> {
+pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, NetError> {
     Ok(depthsense_model::config::resolve(spec)?)
 }
 
 /// The model config of each variant (preset → `set` → variant fields).
-pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfig)>, TrainError> {
+pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfig)>, NetError> {
     for s in &opts.run.set {
         let key = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
         if ["fusion", "attention", "head", "loss"].contains(&key) {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "--set {s}: {key} is what the ablation variants set; choose variants instead"
             )));
         }
@@ -286,12 +286,12 @@ pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfi
         .collect()
 }
 
-fn check_options(opts: &AblationOptions) -> Result<(), TrainError> {
+fn check_options(opts: &AblationOptions) -> Result<(), NetError> {
     if opts.variants.is_empty() {
-        return Err(TrainError::Config("no ablation variants given".into()));
+        return Err(NetError::Config("no ablation variants given".into()));
     }
     if opts.seeds.is_empty() {
-        return Err(TrainError::Config("no seeds given".into()));
+        return Err(NetError::Config("no seeds given".into()));
     }
     let dup = |names: Vec<String>| {
         let mut s = names.clone();
@@ -299,10 +299,10 @@ fn check_options(opts: &AblationOptions) -> Result<(), TrainError> {
         s.windows(2).find(|w| w[0] == w[1]).map(|w| w[0].clone())
     };
     if let Some(d) = dup(opts.variants.iter().map(|v| v.name().to_string()).collect()) {
-        return Err(TrainError::Config(format!("variant {d} given twice")));
+        return Err(NetError::Config(format!("variant {d} given twice")));
     }
     if let Some(d) = dup(opts.seeds.iter().map(|s| s.to_string()).collect()) {
-        return Err(TrainError::Config(format!("seed {d} given twice")));
+        return Err(NetError::Config(format!("seed {d} given twice")));
     }
     Ok(())
 }
@@ -432,7 +432,7 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Ve
 
 /// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
 /// `mp` hosts one progress bar per run (pass a hidden one in tests).
-pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, TrainError> {
+pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, NetError> {
     let t0 = Instant::now();
     check_options(opts)?;
     let models = variant_models(opts)?;
@@ -440,7 +440,7 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
     let ds = Dataset::open(&opts.run.data)?;
     let part = partition(&ds, opts.run.val_every_scene)?;
     if part.test.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: no test samples ({}): the ablation reports on the test scenes and never on \
              the validation scenes the checkpoints are selected on; prepare the data with a \
              test split (or without split lists, so that scenes are held out for test)",
@@ -498,8 +498,8 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
     Ok(result)
 }
 
-fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), TrainError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), NetError> {
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     super::save(&dir.join(JSON_FILE), json.as_bytes())?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
@@ -528,7 +528,7 @@ fn headline_stats(r: &AblationResult) -> (Vec<&str>, [Vec<f64>; 4]) {
     (names, cols)
 }
 
-fn chart(r: &AblationResult) -> Result<Vec<u8>, TrainError> {
+fn chart(r: &AblationResult) -> Result<Vec<u8>, NetError> {
     let (names, [rm, rs, dm, dsd]) = headline_stats(r);
     let n = r.options.seeds.len();
     let t1 = format!("test RMSE (m), mean ± std over {n} seed(s)");

@@ -13,9 +13,9 @@ use std::path::Path;
 use std::time::Instant;
 
 use depthsense_config::ModelConfig;
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{csv_field, csv_row, Align, MdTable, MISSING};
 use depthsense_model::{report::model_report, DepthNet};
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
@@ -69,7 +69,7 @@ fn sync(d: Device) {
 }
 
 /// Cost of one model config.
-pub fn measure(cfg: &ModelConfig, o: &CostOptions, device: Device) -> Result<CostRow, TrainError> {
+pub fn measure(cfg: &ModelConfig, o: &CostOptions, device: Device) -> Result<CostRow, NetError> {
     let mut cfg = cfg.clone();
     cfg.out_height = o.height;
     cfg.out_width = o.width;
@@ -108,7 +108,7 @@ pub fn run_cost(
     o: &CostOptions,
     out: &Path,
     progress: &depthsense_progress::Progress,
-) -> Result<CostResult, TrainError> {
+) -> Result<CostResult, NetError> {
     let device = depthsense_model::device::parse_device(&o.device)?;
     progress.set_length((o.presets.len() * o.variants.len()) as u64);
     progress.println(format!(
@@ -137,9 +137,9 @@ pub fn run_cost(
         threads: tch::get_num_threads(),
         rows,
     };
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let save = |name: &str, b: &[u8]| super::save(&out.join(name), b);
-    let json = serde_json::to_string_pretty(&r).map_err(|e| TrainError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(&r).map_err(|e| NetError::Other(e.to_string()))?;
     save(JSON_FILE, json.as_bytes())?;
     save(MD_FILE, markdown(&r).as_bytes())?;
     save(CSV_FILE, csv(&r).as_bytes())?;

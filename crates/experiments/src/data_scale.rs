@@ -18,11 +18,11 @@ use std::time::Instant;
 
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset};
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::ablation::{verdict, Variant, Verdict};
@@ -52,7 +52,7 @@ pub struct Arm {
 pub const ORACLE_WORD: &str = "oracle";
 
 impl FromStr for Arm {
-    type Err = TrainError;
+    type Err = NetError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let label = s.trim().to_string();
         let mut parts = label.split('+');
@@ -62,7 +62,7 @@ impl FromStr for Arm {
         set.retain(|p| p != ORACLE_WORD);
         let radar_oracle = set.len() < before;
         if radar_oracle && matches!(variant, Variant::Rgb | Variant::LateSamMer) {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "arm {label:?}: the oracle radar needs a variant that reads the radar maps \
                  (early, late, late-sam, l1, l2), e.g. late-sam+oracle"
             )));
@@ -70,7 +70,7 @@ impl FromStr for Arm {
         for kv in &set {
             let key = kv.split_once('=').map_or(kv.as_str(), |(k, _)| k).trim();
             if !kv.contains('=') || ["fusion", "attention", "head", "loss"].contains(&key) {
-                return Err(TrainError::Config(format!(
+                return Err(NetError::Config(format!(
                     "arm {label:?}: {kv:?} is not a model option the arm may set (key=value; \
                      fusion, attention and head are the variant's)"
                 )));
@@ -87,7 +87,7 @@ impl FromStr for Arm {
 
 impl Arm {
     /// The arm's network: preset → shared `set` → variant fields → the arm's own options.
-    pub fn model(&self, base: &ModelConfig) -> Result<ModelConfig, TrainError> {
+    pub fn model(&self, base: &ModelConfig) -> Result<ModelConfig, NetError> {
         let mut c = base.clone();
         self.variant.apply(&mut c);
         let c = c.with_options(&self.set)?;
@@ -171,8 +171,8 @@ impl DataScaleResult {
     }
 }
 
-fn check(opts: &DataScaleOptions, available: usize) -> Result<(), TrainError> {
-    let cfg = |m: String| Err(TrainError::Config(m));
+fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
+    let cfg = |m: String| Err(NetError::Config(m));
     if opts.sizes.is_empty() || opts.arms.is_empty() || opts.seeds.is_empty() {
         return cfg("the sizes, the arms and the seeds must not be empty".into());
     }
@@ -238,14 +238,14 @@ fn run_dir(out: &std::path::Path, n: usize, arm: &Arm, seed: u64) -> PathBuf {
 
 /// Train every size × arm × seed (and the extra arms at the largest size), test on the test
 /// scenes, write the tables and the chart. Resumable like the ablation.
-pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleResult, TrainError> {
+pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleResult, NetError> {
     let t0 = Instant::now();
     let device = depthsense_model::device::parse_device(&opts.run.device)?;
     let ds = Dataset::open(&opts.run.data)?;
     let part = partition(&ds, opts.run.val_every_scene)?;
     check(opts, part.train.len())?;
     if part.test.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: no test samples ({}): data-scale reports on the test scenes",
             opts.run.data.display(),
             part.method
@@ -444,9 +444,9 @@ fn trend(opts: &DataScaleOptions, rows: &[ScaleRow]) -> Option<String> {
     ))
 }
 
-fn write_outputs(r: &DataScaleResult) -> Result<(), TrainError> {
+fn write_outputs(r: &DataScaleResult) -> Result<(), NetError> {
     let dir = &r.options.out;
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     super::save(&dir.join(JSON_FILE), json.as_bytes())?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
@@ -465,7 +465,7 @@ fn series_parts(
 
 /// Left: each arm's margin over the baseline (mean, bars ± one standard error) against the
 /// training-set size (log axis); right: each arm's test RMSE (mean, bars ± one standard error).
-fn chart(r: &DataScaleResult) -> Result<Vec<u8>, TrainError> {
+fn chart(r: &DataScaleResult) -> Result<Vec<u8>, NetError> {
     type Series = (String, Vec<(f64, f64)>, Vec<f64>);
     let x = |n: usize| (n as f64).log10();
     let series = |arm: &Arm, get: fn(&ScaleRow) -> Option<Stat>| -> Option<Series> {

@@ -29,9 +29,10 @@ use tch::Device;
 
 use depthsense_dataset::outputs::{BEST_CKPT, METRICS_FILE};
 use depthsense_dataset::subsample;
+use depthsense_infer::run::evaluate_net;
+use depthsense_infer::NetError;
 use depthsense_score::tables::write_tables;
-use depthsense_train::trainer::{evaluate_net, read_metrics, train, TrainOptions};
-use depthsense_train::TrainError;
+use depthsense_train::trainer::{read_metrics, train, TrainOptions};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemoOptions {
@@ -191,7 +192,7 @@ fn stage_bar(mp: &Board, name: &str) -> Progress {
 }
 
 /// Run the demo. `mp` hosts one progress bar per stage (pass a hidden one in tests).
-pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainError> {
+pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError> {
     let t0 = Instant::now();
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let cuda = device.is_cuda();
@@ -228,14 +229,14 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainErro
     let part = partition(&ds, plan.val_every_scene)?;
     let test = part.test.clone();
     if test.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: no test scenes ({})",
             prepared.display(),
             part.method
         )));
     }
     let report_dir = out.join("report");
-    std::fs::create_dir_all(&report_dir).map_err(|e| TrainError::io(&report_dir, e))?;
+    std::fs::create_dir_all(&report_dir).map_err(|e| NetError::io(&report_dir, e))?;
     let reports = evaluate_both(opts, &plan, &ds, &test, &runs, &report_dir, device, mp)?;
     let models: Vec<(&str, &Report)> = reports.iter().map(|(n, r)| (n.as_str(), r)).collect();
     write_tables(&report_dir, &models)?;
@@ -272,11 +273,11 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, TrainErro
 }
 
 /// An earlier demo in `out` is refused unless `--force`; with it, its report folder goes.
-fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), TrainError> {
+fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), NetError> {
     let out = &opts.out;
     if let Some(what) = demo_in(out) {
         if !opts.force {
-            return Err(TrainError::OutputExists {
+            return Err(NetError::OutputExists {
                 dir: out.display().to_string(),
                 what,
                 advice:
@@ -291,7 +292,7 @@ fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), TrainError> {
         );
         let report = out.join("report");
         if report.exists() {
-            std::fs::remove_dir_all(&report).map_err(|e| TrainError::io(&report, e))?;
+            std::fs::remove_dir_all(&report).map_err(|e| NetError::io(&report, e))?;
         }
     }
     Ok(())
@@ -302,7 +303,7 @@ fn synthesise(
     opts: &DemoOptions,
     plan: &DemoPlan,
     mp: &Board,
-) -> Result<(PathBuf, depthsense_synth::SynthConfig), TrainError> {
+) -> Result<(PathBuf, depthsense_synth::SynthConfig), NetError> {
     let world = opts.out.join("world");
     let mut scfg = depthsense_synth::SynthConfig::demo();
     scfg.scenes = plan.scenes;
@@ -314,7 +315,7 @@ fn synthesise(
     scfg.jobs = opts.jobs;
     let pb = stage_bar(mp, "synth");
     let synth = depthsense_synth::generate(&world, &scfg, &pb)
-        .map_err(|e| TrainError::Other(format!("synth: {e}")))?;
+        .map_err(|e| NetError::Other(format!("synth: {e}")))?;
     pb.finish_with_message(format!("{} keyframes", synth.keyframes));
     Ok((world, scfg))
 }
@@ -326,12 +327,12 @@ fn prepare_world(
     world: &Path,
     version: &str,
     mp: &Board,
-) -> Result<PathBuf, TrainError> {
+) -> Result<PathBuf, NetError> {
     let prepared = opts.out.join("prepared");
     // The world was just regenerated: samples prepared from an earlier world (or by an older
     // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
     if prepared.exists() {
-        std::fs::remove_dir_all(&prepared).map_err(|e| TrainError::io(&prepared, e))?;
+        std::fs::remove_dir_all(&prepared).map_err(|e| NetError::io(&prepared, e))?;
     }
     let popts = depthsense_prep::PrepareOptions {
         dataroot: world.to_path_buf(),
@@ -344,9 +345,9 @@ fn prepare_world(
     };
     let pb = stage_bar(mp, "prepare");
     let ps = depthsense_prep::prepare(&popts, &pb)
-        .map_err(|e| TrainError::Other(format!("prepare: {e}")))?;
+        .map_err(|e| NetError::Other(format!("prepare: {e}")))?;
     if !ps.failed.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "prepare failed for {} sample(s), first: {} ({})",
             ps.failed.len(),
             ps.failed[0].0,
@@ -371,7 +372,7 @@ fn train_both(
     prepared: &Path,
     mp: &Board,
     stages: &mut Vec<(String, f64)>,
-) -> Result<Vec<DemoRun>, TrainError> {
+) -> Result<Vec<DemoRun>, NetError> {
     let out = &opts.out;
     let base_cfg = demo_model(&plan.preset)?;
     let mut runs: Vec<DemoRun> = vec![];
@@ -428,7 +429,7 @@ fn evaluate_both(
     report_dir: &Path,
     device: Device,
     mp: &Board,
-) -> Result<Vec<(String, Report)>, TrainError> {
+) -> Result<Vec<(String, Report)>, NetError> {
     let pic_tokens: Vec<String> = subsample(test, Some(opts.pictures.max(1)))
         .iter()
         .map(|e| e.sample_token.clone())
@@ -484,12 +485,12 @@ fn evaluate_both(
 
 /// Each run's curves.png copied into the report, and both runs on one picture: training loss
 /// (left) and validation RMSE (right).
-fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainError> {
+fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), NetError> {
     for (name, dir, ..) in runs {
         let src = dir.join(depthsense_dataset::outputs::CURVES_FILE);
         if src.exists() {
             let dst = report_dir.join(format!("curves_{name}.png"));
-            std::fs::copy(&src, &dst).map_err(|e| TrainError::io(&dst, e))?;
+            std::fs::copy(&src, &dst).map_err(|e| NetError::io(&dst, e))?;
         }
     }
     // Both runs on one picture: training loss (left) and validation RMSE (right).
@@ -515,7 +516,7 @@ fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), TrainErro
         .collect();
     let png = depthsense_viz::plot::curves_png(&left, &right)?;
     let p = report_dir.join("val_rmse.png");
-    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))?;
+    write_atomic(&p, &png).map_err(|e| NetError::io(&p, e))?;
     Ok(())
 }
 
@@ -593,7 +594,7 @@ fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<Str
 
 /// `report/report.html`: the demo's one self-contained page (README, tables, curves, every
 /// sample row with its colour bar, the commands), built by `depthsense report`'s renderer.
-fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
+fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), NetError> {
     let ropts = depthsense_report::ReportOptions {
         runs: vec![report_dir.to_path_buf()],
         // Only rendered, never written as a folder; discovery skips `out`, so it must not be
@@ -605,13 +606,13 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), TrainError> {
         ..depthsense_report::ReportOptions::default()
     };
     let (_, page) =
-        depthsense_report::render(&ropts).map_err(|e| TrainError::Other(format!("report: {e}")))?;
+        depthsense_report::render(&ropts).map_err(|e| NetError::Other(format!("report: {e}")))?;
     let p = report_dir.join("report.html");
-    write_atomic(&p, page.as_bytes()).map_err(|e| TrainError::io(&p, e))
+    write_atomic(&p, page.as_bytes()).map_err(|e| NetError::io(&p, e))
 }
 
 /// The demo's network: a model preset ([`depthsense_config::presets`]).
-pub fn demo_model(preset: &str) -> Result<ModelConfig, TrainError> {
+pub fn demo_model(preset: &str) -> Result<ModelConfig, NetError> {
     Ok(ModelConfig::preset(preset)?)
 }
 
@@ -625,11 +626,11 @@ fn write_pictures(
     gt: &[f32],
     w: u32,
     h: u32,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     use depthsense_viz::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
-    let save = |name: &str, img: &image::RgbImage| -> Result<(), TrainError> {
+    let save = |name: &str, img: &image::RgbImage| -> Result<(), NetError> {
         let p = dir.join(name);
-        write_atomic(&p, &encode_rgb(img)?).map_err(|e| TrainError::io(&p, e))
+        write_atomic(&p, &encode_rgb(img)?).map_err(|e| NetError::io(&p, e))
     };
     let max_m = PICTURE_MAX_M;
     let e = ds
@@ -637,7 +638,7 @@ fn write_pictures(
         .samples
         .iter()
         .find(|e| e.sample_token == token)
-        .ok_or_else(|| TrainError::Data(format!("sample {token} not in the index")))?;
+        .ok_or_else(|| NetError::Data(format!("sample {token} not in the index")))?;
     let input = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e))?;
     if !dir.join("image.png").exists() {
         save("image.png", &input.image)?;
@@ -660,12 +661,12 @@ fn write_pictures(
 
 /// `dir/row.png`: image, radar, GT, RGB-only and fusion predictions side by side with one
 /// colour bar in metres (the panels written by [`write_pictures`]).
-fn write_picture_row(dir: &Path) -> Result<(), TrainError> {
-    let read = |name: &str| -> Result<image::RgbImage, TrainError> {
+fn write_picture_row(dir: &Path) -> Result<(), NetError> {
+    let read = |name: &str| -> Result<image::RgbImage, NetError> {
         let p = dir.join(name);
         image::open(&p)
             .map(|i| i.to_rgb8())
-            .map_err(|e| TrainError::Other(format!("{}: {e}", p.display())))
+            .map_err(|e| NetError::Other(format!("{}: {e}", p.display())))
     };
     let panels = [
         ("image", read("image.png")?),
@@ -676,7 +677,7 @@ fn write_picture_row(dir: &Path) -> Result<(), TrainError> {
     ];
     let png = depthsense_viz::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
     let p = dir.join("row.png");
-    write_atomic(&p, &png).map_err(|e| TrainError::io(&p, e))
+    write_atomic(&p, &png).map_err(|e| NetError::io(&p, e))
 }
 
 /// Upper end of the colour map of every depth picture (metres).
@@ -689,7 +690,7 @@ fn write_readme(
     models: &[(&str, &Report)],
     test: &[depthsense_prep::layout::IndexEntry],
     opts: &DemoOptions,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
     scenes.dedup();
     let mut md = String::from("# depthsense demo report\n\n");
@@ -749,7 +750,7 @@ fn write_readme(
          curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.\n",
     );
     let p = dir.join("README.md");
-    write_atomic(&p, md.as_bytes()).map_err(|e| TrainError::io(&p, e))?;
+    write_atomic(&p, md.as_bytes()).map_err(|e| NetError::io(&p, e))?;
     let p = dir.join("summary.json");
     write_atomic(
         &p,
@@ -758,8 +759,8 @@ fn write_readme(
             "plan": plan,
             "command_line": opts.command_line,
         }))
-        .map_err(|e| TrainError::Other(e.to_string()))?
+        .map_err(|e| NetError::Other(e.to_string()))?
         .as_bytes(),
     )
-    .map_err(|e| TrainError::io(&p, e))
+    .map_err(|e| NetError::io(&p, e))
 }

@@ -7,7 +7,7 @@ use depthsense_metrics::table::{csv_quoted, csv_row, md_num, Align, MdTable};
 use crate::runner::RowValues;
 use serde::{Deserialize, Serialize};
 
-use depthsense_train::TrainError;
+use depthsense_infer::NetError;
 
 use depthsense_data::radar_failure::RadarFailure;
 
@@ -24,7 +24,7 @@ pub struct Scenario {
 
 /// Parse "none;radar-drop=0.5;drop-radars=RADAR_FRONT_LEFT+RADAR_FRONT_RIGHT;beyond=30;
 /// clutter=20" (`;` between scenarios, `,` between settings of one scenario).
-pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, TrainError> {
+pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, NetError> {
     let mut out = vec![];
     for item in s.split(';').map(str::trim).filter(|x| !x.is_empty()) {
         let mut sc = Scenario {
@@ -34,7 +34,7 @@ pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, TrainError> {
         };
         for kv in item.split(',').map(str::trim).filter(|x| *x != "none") {
             let bad = || {
-                TrainError::Config(format!("failure scenario {item:?}: cannot read {kv:?} (radar-drop=F, drop-radars=A+B, beyond=M, clutter=N, none)"))
+                NetError::Config(format!("failure scenario {item:?}: cannot read {kv:?} (radar-drop=F, drop-radars=A+B, beyond=M, clutter=N, none)"))
             };
             let (k, v) = kv.split_once('=').ok_or_else(bad)?;
             match k {
@@ -47,14 +47,14 @@ pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, TrainError> {
         }
         sc.failure.validate()?;
         if !(0.0..=1.0).contains(&sc.radar_drop) {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "{item}: radar-drop must be within [0, 1]"
             )));
         }
         out.push(sc);
     }
     if out.is_empty() {
-        return Err(TrainError::Config("no failure scenarios given".into()));
+        return Err(NetError::Config("no failure scenarios given".into()));
     }
     Ok(out)
 }
@@ -98,7 +98,7 @@ pub fn run_failure(
     out: &std::path::Path,
     command_line: Option<String>,
     mp: &depthsense_progress::Board,
-) -> Result<FailureResult, TrainError> {
+) -> Result<FailureResult, NetError> {
     let device = depthsense_model::device::parse_device(&base.device)?;
     let (loaded, _) = depthsense_eval::evaluate::load_model(
         &base.checkpoint,
@@ -106,7 +106,7 @@ pub fn run_failure(
         &base.set,
         device,
     )?;
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let mut results = vec![];
     for sc in scenarios {
         let pb = super::runner::run_bar(mp, &sc.name);
@@ -135,8 +135,8 @@ pub fn run_failure(
     Ok(r)
 }
 
-fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), TrainError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), NetError> {
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     super::save(&out.join(FAILURE_JSON), json.as_bytes())?;
     super::save(&out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
     super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;

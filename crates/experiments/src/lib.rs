@@ -104,12 +104,9 @@ impl Machine {
 
 /// A signed number with a true minus sign ("−1.2", "+0.3").
 /// Writes one experiment output file atomically; an error names the file.
-pub(crate) fn save(
-    path: &std::path::Path,
-    bytes: &[u8],
-) -> Result<(), depthsense_train::TrainError> {
+pub(crate) fn save(path: &std::path::Path, bytes: &[u8]) -> Result<(), depthsense_infer::NetError> {
     depthsense_base::fsutil::write_atomic(path, bytes)
-        .map_err(|e| depthsense_train::TrainError::io(path, e))
+        .map_err(|e| depthsense_infer::NetError::io(path, e))
 }
 
 pub(crate) fn signed(x: f64, prec: usize) -> String {

@@ -11,9 +11,9 @@
 use std::path::Path;
 
 use depthsense_eval::evaluate::EvalOptions;
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{csv_row, Align, MdTable};
 use depthsense_prep::radar_points::{PerturbAxis, Perturbation};
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::runner::{row_values, run_bar, RowValues};
@@ -46,7 +46,7 @@ impl Default for PerturbOptions {
 
 impl PerturbOptions {
     /// Every (axis, magnitude) to evaluate, axis by axis.
-    pub fn grid(&self) -> Result<Vec<Perturbation>, TrainError> {
+    pub fn grid(&self) -> Result<Vec<Perturbation>, NetError> {
         let mut out = vec![];
         for &axis in &self.axes {
             let mags = match axis.is_rotation() {
@@ -55,7 +55,7 @@ impl PerturbOptions {
             };
             for &amount in mags {
                 if !(amount.is_finite() && amount >= 0.0) {
-                    return Err(TrainError::Config(format!(
+                    return Err(NetError::Config(format!(
                         "perturbation magnitudes must be non-negative numbers, got {amount}"
                     )));
                 }
@@ -63,20 +63,20 @@ impl PerturbOptions {
             }
         }
         if out.is_empty() {
-            return Err(TrainError::Config("no perturbation to evaluate".into()));
+            return Err(NetError::Config("no perturbation to evaluate".into()));
         }
         Ok(out)
     }
 }
 
 /// Parse "yaw,pitch,x" into axes.
-pub fn parse_axes(names: &[String]) -> Result<Vec<PerturbAxis>, TrainError> {
+pub fn parse_axes(names: &[String]) -> Result<Vec<PerturbAxis>, NetError> {
     names
         .iter()
         .filter(|s| !s.trim().is_empty())
         .map(|s| {
             PerturbAxis::parse(s).ok_or_else(|| {
-                TrainError::Config(format!("unknown axis {s:?} (yaw, pitch, roll, x, y, z)"))
+                NetError::Config(format!("unknown axis {s:?} (yaw, pitch, roll, x, y, z)"))
             })
         })
         .collect()
@@ -129,7 +129,7 @@ pub fn run_perturb(
     out: &Path,
     command_line: Option<String>,
     mp: &depthsense_progress::Board,
-) -> Result<PerturbResult, TrainError> {
+) -> Result<PerturbResult, NetError> {
     let grid = opts.grid()?;
     let device = depthsense_model::device::parse_device(&base.device)?;
     let (loaded, _) = depthsense_eval::evaluate::load_model(
@@ -138,14 +138,14 @@ pub fn run_perturb(
         &base.set,
         device,
     )?;
-    std::fs::create_dir_all(out).map_err(|e| TrainError::io(out, e))?;
+    std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let zero = Perturbation {
         axis: PerturbAxis::Yaw,
         amount: 0.0,
     };
     let total = mp.bar("perturbations");
     total.set_length(grid.len() as u64 + 1);
-    let eval_one = |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, TrainError> {
+    let eval_one = |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, NetError> {
         let pb = run_bar(mp, label);
         let t = std::time::Instant::now();
         let o = EvalOptions {
@@ -186,8 +186,8 @@ pub fn run_perturb(
     Ok(r)
 }
 
-fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), TrainError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), NetError> {
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     super::save(&out.join(PERTURB_JSON), json.as_bytes())?;
     super::save(&out.join(PERTURB_MD), perturb_markdown(r).as_bytes())?;
     super::save(&out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;
@@ -196,7 +196,7 @@ fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), TrainError> {
 
 /// RMSE against magnitude, one line per axis (from the baseline at 0): rotations left,
 /// translations right.
-fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, TrainError> {
+fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, NetError> {
     let base = r.baseline.combined().map_or(f64::NAN, |x| x.rmse);
     let series = |rotation: bool| -> Vec<(&str, Vec<(f64, f64)>)> {
         PerturbAxis::ALL

@@ -15,11 +15,11 @@ use std::time::Instant;
 
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset};
+use depthsense_infer::NetError;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
-use depthsense_train::TrainError;
 use serde::{Deserialize, Serialize};
 
 use super::runner::{
@@ -42,7 +42,7 @@ pub struct Cell {
 }
 
 /// Parse "full;night=1;rain=1;day=0.5" (cells separated by `;`).
-pub fn parse_grid(s: &str) -> Result<Vec<Cell>, TrainError> {
+pub fn parse_grid(s: &str) -> Result<Vec<Cell>, NetError> {
     s.split(';')
         .filter(|c| !c.trim().is_empty())
         .map(|c| {
@@ -97,15 +97,15 @@ impl ReducedDataResult {
     }
 }
 
-fn check(opts: &ReducedDataOptions) -> Result<(), TrainError> {
+fn check(opts: &ReducedDataOptions) -> Result<(), NetError> {
     if opts.grid.is_empty() || opts.seeds.is_empty() {
-        return Err(TrainError::Config(
+        return Err(NetError::Config(
             "the grid and the seeds must not be empty".into(),
         ));
     }
     let names: BTreeSet<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
     if names.len() != opts.grid.len() {
-        return Err(TrainError::Config("a grid cell is given twice".into()));
+        return Err(NetError::Config("a grid cell is given twice".into()));
     }
     Ok(())
 }
@@ -126,7 +126,7 @@ fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64)
 pub fn run_reduced_data(
     opts: &ReducedDataOptions,
     mp: &Board,
-) -> Result<ReducedDataResult, TrainError> {
+) -> Result<ReducedDataResult, NetError> {
     let t0 = Instant::now();
     check(opts)?;
     let model = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
@@ -134,7 +134,7 @@ pub fn run_reduced_data(
     let ds = Dataset::open(&opts.run.data)?;
     let part = partition(&ds, opts.run.val_every_scene)?;
     if part.test.is_empty() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: no test samples ({}): reduced-data reports on the test scenes",
             opts.run.data.display(),
             part.method
@@ -186,9 +186,9 @@ pub fn run_reduced_data(
     Ok(result)
 }
 
-fn write_outputs(r: &ReducedDataResult) -> Result<(), TrainError> {
+fn write_outputs(r: &ReducedDataResult) -> Result<(), NetError> {
     let dir = &r.options.out;
-    let json = serde_json::to_string_pretty(r).map_err(|e| TrainError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
     super::save(&dir.join(JSON_FILE), json.as_bytes())?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
@@ -204,7 +204,7 @@ fn stat_of(
     r.row(cell, cond).and_then(f)
 }
 
-fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, TrainError> {
+fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, NetError> {
     let names: Vec<&str> = r.cells.iter().map(|c| c.name.as_str()).collect();
     let mut cols: Vec<(String, Vec<f64>, Vec<f64>)> = vec![];
     for cond in CONDITIONS {

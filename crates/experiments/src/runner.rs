@@ -13,13 +13,14 @@ use depthsense_config::ModelConfig;
 use depthsense_data::LoadOptions;
 use depthsense_dataset::outputs::{BEST_CKPT, CONFIG_FILE, METRICS_FILE};
 use depthsense_dataset::{Dataset, Partition};
+use depthsense_infer::run::validate_net;
+use depthsense_infer::NetError;
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
 use depthsense_model::checkpoint;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};
-use depthsense_train::trainer::{train, validate_net, TrainOptions};
-use depthsense_train::TrainError;
+use depthsense_train::trainer::{train, TrainOptions};
 use serde::{Deserialize, Serialize};
 
 use super::Stat;
@@ -250,8 +251,8 @@ impl From<&Partition> for PartitionInfo {
 /// Training options as compared across invocations: without where the data and run live,
 /// the device, the thread counts (the loader is thread-count independent), `resume`, `force`,
 /// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
-pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, TrainError> {
-    let mut v = serde_json::to_value(t).map_err(|e| TrainError::Other(e.to_string()))?;
+pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, NetError> {
+    let mut v = serde_json::to_value(t).map_err(|e| NetError::Other(e.to_string()))?;
     if let Some(m) = v.as_object_mut() {
         for k in [
             "data",
@@ -291,9 +292,9 @@ pub fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
     }
 }
 
-pub fn read_json(path: &Path) -> Result<serde_json::Value, TrainError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Parse {
+pub fn read_json(path: &Path) -> Result<serde_json::Value, NetError> {
+    let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| NetError::Parse {
         path: path.display().to_string(),
         reason: e.to_string(),
     })
@@ -320,8 +321,8 @@ pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
     (done && run.join(BEST_CKPT).exists(), secs)
 }
 
-pub fn mismatch(run: &Path, file: &str) -> TrainError {
-    TrainError::Config(format!(
+pub fn mismatch(run: &Path, file: &str) -> NetError {
+    NetError::Config(format!(
         "{}: this run was made with other training options (see its {file}) than this \
          experiment asks for; use another --out, or delete the run to redo it",
         run.display()
@@ -402,7 +403,7 @@ pub fn train_and_test(
     test: &[IndexEntry],
     device: tch::Device,
     mp: &Board,
-) -> Result<(RunRecord, RunStatus), TrainError> {
+) -> Result<(RunRecord, RunStatus), NetError> {
     let run = topts.out.clone();
     let seed = topts.seed;
     let eval_path = run.join(RUN_EVAL_FILE);
@@ -431,8 +432,8 @@ pub fn train_and_test(
         report,
         train_options: topts.clone(),
     };
-    let text = serde_json::to_string_pretty(&rec).map_err(|e| TrainError::Other(e.to_string()))?;
-    write_atomic(&eval_path, text.as_bytes()).map_err(|e| TrainError::io(&eval_path, e))?;
+    let text = serde_json::to_string_pretty(&rec).map_err(|e| NetError::Other(e.to_string()))?;
+    write_atomic(&eval_path, text.as_bytes()).map_err(|e| NetError::io(&eval_path, e))?;
     pb.finish_with_message(format!(
         "test RMSE {:.3} m",
         rec.headline().map_or(f64::NAN, |r| r.rmse)
@@ -442,16 +443,13 @@ pub fn train_and_test(
 
 /// The run's finished record (RUN/eval.json) when it exists and was made with these options;
 /// refuses a run folder whose record or config.json was made with other options.
-fn finished_record(
-    topts: &TrainOptions,
-    eval: &EvalConfig,
-) -> Result<Option<RunRecord>, TrainError> {
+fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<RunRecord>, NetError> {
     let run = &topts.out;
     let fp = fingerprint(topts)?;
     let eval_path = run.join(RUN_EVAL_FILE);
     if eval_path.exists() {
         let v = read_json(&eval_path)?;
-        let mut rec: RunRecord = serde_json::from_value(v).map_err(|e| TrainError::Parse {
+        let mut rec: RunRecord = serde_json::from_value(v).map_err(|e| NetError::Parse {
             path: eval_path.display().to_string(),
             reason: e.to_string(),
         })?;
@@ -468,7 +466,7 @@ fn finished_record(
     if cfg_path.exists() {
         let stored = read_json(&cfg_path)?;
         let stored_opts: TrainOptions =
-            serde_json::from_value(stored["train"].clone()).map_err(|e| TrainError::Parse {
+            serde_json::from_value(stored["train"].clone()).map_err(|e| NetError::Parse {
                 path: cfg_path.display().to_string(),
                 reason: format!("train: {e}"),
             })?;
@@ -484,7 +482,7 @@ fn finished_record(
 fn train_or_reuse(
     topts: &TrainOptions,
     pb: &Progress,
-) -> Result<(RunStatus, f64, Option<f64>), TrainError> {
+) -> Result<(RunStatus, f64, Option<f64>), NetError> {
     let run = &topts.out;
     let cfg_path = run.join(CONFIG_FILE);
     let (finished, earlier_secs) = training_finished(run, topts.epochs);
@@ -502,7 +500,7 @@ fn train_or_reuse(
         topts.force = !topts.resume && cfg_path.exists();
         let s = train(&topts, pb)?;
         if s.interrupted || s.iterations_done < s.total_iterations {
-            return Err(TrainError::Other(format!(
+            return Err(NetError::Other(format!(
                 "{}: training stopped at iteration {} of {}",
                 run.display(),
                 s.iterations_done,
@@ -527,10 +525,10 @@ fn test_best(
     test: &[IndexEntry],
     device: tch::Device,
     pb: &Progress,
-) -> Result<Report, TrainError> {
+) -> Result<Report, NetError> {
     let best = topts.out.join(BEST_CKPT);
     if !best.exists() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: missing — no epoch improved the validation RMSE (non-finite?)",
             best.display()
         )));

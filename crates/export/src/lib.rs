@@ -21,7 +21,7 @@ pub mod sidecar;
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::{temp_sibling, write_atomic};
-use depthsense_train::TrainError;
+use depthsense_infer::NetError;
 
 pub use sidecar::Sidecar;
 
@@ -142,7 +142,7 @@ pub struct ExportOptions {
 pub enum ExportError {
     /// The checkpoint or config could not be loaded (or do not fit together).
     #[error(transparent)]
-    Load(#[from] TrainError),
+    Load(#[from] NetError),
     #[error("{0}")]
     Options(String),
     #[error("{path}: exists (a file of an earlier export); --force replaces it")]

@@ -13,8 +13,11 @@ use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use depthsense_model::checkpoint::{parse_safetensors, safetensors_bytes};
-use depthsense_model::pickle::{collect_tensors, parse_pickle, read_torch_bytes};
+use depthsense_weights::pickle::{collect_tensors, parse_pickle};
+use depthsense_weights::safetensors::{parse as parse_safetensors, serialize as safetensors_bytes};
+use depthsense_weights::torch_file::read_torch_bytes;
+use depthsense_weights::{DType, HostTensor};
+
 use depthsense_nuscenes::depth_png::{decode_png, encode_png, encode_png_fast, DepthMap};
 use depthsense_nuscenes::geometry::Camera;
 use depthsense_nuscenes::pcd::{
@@ -424,6 +427,24 @@ fn table_json_seeds(fixtures: &Path) -> Option<Vec<Vec<u8>>> {
     Some(vec![v.join(&b'\0')])
 }
 
+/// A host tensor of little-endian bytes.
+fn host(dtype: DType, data: Vec<u8>, shape: &[i64]) -> HostTensor<'static> {
+    HostTensor {
+        dtype,
+        shape: shape.to_vec(),
+        data: data.into(),
+    }
+}
+
+/// A float32 host tensor.
+fn f32s(values: &[f32], shape: &[i64]) -> HostTensor<'static> {
+    host(
+        DType::F32,
+        values.iter().flat_map(|x| x.to_le_bytes()).collect(),
+        shape,
+    )
+}
+
 /// Two checkpoints from the safetensors writer: three dtypes with metadata, one tensor without.
 fn safetensors_seeds() -> Option<Vec<Vec<u8>>> {
     let mut meta = std::collections::BTreeMap::new();
@@ -431,17 +452,24 @@ fn safetensors_seeds() -> Option<Vec<Vec<u8>>> {
     let tensors = vec![
         (
             "w".to_string(),
-            tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]).reshape([2, 3]),
+            f32s(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0], &[2, 3]),
         ),
-        ("b".to_string(), tch::Tensor::from_slice(&[7i64, 8])),
+        (
+            "b".to_string(),
+            host(
+                DType::I64,
+                [7i64, 8].iter().flat_map(|x| x.to_le_bytes()).collect(),
+                &[2],
+            ),
+        ),
         (
             "s".to_string(),
-            tch::Tensor::from_slice(&[1.5f64]).reshape([] as [i64; 0]),
+            host(DType::F64, 1.5f64.to_le_bytes().to_vec(), &[]),
         ),
     ];
     Some(vec![
-        safetensors_bytes(&tensors, &meta).ok()?,
-        safetensors_bytes(&tensors[..1], &Default::default()).ok()?,
+        safetensors_bytes(&tensors, &meta),
+        safetensors_bytes(&tensors[..1], &Default::default()),
     ])
 }
 
@@ -535,8 +563,9 @@ fn torch_seeds() -> Vec<Vec<u8>> {
         .unwrap_or_default();
     if let Ok(tmp) = std::env::temp_dir().canonicalize() {
         let p = tmp.join(format!("depthsense-fuzz-seed-{}.pth", std::process::id()));
-        let t = tch::Tensor::from_slice(&[1.0f32, 2.0, 3.0, 4.0]).reshape([2, 2]);
-        if depthsense_model::pickle::write_torch_state_dict(&p, &[("a.w".into(), t)]).is_ok() {
+        let t = f32s(&[1.0, 2.0, 3.0, 4.0], &[2, 2]);
+        if depthsense_weights::pth_writer::write_torch_state_dict(&p, &[("a.w".into(), t)]).is_ok()
+        {
             if let Ok(b) = std::fs::read(&p) {
                 v.push(b);
             }

@@ -14,11 +14,11 @@ use std::time::Instant;
 use depthsense_base::fsutil::write_atomic;
 use depthsense_config::pda::PdaConfig;
 use depthsense_dataset::{decode_rgb, read_depth, Dataset};
+use depthsense_infer::NetError;
 use depthsense_model::pda::{self, PdaNet};
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use depthsense_progress::Progress;
-use depthsense_train::TrainError;
 use rayon::prelude::*;
 use tch::{Device, Tensor};
 
@@ -115,10 +115,10 @@ pub fn predict_probs(
     net: &PdaNet,
     inputs: &[PdaInput],
     device: Device,
-) -> Result<Vec<Vec<f32>>, TrainError> {
+) -> Result<Vec<Vec<f32>>, NetError> {
     let g = inputs[0].grid;
     if inputs.iter().any(|s| s.grid != g) {
-        return Err(TrainError::Data(
+        return Err(NetError::Data(
             "frames of different sizes in one batch".into(),
         ));
     }
@@ -175,7 +175,7 @@ fn write_sample(
     input: &PdaInput,
     probs: &[f32],
     cfg: &PdaConfig,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     let g = &input.grid;
     let (depth, conf) = mer_maps(&input.pixels, probs, g, cfg);
     let (fw, fh) = (g.frame_w as u32, g.frame_h as u32);
@@ -183,12 +183,12 @@ fn write_sample(
     let conf_q: Vec<u16> = conf.iter().map(|&c| conf_to_u16(c)).collect();
     let depth_q: Vec<u16> = depth.iter().map(|&d| encode_value(d)).collect();
     let png = |q: &[u16]| {
-        encode_png16_fast(fw, fh, &g.to_frame(q)).map_err(|e| TrainError::Data(e.to_string()))
+        encode_png16_fast(fw, fh, &g.to_frame(q)).map_err(|e| NetError::Data(e.to_string()))
     };
     let (conf_png, depth_png) = (png(&conf_q)?, png(&depth_q)?);
     for (name, bytes) in [(MER_CONF_FILE, conf_png), (MER_DEPTH_FILE, depth_png)] {
         let p = dir.join(name);
-        write_atomic(&p, &bytes).map_err(|e| TrainError::io(&p, e))?;
+        write_atomic(&p, &bytes).map_err(|e| NetError::io(&p, e))?;
     }
     Ok(())
 }
@@ -199,11 +199,11 @@ fn prepare_record(
     ds: &Dataset,
     opts: &MerApplyOptions,
     record: &MerRecord,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     if let Some(old) = read_record(&ds.root)? {
         let same = old.checkpoint_fnv64 == record.checkpoint_fnv64;
         if !same && !opts.force {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "{}: MER maps of another PDA model ({}, fnv64 {}) are there; pass --force to \
                  replace them with {}",
                 ds.root.join(MER_RECORD_FILE).display(),
@@ -218,19 +218,18 @@ fn prepare_record(
             for f in [MER_DEPTH_FILE, MER_CONF_FILE] {
                 let p = ds.sample_dir(e).join(f);
                 if p.exists() {
-                    std::fs::remove_file(&p).map_err(|err| TrainError::io(&p, err))?;
+                    std::fs::remove_file(&p).map_err(|err| NetError::io(&p, err))?;
                 }
             }
         }
     }
     let p = ds.root.join(MER_RECORD_FILE);
-    let text =
-        serde_json::to_string_pretty(record).map_err(|e| TrainError::Other(e.to_string()))?;
-    write_atomic(&p, text.as_bytes()).map_err(|e| TrainError::io(&p, e))
+    let text = serde_json::to_string_pretty(record).map_err(|e| NetError::Other(e.to_string()))?;
+    write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
 }
 
 /// Run `mer apply` (see the module docs).
-pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySummary, TrainError> {
+pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySummary, NetError> {
     let started = Instant::now();
     // It writes the prepared dataset in place: no `prepare`, merge or other `mer apply` meanwhile.
     let _writing =
@@ -258,7 +257,7 @@ pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySumm
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(if opts.jobs == 0 { 0 } else { opts.jobs })
         .build()
-        .map_err(|e| TrainError::Config(format!("cannot start threads: {e}")))?;
+        .map_err(|e| NetError::Config(format!("cannot start threads: {e}")))?;
     progress.set_length(todo.len() as u64);
     progress.println(format!(
         "{} samples of {} to enhance ({skipped} already done) on {}",
@@ -322,9 +321,9 @@ fn run_pipeline(
     pool: &rayon::ThreadPool,
     device: Device,
     progress: &Progress,
-) -> Result<f64, TrainError> {
+) -> Result<f64, NetError> {
     use std::sync::mpsc::sync_channel;
-    type Loaded<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, TrainError>);
+    type Loaded<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, NetError>);
     type Predicted<'a> = (&'a [&'a IndexEntry], Vec<PdaInput>, Vec<Vec<f32>>);
     let cfg = net.config();
     std::thread::scope(|s| {
@@ -344,7 +343,7 @@ fn run_pipeline(
                 }
             }
         });
-        let writer = s.spawn(move || -> Result<(), TrainError> {
+        let writer = s.spawn(move || -> Result<(), NetError> {
             for (chunk, inputs, probs) in write_rx {
                 pool.install(|| {
                     chunk
@@ -381,14 +380,14 @@ fn run_pipeline(
         drop(write_tx);
         let written = writer
             .join()
-            .unwrap_or_else(|_| Err(TrainError::Other("the MER writer thread panicked".into())));
+            .unwrap_or_else(|_| Err(NetError::Other("the MER writer thread panicked".into())));
         result.and(written).map(|()| network_seconds)
     })
 }
 
 /// `--preview N`: for N samples, the image with raw radar, height-extended radar and MER at
 /// θ = 0.5 and 0.9 overlaid, one colour map (0–80 m, near = red) with its bar in metres.
-fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, TrainError> {
+fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, NetError> {
     if opts.preview == 0 {
         return Ok(vec![]);
     }
@@ -396,7 +395,7 @@ fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, 
         .preview_dir
         .clone()
         .unwrap_or_else(|| ds.root.join("mer_preview"));
-    std::fs::create_dir_all(&dir).map_err(|e| TrainError::io(&dir, e))?;
+    std::fs::create_dir_all(&dir).map_err(|e| NetError::io(&dir, e))?;
     // Test samples when the index has them (what a user evaluates on), else any.
     let test = ds.split("test");
     let pool = if test.is_empty() {
@@ -409,14 +408,14 @@ fn write_previews(ds: &Dataset, opts: &MerApplyOptions) -> Result<Vec<PathBuf>, 
     for e in &entries {
         let p = dir.join(format!("{}.png", e.sample_token));
         let bytes = preview_png(&ds.sample_dir(e))?;
-        write_atomic(&p, &bytes).map_err(|err| TrainError::io(&p, err))?;
+        write_atomic(&p, &bytes).map_err(|err| NetError::io(&p, err))?;
         out.push(p);
     }
     Ok(out)
 }
 
 /// The preview picture of one sample directory (PNG bytes).
-pub fn preview_png(dir: &Path) -> Result<Vec<u8>, TrainError> {
+pub fn preview_png(dir: &Path) -> Result<Vec<u8>, NetError> {
     use depthsense_viz::plot::{overlay_points, picture_row_png};
     const MAX_M: f32 = 80.0;
     let img = decode_rgb(&dir.join(IMAGE_FILE))?;
@@ -463,7 +462,7 @@ pub fn mer_maps_for_image(
     radar_raw: &DepthMap,
     net: &PdaNet,
     device: Device,
-) -> Result<(DepthMap, DepthMap), TrainError> {
+) -> Result<(DepthMap, DepthMap), NetError> {
     let cfg = net.config();
     let pi = super::labels::pda_input(image, &radar_raw.depth_m, cfg, false);
     let probs = predict_probs(net, std::slice::from_ref(&pi), device)?;

@@ -20,7 +20,7 @@ use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
 use depthsense_dataset::{decode_rgb, read_depth};
 use depthsense_prep::layout::{IMAGE_FILE, LIDAR_DENSE_FILE, META_FILE, RADAR_RAW_FILE};
 
-use depthsense_train::TrainError;
+use depthsense_infer::NetError;
 
 /// Label of a neighbour without lidar, outside the image, or beyond the depth limit.
 pub const UNLABELLED: i8 = -1;
@@ -223,9 +223,9 @@ pub fn pda_input(
 }
 
 /// Reads a prepared sample's image and raw radar → [`PdaInput`].
-pub fn load_input(dir: &Path, cfg: &PdaConfig, flip: bool) -> Result<PdaInput, TrainError> {
+pub fn load_input(dir: &Path, cfg: &PdaConfig, flip: bool) -> Result<PdaInput, NetError> {
     if !dir.join(META_FILE).exists() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: incomplete sample directory (no {META_FILE})",
             dir.display()
         )));
@@ -234,7 +234,7 @@ pub fn load_input(dir: &Path, cfg: &PdaConfig, flip: bool) -> Result<PdaInput, T
     let rp = dir.join(RADAR_RAW_FILE);
     let raw = read_depth(&rp)?;
     if (raw.width, raw.height) != rgb.dimensions() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: {}x{} but the image is {}x{}",
             rp.display(),
             raw.width,
@@ -248,16 +248,15 @@ pub fn load_input(dir: &Path, cfg: &PdaConfig, flip: bool) -> Result<PdaInput, T
 
 /// SPEC §4–5: labels need the accumulated lidar (`prepare --lidar-sweeps K`, K > 0). A sample
 /// whose meta.json records K = 0 is refused; one without the setting is taken as it is.
-pub fn check_accumulated(dir: &Path) -> Result<(), TrainError> {
+pub fn check_accumulated(dir: &Path) -> Result<(), NetError> {
     let p = dir.join(META_FILE);
-    let bytes = std::fs::read(&p).map_err(|e| TrainError::io(&p, e))?;
-    let meta: serde_json::Value =
-        serde_json::from_slice(&bytes).map_err(|e| TrainError::Parse {
-            path: p.display().to_string(),
-            reason: e.to_string(),
-        })?;
+    let bytes = std::fs::read(&p).map_err(|e| NetError::io(&p, e))?;
+    let meta: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| NetError::Parse {
+        path: p.display().to_string(),
+        reason: e.to_string(),
+    })?;
     if meta["settings"]["lidar_sweeps_k"].as_u64() == Some(0) {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: prepared with --lidar-sweeps 0; MER association labels need the accumulated \
              lidar of `depthsense prepare --lidar-sweeps K` with K > 0 (SPEC §4–5)",
             p.display()
@@ -271,12 +270,12 @@ pub fn load_labelled(
     dir: &Path,
     cfg: &PdaConfig,
     flip: bool,
-) -> Result<(PdaInput, Vec<i8>), TrainError> {
+) -> Result<(PdaInput, Vec<i8>), NetError> {
     check_accumulated(dir)?;
     let input = load_input(dir, cfg, flip)?;
     let lp = dir.join(LIDAR_DENSE_FILE);
     if !lp.exists() {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: missing; MER labels need the accumulated lidar map of `depthsense prepare \
              --lidar-sweeps K` (K > 0, SPEC §5)",
             lp.display()
@@ -285,7 +284,7 @@ pub fn load_labelled(
     let dense = read_depth(&lp)?;
     let g = input.grid;
     if (dense.width as usize, dense.height as usize) != (g.frame_w, g.frame_h) {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "{}: {}x{} but the image is {}x{}",
             lp.display(),
             dense.width,

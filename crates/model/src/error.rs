@@ -79,6 +79,9 @@ pub enum ModelError {
         /// The missing variable names.
         names: Vec<String>,
     },
+    /// A weight file (safetensors, `torch.save`) that cannot be read or written.
+    #[error(transparent)]
+    Weights(#[from] depthsense_weights::WeightsError),
     /// An error from libtorch.
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),

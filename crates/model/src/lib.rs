@@ -12,6 +12,7 @@
 //!   initialisation, multiply-add counting);
 //! - [`ordinal`]: the exact and efficient ordinal loss/decoding, [`reference`]: the naive form;
 //! - [`checkpoint`]: safetensors + config JSON; [`weights`]: torchvision / released imports;
+//!   [`host`]: the edge to the torch-free formats of `depthsense_weights`;
 //! - [`report`]: parameters per module and multiply-adds at 350x800;
 //! - [`pda`]: the MER radar–pixel association network (SPEC §5);
 //! - [`sync_bn`]: the BatchNorm switch of data-parallel training (SyncBatchNorm).
@@ -22,15 +23,16 @@ mod decoder;
 pub mod device;
 mod encoder;
 mod error;
+pub mod files;
 mod fusion;
 mod head;
+pub mod host;
 #[cfg(test)]
 mod init_tests;
 mod layers;
 mod net;
 pub mod ordinal;
 pub mod pda;
-pub mod pickle;
 pub mod precision;
 mod radar_branch;
 pub mod reference;

@@ -18,7 +18,9 @@ use std::path::Path;
 
 use tch::{nn, nn::ModuleT, Device, Kind, Tensor};
 
-use crate::checkpoint::{copy_into, parse_safetensors, safetensors_bytes, write_atomic};
+use crate::checkpoint::copy_into;
+use crate::files::{require_file, write_atomic};
+use crate::host::{parse_safetensors, safetensors_bytes};
 use crate::layers::{batch_norm2d, Conv, P};
 use crate::ModelError;
 use depthsense_config::pda::PdaConfig;
@@ -353,7 +355,7 @@ pub fn save(
 
 /// Loads a checkpoint written by [`save`], building the network from its stored config.
 pub fn load(path: &Path, device: Device) -> Result<LoadedPda, ModelError> {
-    crate::checkpoint::require_file(
+    require_file(
         path,
         "a PDA checkpoint is RUN/best.safetensors of `depthsense mer train`",
     )?;

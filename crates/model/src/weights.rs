@@ -7,7 +7,9 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Tensor};
 
-use crate::{pickle, ModelError, ShapeMismatch};
+use crate::files::require_file;
+use crate::host::{parse_safetensors, read_torch_file};
+use crate::{ModelError, ShapeMismatch};
 
 /// What an import did. `Display` prints a short summary (counts per module, the partly loaded
 /// tensors and the modules left random); `Debug` lists every name.
@@ -354,7 +356,7 @@ fn is_stem_key(k: &str) -> bool {
 ///
 /// Any other shape mismatch is an error naming every offending tensor.
 pub fn load_torchvision_resnet(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
-    let file = pickle::read_torch_file(path)?;
+    let file = read_torch_file(path)?;
     // The deep stem has conv1..conv3 directly under `rgb.`; torchvision's has conv1 only.
     let net_stem = if vs.variables().contains_key("rgb.conv3.weight") {
         Stem::Deep
@@ -440,16 +442,16 @@ pub fn released_key(key: &str) -> Option<String> {
 /// fusion, another radar input): the channels both have are copied. Any other shape mismatch is
 /// an error naming every offending tensor.
 pub fn init_from(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
-    crate::checkpoint::require_file(
+    require_file(
         path,
         "--init-from takes a depthsense checkpoint (RUN/best.safetensors), an `export --format \
          pytorch` .pth or the authors' released .pth",
     )?;
-    let file = if crate::checkpoint::is_torch_file(path)? {
-        pickle::read_torch_file(path)?
+    let file = if depthsense_weights::torch_file::is_torch_file(path)? {
+        read_torch_file(path)?
     } else {
         let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
-        crate::checkpoint::parse_safetensors(path, &bytes)?.0
+        parse_safetensors(path, &bytes)?.0
     };
     let ours: std::collections::HashSet<String> = vs.variables().into_keys().collect();
     import(
@@ -494,7 +496,7 @@ pub fn init_from(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelErro
 /// `export --format pytorch` writes) into the network of its config. Every network variable must be covered; missing and mismatching tensors are all
 /// named in the error.
 pub fn load_released_checkpoint(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
-    let file = pickle::read_torch_file(path)?;
+    let file = read_torch_file(path)?;
     // depthsense's own names are accepted as well: `export --format pytorch` writes
     // `{"config", "state_dict": {rgb.…, decoder.…, radar.…, head.…}}` (python/depthsense_torch.py).
     let ours: std::collections::HashSet<String> = vs.variables().into_keys().collect();

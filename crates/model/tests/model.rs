@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use depthsense_config::{Fusion, HeadKind, ModelConfig};
 use depthsense_model::{
-    checkpoint, device::parse_device, ordinal, pickle, reference, report, sid, weights, DepthNet,
+    checkpoint, device::parse_device, host, ordinal, reference, report, sid, weights, DepthNet,
     ModelError,
 };
 use tch::{nn, nn::OptimizerConfig, Device, Kind, Tensor};
@@ -397,7 +397,7 @@ fn checkpoint_round_trip_and_errors() {
 #[test]
 fn reads_real_torch_save_files() {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data");
-    let t = pickle::read_torch_file(&dir.join("torch_saved_state_dict.pth")).unwrap();
+    let t = host::read_torch_file(&dir.join("torch_saved_state_dict.pth")).unwrap();
     let get = |n: &str| {
         t.iter()
             .find(|x| x.0 == n)
@@ -434,7 +434,7 @@ fn reads_real_torch_save_files() {
     assert_eq!(get("long").int64_value(&[0, 0]), -3);
     assert_eq!(get("nested.param").double_value(&[1, 1]), 3.0);
     // legacy (pre-1.6) format: torch.save(..., _use_new_zipfile_serialization=False)
-    let l = pickle::read_torch_file(&dir.join("torch_saved_legacy.pth")).unwrap();
+    let l = host::read_torch_file(&dir.join("torch_saved_legacy.pth")).unwrap();
     let names: Vec<&str> = l.iter().map(|x| x.0.as_str()).collect();
     assert_eq!(
         names,
@@ -455,12 +455,12 @@ fn reads_real_torch_save_files() {
     let tmp = tempfile::tempdir().unwrap();
     let cut = tmp.path().join("legacy_cut.pth");
     std::fs::write(&cut, &bytes[..bytes.len() - 20]).unwrap();
-    let e = pickle::read_torch_file(&cut).unwrap_err().to_string();
+    let e = host::read_torch_file(&cut).unwrap_err().to_string();
     assert!(
         e.contains("legacy_cut.pth") && e.contains("truncated"),
         "{e}"
     );
-    let ck = pickle::read_torch_file(&dir.join("torch_saved_checkpoint.pth")).unwrap();
+    let ck = host::read_torch_file(&dir.join("torch_saved_checkpoint.pth")).unwrap();
     assert_eq!(ck.len(), 1);
     assert_eq!(ck[0].0, "state_dict.module.fc.bias");
 }
@@ -492,7 +492,7 @@ fn torchvision_state_dict_written_by_the_test_loads_into_the_encoder() {
         "fc.bias".into(),
         Tensor::zeros([1000], (Kind::Float, Device::Cpu)),
     ));
-    pickle::write_torch_state_dict(&path, &sd).unwrap();
+    write_pth(&path, &sd);
 
     let (mut vs, _) = build(&cfg);
     let rep = weights::load_torchvision_resnet(&mut vs, &path).unwrap();
@@ -618,7 +618,7 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
     );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("released.pth");
-    pickle::write_torch_state_dict(&path, &sd).unwrap();
+    write_pth(&path, &sd);
     let (mut vs, _) = build(&cfg);
     let rep = weights::load_released_checkpoint(&mut vs, &path).unwrap();
     assert_eq!(rep.loaded.len(), sd.len());
@@ -628,7 +628,7 @@ fn released_checkpoint_keys_map_onto_the_released_preset() {
         .into_iter()
         .filter(|(k, _)| !k.ends_with("concat_process.4.bias"))
         .collect();
-    pickle::write_torch_state_dict(&path, &partial).unwrap();
+    write_pth(&path, &partial);
     let e = weights::load_released_checkpoint(&mut vs, &path)
         .unwrap_err()
         .to_string();
@@ -715,7 +715,7 @@ fn devices_and_config_serde() {
 fn reads_a_pickled_torch_module() {
     // torch.save({"model": nn.Sequential(Conv2d(1,2,3,bias=False), BatchNorm2d(2)), "epoch": 1})
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/torch_saved_module.pth");
-    let t = pickle::read_torch_file(&path).unwrap();
+    let t = host::read_torch_file(&path).unwrap();
     let mut names: Vec<&str> = t.iter().map(|x| x.0.as_str()).collect();
     names.sort();
     assert_eq!(
@@ -805,7 +805,7 @@ fn init_from_fills_matching_tensors_and_names_the_new_ones() {
     checkpoint::save(&ckpt, &vs_a, &plain, &serde_json::Value::Null).unwrap();
     let pth = dir.path().join("a.pth");
     let named: Vec<(String, Tensor)> = vs_a.variables().into_iter().collect();
-    pickle::write_torch_state_dict(&pth, &named).unwrap();
+    write_pth(&pth, &named);
 
     // The same network, from either file: every tensor loaded, equal.
     for file in [&ckpt, &pth] {
@@ -872,6 +872,15 @@ fn a_checkpoint_whose_header_length_starts_with_0x80_is_not_taken_for_a_pickle()
         }
     }
     assert!(found, "no padding gave a header length starting with 0x80");
-    assert!(!checkpoint::is_torch_file(&path).unwrap());
+    assert!(!depthsense_weights::torch_file::is_torch_file(&path).unwrap());
     checkpoint::load_any(&path, None, Device::Cpu).unwrap();
+}
+
+/// `torch.save(state_dict)` of named tensors (the test-support writer of depthsense-weights).
+fn write_pth(path: &std::path::Path, tensors: &[(String, tch::Tensor)]) {
+    depthsense_weights::pth_writer::write_torch_state_dict(
+        path,
+        &host::all_to_host(tensors).unwrap(),
+    )
+    .unwrap();
 }

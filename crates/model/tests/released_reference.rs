@@ -217,7 +217,11 @@ fn imagenet_file(cfg: &ModelConfig, path: &Path) -> Vec<(String, Tensor)> {
         Tensor::zeros([1000], (Kind::Float, Device::Cpu)),
     ));
     sd.push(("bn1.num_batches_tracked".into(), Tensor::from(5i64)));
-    depthsense_model::pickle::write_torch_state_dict(path, &sd).unwrap();
+    depthsense_weights::pth_writer::write_torch_state_dict(
+        path,
+        &depthsense_model::host::all_to_host(&sd).unwrap(),
+    )
+    .unwrap();
     sd
 }
 

@@ -13,10 +13,10 @@ use std::time::Instant;
 use depthsense_config::{ModelConfig, SidConfig};
 use depthsense_data::{EpochPlan, LoadOptions, Loader};
 use depthsense_dataset::Dataset;
+use depthsense_infer::upload::upload_batch;
 use depthsense_model::ordinal::{ordinal_loss, ordinal_loss_at, SparseTarget};
 use depthsense_model::DepthNet;
 use depthsense_train::sgd::Sgd;
-use depthsense_train::trainer::upload_batch;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 /// Median seconds of `reps` runs of `f`.

@@ -34,7 +34,7 @@ fn main() {
     .next()
     .unwrap()
     .unwrap();
-    let (img, rad, tgt) = depthsense_train::trainer::batch_tensors(&b, tch::Device::Cpu);
+    let (img, rad, tgt) = depthsense_infer::upload::batch_tensors(&b, tch::Device::Cpu);
     println!(
         "img mean {:.3} std {:.3} tgt mean {:.2}",
         img.mean(tch::Kind::Float).double_value(&[]),

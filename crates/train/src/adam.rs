@@ -9,8 +9,8 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
-use crate::error::TrainError;
 use crate::optim_state::{self, bad_state, Trainable};
+use depthsense_infer::NetError;
 
 pub struct Adam {
     vars: Trainable,
@@ -65,7 +65,7 @@ impl Adam {
     }
 
     /// Writes the moments and the step count (safetensors, atomically) with `iteration`.
-    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), TrainError> {
+    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = vec![];
         for (k, t) in &self.m {
             named.push((format!("m.{k}"), t.shallow_clone()));
@@ -82,7 +82,7 @@ impl Adam {
     }
 
     /// Restores what [`Adam::save`] wrote; returns the iteration stored with it.
-    pub fn load(&mut self, path: &Path) -> Result<u64, TrainError> {
+    pub fn load(&mut self, path: &Path) -> Result<u64, NetError> {
         let named = optim_state::read(path)?;
         let device = self.vars.device();
         let known = self.vars.sizes();

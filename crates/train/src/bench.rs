@@ -11,10 +11,10 @@ use depthsense_model::DepthNet;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
-use crate::error::TrainError;
 use crate::sgd::Sgd;
 use crate::step::{forward_loss, step_precision};
-use crate::trainer::upload_batch;
+use depthsense_infer::upload::upload_batch;
+use depthsense_infer::NetError;
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct BenchTrainOptions {
@@ -56,14 +56,14 @@ impl Default for BenchTrainOptions {
 pub fn bench_train(
     opts: &BenchTrainOptions,
     progress: &depthsense_progress::Progress,
-) -> Result<serde_json::Value, TrainError> {
+) -> Result<serde_json::Value, NetError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
     depthsense_model::device::autotune_fixed_size(device);
     let tmp;
     let root = match &opts.data {
         Some(p) => p.clone(),
         None => {
-            tmp = tempfile::tempdir().map_err(|e| TrainError::Other(e.to_string()))?;
+            tmp = tempfile::tempdir().map_err(|e| NetError::Other(e.to_string()))?;
             progress.set_message("writing a toy 800x350 dataset");
             let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
             depthsense_data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
@@ -133,7 +133,7 @@ fn time_loader(
     ds: &Dataset,
     load: &LoadOptions,
     plan: &dyn Fn(u64) -> EpochPlan,
-) -> Result<(usize, f64), TrainError> {
+) -> Result<(usize, f64), NetError> {
     let t = Instant::now();
     let mut images = 0usize;
     let mut epoch = 0;
@@ -159,7 +159,7 @@ fn time_steps(
     plan: &dyn Fn(u64) -> EpochPlan,
     device: tch::Device,
     progress: &depthsense_progress::Progress,
-) -> Result<(usize, f64, Vec<f64>), TrainError> {
+) -> Result<(usize, f64, Vec<f64>), NetError> {
     tch::manual_seed(0);
     let vs = VarStore::new(device);
     let net = DepthNet::new(&vs.root(), cfg)?;

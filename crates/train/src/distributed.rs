@@ -41,7 +41,7 @@ use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
 use depthsense_base::hash::splitmix64;
 use depthsense_dist::{Backend, DistEnv, ProcessGroup, DEFAULT_BUCKET_BYTES};
 
-use crate::error::TrainError;
+use depthsense_infer::NetError;
 
 /// Options of data-parallel training.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -140,7 +140,7 @@ impl Dist {
         opts: DistOptions,
         device: Device,
         timeout: Duration,
-    ) -> Result<Option<Self>, TrainError> {
+    ) -> Result<Option<Self>, NetError> {
         let Some(env) = DistEnv::from_env()? else {
             return Ok(None);
         };
@@ -167,7 +167,7 @@ impl Dist {
 
     /// Make the replicas identical (broadcast from rank 0), prepare the gradient buckets and
     /// install SyncBatchNorm on this thread when asked.
-    pub(crate) fn attach(&mut self, vs: &VarStore) -> Result<(), TrainError> {
+    pub(crate) fn attach(&mut self, vs: &VarStore) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
         named.sort_by(|a, b| a.0.cmp(&b.0));
         self.vars = named.iter().map(|(_, t)| t.shallow_clone()).collect();
@@ -206,7 +206,7 @@ impl Dist {
         seed: u64,
         iteration: u64,
         local_batch: usize,
-    ) -> Result<(), TrainError> {
+    ) -> Result<(), NetError> {
         let first = self.rank() * local_batch;
         let seeds = (first..first + local_batch)
             .map(|g| {
@@ -221,17 +221,17 @@ impl Dist {
     }
 
     /// After a training forward: a SyncBatchNorm failure, if any.
-    pub(crate) fn after_forward(&self) -> Result<(), TrainError> {
+    pub(crate) fn after_forward(&self) -> Result<(), NetError> {
         if let Some(h) = &self.hook {
             if let Some(e) = h.error.borrow_mut().take() {
-                return Err(TrainError::Other(e));
+                return Err(NetError::Other(e));
             }
         }
         Ok(())
     }
 
     /// The mean over the ranks of this rank's loss.
-    pub(crate) fn mean_loss(&self, loss: f64) -> Result<f64, TrainError> {
+    pub(crate) fn mean_loss(&self, loss: f64) -> Result<f64, NetError> {
         let v = self
             .pg
             .all_reduce_f64(&[loss], ReduceOp::Avg, Device::Cpu)?;
@@ -239,9 +239,9 @@ impl Dist {
     }
 
     /// Average the gradients over the ranks (after backward).
-    pub(crate) fn sync_grads(&mut self) -> Result<(), TrainError> {
+    pub(crate) fn sync_grads(&mut self) -> Result<(), NetError> {
         let Some(g) = &self.grads else {
-            return Err(TrainError::Other(
+            return Err(NetError::Other(
                 "distributed: gradients synchronised before attach".into(),
             ));
         };
@@ -253,7 +253,7 @@ impl Dist {
 
     /// With `check_replicas`: every parameter (and with `sync_bn` every buffer) equals rank
     /// 0's, bit for bit.
-    pub(crate) fn check_replicas(&self, iteration: u64) -> Result<(), TrainError> {
+    pub(crate) fn check_replicas(&self, iteration: u64) -> Result<(), NetError> {
         if !self.opts.check_replicas {
             return Ok(());
         }
@@ -274,7 +274,7 @@ impl Dist {
         self.pg.broadcast(std::slice::from_ref(&theirs), 0)?;
         if !mine.equal(&theirs) {
             let d = (&mine - &theirs).abs().max().double_value(&[]);
-            return Err(TrainError::Other(format!(
+            return Err(NetError::Other(format!(
                 "rank {}: the model differs from rank 0's after iteration {iteration} \
                  (max |Δ| = {d:e})",
                 self.rank()
@@ -291,7 +291,7 @@ impl Dist {
 
     /// The report of all ranks' shards from this rank's: counts and weighted metric sums are
     /// all-reduced (exact up to floating-point summation order).
-    pub(crate) fn reduce_report(&self, r: &Report) -> Result<Report, TrainError> {
+    pub(crate) fn reduce_report(&self, r: &Report) -> Result<Report, NetError> {
         let agg = r.config.aggregate;
         let mut v: Vec<f64> = Vec::with_capacity(r.rows.len() * 10 + 1);
         for row in &r.rows {
@@ -352,7 +352,7 @@ impl Dist {
     }
 
     /// Wait for every rank.
-    pub fn barrier(&self) -> Result<(), TrainError> {
+    pub fn barrier(&self) -> Result<(), NetError> {
         Ok(self.pg.barrier()?)
     }
 }
@@ -377,11 +377,11 @@ pub fn device_for_local_rank(device: &str, local_rank: usize) -> String {
 }
 
 /// A free TCP port on the loopback interface (for a local job's MASTER_PORT).
-pub fn free_port() -> Result<u16, TrainError> {
+pub fn free_port() -> Result<u16, NetError> {
     std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .map(|a| a.port())
-        .map_err(|e| TrainError::Other(format!("no free loopback port for MASTER_PORT: {e}")))
+        .map_err(|e| NetError::Other(format!("no free loopback port for MASTER_PORT: {e}")))
 }
 
 /// Start `nproc` local workers of this executable with `args` and the environment torchrun
@@ -394,19 +394,19 @@ pub fn launch_local(
     args: &[OsString],
     master_port: Option<u16>,
     grace: Duration,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     if nproc == 0 {
-        return Err(TrainError::Config("--nproc must be at least 1".into()));
+        return Err(NetError::Config("--nproc must be at least 1".into()));
     }
     if std::env::var_os("WORLD_SIZE").is_some() {
-        return Err(TrainError::Config(
+        return Err(NetError::Config(
             "--nproc inside a distributed job (WORLD_SIZE is set): let torchrun / srun start \
              the workers, or drop --nproc"
                 .into(),
         ));
     }
     let exe = std::env::current_exe()
-        .map_err(|e| TrainError::Other(format!("cannot find this executable: {e}")))?;
+        .map_err(|e| NetError::Other(format!("cannot find this executable: {e}")))?;
     let port = match master_port {
         Some(p) => p,
         None => free_port()?,
@@ -432,7 +432,7 @@ pub fn launch_local(
                     let _ = c.kill();
                     let _ = c.wait();
                 }
-                return Err(TrainError::Other(format!(
+                return Err(NetError::Other(format!(
                     "cannot start worker rank {rank} ({}): {e}",
                     exe.display()
                 )));
@@ -476,7 +476,7 @@ pub fn launch_local(
     if failed.is_empty() {
         Ok(())
     } else {
-        Err(TrainError::Other(format!(
+        Err(NetError::Other(format!(
             "{} of {nproc} worker(s) failed: {}",
             failed.len(),
             failed.join(", ")

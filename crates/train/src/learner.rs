@@ -21,9 +21,9 @@ use depthsense_base::lock::OutputLock;
 use depthsense_progress::Progress;
 use serde::Serialize;
 
-use crate::error::TrainError;
 use crate::optim_state;
 use depthsense_dataset::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
+use depthsense_infer::NetError;
 
 /// How one training run validates, logs and trains an epoch; [`fit`] drives it.
 pub trait Learner {
@@ -37,15 +37,15 @@ pub trait Learner {
     /// The epochs still to run (a resumed run starts inside or after its last epoch).
     fn epochs_left(&self) -> Range<u64>;
     /// The current network on the validation samples, its record tagged with `epoch`.
-    fn validation(&mut self, epoch: u64) -> Result<Self::Val, TrainError>;
+    fn validation(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
     /// Appends `record` to RUN/metrics.jsonl (only in the process that writes RUN/).
-    fn log(&self, record: &serde_json::Value) -> Result<(), TrainError>;
+    fn log(&self, record: &serde_json::Value) -> Result<(), NetError>;
     /// Trains epoch `epoch` (0-based) and closes it: validation, checkpoints, epoch record.
     fn train_epoch(
         &mut self,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<Self::Val>, TrainError>;
+    ) -> Result<EpochEnd<Self::Val>, NetError>;
 }
 
 /// How an epoch ended.
@@ -65,7 +65,7 @@ pub struct Fitted<V> {
 }
 
 /// Runs `learner` to the end of its last epoch, or to where an epoch says stop.
-pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L::Val>, TrainError> {
+pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L::Val>, NetError> {
     progress.set_length(learner.total_iterations());
     progress.set_position(learner.iteration());
     let mut val = vec![];
@@ -126,9 +126,9 @@ impl Checkpointer {
     /// `write_model(path)`.
     pub fn save_last(
         &mut self,
-        write_optim: impl FnOnce(&Path) -> Result<(), TrainError>,
-        write_model: impl FnOnce(&Path) -> Result<(), TrainError>,
-    ) -> Result<(), TrainError> {
+        write_optim: impl FnOnce(&Path) -> Result<(), NetError>,
+        write_model: impl FnOnce(&Path) -> Result<(), NetError>,
+    ) -> Result<(), NetError> {
         let optim = self.run.join(LAST_OPTIM);
         optim_state::rotate(&optim, self.optim_matches)?;
         self.optim_matches = false;
@@ -138,7 +138,7 @@ impl Checkpointer {
         // The pair on disk belongs together now: the state kept for a kill in between goes.
         let prev = optim_state::prev_path(&optim);
         if prev.exists() {
-            std::fs::remove_file(&prev).map_err(|e| TrainError::io(&prev, e))?;
+            std::fs::remove_file(&prev).map_err(|e| NetError::io(&prev, e))?;
         }
         Ok(())
     }
@@ -152,7 +152,7 @@ pub fn lock_run_folder(
     command: &str,
     resume: bool,
     force: bool,
-) -> Result<OutputLock, TrainError> {
+) -> Result<OutputLock, NetError> {
     let lock = OutputLock::exclusive(out, &format!("depthsense {command}"))?;
     claim_run_folder(out, command, resume, force)?;
     Ok(lock)
@@ -183,15 +183,15 @@ mod tests {
         fn epochs_left(&self) -> Range<u64> {
             self.epochs.clone()
         }
-        fn validation(&mut self, epoch: u64) -> Result<u64, TrainError> {
+        fn validation(&mut self, epoch: u64) -> Result<u64, NetError> {
             self.calls.borrow_mut().push(format!("validate {epoch}"));
             Ok(100 + epoch)
         }
-        fn log(&self, record: &serde_json::Value) -> Result<(), TrainError> {
+        fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
             self.calls.borrow_mut().push(record.to_string());
             Ok(())
         }
-        fn train_epoch(&mut self, epoch: u64, _: &Progress) -> Result<EpochEnd<u64>, TrainError> {
+        fn train_epoch(&mut self, epoch: u64, _: &Progress) -> Result<EpochEnd<u64>, NetError> {
             self.calls.borrow_mut().push(format!("epoch {epoch}"));
             self.iteration += 10;
             let stop = self.stop_at_epoch == Some(epoch);
@@ -246,8 +246,8 @@ mod tests {
             d.path().join(LAST_CKPT),
         );
         let write = |text: &'static str| {
-            move |p: &Path| -> Result<(), TrainError> {
-                std::fs::write(p, text).map_err(|e| TrainError::io(p, e))
+            move |p: &Path| -> Result<(), NetError> {
+                std::fs::write(p, text).map_err(|e| NetError::io(p, e))
             }
         };
         let mut c = Checkpointer::new(d.path(), true);
@@ -255,7 +255,7 @@ mod tests {
         assert!(!prev.exists());
         // killed after the optimiser state of iteration 2, before its checkpoint
         let killed = c.save_last(write("optim 2"), |_: &Path| {
-            Err(TrainError::Other("killed".into()))
+            Err(NetError::Other("killed".into()))
         });
         assert!(killed.is_err());
         let read = |p: &Path| std::fs::read_to_string(p).unwrap();
@@ -267,7 +267,7 @@ mod tests {
         let mut resumed = Checkpointer::new(d.path(), false);
         resumed
             .save_last(write("optim 3"), |_: &Path| {
-                Err(TrainError::Other("killed".into()))
+                Err(NetError::Other("killed".into()))
             })
             .unwrap_err();
         assert_eq!(

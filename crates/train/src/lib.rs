@@ -1,11 +1,11 @@
-//! depthsense-train (layer 5, ARCHITECTURE.md): the training engine — optimisers, the training
-//! step, validation, checkpoints and exact resume, run folders, data-parallel training.
+//! depthsense-train (layer 6, ARCHITECTURE.md): the training engine — optimisers, the training
+//! step, checkpoints and exact resume, run folders, data-parallel training. Validation runs
+//! through `depthsense_infer::run` (the network over samples, shared with `eval`), errors are
+//! `depthsense_infer::NetError`.
 //!
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
-//! - [`upload`]: a batch onto the device (pinned host memory on CUDA);
 //! - [`metrics_log`]: RUN/metrics.jsonl — the one writer, reader and resume cut;
 //! - [`step`]: the training step's forward and loss (`train` and `bench train` share it);
-//! - [`validate`]: a network over samples into the metrics through the one scorer;
 //! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
 //!   (exact resume, [`optim_state`]);
 //! - [`distributed`]: data-parallel training on c10d (Gloo / NCCL), `--nproc` launcher;
@@ -20,9 +20,3 @@ pub mod optim_state;
 pub mod sgd;
 pub mod step;
 pub mod trainer;
-pub mod upload;
-pub mod validate;
-
-mod error;
-/// The training stack's one error type: every message stays the same whichever crate raises it.
-pub use error::TrainError;

@@ -11,7 +11,7 @@ use depthsense_base::fsutil::write_atomic;
 use depthsense_metrics::Report;
 use serde::{Deserialize, Serialize};
 
-use crate::error::TrainError;
+use depthsense_infer::NetError;
 
 /// One validation result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -56,17 +56,17 @@ impl ValRecord {
 }
 
 /// Append one record (a JSON line).
-pub fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), TrainError> {
+pub fn append_jsonl(path: &Path, v: &serde_json::Value) -> Result<(), NetError> {
     let mut f = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(path)
-        .map_err(|e| TrainError::io(path, e))?;
-    writeln!(f, "{v}").map_err(|e| TrainError::io(path, e))
+        .map_err(|e| NetError::io(path, e))?;
+    writeln!(f, "{v}").map_err(|e| NetError::io(path, e))
 }
 
 /// Keep only the records of metrics.jsonl up to `iteration` (resume after an interruption).
-pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
+pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), NetError> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(());
     };
@@ -79,7 +79,7 @@ pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
         })
         .map(|(l, _)| format!("{l}\n"))
         .collect();
-    write_atomic(path, kept.as_bytes()).map_err(|e| TrainError::io(path, e))
+    write_atomic(path, kept.as_bytes()).map_err(|e| NetError::io(path, e))
 }
 
 /// (global iteration, loss) pairs of a run.
@@ -120,15 +120,15 @@ fn records(text: &str) -> impl Iterator<Item = (&str, serde_json::Result<serde_j
 }
 
 /// Read metrics.jsonl: the one reader of the log.
-pub fn read_log(path: &Path, bad: BadLine) -> Result<MetricsLog, TrainError> {
-    let text = std::fs::read_to_string(path).map_err(|e| TrainError::io(path, e))?;
+pub fn read_log(path: &Path, bad: BadLine) -> Result<MetricsLog, NetError> {
+    let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
     let mut log = MetricsLog::default();
     for (_, v) in records(&text) {
         let v = match (v, bad) {
             (Ok(v), _) => v,
             (Err(_), BadLine::Skip) => continue,
             (Err(e), BadLine::Fail) => {
-                return Err(TrainError::Parse {
+                return Err(NetError::Parse {
                     path: path.display().to_string(),
                     reason: e.to_string(),
                 })
@@ -158,20 +158,20 @@ pub fn read_log(path: &Path, bad: BadLine) -> Result<MetricsLog, TrainError> {
 
 /// Read the loss curve and the validation records back from metrics.jsonl (a line that is not
 /// JSON is an error).
-pub fn read_metrics(path: &Path) -> Result<(LossCurve, Vec<ValRecord>), TrainError> {
+pub fn read_metrics(path: &Path) -> Result<(LossCurve, Vec<ValRecord>), NetError> {
     let log = read_log(path, BadLine::Fail)?;
     Ok((log.losses, log.val))
 }
 
 /// Render RUN/curves.png from RUN/metrics.jsonl.
-pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), TrainError> {
+pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), NetError> {
     let (losses, val) = read_metrics(metrics_path)?;
     let val_pts: Vec<(u64, f64)> = val.iter().map(|v| (v.iteration, v.rmse)).collect();
     let bytes = depthsense_viz::plot::curves_png(
         &[("train loss", &losses)],
         &[("val RMSE (m)", &val_pts)],
     )?;
-    write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
+    write_atomic(png, &bytes).map_err(|e| NetError::io(png, e))
 }
 
 #[cfg(test)]

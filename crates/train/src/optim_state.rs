@@ -8,7 +8,7 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Device, Tensor};
 
-use crate::error::TrainError;
+use depthsense_infer::NetError;
 
 /// Named trainable variables of a VarStore, sorted by name.
 pub(crate) struct Trainable {
@@ -47,9 +47,9 @@ impl Trainable {
 }
 
 /// Writes `named` (moved to the CPU) as safetensors at `path`, through a temporary sibling.
-pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<(), TrainError> {
+pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<(), NetError> {
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| TrainError::io(parent, e))?;
+        std::fs::create_dir_all(parent).map_err(|e| NetError::io(parent, e))?;
     }
     let named: Vec<(String, Tensor)> = named
         .into_iter()
@@ -58,20 +58,19 @@ pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<
     let tmp = depthsense_base::fsutil::temp_sibling(path);
     Tensor::write_safetensors(&named, &tmp).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        TrainError::Other(format!("{}: {e}", path.display()))
+        NetError::Other(format!("{}: {e}", path.display()))
     })?;
-    std::fs::rename(&tmp, path).map_err(|e| TrainError::io(path, e))
+    std::fs::rename(&tmp, path).map_err(|e| NetError::io(path, e))
 }
 
 /// Reads an optimiser state written by [`write_atomic`].
-pub(crate) fn read(path: &Path) -> Result<Vec<(String, Tensor)>, TrainError> {
-    Tensor::read_safetensors(path)
-        .map_err(|e| TrainError::Other(format!("{}: {e}", path.display())))
+pub(crate) fn read(path: &Path) -> Result<Vec<(String, Tensor)>, NetError> {
+    Tensor::read_safetensors(path).map_err(|e| NetError::Other(format!("{}: {e}", path.display())))
 }
 
 /// The error for a state file that does not fit the network.
-pub(crate) fn bad_state(path: &Path, reason: String) -> TrainError {
-    TrainError::Parse {
+pub(crate) fn bad_state(path: &Path, reason: String) -> NetError {
+    NetError::Parse {
         path: path.display().to_string(),
         reason,
     }
@@ -94,15 +93,15 @@ pub(crate) fn prev_path(path: &Path) -> std::path::PathBuf {
 /// (`matches_checkpoint`), and is dropped when it does not (a kill left it newer than the
 /// checkpoint; `prev` then already holds the matching one). A kill anywhere in between leaves
 /// `path` or `prev` matching the checkpoint, which [`load_matching`] finds.
-pub fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), TrainError> {
+pub fn rotate(path: &Path, matches_checkpoint: bool) -> Result<(), NetError> {
     if !path.exists() {
         return Ok(());
     }
     if matches_checkpoint {
         let prev = prev_path(path);
-        std::fs::rename(path, &prev).map_err(|e| TrainError::io(&prev, e))
+        std::fs::rename(path, &prev).map_err(|e| NetError::io(&prev, e))
     } else {
-        std::fs::remove_file(path).map_err(|e| TrainError::io(path, e))
+        std::fs::remove_file(path).map_err(|e| NetError::io(path, e))
     }
 }
 
@@ -113,8 +112,8 @@ pub fn load_matching(
     path: &Path,
     checkpoint: &Path,
     iteration: u64,
-    mut load: impl FnMut(&Path) -> Result<u64, TrainError>,
-) -> Result<bool, TrainError> {
+    mut load: impl FnMut(&Path) -> Result<u64, NetError>,
+) -> Result<bool, NetError> {
     let main = if path.exists() {
         Some(load(path)?)
     } else {
@@ -133,7 +132,7 @@ pub fn load_matching(
         return Ok(false);
     }
     let at = |x: Option<u64>| x.map_or("absent".to_string(), |i| format!("at iteration {i}"));
-    Err(TrainError::Data(format!(
+    Err(NetError::Data(format!(
         "{} is {} and {} {}, but {} is at iteration {iteration}: no optimiser state belongs to \
          the checkpoint",
         path.display(),
@@ -173,7 +172,7 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("last.optim.safetensors");
         let ck = d.path().join("last.safetensors");
-        let read = |q: &Path| -> Result<u64, TrainError> {
+        let read = |q: &Path| -> Result<u64, NetError> {
             Ok(std::fs::read_to_string(q).unwrap().parse().unwrap())
         };
         // killed after the rotation: only prev, at the checkpoint's iteration

@@ -10,8 +10,8 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
-use crate::error::TrainError;
 use crate::optim_state::{self, bad_state, Trainable};
+use depthsense_infer::NetError;
 
 /// Polynomial learning-rate decay per iteration to 0 at the end (SPEC §8):
 /// lr_i = lr₀ · (1 − i/total)^power.
@@ -96,7 +96,7 @@ impl Sgd {
     }
 
     /// Write the momentum buffers (safetensors, atomically) with the iteration they belong to.
-    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), TrainError> {
+    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = self
             .buffers
             .iter()
@@ -110,7 +110,7 @@ impl Sgd {
     }
 
     /// Restore buffers saved by [`Sgd::save`]; returns the iteration stored with them.
-    pub fn load(&mut self, path: &Path) -> Result<u64, TrainError> {
+    pub fn load(&mut self, path: &Path) -> Result<u64, NetError> {
         let named = optim_state::read(path)?;
         let device = self.vars.device();
         let known = self.vars.sizes();

@@ -5,7 +5,7 @@ use depthsense_model::precision::{with_autocast, Precision};
 use depthsense_model::DepthNet;
 use tch::{Kind, Tensor};
 
-use crate::upload::BatchTensors;
+use depthsense_infer::upload::BatchTensors;
 
 /// `--amp`: bf16 autocast (CUDA only). Not fp16: fp16 without loss scaling underflows the
 /// ≈1e-6 per-pixel gradients of the ordinal loss; bf16 has fp32's exponent range.

@@ -21,16 +21,16 @@ use depthsense_model::checkpoint;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
-use crate::error::TrainError;
+use depthsense_infer::NetError;
 
 mod session;
-pub use crate::validate::{evaluate_net, validate_net};
+use depthsense_infer::run::validate_net;
 pub use session::{removing_new_folder_on_failure, train, train_distributed, Trainer};
 
 pub use crate::metrics_log::{
     append_jsonl, read_metrics, truncate_metrics, write_curves, LossCurve, ValRecord,
 };
-pub use crate::upload::{batch_tensors, upload_batch, upload_inputs, BatchTensors};
+use depthsense_infer::upload::upload_batch;
 
 /// Autocast dtype of `train --amp` ([`crate::step`]).
 pub use crate::step::AMP_PRECISION;
@@ -261,87 +261,11 @@ fn save_ckpt(
     cfg: &ModelConfig,
     state: &State,
     opts: &TrainOptions,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     let extra = serde_json::json!({
         "train_state": state,
         "train_options": opts,
     });
     checkpoint::save(path, vs, cfg, &extra)?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
-    use depthsense_dataset::Dataset;
-    use depthsense_model::ordinal::SparseTarget;
-    use tch::{Device, Kind, Tensor};
-
-    /// The tensors of the loader's batches as `batch_tensors` built them before issue 9
-    /// item 3: `from_slice` of each stacked buffer.
-    fn old_path(b: &Batch) -> (Tensor, Tensor, Tensor) {
-        let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
-        let radar = if b.radar_channels == 0 {
-            Tensor::zeros([n, 1, h, w], (Kind::Float, Device::Cpu))
-        } else {
-            Tensor::from_slice(&b.radar).view([n, b.radar_channels as i64, h, w])
-        };
-        (
-            Tensor::from_slice(&b.image).view([n, 3, h, w]),
-            radar,
-            Tensor::from_slice(&b.target_m).view([n, 1, h, w]),
-        )
-    }
-
-    #[test]
-    fn upload_batch_delivers_the_old_tensors_and_the_nonzero_sparse_target() {
-        let tmp = tempfile::tempdir().unwrap();
-        depthsense_data::write_toy_dataset(tmp.path(), 2, 3, 64, 32, 7).unwrap();
-        let ds = Dataset::open(tmp.path()).unwrap();
-        for (no_radar, target) in [(false, TargetKind::Sparse), (true, TargetKind::Dense)] {
-            let load = LoadOptions {
-                no_radar,
-                target,
-                augment: true,
-                seed: 3,
-                ..LoadOptions::default()
-            };
-            let plan = EpochPlan {
-                entries: ds.split("all"),
-                batch_size: 4,
-                epoch: 0,
-                shuffle: true,
-                drop_last: false,
-                skip_batches: 0,
-                jobs: 1,
-                prefetch: 1,
-            };
-            let mut seen = 0;
-            for b in Loader::start(&ds, &load, &plan).unwrap() {
-                let b = b.unwrap();
-                let new = upload_batch(&b, Device::Cpu);
-                let (image, radar, target_m) = old_path(&b);
-                // `equal`: same shape, dtype and every bit.
-                assert!(new.image.equal(&image));
-                assert!(new.radar.equal(&radar));
-                assert!(new.target_m.equal(&target_m));
-                // The host gather (used on CUDA) equals `nonzero` on the device (used on the CPU).
-                let (n, h, w) = (b.size as i64, b.height as i64, b.width as i64);
-                let host = SparseTarget::from_host(&b.target_m, (n, h, w), Device::Cpu);
-                let nz = SparseTarget::from_dense(&target_m);
-                for s in [&new.sparse, &host] {
-                    assert_eq!(s.count, nz.count);
-                    assert!(s.count > 0);
-                    assert!(s.index.equal(&nz.index));
-                    assert!(s.depth_m.equal(&nz.depth_m));
-                    assert_eq!(s.shape, nz.shape);
-                }
-                let (i2, r2, t2) = batch_tensors(&b, Device::Cpu);
-                assert!(i2.equal(&image) && r2.equal(&radar) && t2.equal(&target_m));
-                seen += 1;
-            }
-            assert_eq!(seen, 2);
-        }
-    }
 }

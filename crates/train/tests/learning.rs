@@ -8,9 +8,10 @@ use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_data::LoadOptions;
 use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
 use depthsense_dataset::{partition, Dataset};
+use depthsense_infer::run::evaluate_net;
 use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{evaluate_net, train, TrainOptions};
+use depthsense_train::trainer::{train, TrainOptions};
 
 /// libtorch's generator is process-wide: tests that train hold this lock so that each run's
 /// initial weights come from its own seed.

@@ -5,10 +5,10 @@
 use depthsense_config::{HeadKind, ModelConfig};
 use depthsense_data::LoadOptions;
 use depthsense_dataset::{partition, Dataset};
+use depthsense_infer::run::{evaluate_net, validate_net};
 use depthsense_metrics::Report;
 use depthsense_model::DepthNet;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{evaluate_net, validate_net};
 
 fn report_rmse(r: &Report) -> Vec<(String, f64, f64, u64)> {
     r.rows

@@ -24,13 +24,13 @@ use super::{
     validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
-use crate::error::TrainError;
 use crate::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use crate::optim_state;
 use crate::sgd::{warmup_poly_lr, Sgd};
 use depthsense_dataset::outputs::{
     BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
+use depthsense_infer::NetError;
 
 /// A training run in progress.
 pub struct Trainer<'o> {
@@ -86,13 +86,13 @@ struct EpochLosses {
 
 impl<'o> Trainer<'o> {
     /// Opens the data, partitions it, builds (or resumes) the network and writes RUN/config.json.
-    pub fn new(opts: &'o TrainOptions) -> Result<Self, TrainError> {
+    pub fn new(opts: &'o TrainOptions) -> Result<Self, NetError> {
         Self::with_dist(opts, None)
     }
 
     /// [`Trainer::new`] for one rank of a data-parallel job (`None`: a single process);
     /// `opts.batch_size` is the global batch (see [`crate::distributed`]).
-    pub fn with_dist(opts: &'o TrainOptions, mut dist: Option<Dist>) -> Result<Self, TrainError> {
+    pub fn with_dist(opts: &'o TrainOptions, mut dist: Option<Dist>) -> Result<Self, NetError> {
         let started = Instant::now();
         let main = check_options(opts, dist.as_ref())?;
         // One writer per run folder, and a finished run is never replaced silently
@@ -108,14 +108,14 @@ impl<'o> Trainer<'o> {
         let (ds, part) = open_partition(opts)?;
         let val_entries = subsample(&part.val, opts.max_val_samples);
         let run = opts.out.clone();
-        std::fs::create_dir_all(&run).map_err(|e| TrainError::io(&run, e))?;
+        std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
         let bpe = batches_per_epoch(opts, part.train.len());
         let ((vs, net, mut state, sgd), optim_matches) =
             if continues && run.join(LAST_CKPT).exists() {
                 resume(opts, &run, &cfg, device, main, bpe)?
             } else if opts.extend {
-                return Err(TrainError::Config(format!(
+                return Err(NetError::Config(format!(
                     "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
                  without --extend",
                     run.display()
@@ -127,7 +127,7 @@ impl<'o> Trainer<'o> {
             state.data_settings = ds.index.settings.clone();
         }
         if opts.resume && !opts.extend && state.iteration >= bpe * opts.epochs as u64 {
-            return Err(TrainError::RunFinished {
+            return Err(NetError::RunFinished {
                 run: run.display().to_string(),
                 epochs: opts.epochs,
                 iteration: state.iteration,
@@ -135,7 +135,7 @@ impl<'o> Trainer<'o> {
         }
         if let Some(d) = dist.as_mut() {
             if part.train.len() < opts.batch_size {
-                return Err(TrainError::Config(format!(
+                return Err(NetError::Config(format!(
                     "{} training samples: fewer than one global batch of {}",
                     part.train.len(),
                     opts.batch_size
@@ -188,7 +188,7 @@ impl<'o> Trainer<'o> {
         self.run.join(name)
     }
 
-    fn write_config(&self) -> Result<(), TrainError> {
+    fn write_config(&self) -> Result<(), NetError> {
         let part = &self.part;
         let mut config_json = serde_json::json!({
             "train": self.opts,
@@ -211,12 +211,12 @@ impl<'o> Trainer<'o> {
         }
         let path = self.path(CONFIG_FILE);
         let text = serde_json::to_string_pretty(&config_json)
-            .map_err(|e| TrainError::Other(e.to_string()))?;
-        write_atomic(&path, text.as_bytes()).map_err(|e| TrainError::io(&path, e))
+            .map_err(|e| NetError::Other(e.to_string()))?;
+        write_atomic(&path, text.as_bytes()).map_err(|e| NetError::io(&path, e))
     }
 
     /// Metrics of the current network on the validation samples.
-    pub fn validate(&self, epoch: u64) -> Result<ValRecord, TrainError> {
+    pub fn validate(&self, epoch: u64) -> Result<ValRecord, NetError> {
         let shard = match &self.dist {
             Some(d) => &self.val_entries[d.shard(self.val_entries.len())],
             None => &self.val_entries[..],
@@ -240,7 +240,7 @@ impl<'o> Trainer<'o> {
     }
 
     /// [`Trainer::validate`], its time added to the validation seconds of the summary.
-    fn validate_timed(&mut self, epoch: u64) -> Result<ValRecord, TrainError> {
+    fn validate_timed(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         let t = Instant::now();
         let v = self.validate(epoch);
         self.val_secs += t.elapsed().as_secs_f64();
@@ -258,9 +258,9 @@ impl<'o> Trainer<'o> {
     }
 
     /// The error for a non-finite loss at `iteration` (nothing is overwritten).
-    fn non_finite(&self, loss: f64, epoch: u64, iteration: u64) -> TrainError {
+    fn non_finite(&self, loss: f64, epoch: u64, iteration: u64) -> NetError {
         let last = self.path(LAST_CKPT);
-        TrainError::NonFiniteLoss {
+        NetError::NonFiniteLoss {
             loss,
             epoch,
             iteration,
@@ -295,7 +295,7 @@ impl<'o> Trainer<'o> {
 
     /// One SGD step on `batch`. Its loss stays on the device unless losses are read every
     /// iteration: then it is read here and a non-finite one stops before the update.
-    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, TrainError> {
+    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, NetError> {
         let opts = self.opts;
         let bt = upload_batch(batch, self.device);
         let it = self.state.iteration;
@@ -349,7 +349,7 @@ impl<'o> Trainer<'o> {
         epoch: u64,
         acc: &mut EpochLosses,
         progress: &Progress,
-    ) -> Result<(), TrainError> {
+    ) -> Result<(), NetError> {
         if acc.pending.is_empty() {
             return Ok(());
         }
@@ -385,11 +385,11 @@ impl<'o> Trainer<'o> {
     }
 
     /// Writes RUN/last.safetensors and its optimiser state (refusing non-finite weights).
-    fn checkpoint(&mut self) -> Result<(), TrainError> {
+    fn checkpoint(&mut self) -> Result<(), NetError> {
         let last = self.path(LAST_CKPT);
         let state = &self.state;
         if !all_finite(&self.vs) {
-            return Err(TrainError::NonFiniteLoss {
+            return Err(NetError::NonFiniteLoss {
                 loss: f64::NAN,
                 epoch: state.epoch,
                 iteration: state.iteration,
@@ -415,7 +415,7 @@ impl<'o> Trainer<'o> {
         epoch: u64,
         epoch_loss: f64,
         epoch_n: usize,
-    ) -> Result<ValRecord, TrainError> {
+    ) -> Result<ValRecord, NetError> {
         let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
@@ -456,7 +456,7 @@ impl<'o> Trainer<'o> {
         &mut self,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<ValRecord>, TrainError> {
+    ) -> Result<EpochEnd<ValRecord>, NetError> {
         let opts = self.opts;
         let skip = (self.state.iteration - epoch * self.bpe) as usize;
         // An epoch of `epoch_iterations` draws its samples from the stream of passes itself.
@@ -539,7 +539,7 @@ impl<'o> Trainer<'o> {
     }
 
     /// Trains to the end (or to `stop_after`).
-    pub fn run(mut self, progress: &Progress) -> Result<TrainSummary, TrainError> {
+    pub fn run(mut self, progress: &Progress) -> Result<TrainSummary, NetError> {
         progress.println(self.start_line());
         let fitted = fit(&mut self, progress)?;
         let summary = TrainSummary {
@@ -585,7 +585,7 @@ impl<'o> Trainer<'o> {
         )
     }
 
-    fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, TrainError> {
+    fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, NetError> {
         summary.iterations_done = self.state.iteration;
         summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
         summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
@@ -618,11 +618,11 @@ impl Learner for Trainer<'_> {
         self.state.iteration / self.bpe..self.opts.epochs as u64
     }
 
-    fn validation(&mut self, epoch: u64) -> Result<ValRecord, TrainError> {
+    fn validation(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         self.validate_timed(epoch)
     }
 
-    fn log(&self, record: &serde_json::Value) -> Result<(), TrainError> {
+    fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
         if self.is_main() {
             append_jsonl(&self.path(METRICS_FILE), record)?;
         }
@@ -633,7 +633,7 @@ impl Learner for Trainer<'_> {
         &mut self,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<ValRecord>, TrainError> {
+    ) -> Result<EpochEnd<ValRecord>, NetError> {
         self.run_epoch(epoch, progress)
     }
 }
@@ -652,21 +652,21 @@ fn batches_per_epoch(opts: &TrainOptions, train_samples: usize) -> u64 {
 
 /// The options every rank checks before touching the run folder; returns whether this is the
 /// main process (rank 0, or a single process).
-fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, TrainError> {
+fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, NetError> {
     if opts.batch_size == 0 || opts.epochs == 0 {
-        return Err(TrainError::Config(
+        return Err(NetError::Config(
             "batch size and epochs must be at least 1".into(),
         ));
     }
     if !(0.0..=1.0).contains(&opts.train_radar_drop) {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "train radar drop {} is not a fraction in [0, 1]",
             opts.train_radar_drop
         )));
     }
     let (main, world) = dist.map_or((true, 1), |d| (d.is_main(), d.world_size()));
     if !opts.batch_size.is_multiple_of(world) {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "the global batch size {} is not a multiple of the {world} ranks",
             opts.batch_size
         )));
@@ -676,13 +676,13 @@ fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, Train
 
 /// The prepared data and its partition, training scenes withheld (`--exclude`); both the
 /// training and the validation partition must hold samples.
-fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), TrainError> {
+fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), NetError> {
     let ds = Dataset::open(&opts.data)?;
     let mut part = partition(&ds, opts.val_every_scene)?;
     depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
     if let Some(n) = opts.train_subset {
         if n > part.train.len() {
-            return Err(TrainError::Config(format!(
+            return Err(NetError::Config(format!(
                 "--train-subset {n}: {} holds only {} training samples",
                 opts.data.display(),
                 part.train.len()
@@ -733,7 +733,7 @@ fn block_entries(
 }
 
 /// What the training loader reads and how (SPEC §8 augmentation, `--train-radar-drop`).
-fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOptions, TrainError> {
+fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOptions, NetError> {
     let radar = cfg.radar_input_for(opts.radar_input)?;
     Ok(LoadOptions {
         radar: radar.unwrap_or_default(),
@@ -764,7 +764,7 @@ fn model_config_for_data(
     opts: &TrainOptions,
     ds: &Dataset,
     first: &IndexEntry,
-) -> Result<ModelConfig, TrainError> {
+) -> Result<ModelConfig, NetError> {
     let probe = depthsense_data::load_sample(
         ds,
         first,
@@ -796,7 +796,7 @@ fn fresh(
     cfg: &ModelConfig,
     device: Device,
     main: bool,
-) -> Result<Built, TrainError> {
+) -> Result<Built, NetError> {
     let last = run.join(LAST_CKPT);
     if opts.resume && main {
         eprintln!(
@@ -861,19 +861,19 @@ fn resume(
     device: Device,
     main: bool,
     bpe: u64,
-) -> Result<(Built, bool), TrainError> {
+) -> Result<(Built, bool), NetError> {
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
     // Build the requested network and copy the checkpoint into it: a checkpoint of another
     // configuration fails here with every offending tensor named (model::checkpoint).
     let vs = VarStore::new(device);
     let net = DepthNet::new(&vs.root(), cfg)?;
-    let bytes = std::fs::read(&last).map_err(|e| TrainError::io(&last, e))?;
-    let (tensors, _) = checkpoint::parse_safetensors(&last, &bytes)?;
+    let bytes = std::fs::read(&last).map_err(|e| NetError::io(&last, e))?;
+    let (tensors, _) = depthsense_model::host::parse_safetensors(&last, &bytes)?;
     checkpoint::copy_into(&last, &vs, &tensors)?;
     let (ck_cfg, extra) = checkpoint::read_config(&last)?;
     if &ck_cfg != cfg {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--resume: {} holds a different model config than requested \
              (checkpoint preset {:?}, requested {:?}); resume with the same --config",
             last.display(),
@@ -882,7 +882,7 @@ fn resume(
         )));
     }
     let mut state: State =
-        serde_json::from_value(extra["train_state"].clone()).map_err(|e| TrainError::Parse {
+        serde_json::from_value(extra["train_state"].clone()).map_err(|e| NetError::Parse {
             path: last.display().to_string(),
             reason: format!("train_state: {e}"),
         })?;
@@ -894,7 +894,7 @@ fn resume(
         || state.lr != opts.lr
         || state.seed != opts.seed
     {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--resume: {} was trained with batch {} epochs {} lr {} seed {}; \
              an exact resume needs the same values (got batch {} epochs {} lr {} seed {})",
             last.display(),
@@ -924,9 +924,9 @@ fn extend_schedule(
     last: &Path,
     state: &mut State,
     bpe: u64,
-) -> Result<(), TrainError> {
+) -> Result<(), NetError> {
     if opts.epochs <= state.epochs {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--extend: {} has {} epochs; give more with --epochs (e.g. --epochs {})",
             last.display(),
             state.epochs,
@@ -934,7 +934,7 @@ fn extend_schedule(
         )));
     }
     if state.batch_size != opts.batch_size || state.seed != opts.seed {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--extend: {} was trained with batch {} seed {}; an extension keeps them (got \
              batch {} seed {})",
             last.display(),
@@ -964,7 +964,7 @@ fn extend_schedule(
 }
 
 /// Train a network. See the module docs for what lands in `opts.out`.
-pub fn train(opts: &TrainOptions, progress: &Progress) -> Result<TrainSummary, TrainError> {
+pub fn train(opts: &TrainOptions, progress: &Progress) -> Result<TrainSummary, NetError> {
     removing_new_folder_on_failure(&opts.out, || Trainer::new(opts)?.run(progress))
 }
 
@@ -974,7 +974,7 @@ pub fn train_distributed(
     opts: &TrainOptions,
     dist: Dist,
     progress: &Progress,
-) -> Result<TrainSummary, TrainError> {
+) -> Result<TrainSummary, NetError> {
     if !dist.is_main() {
         return Trainer::with_dist(opts, Some(dist))?.run(progress);
     }
@@ -989,8 +989,8 @@ pub fn train_distributed(
 /// that failed after it started logging (a non-finite loss) keeps its log for the diagnosis.
 pub fn removing_new_folder_on_failure<T>(
     out: &Path,
-    run: impl FnOnce() -> Result<T, TrainError>,
-) -> Result<T, TrainError> {
+    run: impl FnOnce() -> Result<T, NetError>,
+) -> Result<T, NetError> {
     let existed = out.exists();
     let result = run();
     let recorded = out.join(LAST_CKPT).exists() || out.join(METRICS_FILE).exists();

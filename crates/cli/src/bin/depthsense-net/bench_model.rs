@@ -377,7 +377,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     print_results(&res);
     if let Some(path) = &args.out {
         let text = serde_json::to_string_pretty(&res)?;
-        depthsense_model::checkpoint::write_atomic(path, text.as_bytes())
+        depthsense_model::files::write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }

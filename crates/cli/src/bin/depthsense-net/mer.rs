@@ -4,7 +4,7 @@ use depthsense_cli::cmd::mer::{ApplyArgs, Args, Command, TrainArgs};
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_config::pda::PdaConfig;
 use depthsense_mer::apply::{apply, MerApplyOptions};
-use depthsense_mer::train::{train_pda, MerTrainOptions};
+use depthsense_mer_train::{train_pda, MerTrainOptions};
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {

@@ -30,7 +30,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(path) = &args.json {
         let v = serde_json::json!({"config": cfg, "report": rep});
         let text = serde_json::to_string_pretty(&v)?;
-        depthsense_model::checkpoint::write_atomic(path, text.as_bytes())
+        depthsense_model::files::write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }

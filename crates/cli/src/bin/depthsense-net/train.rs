@@ -7,11 +7,11 @@ use depthsense_config::RadarInput;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::TargetKind;
 use depthsense_dist::DistEnv;
+use depthsense_infer::NetError;
 use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
 use depthsense_progress::Progress;
 use depthsense_train::distributed::{self, Dist, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
-use depthsense_train::TrainError;
 use std::ffi::OsString;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -46,8 +46,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let opts = train_options(a, model)?;
     let trained = match train_this_process(opts, &dist) {
         // `--resume` of a finished run: said, nothing to do.
-        Err(e) => match e.downcast::<TrainError>() {
-            Ok(finished @ TrainError::RunFinished { .. }) => {
+        Err(e) => match e.downcast::<NetError>() {
+            Ok(finished @ NetError::RunFinished { .. }) => {
                 eprintln!("{finished}");
                 return Ok(ExitCode::SUCCESS);
             }

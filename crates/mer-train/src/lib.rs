@@ -1,4 +1,4 @@
-//! `depthsense mer train`: the PDA association network (SPEC §5) on the `train` split, with
+//! depthsense-mer-train (layer 7, ARCHITECTURE.md) — `depthsense mer train`: the PDA association network (SPEC §5) on the `train` split, with
 //! validation on `val` (precision / recall at 0.5 and ROC AUC of the associations), the same
 //! run-directory conventions as `train`:
 //!
@@ -28,6 +28,7 @@ use depthsense_dataset::outputs::{
 };
 use depthsense_dataset::subsample;
 use depthsense_dataset::{partition, Dataset};
+use depthsense_infer::NetError;
 use depthsense_model::pda::{self, balanced_bce, PdaNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
@@ -35,12 +36,11 @@ use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
 use depthsense_train::sgd::poly_lr;
 use depthsense_train::trainer::{append_jsonl, truncate_metrics};
-use depthsense_train::TrainError;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use super::labels::{load_labelled, PdaInput};
+use depthsense_mer::labels::{load_labelled, PdaInput};
 
 /// Options of `mer train`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -154,10 +154,10 @@ struct PdaBatch {
     n: usize,
 }
 
-fn stack(samples: &[(PdaInput, Vec<i8>)], device: Device) -> Result<PdaBatch, TrainError> {
+fn stack(samples: &[(PdaInput, Vec<i8>)], device: Device) -> Result<PdaBatch, NetError> {
     let g = samples[0].0.grid;
     if let Some((s, _)) = samples.iter().find(|(s, _)| s.grid != g) {
-        return Err(TrainError::Data(format!(
+        return Err(NetError::Data(format!(
             "MER grids differ within a batch ({}x{} vs {}x{}): frames of one size are needed",
             s.grid.w, s.grid.h, g.w, g.h
         )));
@@ -209,7 +209,7 @@ fn load_group(
     flips: &[bool],
     cfg: &PdaConfig,
     pool: &rayon::ThreadPool,
-) -> Result<Vec<(PdaInput, Vec<i8>)>, TrainError> {
+) -> Result<Vec<(PdaInput, Vec<i8>)>, NetError> {
     pool.install(|| {
         entries
             .par_iter()
@@ -269,7 +269,7 @@ pub fn validate_pda(
     batch_size: usize,
     pool: &rayon::ThreadPool,
     device: Device,
-) -> Result<MerValRecord, TrainError> {
+) -> Result<MerValRecord, NetError> {
     let cfg = net.config();
     let mut pairs: Vec<(f32, bool)> = vec![];
     let (mut loss, mut nb) = (0.0, 0usize);
@@ -349,11 +349,9 @@ impl<'o> Run<'o> {
         )
     }
 
-    fn new(opts: &'o MerTrainOptions) -> Result<Self, TrainError> {
+    fn new(opts: &'o MerTrainOptions) -> Result<Self, NetError> {
         if opts.batch_size == 0 || opts.epochs == 0 {
-            return Err(TrainError::Config(
-                "batch size and epochs must be ≥ 1".into(),
-            ));
+            return Err(NetError::Config("batch size and epochs must be ≥ 1".into()));
         }
         let device = depthsense_model::device::parse_device(&opts.device)?;
         let ds = Dataset::open(&opts.data)?;
@@ -368,7 +366,7 @@ impl<'o> Run<'o> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(jobs)
             .build()
-            .map_err(|e| TrainError::Config(format!("cannot start loader threads: {e}")))?;
+            .map_err(|e| NetError::Config(format!("cannot start loader threads: {e}")))?;
         let (vs, net, sgd, state, optim_matches) = build(opts, device)?;
         let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
         let run = Run {
@@ -394,7 +392,7 @@ impl<'o> Run<'o> {
         self.opts.out.join(name)
     }
 
-    fn write_config(&self, part: &depthsense_dataset::Partition) -> Result<(), TrainError> {
+    fn write_config(&self, part: &depthsense_dataset::Partition) -> Result<(), NetError> {
         let j = serde_json::json!({
             "mer_train": self.opts,
             "pda": self.opts.pda,
@@ -405,9 +403,8 @@ impl<'o> Run<'o> {
                           "val_scenes": part.val_scenes},
         });
         let p = self.path(CONFIG_FILE);
-        let text =
-            serde_json::to_string_pretty(&j).map_err(|e| TrainError::Other(e.to_string()))?;
-        write_atomic(&p, text.as_bytes()).map_err(|e| TrainError::io(&p, e))
+        let text = serde_json::to_string_pretty(&j).map_err(|e| NetError::Other(e.to_string()))?;
+        write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
     }
 
     /// What a checkpoint stores beside the weights: the run's state and options.
@@ -415,7 +412,7 @@ impl<'o> Run<'o> {
         serde_json::json!({"train_state": self.state, "mer_train": self.opts})
     }
 
-    fn save(&self, name: &str) -> Result<(), TrainError> {
+    fn save(&self, name: &str) -> Result<(), NetError> {
         pda::save(
             &self.path(name),
             &self.vs,
@@ -426,7 +423,7 @@ impl<'o> Run<'o> {
     }
 
     /// One epoch of SGD steps; returns the mean loss.
-    fn run_epoch(&mut self, epoch: u64, progress: &Progress) -> Result<f64, TrainError> {
+    fn run_epoch(&mut self, epoch: u64, progress: &Progress) -> Result<f64, NetError> {
         let o = self.opts;
         let order = epoch_order(self.train.len(), o.seed, epoch, true);
         let total = self.bpe * o.epochs as u64;
@@ -449,7 +446,7 @@ impl<'o> Run<'o> {
             };
             let lv = loss.double_value(&[]);
             if !lv.is_finite() {
-                return Err(TrainError::NonFiniteLoss {
+                return Err(NetError::NonFiniteLoss {
                     loss: lv,
                     epoch,
                     iteration: self.state.iteration,
@@ -477,7 +474,7 @@ impl<'o> Run<'o> {
         Ok(sum / n.max(1) as f64)
     }
 
-    fn validate_at(&self, epoch: u64) -> Result<MerValRecord, TrainError> {
+    fn validate_at(&self, epoch: u64) -> Result<MerValRecord, NetError> {
         let mut v = validate_pda(
             &self.net,
             &self.ds,
@@ -491,7 +488,7 @@ impl<'o> Run<'o> {
         Ok(v)
     }
 
-    fn end_epoch(&mut self, epoch: u64, loss: f64) -> Result<MerValRecord, TrainError> {
+    fn end_epoch(&mut self, epoch: u64, loss: f64) -> Result<MerValRecord, NetError> {
         let v = self.validate_at(epoch + 1)?;
         self.state.epoch = epoch + 1;
         let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
@@ -523,7 +520,7 @@ impl<'o> Run<'o> {
 fn build(
     opts: &MerTrainOptions,
     device: Device,
-) -> Result<(VarStore, PdaNet, Adam, State, bool), TrainError> {
+) -> Result<(VarStore, PdaNet, Adam, State, bool), NetError> {
     let last = opts.out.join(LAST_CKPT);
     let mut state = State {
         kind: "depthsense-mer-train".into(),
@@ -545,14 +542,14 @@ fn build(
     }
     let l = pda::load(&last, device)?;
     let stored: State =
-        serde_json::from_value(l.extra["train_state"].clone()).map_err(|e| TrainError::Parse {
+        serde_json::from_value(l.extra["train_state"].clone()).map_err(|e| NetError::Parse {
             path: last.display().to_string(),
             reason: format!("train_state: {e}"),
         })?;
     let same = (stored.batch_size, stored.epochs, stored.lr, stored.seed)
         == (state.batch_size, state.epochs, state.lr, state.seed);
     if l.config != opts.pda || !same {
-        return Err(TrainError::Config(format!(
+        return Err(NetError::Config(format!(
             "--resume: {} was trained with another PDA config or batch/epochs/lr/seed; \
              an exact resume needs the same options",
             last.display()
@@ -571,8 +568,8 @@ fn build(
 }
 
 /// RUN/curves.png: training loss (left) and validation AUC (right).
-pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
-    let text = std::fs::read_to_string(metrics).map_err(|e| TrainError::io(metrics, e))?;
+pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), NetError> {
+    let text = std::fs::read_to_string(metrics).map_err(|e| NetError::io(metrics, e))?;
     let (mut loss, mut auc) = (vec![], vec![]);
     for l in text.lines() {
         let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
@@ -591,7 +588,7 @@ pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), TrainError> {
         ("training loss", "loss", &[("train loss", &loss)]),
         ("validation", "AUC", &[("val AUC", &auc)]),
     )?;
-    write_atomic(png, &bytes).map_err(|e| TrainError::io(png, e))
+    write_atomic(png, &bytes).map_err(|e| NetError::io(png, e))
 }
 
 impl Learner for Run<'_> {
@@ -609,11 +606,11 @@ impl Learner for Run<'_> {
         self.state.epoch..self.opts.epochs as u64
     }
 
-    fn validation(&mut self, epoch: u64) -> Result<MerValRecord, TrainError> {
+    fn validation(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
         self.validate_at(epoch)
     }
 
-    fn log(&self, record: &serde_json::Value) -> Result<(), TrainError> {
+    fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
         append_jsonl(&self.path(METRICS_FILE), record)
     }
 
@@ -621,7 +618,7 @@ impl Learner for Run<'_> {
         &mut self,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<MerValRecord>, TrainError> {
+    ) -> Result<EpochEnd<MerValRecord>, NetError> {
         let loss = self.run_epoch(epoch, progress)?;
         progress.set_message(format!(
             "epoch {}/{}: validating",
@@ -636,10 +633,7 @@ impl Learner for Run<'_> {
 }
 
 /// Train the PDA network (see the module docs for RUN/).
-pub fn train_pda(
-    opts: &MerTrainOptions,
-    progress: &Progress,
-) -> Result<MerTrainSummary, TrainError> {
+pub fn train_pda(opts: &MerTrainOptions, progress: &Progress) -> Result<MerTrainSummary, NetError> {
     let started = Instant::now();
     depthsense_train::trainer::removing_new_folder_on_failure(&opts.out, || {
         let mut run = Run::new(opts)?;

@@ -11,7 +11,7 @@ use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use tch::{Device, Kind, Tensor};
 
-use crate::error::TrainError;
+use crate::error::NetError;
 use crate::upload::upload_inputs;
 use depthsense_score::score_image;
 
@@ -28,8 +28,8 @@ pub fn evaluate_net(
     jobs: usize,
     device: Device,
     progress: &Progress,
-    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<Report, TrainError> {
+    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<Report, NetError> {
     let run = RunPlan {
         batch_size,
         jobs,
@@ -63,7 +63,7 @@ pub fn validate_net(
     jobs: usize,
     device: Device,
     progress: &Progress,
-) -> Result<Report, TrainError> {
+) -> Result<Report, NetError> {
     let run = RunPlan {
         batch_size,
         jobs,
@@ -102,8 +102,8 @@ fn score_net(
     run: &RunPlan,
     decode: Decode,
     progress: &Progress,
-    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<Report, TrainError> {
+    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<Report, NetError> {
     let mut ev = Evaluator::new(eval_cfg.clone())?;
     let mut load = load.clone();
     load.eval_maps = true;
@@ -154,8 +154,8 @@ pub fn run_net(
     load: &LoadOptions,
     run: &RunPlan,
     progress: &Progress,
-    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<(), TrainError> {
+    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<(), NetError> {
     run_batches(
         net,
         ds,
@@ -177,8 +177,8 @@ fn run_batches(
     run: &RunPlan,
     decode: Decode,
     progress: &Progress,
-    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), TrainError>,
-) -> Result<(), TrainError> {
+    mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<(), NetError> {
     let mut load = load.clone();
     load.augment = false;
     let plan = EpochPlan {
@@ -219,7 +219,7 @@ fn predict_batch(
     batch: &Batch,
     device: Device,
     decode: Decode,
-) -> Result<Vec<f32>, TrainError> {
+) -> Result<Vec<f32>, NetError> {
     let (image, radar) = upload_inputs(batch, device);
     let hw = batch.width * batch.height;
     if decode == Decode::AtGroundTruth {
@@ -234,7 +234,7 @@ fn predict_batch(
         .to_kind(Kind::Float)
         .contiguous();
     if pred.numel() != batch.size * hw {
-        return Err(TrainError::Other(format!(
+        return Err(NetError::Other(format!(
             "decoded prediction has shape {:?}, expected [{}, 1, {}, {}]",
             pred.size(),
             batch.size,
@@ -252,12 +252,12 @@ fn predict_at_ground_truth(
     image: &Tensor,
     radar: &Tensor,
     device: Device,
-) -> Result<Vec<f32>, TrainError> {
+) -> Result<Vec<f32>, NetError> {
     let hw = batch.width * batch.height;
     let mut gt: Vec<f32> = Vec::with_capacity(batch.size * hw);
     for s in &batch.samples {
         if s.sparse_m.len() != hw {
-            return Err(TrainError::Other(format!(
+            return Err(NetError::Other(format!(
                 "sample {}: ground truth of {} pixels, expected {hw}",
                 s.token,
                 s.sparse_m.len()
@@ -277,7 +277,7 @@ fn predict_at_ground_truth(
     });
     let depth = Vec::<f32>::try_from(depth.to_device(Device::Cpu).to_kind(Kind::Float))?;
     if depth.len() as i64 != at.count {
-        return Err(TrainError::Other(format!(
+        return Err(NetError::Other(format!(
             "decoded {} depths at {} ground-truth pixels",
             depth.len(),
             at.count

@@ -16,7 +16,7 @@ use depthsense_mer::apply::{apply, mer_maps, MerApplyOptions};
 use depthsense_mer::labels::{
     labels, load_labelled, neighbour, radar_pixels, Grid, RadarPixel, UNLABELLED,
 };
-use depthsense_mer::train::{train_pda, MerTrainOptions};
+use depthsense_mer_train::{train_pda, MerTrainOptions};
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::layout::{LIDAR_DENSE_FILE, META_FILE};
 use depthsense_prep::layout::{MER_CONF_FILE, MER_DEPTH_FILE};

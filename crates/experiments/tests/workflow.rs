@@ -8,11 +8,11 @@ use depthsense_data::{drop_radar, load_sample, Augment, EpochPlan, LoadOptions, 
 use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
 use depthsense_dataset::{partition, Dataset};
 use depthsense_eval::evaluate::{run_eval, EvalOptions};
+use depthsense_infer::NetError;
 use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
 use depthsense_score::tables::write_tables;
 use depthsense_train::trainer::{read_metrics, train, TrainOptions};
-use depthsense_train::TrainError;
 
 const W: u32 = 128;
 const H: u32 = 64;
@@ -415,7 +415,7 @@ fn train_resume_mismatch_eval_predict() {
     other.model.head = HeadKind::L1;
     let err = train(&other, &pb).expect_err("mismatch must fail");
     let msg = err.to_string();
-    assert!(matches!(err, TrainError::Model(_)), "{msg}");
+    assert!(matches!(err, NetError::Model(_)), "{msg}");
     assert!(msg.contains("mismatching shapes"), "{msg}");
     assert!(
         msg.contains("[1, 64, 1, 1]") || msg.contains("network ["),
@@ -506,7 +506,7 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
     o.max_val_samples = Some(1);
     let err = train(&o, &Progress::hidden()).expect_err("must stop");
     let msg = err.to_string();
-    let TrainError::NonFiniteLoss { iteration, .. } = err else {
+    let NetError::NonFiniteLoss { iteration, .. } = err else {
         panic!("expected a non-finite-loss error, got {msg}");
     };
     assert!(msg.contains("training stopped"), "{msg}");
@@ -544,7 +544,7 @@ fn deferred_loss_read_reports_the_first_non_finite_iteration() {
         o.loss_read_every = every;
         o.checkpoint_every = checkpoint_every;
         let err = train(&o, &Progress::hidden()).expect_err("must stop");
-        let TrainError::NonFiniteLoss { iteration, .. } = err else {
+        let NetError::NonFiniteLoss { iteration, .. } = err else {
             panic!("expected a non-finite-loss error, got {err}");
         };
         (iteration, run)

@@ -1,5 +1,5 @@
 //! Train the tiny preset on a generated toy dataset and print the validation curve.
-//! `cargo run -p depthsense-eval --example toy_train -- EPOCHS LR [late|none]`
+//! `cargo run -p depthsense-experiments --example toy_train -- EPOCHS LR [late|none]`
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_train::trainer::{train, TrainOptions};
 

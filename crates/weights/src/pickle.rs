@@ -1,6 +1,5 @@
-//! Reading and writing PyTorch `torch.save` files (the zip format of torch ≥ 1.6: an archive
-//! holding `<name>/data.pkl`, a pickle whose tensors point by persistent id to raw
-//! little-endian storages `<name>/data/<key>`), without Python.
+//! The pickle machine of PyTorch `torch.save` files (whose tensors point by persistent id to
+//! raw little-endian storages), without Python; the files themselves are [`crate::torch_file`].
 //!
 //! The reader implements the pickle opcodes `torch.save` emits (protocols 2–4) and rebuilds
 //! `torch._utils._rebuild_tensor_v2` / `_rebuild_parameter` tensors; `collections.OrderedDict`
@@ -8,12 +7,6 @@
 //! arguments and `BUILD` state, so pickled `nn.Module`s can still be walked for tensors.
 
 use std::collections::HashMap;
-use std::io::{Read, Write};
-use std::path::Path;
-
-use tch::{Device, Kind, Tensor};
-
-use crate::ModelError;
 
 /// A pickled value.
 #[derive(Debug, Clone)]
@@ -73,38 +66,6 @@ pub struct TensorRef {
     pub size: Vec<i64>,
     /// Strides in elements.
     pub stride: Vec<i64>,
-}
-
-fn storage_kind(name: &str) -> Option<(Kind, usize)> {
-    Some(match name {
-        "FloatStorage" => (Kind::Float, 4),
-        "DoubleStorage" => (Kind::Double, 8),
-        "HalfStorage" => (Kind::Half, 2),
-        "BFloat16Storage" => (Kind::BFloat16, 2),
-        "LongStorage" => (Kind::Int64, 8),
-        "IntStorage" => (Kind::Int, 4),
-        "ShortStorage" => (Kind::Int16, 2),
-        "CharStorage" => (Kind::Int8, 1),
-        "ByteStorage" | "UntypedStorage" => (Kind::Uint8, 1),
-        "BoolStorage" => (Kind::Bool, 1),
-        _ => return None,
-    })
-}
-
-fn storage_name(kind: Kind) -> Option<&'static str> {
-    Some(match kind {
-        Kind::Float => "FloatStorage",
-        Kind::Double => "DoubleStorage",
-        Kind::Half => "HalfStorage",
-        Kind::BFloat16 => "BFloat16Storage",
-        Kind::Int64 => "LongStorage",
-        Kind::Int => "IntStorage",
-        Kind::Int16 => "ShortStorage",
-        Kind::Int8 => "CharStorage",
-        Kind::Uint8 => "ByteStorage",
-        Kind::Bool => "BoolStorage",
-        _ => return None,
-    })
 }
 
 struct Reader<'a> {
@@ -263,8 +224,14 @@ fn reduce(callable: Value, args: Value) -> Result<Value, String> {
     })
 }
 
+/// Why a pickle stream was refused: truncated, hostile (too deep, a memo bomb) or using an
+/// opcode `torch.save` does not emit. The text says where.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct PickleError(String);
+
 /// Parses a pickle stream (the persistent ids of `torch.save` become [`Value::Storage`]).
-pub fn parse_pickle(bytes: &[u8]) -> Result<Value, String> {
+pub fn parse_pickle(bytes: &[u8]) -> Result<Value, PickleError> {
     parse_pickle_at(bytes, 0).map(|(v, _)| v)
 }
 
@@ -523,7 +490,11 @@ impl Machine {
 /// Hostile input is an error, never a panic, a hang or an allocation beyond a small multiple
 /// of the input (issue 10): lengths are checked against the bytes left, nesting is bounded by
 /// [`MAX_PICKLE_DEPTH`], and memo/DUP copies by a budget proportional to the input length.
-pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
+pub fn parse_pickle_at(bytes: &[u8], start: usize) -> Result<(Value, usize), PickleError> {
+    run_machine(bytes, start).map_err(PickleError)
+}
+
+fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
     if start > bytes.len() {
         return Err(format!(
             "pickle starts at byte {start}, past the end ({} bytes)",
@@ -682,357 +653,4 @@ pub fn collect_tensors(v: &Value) -> Vec<(String, TensorRef)> {
     let mut out = Vec::new();
     walk(v, "", &mut out);
     out
-}
-
-/// The magic number opening legacy (pre-1.6) `torch.save` files, little-endian.
-const LEGACY_MAGIC: [u8; 10] = [0x6c, 0xfc, 0x9c, 0x46, 0xf9, 0x20, 0x6a, 0xa8, 0x50, 0x19];
-
-/// Reads every tensor of a `torch.save` file onto the CPU (dotted names, file order): the zip
-/// format of torch ≥ 1.6 and the legacy format (magic number, protocol, sys-info and object
-/// pickles, the storage-key list, then each storage as an 8-byte element count + raw data).
-pub fn read_torch_file(path: &Path) -> Result<Vec<(String, Tensor)>, ModelError> {
-    let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
-    read_torch_bytes(path, &bytes)
-}
-
-/// [`read_torch_file`] on bytes already in memory; `path` only names the file in errors.
-/// Every size in the file is checked against the bytes present before anything is
-/// allocated from it (issue 10).
-pub fn read_torch_bytes(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
-    if bytes.starts_with(b"PK") {
-        read_zip(path, bytes)
-    } else if bytes.first() == Some(&0x80) {
-        read_legacy(path, bytes)
-    } else {
-        Err(ModelError::format(
-            path,
-            "not a torch.save file (neither a zip archive nor a legacy pickle)",
-        ))
-    }
-}
-
-/// Record `name` of a `torch.save` zip archive (`archive_len` bytes in all), read in full.
-fn read_record(
-    path: &Path,
-    zip: &mut zip::ZipArchive<std::io::Cursor<&[u8]>>,
-    archive_len: usize,
-    name: &str,
-) -> Result<Vec<u8>, ModelError> {
-    let mut e = zip
-        .by_name(name)
-        .map_err(|e| ModelError::format(path, format!("missing record {name}: {e}")))?;
-    // The declared size is only a hint: never allocate more than deflate can produce
-    // from the archive, and never read past the declared size.
-    let declared = e.size();
-    let possible = (archive_len as u64).saturating_mul(1100);
-    if declared > possible {
-        return Err(ModelError::format(
-            path,
-            format!("record {name} claims {declared} bytes, more than a {archive_len} byte archive can hold"),
-        ));
-    }
-    let mut buf = Vec::with_capacity(declared.min(archive_len as u64) as usize);
-    (&mut e)
-        .take(declared.saturating_add(1))
-        .read_to_end(&mut buf)
-        .map_err(|e| {
-            ModelError::format(path, format!("record {name} unreadable (truncated?): {e}"))
-        })?;
-    if buf.len() as u64 != declared {
-        return Err(ModelError::format(
-            path,
-            format!(
-                "record {name} holds {} bytes, its header says {declared}",
-                buf.len()
-            ),
-        ));
-    }
-    Ok(buf)
-}
-
-fn read_zip(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
-    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(|e| {
-        ModelError::format(
-            path,
-            format!("not a readable zip archive (truncated?): {e}"),
-        )
-    })?;
-    let pkl_name = zip
-        .file_names()
-        .find(|n| *n == "data.pkl" || n.ends_with("/data.pkl"))
-        .map(str::to_string)
-        .ok_or_else(|| {
-            ModelError::format(path, "zip archive without data.pkl: not a torch.save file")
-        })?;
-    let prefix = pkl_name.trim_end_matches("data.pkl").to_string();
-    let mut read_entry = |name: &str| read_record(path, &mut zip, bytes.len(), name);
-    if let Ok(order) = read_entry(&format!("{prefix}byteorder")) {
-        if order.trim_ascii() != b"little" {
-            return Err(ModelError::format(
-                path,
-                "big-endian torch.save files are not supported",
-            ));
-        }
-    }
-    let pkl = read_entry(&pkl_name)?;
-    let value =
-        parse_pickle(&pkl).map_err(|e| ModelError::format(path, format!("{pkl_name}: {e}")))?;
-    let refs = collect_tensors(&value);
-    let mut storages: HashMap<String, Vec<u8>> = HashMap::new();
-    for (_, t) in &refs {
-        if !storages.contains_key(&t.storage_key) {
-            let data = read_entry(&format!("{prefix}data/{}", t.storage_key))?;
-            storages.insert(t.storage_key.clone(), data);
-        }
-    }
-    materialize(path, refs, &storages)
-}
-
-fn read_legacy(path: &Path, bytes: &[u8]) -> Result<Vec<(String, Tensor)>, ModelError> {
-    let bad = |m: String| ModelError::format(path, format!("legacy torch.save file: {m}"));
-    let (magic, pos) = parse_pickle_at(bytes, 0).map_err(&bad)?;
-    if !matches!(&magic, Value::Bytes(b) if b[..] == LEGACY_MAGIC) {
-        return Err(bad("wrong magic number (not a torch.save file)".into()));
-    }
-    let (_protocol, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
-    let (_sys_info, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
-    let (value, pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
-    let (keys, mut pos) = parse_pickle_at(bytes, pos).map_err(&bad)?;
-    let keys = match keys {
-        Value::List(k) => k,
-        _ => return Err(bad("storage key list missing".into())),
-    };
-    let refs = collect_tensors(&value);
-    let types: HashMap<&str, &str> = refs
-        .iter()
-        .map(|(_, t)| (t.storage_key.as_str(), t.storage_type.as_str()))
-        .collect();
-    let mut storages = HashMap::new();
-    for k in keys {
-        let Value::Str(key) = k else {
-            return Err(bad("non-string storage key".into()));
-        };
-        let es = types
-            .get(key.as_str())
-            .and_then(|t| storage_kind(t))
-            .map_or(1, |x| x.1);
-        if pos + 8 > bytes.len() {
-            return Err(bad(format!("truncated before storage {key}")));
-        }
-        let numel = u64::from_le_bytes(bytes[pos..pos + 8].try_into().unwrap_or([0; 8])) as usize;
-        pos += 8;
-        let len = numel.checked_mul(es).filter(|&l| l <= bytes.len() - pos);
-        let Some(len) = len else {
-            return Err(bad(format!(
-                "truncated: storage {key} needs {numel}×{es} bytes"
-            )));
-        };
-        storages.insert(key, bytes[pos..pos + len].to_vec());
-        pos += len;
-    }
-    materialize(path, refs, &storages)
-}
-
-/// Checks the strided view `t` against a storage of `numel` elements, in checked
-/// arithmetic: every number here comes from the file (issue 10). Returns whether the view is
-/// empty, or why it is refused.
-fn check_view(t: &TensorRef, numel: usize) -> Result<bool, &'static str> {
-    if t.size.len() != t.stride.len() {
-        return Err("has sizes and strides of different lengths");
-    }
-    if t.offset < 0 || t.size.iter().any(|&s| s < 0) || t.stride.iter().any(|&s| s < 0) {
-        return Err("has a negative size, stride or offset");
-    }
-    let empty = t.size.contains(&0);
-    let view_numel = t
-        .size
-        .iter()
-        .try_fold(1i64, |a, &s| a.checked_mul(s))
-        .ok_or("has more elements than fit in 64 bits")?;
-    let last = t
-        .size
-        .iter()
-        .zip(&t.stride)
-        .try_fold(t.offset, |a, (&s, &st)| {
-            (s - 1)
-                .max(0)
-                .checked_mul(st)
-                .and_then(|x| a.checked_add(x))
-        })
-        .ok_or("overflows")?;
-    if !empty && last as u64 >= numel as u64 {
-        return Err("exceeds its storage (truncated?)");
-    }
-    // Stride-0 views would let a few bytes expand into any amount of memory.
-    if view_numel as u64 > (numel as u64).max(1 << 16) {
-        return Err("expands beyond its storage");
-    }
-    Ok(empty)
-}
-
-fn materialize(
-    path: &Path,
-    refs: Vec<(String, TensorRef)>,
-    storages: &HashMap<String, Vec<u8>>,
-) -> Result<Vec<(String, Tensor)>, ModelError> {
-    if refs.is_empty() {
-        return Err(ModelError::format(path, "the pickle holds no tensors"));
-    }
-    let mut out = Vec::with_capacity(refs.len());
-    for (name, t) in refs {
-        let (kind, es) = storage_kind(&t.storage_type).ok_or_else(|| {
-            ModelError::format(
-                path,
-                format!("tensor {name}: unsupported storage {}", t.storage_type),
-            )
-        })?;
-        let data = storages.get(&t.storage_key).ok_or_else(|| {
-            ModelError::format(
-                path,
-                format!("tensor {name}: storage {} missing", t.storage_key),
-            )
-        })?;
-        let numel = data.len() / es;
-        let empty = check_view(&t, numel).map_err(|why| {
-            ModelError::format(
-                path,
-                format!(
-                    "tensor {name}: view {:?}/{:?}+{} {why} (storage of {numel} elements)",
-                    t.size, t.stride, t.offset
-                ),
-            )
-        })?;
-        let tensor = if empty {
-            Tensor::f_zeros(&t.size, (kind, Device::Cpu))?
-        } else {
-            let flat = Tensor::f_from_data_size(&data[..numel * es], &[numel as i64], kind)?;
-            flat.f_as_strided(&t.size, &t.stride, t.offset)?
-                .f_contiguous()?
-        };
-        out.push((name, tensor));
-    }
-    Ok(out)
-}
-
-struct PickleWriter {
-    out: Vec<u8>,
-}
-
-impl PickleWriter {
-    fn op(&mut self, b: u8) {
-        self.out.push(b);
-    }
-    fn string(&mut self, s: &str) {
-        self.op(b'X');
-        self.out.extend_from_slice(&(s.len() as u32).to_le_bytes());
-        self.out.extend_from_slice(s.as_bytes());
-    }
-    fn int(&mut self, i: i64) {
-        if let Ok(v) = i32::try_from(i) {
-            self.op(b'J');
-            self.out.extend_from_slice(&v.to_le_bytes());
-        } else {
-            self.op(0x8a);
-            self.op(8);
-            self.out.extend_from_slice(&i.to_le_bytes());
-        }
-    }
-    fn global(&mut self, m: &str, n: &str) {
-        self.op(b'c');
-        self.out.extend_from_slice(format!("{m}\n{n}\n").as_bytes());
-    }
-    fn int_tuple(&mut self, xs: &[i64]) {
-        self.op(b'(');
-        for &x in xs {
-            self.int(x);
-        }
-        self.op(b't');
-    }
-    /// One state-dict entry: `name` → `_rebuild_tensor_v2` of storage `key` (class `st`,
-    /// `numel` elements), a contiguous view of `size`.
-    fn tensor_entry(&mut self, name: &str, key: &str, st: &str, numel: usize, size: &[i64]) {
-        let mut stride = vec![1i64; size.len()];
-        for d in (0..size.len().saturating_sub(1)).rev() {
-            stride[d] = stride[d + 1] * size[d + 1].max(1);
-        }
-        self.string(name);
-        self.global("torch._utils", "_rebuild_tensor_v2");
-        self.op(b'(');
-        self.op(b'(');
-        self.string("storage");
-        self.global("torch", st);
-        self.string(key);
-        self.string("cpu");
-        self.int(numel as i64);
-        self.op(b't');
-        self.op(b'Q');
-        self.int(0);
-        self.int_tuple(size);
-        self.int_tuple(&stride);
-        self.op(0x89);
-        self.global("collections", "OrderedDict");
-        self.op(b')');
-        self.op(b'R');
-        self.op(b't');
-        self.op(b'R');
-    }
-}
-
-/// The raw little-endian bytes of tensor `name` and its storage class name.
-fn storage_bytes(name: &str, t: &Tensor) -> Result<(Vec<u8>, &'static str), ModelError> {
-    let st = storage_name(t.kind()).ok_or_else(|| {
-        ModelError::InvalidConfig(format!("tensor {name}: dtype {:?} not writable", t.kind()))
-    })?;
-    let numel = t.numel();
-    let es = t.kind().elt_size_in_bytes();
-    let mut buf = vec![0u8; numel * es];
-    t.f_copy_data_u8(&mut buf, numel)?;
-    Ok((buf, st))
-}
-
-/// The zip archive of a `torch.save` file: `archive/data.pkl`, `byteorder`, the storages
-/// `data/<i>` and `version`, stored uncompressed.
-fn torch_zip(path: &Path, pkl: &[u8], blobs: &[Vec<u8>]) -> Result<Vec<u8>, ModelError> {
-    let mut cursor = std::io::Cursor::new(Vec::new());
-    {
-        let mut z = zip::ZipWriter::new(&mut cursor);
-        let opts =
-            zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
-        let mut put = |name: &str, data: &[u8]| -> Result<(), ModelError> {
-            z.start_file(format!("archive/{name}"), opts)
-                .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
-            z.write_all(data).map_err(|e| ModelError::io(path, e))
-        };
-        put("data.pkl", pkl)?;
-        put("byteorder", b"little")?;
-        for (i, b) in blobs.iter().enumerate() {
-            put(&format!("data/{i}"), b)?;
-        }
-        put("version", b"3\n")?;
-        z.finish()
-            .map_err(|e| ModelError::format(path, format!("zip: {e}")))?;
-    }
-    Ok(cursor.into_inner())
-}
-
-/// Writes named tensors as a `torch.save`-compatible zip file holding an `OrderedDict` state
-/// dict (what `torch.save(model.state_dict(), path)` produces; `torch.load` reads it back,
-/// also with `weights_only=True`). Written atomically.
-pub fn write_torch_state_dict(path: &Path, tensors: &[(String, Tensor)]) -> Result<(), ModelError> {
-    let mut w = PickleWriter { out: vec![0x80, 2] };
-    w.global("collections", "OrderedDict");
-    w.op(b')');
-    w.op(b'R');
-    w.op(b'(');
-    let mut blobs = Vec::new();
-    for (i, (name, t)) in tensors.iter().enumerate() {
-        let t = t.detach().to_device(Device::Cpu).contiguous();
-        let (buf, st) = storage_bytes(name, &t)?;
-        w.tensor_entry(name, &i.to_string(), st, t.numel(), &t.size());
-        blobs.push(buf);
-    }
-    w.op(b'u');
-    w.op(b'.');
-    let archive = torch_zip(path, &w.out, &blobs)?;
-    crate::checkpoint::write_atomic(path, &archive)
 }

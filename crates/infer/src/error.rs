@@ -4,7 +4,7 @@
 use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
-pub enum TrainError {
+pub enum NetError {
     #[error("{path}: {source}")]
     Io {
         path: String,
@@ -63,7 +63,7 @@ pub enum TrainError {
     Other(String),
 }
 
-impl TrainError {
+impl NetError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             path: path.display().to_string(),
@@ -72,21 +72,21 @@ impl TrainError {
     }
 }
 
-impl From<depthsense_dist::DistError> for TrainError {
+impl From<depthsense_dist::DistError> for NetError {
     fn from(e: depthsense_dist::DistError) -> Self {
-        TrainError::Other(e.to_string())
+        NetError::Other(e.to_string())
     }
 }
 
 /// An unknown preset or `--set` key, or a config no network can be built with.
-impl From<depthsense_config::ConfigError> for TrainError {
+impl From<depthsense_config::ConfigError> for NetError {
     fn from(e: depthsense_config::ConfigError) -> Self {
         use depthsense_config::ConfigError as C;
         match e {
             // a mismatch between a request and the model, not an invalid model (same message
             // as when the trainer owned the rule)
-            C::RadarChannels { .. } => TrainError::Config(e.to_string()),
-            e => TrainError::Model(e.into()),
+            C::RadarChannels { .. } => NetError::Config(e.to_string()),
+            e => NetError::Model(e.into()),
         }
     }
 }
