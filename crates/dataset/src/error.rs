@@ -1,18 +1,18 @@
 //! The error of the torch-free data layer: each names the file, record or setting at fault.
 //! `depthsense_infer::NetError` carries it whole (`NetError::Dataset`), messages unchanged.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("{path}: cannot parse: {reason}")]
-    Parse { path: String, reason: String },
+    #[error("{}: cannot parse: {reason}", .path.display())]
+    Parse { path: PathBuf, reason: String },
     #[error("data: {0}")]
     Data(String),
     #[error("configuration: {0}")]
@@ -106,7 +106,7 @@ impl DataError {
 
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source,
         }
     }

@@ -72,7 +72,7 @@ impl Dataset {
         let bytes = std::fs::read(&path).map_err(|e| DataError::io(&path, e))?;
         let index: PreparedIndex =
             serde_json::from_slice(&bytes).map_err(|e| DataError::Parse {
-                path: path.display().to_string(),
+                path: path.to_path_buf(),
                 reason: e.to_string(),
             })?;
         if index.samples.is_empty() {

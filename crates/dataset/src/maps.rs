@@ -12,7 +12,7 @@ use crate::error::DataError;
 pub fn read_meta(dir: &Path) -> Result<depthsense_prep::layout::SampleMeta, DataError> {
     let p = dir.join(META_FILE);
     serde_json::from_slice(&read_file(&p)?).map_err(|e| DataError::Parse {
-        path: p.display().to_string(),
+        path: p.to_path_buf(),
         reason: e.to_string(),
     })
 }
@@ -29,7 +29,7 @@ pub fn read_depth(path: &Path) -> Result<DepthMap, DataError> {
 pub fn decode_rgb(path: &Path) -> Result<image::RgbImage, DataError> {
     let bytes = read_file(path)?;
     let img = image::load_from_memory(&bytes).map_err(|e| DataError::Parse {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
     Ok(img.to_rgb8())
@@ -69,7 +69,7 @@ pub fn read_lowheight_mask(dir: &Path, w: usize, h: usize) -> Result<Vec<bool>, 
 fn decode_rgb_luma(path: &Path) -> Result<Vec<bool>, DataError> {
     let bytes = read_file(path)?;
     let img = image::load_from_memory(&bytes).map_err(|e| DataError::Parse {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
     Ok(img.to_luma8().pixels().map(|p| p.0[0] > 127).collect())

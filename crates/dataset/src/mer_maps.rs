@@ -132,7 +132,7 @@ pub fn read_record(root: &Path) -> Result<Option<MerRecord>, DataError> {
     serde_json::from_slice(&bytes)
         .map(Some)
         .map_err(|e| DataError::Parse {
-            path: p.display().to_string(),
+            path: p.to_path_buf(),
             reason: e.to_string(),
         })
 }

@@ -346,7 +346,7 @@ fn write_results(
         &depthsense_viz::plot::encode_rgb(&grid_image(tiles))?,
     )
     .map_err(|e| NetError::io(&grid, e))?;
-    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     let jp = out.join("explain.json");
     write_atomic(&jp, json.as_bytes()).map_err(|e| NetError::io(&jp, e))?;
     let mp = out.join("explain.md");

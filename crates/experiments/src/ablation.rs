@@ -499,7 +499,7 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
 }
 
 fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     super::save(&dir.join(JSON_FILE), json.as_bytes())?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;

@@ -139,7 +139,7 @@ pub fn run_cost(
     };
     std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
     let save = |name: &str, b: &[u8]| super::save(&out.join(name), b);
-    let json = serde_json::to_string_pretty(&r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(&r)?;
     save(JSON_FILE, json.as_bytes())?;
     save(MD_FILE, markdown(&r).as_bytes())?;
     save(CSV_FILE, csv(&r).as_bytes())?;

@@ -758,8 +758,7 @@ fn write_readme(
             "summary": s,
             "plan": plan,
             "command_line": opts.command_line,
-        }))
-        .map_err(|e| NetError::Other(e.to_string()))?
+        }))?
         .as_bytes(),
     )
     .map_err(|e| NetError::io(&p, e))

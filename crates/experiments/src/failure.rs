@@ -136,7 +136,7 @@ pub fn run_failure(
 }
 
 fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     super::save(&out.join(FAILURE_JSON), json.as_bytes())?;
     super::save(&out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
     super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;

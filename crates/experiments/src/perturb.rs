@@ -187,7 +187,7 @@ pub fn run_perturb(
 }
 
 fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     super::save(&out.join(PERTURB_JSON), json.as_bytes())?;
     super::save(&out.join(PERTURB_MD), perturb_markdown(r).as_bytes())?;
     super::save(&out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;

@@ -188,7 +188,7 @@ pub fn run_reduced_data(
 
 fn write_outputs(r: &ReducedDataResult) -> Result<(), NetError> {
     let dir = &r.options.out;
-    let json = serde_json::to_string_pretty(r).map_err(|e| NetError::Other(e.to_string()))?;
+    let json = serde_json::to_string_pretty(r)?;
     super::save(&dir.join(JSON_FILE), json.as_bytes())?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;

@@ -252,7 +252,7 @@ impl From<&Partition> for PartitionInfo {
 /// the device, the thread counts (the loader is thread-count independent), `resume`, `force`,
 /// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
 pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, NetError> {
-    let mut v = serde_json::to_value(t).map_err(|e| NetError::Other(e.to_string()))?;
+    let mut v = serde_json::to_value(t)?;
     if let Some(m) = v.as_object_mut() {
         for k in [
             "data",
@@ -295,7 +295,7 @@ pub fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
 pub fn read_json(path: &Path) -> Result<serde_json::Value, NetError> {
     let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
     serde_json::from_str(&text).map_err(|e| NetError::Parse {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         reason: e.to_string(),
     })
 }
@@ -432,7 +432,7 @@ pub fn train_and_test(
         report,
         train_options: topts.clone(),
     };
-    let text = serde_json::to_string_pretty(&rec).map_err(|e| NetError::Other(e.to_string()))?;
+    let text = serde_json::to_string_pretty(&rec)?;
     write_atomic(&eval_path, text.as_bytes()).map_err(|e| NetError::io(&eval_path, e))?;
     pb.finish_with_message(format!(
         "test RMSE {:.3} m",
@@ -450,7 +450,7 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
     if eval_path.exists() {
         let v = read_json(&eval_path)?;
         let mut rec: RunRecord = serde_json::from_value(v).map_err(|e| NetError::Parse {
-            path: eval_path.display().to_string(),
+            path: eval_path.to_path_buf(),
             reason: e.to_string(),
         })?;
         if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
@@ -467,7 +467,7 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
         let stored = read_json(&cfg_path)?;
         let stored_opts: TrainOptions =
             serde_json::from_value(stored["train"].clone()).map_err(|e| NetError::Parse {
-                path: cfg_path.display().to_string(),
+                path: cfg_path.to_path_buf(),
                 reason: format!("train: {e}"),
             })?;
         if !same_json(&fingerprint(&stored_opts)?, &fp) {

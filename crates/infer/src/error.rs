@@ -1,18 +1,31 @@
 //! The training stack's error: each names the file, record or setting at fault. The data
 //! layer's [`depthsense_dataset::DataError`] comes in whole (`Dataset`), with its messages.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum NetError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("{path}: cannot parse: {reason}")]
-    Parse { path: String, reason: String },
+    #[error("{}: cannot parse: {reason}", .path.display())]
+    Parse { path: PathBuf, reason: String },
+    /// A tensor file (an optimiser state) that libtorch cannot write or read.
+    #[error("{}: {source}", .path.display())]
+    TensorFile {
+        path: PathBuf,
+        #[source]
+        source: tch::TchError,
+    },
+    /// A JSON record (a run's config, an experiment's results) that cannot be serialised.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// Data-parallel training: the process group, a collective, the launcher's environment.
+    #[error(transparent)]
+    Dist(#[from] depthsense_dist::DistError),
     #[error("data: {0}")]
     Data(String),
     #[error("configuration: {0}")]
@@ -66,15 +79,9 @@ pub enum NetError {
 impl NetError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source,
         }
-    }
-}
-
-impl From<depthsense_dist::DistError> for NetError {
-    fn from(e: depthsense_dist::DistError) -> Self {
-        NetError::Other(e.to_string())
     }
 }
 

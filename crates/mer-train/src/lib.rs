@@ -403,7 +403,7 @@ impl<'o> Run<'o> {
                           "val_scenes": part.val_scenes},
         });
         let p = self.path(CONFIG_FILE);
-        let text = serde_json::to_string_pretty(&j).map_err(|e| NetError::Other(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&j)?;
         write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
     }
 
@@ -543,7 +543,7 @@ fn build(
     let l = pda::load(&last, device)?;
     let stored: State =
         serde_json::from_value(l.extra["train_state"].clone()).map_err(|e| NetError::Parse {
-            path: last.display().to_string(),
+            path: last.to_path_buf(),
             reason: format!("train_state: {e}"),
         })?;
     let same = (stored.batch_size, stored.epochs, stored.lr, stored.seed)

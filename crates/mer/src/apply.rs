@@ -224,7 +224,7 @@ fn prepare_record(
         }
     }
     let p = ds.root.join(MER_RECORD_FILE);
-    let text = serde_json::to_string_pretty(record).map_err(|e| NetError::Other(e.to_string()))?;
+    let text = serde_json::to_string_pretty(record)?;
     write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
 }
 

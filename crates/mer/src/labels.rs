@@ -252,7 +252,7 @@ pub fn check_accumulated(dir: &Path) -> Result<(), NetError> {
     let p = dir.join(META_FILE);
     let bytes = std::fs::read(&p).map_err(|e| NetError::io(&p, e))?;
     let meta: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| NetError::Parse {
-        path: p.display().to_string(),
+        path: p.to_path_buf(),
         reason: e.to_string(),
     })?;
     if meta["settings"]["lidar_sweeps_k"].as_u64() == Some(0) {

@@ -10,7 +10,7 @@ const MAGIC: &[u8] = b"\x93NUMPY";
 
 fn bad(path: &Path, why: impl Into<String>) -> DataError {
     DataError::Parse {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         reason: why.into(),
     }
 }

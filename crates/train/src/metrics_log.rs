@@ -129,7 +129,7 @@ pub fn read_log(path: &Path, bad: BadLine) -> Result<MetricsLog, NetError> {
             (Err(_), BadLine::Skip) => continue,
             (Err(e), BadLine::Fail) => {
                 return Err(NetError::Parse {
-                    path: path.display().to_string(),
+                    path: path.to_path_buf(),
                     reason: e.to_string(),
                 })
             }

@@ -58,20 +58,26 @@ pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<
     let tmp = depthsense_base::fsutil::temp_sibling(path);
     Tensor::write_safetensors(&named, &tmp).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
-        NetError::Other(format!("{}: {e}", path.display()))
+        NetError::TensorFile {
+            path: path.to_path_buf(),
+            source: e,
+        }
     })?;
     std::fs::rename(&tmp, path).map_err(|e| NetError::io(path, e))
 }
 
 /// Reads an optimiser state written by [`write_atomic`].
 pub(crate) fn read(path: &Path) -> Result<Vec<(String, Tensor)>, NetError> {
-    Tensor::read_safetensors(path).map_err(|e| NetError::Other(format!("{}: {e}", path.display())))
+    Tensor::read_safetensors(path).map_err(|source| NetError::TensorFile {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// The error for a state file that does not fit the network.
 pub(crate) fn bad_state(path: &Path, reason: String) -> NetError {
     NetError::Parse {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         reason,
     }
 }

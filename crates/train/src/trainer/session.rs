@@ -210,8 +210,7 @@ impl<'o> Trainer<'o> {
             config_json["init_from"] = init.clone();
         }
         let path = self.path(CONFIG_FILE);
-        let text = serde_json::to_string_pretty(&config_json)
-            .map_err(|e| NetError::Other(e.to_string()))?;
+        let text = serde_json::to_string_pretty(&config_json)?;
         write_atomic(&path, text.as_bytes()).map_err(|e| NetError::io(&path, e))
     }
 
@@ -883,7 +882,7 @@ fn resume(
     }
     let mut state: State =
         serde_json::from_value(extra["train_state"].clone()).map_err(|e| NetError::Parse {
-            path: last.display().to_string(),
+            path: last.to_path_buf(),
             reason: format!("train_state: {e}"),
         })?;
     if opts.extend {
