@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[path = "../../model/tests/support/reference.rs"]
+#[path = "../../model/tests/model/support/reference.rs"]
 mod reference;
 
 use depthsense_config::{ModelConfig, RadarInput};
@@ -386,7 +386,7 @@ fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
     };
     let both = [Format::Onnx, Format::TorchScript];
     // The `pytorch` state dict in python/depthsense_torch.py: once (the module is checked for
-    // every option by crates/model/tests/torch_reference_params.rs).
+    // every option by crates/model/tests/model/torch_reference_params.rs).
     let mut variants = vec![export_variant(
         &py,
         &small(&[]),

@@ -1,6 +1,6 @@
 //! `depthsense help-markdown` (hidden): the command-line reference as Markdown, generated from
 //! the clap definitions both binaries parse with — `docs/guide/cli.md` is its output, and a test
-//! (`cli/tests/docs.rs`) fails when the two differ.
+//! (`cli/tests/cli/docs.rs`) fails when the two differ.
 
 use std::process::ExitCode;
 

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use depthsense_base::lock::{OutputLock, LOCK_FILE};
 
-mod common;
+use crate::common;
 use common::{tiny_train, Guard};
 
 fn train_cmd(data: &Path, out: &Path, epochs: u32) -> Command {

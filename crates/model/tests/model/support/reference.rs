@@ -1,6 +1,6 @@
 //! Running the PyTorch reference scripts from a test: `released_reference.py` (the authors'
 //! network in plain PyTorch) and `torchvision_reference.py` (torchvision's ResNet key names).
-//! Shared by the model crate's tests, `crates/eval/tests/released_real_keyframe.rs` and
+//! Shared by the model crate's tests, `crates/eval/tests/eval/released_real_keyframe.rs` and
 //! `crates/export/tests/export.rs` (included there by path).
 // Each test binary uses a part of these helpers.
 #![allow(dead_code)]
@@ -52,7 +52,7 @@ pub fn run_reference(dir: &Path, params: &serde_json::Value) -> Option<serde_jso
     let info = run_script(
         dir,
         "released_reference.py",
-        include_str!("../released_reference.py"),
+        include_str!("../../released_reference.py"),
         params,
     )?;
     if let Some(levels) = info.get("distinct_levels") {
@@ -70,7 +70,7 @@ pub fn run_torchvision(dir: &Path, params: &serde_json::Value) -> Option<serde_j
     run_script(
         dir,
         "torchvision_reference.py",
-        include_str!("../torchvision_reference.py"),
+        include_str!("../../torchvision_reference.py"),
         params,
     )
 }

@@ -10,8 +10,7 @@
 
 use std::path::Path;
 
-#[path = "../../model/tests/support/reference.rs"]
-mod reference;
+use crate::reference;
 
 use depthsense_eval::evaluate::load_model;
 use depthsense_eval::predict::{input_from_token, predict};

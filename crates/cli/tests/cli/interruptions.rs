@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-mod common;
+use crate::common;
 use common::Guard;
 
 const BIN: &str = env!("CARGO_BIN_EXE_depthsense");

@@ -8,8 +8,7 @@
 
 use std::path::Path;
 
-mod support;
-use support::reference;
+use crate::support::reference;
 
 use depthsense_config::ModelConfig;
 use depthsense_model::{checkpoint, ordinal};

@@ -10,8 +10,7 @@
 //! `resnet_radar.backbone.*`, top-level `conv_radar.*` and `concat_process.{1,4}.*` for the
 //! authors'), not taken from `weights::released_key`.
 
-mod support;
-use support::reference;
+use crate::support::reference;
 
 use std::collections::BTreeMap;
 use std::path::Path;

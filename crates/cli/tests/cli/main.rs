@@ -1,0 +1,25 @@
+//! The CLI crate's one integration-test binary (each test binary links libtorch through the
+//! crate, and linking dominates the test build; issue 35):
+//! - `docs`: the docs that stay true (commands parse, result numbers, links, the CLI reference,
+//!   ARCHITECTURE's layer table);
+//! - `front`: the torch-free `depthsense` front and its hand-over to `depthsense-net`;
+//! - `interruptions`, `run_folders`, `train_nproc`, `bench_export`: the binary under signals,
+//!   in run folders, with `--nproc` and `bench export`;
+//!
+//! and a user's day with the real binary (issue 33):
+//! - `logs`: long commands followed from a log file;
+//! - `keys`: one set of presets and `--set` keys, the same everywhere;
+//! - `mistakes`: errors that name the cause once and the next step; unreadable samples;
+//! - `finetune`: `--resume` of a finished run, `--extend`, `--init-from`.
+
+mod bench_export;
+mod common;
+mod docs;
+mod finetune;
+mod front;
+mod interruptions;
+mod keys;
+mod logs;
+mod mistakes;
+mod run_folders;
+mod train_nproc;

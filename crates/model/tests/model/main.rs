@@ -1,0 +1,14 @@
+//! The model crate's one integration-test binary (each test binary links libtorch, and linking
+//! dominates the test build; issue 35):
+//! - `model`: the network, heads, losses, checkpoints and imports;
+//! - `sid_goldens`: SID thresholds and the ordinal decoding against golden values;
+//! - `torch_reference_params`: parameter counts and outputs against the PyTorch reference;
+//! - `import_by_value`: torchvision / released imports checked value by value;
+//! - `released_reference`: the authors' checkpoint layout (`support::reference`).
+
+mod import_by_value;
+mod model;
+mod released_reference;
+mod sid_goldens;
+mod support;
+mod torch_reference_params;
