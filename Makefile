@@ -76,7 +76,7 @@ test: setup
 # missing, as root). `make test` skips that test when chromium is absent; here it must run.
 test-browser: setup
 	command -v chromium >/dev/null || apt-get install -y chromium
-	DEPTHSENSE_REQUIRE_BROWSER=1 $(CARGO) test -p depthsense-experiments --test report
+	DEPTHSENSE_REQUIRE_BROWSER=1 $(CARGO) test -p depthsense-experiments --test experiments report::
 
 bench: build
 	$(BIN) bench data --out runs/bench/data.json

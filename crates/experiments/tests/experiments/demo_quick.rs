@@ -1,13 +1,14 @@
 //! `depthsense demo --quick` end to end: synth → prepare → train RGB-only and fusion → eval →
 //! report files.
 
-mod common;
+use crate::common;
 
 use depthsense_experiments::demo::{run_demo, DemoOptions};
 use depthsense_progress::Board;
 
 #[test]
 fn quick_demo_writes_the_report() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let opts = DemoOptions {
         out: tmp.path().join("demo"),
@@ -126,6 +127,7 @@ fn quick_demo_writes_the_report() {
 
 #[test]
 fn demo_plans_fit_the_device() {
+    let _torch = crate::torch_lock();
     use depthsense_experiments::demo::{demo_model, plan};
     let cpu = plan(&DemoOptions::default(), false);
     // A lean 60-scene world and 10 × 35 = 350 iterations whatever its training-set size

@@ -69,6 +69,7 @@ fn md(r: &Report) -> String {
 
 #[test]
 fn predict_outputs_reproduce_eval_checkpoint() {
+    let _torch = crate::torch_lock();
     let (tmp, data, eo) = setup();
     let pb = Progress::hidden();
     let by_checkpoint = run_eval(&eo, &pb).unwrap();
@@ -158,6 +159,7 @@ fn predict_outputs_reproduce_eval_checkpoint() {
 
 #[test]
 fn dropping_every_radar_equals_radar_drop_one() {
+    let _torch = crate::torch_lock();
     let (_tmp, data, eo) = setup();
     let pb = Progress::hidden();
     let full_drop = run_eval(
@@ -224,6 +226,7 @@ fn dropping_every_radar_equals_radar_drop_one() {
 
 #[test]
 fn failure_experiment_tables_every_scenario() {
+    let _torch = crate::torch_lock();
     use depthsense_experiments::failure::{
         parse_scenarios, run_failure, FAILURE_CSV, FAILURE_JSON, FAILURE_MD, FAILURE_PNG,
     };

@@ -2,7 +2,7 @@
 //! (docs/guide/experiments.md, "Reduced training data"), and `experiment reduced-data` trains, tests and tables
 //! its grid, resumably.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeSet;
 
@@ -29,6 +29,7 @@ fn key(name: &str) -> (u64, String) {
 
 #[test]
 fn exclude_withholds_exactly_the_documented_scenes() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 15 scenes cycling day / night / rain, 2 samples each, no split lists
@@ -108,6 +109,7 @@ fn exclude_withholds_exactly_the_documented_scenes() {
 
 #[test]
 fn reduced_data_grid_trains_tables_and_resumes() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     depthsense_data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();

@@ -2,7 +2,7 @@
 //! trains the same iterations on its nested subset, the JSON, tables and plot are written, and
 //! a second invocation reads every run back.
 
-mod common;
+use crate::common;
 
 use depthsense_dataset::outputs::{CONFIG_FILE, METRICS_FILE};
 use depthsense_experiments::data_scale::{
@@ -14,6 +14,7 @@ use common::{hidden, mtime, quick_runs};
 
 #[test]
 fn data_scale_trains_matched_iterations_and_writes_json_and_plot() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     depthsense_data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();

@@ -132,6 +132,7 @@ fn raw_map(ds: &Dataset, e: &IndexEntry, failure: RadarFailure) -> Vec<f32> {
 
 #[test]
 fn zero_perturbation_is_the_unperturbed_eval_bit_for_bit() {
+    let _torch = crate::torch_lock();
     let (tmp, _data, eo) = setup();
     let pb = Progress::hidden();
     let plain = run_eval(&eo, &pb).unwrap();
@@ -183,6 +184,7 @@ fn single_return(dir: &Path, origin_cam: [f32; 3], depth_m: f32) -> RadarPoints 
 
 #[test]
 fn yaw_moves_an_optical_axis_return_as_the_pinhole_model_predicts() {
+    let _torch = crate::torch_lock();
     let (_tmp, data, _eo) = setup();
     let ds = Dataset::open(&data).unwrap();
     let e = &ds.index.samples[0];
@@ -222,6 +224,7 @@ fn yaw_moves_an_optical_axis_return_as_the_pinhole_model_predicts() {
 
 #[test]
 fn dropping_radars_all_equals_radar_drop_one_and_one_radar_removes_exactly_its_points() {
+    let _torch = crate::torch_lock();
     let (_tmp, data, eo) = setup();
     let pb = Progress::hidden();
     let full_drop = run_eval(
@@ -277,6 +280,7 @@ fn dropping_radars_all_equals_radar_drop_one_and_one_radar_removes_exactly_its_p
 
 #[test]
 fn samples_without_radar_points_ask_for_a_new_prepare() {
+    let _torch = crate::torch_lock();
     let (_tmp, data, eo) = setup();
     let ds = Dataset::open(&data).unwrap();
     for e in &ds.index.samples {
@@ -297,6 +301,7 @@ fn samples_without_radar_points_ask_for_a_new_prepare() {
 /// returns than the sensor's; the oracle is refused with a sensor failure.
 #[test]
 fn oracle_radar_takes_the_lidar_target_depth_near_each_return() {
+    let _torch = crate::torch_lock();
     let (_tmp, data, _eo) = setup();
     let ds = Dataset::open(&data).unwrap();
     let (w, h) = (800usize, 350usize);

@@ -17,15 +17,6 @@ use depthsense_train::trainer::{read_metrics, train, TrainOptions};
 const W: u32 = 128;
 const H: u32 = 64;
 
-/// libtorch's generator is process-wide: `train` seeds it and then draws the initial weights
-/// and the dropout masks, so two tests training at once in this binary would interleave their
-/// draws and a run would not be reproducible. Tests that train hold this lock.
-static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
-    TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
     depthsense_data::write_toy_dataset(dir, scenes, per_scene, W, H, 11).unwrap();
     Dataset::open(dir).unwrap()
@@ -57,6 +48,7 @@ fn opts(data: &Path, out: &Path, fusion: Fusion) -> TrainOptions {
 
 #[test]
 fn loader_is_reproducible_whatever_the_thread_count() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 2, 3);
     let load = LoadOptions {
@@ -124,6 +116,7 @@ fn loader_is_reproducible_whatever_the_thread_count() {
 
 #[test]
 fn flip_is_applied_to_image_and_every_map_alike() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 1, 1);
     let e = &ds.split("all")[0];
@@ -174,6 +167,7 @@ fn flip_is_applied_to_image_and_every_map_alike() {
 
 #[test]
 fn radar_drop_removes_points_with_their_strips() {
+    let _torch = crate::torch_lock();
     use depthsense_nuscenes::depth_png::DepthMap;
     let mut raw = DepthMap::zeros(8, 6);
     let mut height = DepthMap::zeros(8, 6);
@@ -208,6 +202,7 @@ fn radar_drop_removes_points_with_their_strips() {
 
 #[test]
 fn train_radar_drop_removes_a_random_subset_and_leaves_the_augmentation_alone() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 1, 2);
     let e = &ds.split("all")[0];
@@ -250,6 +245,7 @@ fn train_radar_drop_removes_a_random_subset_and_leaves_the_augmentation_alone() 
 
 #[test]
 fn scene_modulo_partition_is_deterministic() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path(), 10, 1);
     let p = partition(&ds, 5).unwrap();
@@ -272,6 +268,7 @@ fn retag(ds: &mut Dataset, f: impl Fn(usize) -> Vec<&'static str>) {
 /// Validation never overlaps test, whichever split information the index carries.
 #[test]
 fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let mut ds = toy(tmp.path(), 12, 1);
     let check = |ds: &Dataset, mode: &str| {
@@ -319,7 +316,7 @@ fn validation_and_test_scenes_are_disjoint_in_every_split_mode() {
 /// a checkpoint of another config is refused naming the tensors; eval and predict work.
 #[test]
 fn train_resume_mismatch_eval_predict() {
-    let _rng = torch_rng();
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 6 scenes of 4: test toy-0004, validation toy-0003, 16 train samples (4 batches of 4).
@@ -494,7 +491,7 @@ fn train_resume_mismatch_eval_predict() {
 
 #[test]
 fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
-    let _rng = torch_rng();
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     toy(&data, 5, 4);
@@ -531,7 +528,7 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
 /// reads every loss.
 #[test]
 fn deferred_loss_read_reports_the_first_non_finite_iteration() {
-    let _rng = torch_rng();
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     toy(&data, 5, 4);
@@ -578,7 +575,7 @@ fn deferred_loss_read_reports_the_first_non_finite_iteration() {
 /// every iteration: the same logged losses and the same weights.
 #[test]
 fn deferred_loss_read_trains_identically() {
-    let _rng = torch_rng();
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     toy(&data, 5, 4);

@@ -23,13 +23,6 @@ use depthsense_prep::layout::{MER_CONF_FILE, MER_DEPTH_FILE};
 use depthsense_progress::Progress;
 use depthsense_train::trainer::{train, TrainOptions};
 
-/// libtorch's generator is process-wide; tests that train hold this lock (see workflow.rs).
-static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-fn torch_rng() -> std::sync::MutexGuard<'static, ()> {
-    TORCH_RNG.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 fn cfg1() -> PdaConfig {
     PdaConfig {
         grid_scale: 1,
@@ -44,6 +37,7 @@ fn ch(dx: i64, dy: i64) -> usize {
 
 #[test]
 fn labels_on_a_hand_built_case() {
+    let _torch = crate::torch_lock();
     let g = Grid::new(20, 80, 1);
     let cfg = cfg1();
     let mut radar = vec![0f32; g.len()];
@@ -97,6 +91,7 @@ fn labels_on_a_hand_built_case() {
 
 #[test]
 fn window_geometry_at_the_image_border() {
+    let _torch = crate::torch_lock();
     let g = Grid::new(10, 40, 1);
     let cfg = cfg1();
     let lidar = vec![12.0f32; g.len()];
@@ -138,6 +133,7 @@ fn window_geometry_at_the_image_border() {
 
 #[test]
 fn mer_maps_keep_the_most_confident_return() {
+    let _torch = crate::torch_lock();
     let g = Grid::new(8, 40, 1);
     let cfg = cfg1();
     let px = [
@@ -212,7 +208,7 @@ fn assert_same_mer(got: &(DepthMap, DepthMap), stored: &(DepthMap, DepthMap)) {
 
 #[test]
 fn train_apply_twice_and_the_seven_channel_input() {
-    let _g = torch_rng();
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     let ds = toy(&data);
@@ -364,6 +360,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
 
 #[test]
 fn mer_channels_round_trip_through_the_stored_maps() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let (w, h) = (7u32, 3u32);
     let depth: Vec<f32> = (0..21)
@@ -421,6 +418,7 @@ fn mer_channels_round_trip_through_the_stored_maps() {
 
 #[test]
 fn missing_or_corrupt_lidar_dense_is_a_clear_error() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let ds = toy(tmp.path());
     let dir = ds.sample_dir(&ds.index.samples[0]);
@@ -453,6 +451,7 @@ fn missing_or_corrupt_lidar_dense_is_a_clear_error() {
 
 #[test]
 fn network_threads_leave_a_core_to_io_only_for_folded_networks() {
+    let _torch = crate::torch_lock();
     use depthsense_mer::apply::network_threads;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     assert_eq!(network_threads(3, &PdaConfig::fast()), 3, "asked for");

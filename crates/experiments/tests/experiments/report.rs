@@ -574,6 +574,7 @@ fn demo_page_renders_in_headless_chromium() {
     let Some(bin) = chromium_or_skip() else {
         return;
     };
+    let _torch = crate::torch_lock();
     let dir = tempfile::tempdir().unwrap();
     let opts = depthsense_experiments::demo::DemoOptions {
         out: dir.path().join("demo"),

@@ -3,7 +3,7 @@
 //! finished runs, evaluation-only of trained runs, refusal of changed options; and the two
 //! plotting helpers it (and the demo) use.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
@@ -31,6 +31,7 @@ fn opts(data: &Path, out: &Path) -> AblationOptions {
 
 #[test]
 fn ablation_runs_reports_and_resumes() {
+    let _torch = crate::torch_lock();
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 5 scenes × 2 samples: without split lists the trainer holds out one scene for
@@ -331,6 +332,7 @@ fn ablation_runs_reports_and_resumes() {
 
 #[test]
 fn stat_matches_a_hand_computed_sample_std() {
+    let _torch = crate::torch_lock();
     let s = Stat::of(&[4.0, 5.0, 9.0]).unwrap();
     assert!((s.mean - 6.0).abs() < 1e-12);
     // ((−2)² + (−1)² + 3²) / (3 − 1) = 7.
@@ -339,6 +341,7 @@ fn stat_matches_a_hand_computed_sample_std() {
 
 #[test]
 fn bar_chart_and_picture_row() {
+    let _torch = crate::torch_lock();
     let png = bar_chart_png(
         "test RMSE",
         &["rgb", "late-sam"],
