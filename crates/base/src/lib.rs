@@ -1,7 +1,9 @@
 //! The workspace's base layer: what several layers share and no layer owns — the one atomic
-//! write (`fsutil`), the one FNV-1a and SplitMix64 (`hash`) and folder locks (`lock`). No
+//! write (`fsutil`), the one FNV-1a and SplitMix64 (`hash`), folder locks (`lock`) and the
+//! closed vocabularies of enum words (`words`). No
 //! libtorch, no nuScenes; every other crate may use it.
 
 pub mod fsutil;
 pub mod hash;
 pub mod lock;
+pub mod words;

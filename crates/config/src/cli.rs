@@ -16,6 +16,19 @@ pub fn parse_config_spec(s: &str) -> Result<String, String> {
     Err(crate::ConfigError::UnknownPreset(s.to_string()).to_string())
 }
 
+/// `--device`: auto, cpu, cuda or cuda:N ([`crate::device::DeviceSpec`]); whether that GPU is
+/// there is checked when the command runs.
+pub fn parse_device(s: &str) -> Result<String, String> {
+    match crate::device::DeviceSpec::parse(s) {
+        Some(_) => Ok(s.to_string()),
+        None => Err(format!(
+            "invalid device `{}` (expected {})",
+            s.trim().to_ascii_lowercase(),
+            crate::device::DEVICE_WORDS
+        )),
+    }
+}
+
 /// `--set KEY=VALUE`: a known key (or alias) with a value of its form; whether the whole
 /// configuration holds together is checked when the command builds it.
 pub fn parse_set(s: &str) -> Result<String, String> {
@@ -40,7 +53,7 @@ pub fn parse_value(key: &'static str) -> impl Fn(&str) -> Result<String, String>
 /// `{lead}: late, early, none or rgb`: the words of key `key` ([`OPTIONS`]).
 pub fn value_help(key: &str, lead: &str) -> String {
     let words = match options::find(key).map(|o| o.values) {
-        Some(options::Values::Choice(words)) => words.join(", "),
+        Some(options::Values::Choice(words)) => words().join(", "),
         _ => String::new(),
     };
     format!("{lead}: {words}")

@@ -6,12 +6,16 @@
 //! - [`presets`]: the named networks (`paper`, `released`, `tiny`, `tiny-wide`);
 //! - [`options`]: every `--set KEY=VALUE` key, its aliases, the values it takes and what it
 //!   sets;
-//! - [`cli`]: the value parsers and help texts the command line builds from them.
+//! - [`cli`]: the value parsers and help texts the command line builds from them;
+//! - [`device`]: the words of `--device`; [`flags`]: those of the other network flags
+//!   (precision, export format).
 //!
 //! The depthsense binary parses every command without libtorch, so these live here rather than
 //! in `depthsense-model`, which builds the network from a [`ModelConfig`].
 
 pub mod cli;
+pub mod device;
+pub mod flags;
 mod model_config;
 pub mod options;
 pub mod pda;

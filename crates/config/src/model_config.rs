@@ -1,5 +1,6 @@
 //! Network configuration with named presets (SPEC §6, §6.1, §7).
 
+use depthsense_base::words::Words;
 use serde::{Deserialize, Serialize};
 
 use crate::ConfigError;
@@ -77,6 +78,61 @@ pub enum AttentionGate {
     Bounded,
 }
 
+impl Words for Fusion {
+    const WHAT: &'static str = "fusion";
+    /// `rgb` = `none` (RGB only).
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("late", Self::Late),
+        ("early", Self::Early),
+        ("none", Self::None),
+        ("rgb", Self::None),
+    ];
+}
+
+impl Words for HeadKind {
+    const WHAT: &'static str = "head";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("ordinal", Self::Ordinal),
+        ("l1", Self::L1),
+        ("l2", Self::L2),
+    ];
+}
+
+impl Words for StemKind {
+    const WHAT: &'static str = "stem";
+    /// The stems an RGB encoder can take: `radar` (the radar branch's own) is not a setting.
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("torchvision", Self::Torchvision), ("deep", Self::Deep)];
+}
+
+impl Words for DecoderKind {
+    const WHAT: &'static str = "decoder";
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("topdown", Self::Topdown), ("released", Self::Released)];
+}
+
+impl Words for RadarBranchKind {
+    const WHAT: &'static str = "radar branch";
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("basic", Self::Basic), ("bottleneck", Self::Bottleneck)];
+}
+
+impl Words for AttentionGate {
+    const WHAT: &'static str = "attention gate";
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("double", Self::Double), ("bounded", Self::Bounded)];
+}
+
+impl Words for RadarInput {
+    const WHAT: &'static str = "radar input";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("height", Self::Height),
+        ("raw", Self::Raw),
+        ("raw-height", Self::RawHeight),
+        ("mer", Self::Mer),
+    ];
+}
+
 /// Which prepared radar map(s) feed the radar channels (SPEC §5). Stored with the model so that
 /// `eval` and `predict` feed a network the input it was trained on.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
@@ -118,29 +174,22 @@ impl RadarInput {
         }
     }
 
-    /// The name used on the command line and in JSON.
+    /// The name used on the command line and in JSON ([`Words::word`]).
     pub fn name(self) -> &'static str {
-        match self {
-            Self::Height => "height",
-            Self::Raw => "raw",
-            Self::RawHeight => "raw-height",
-            Self::Mer => "mer",
-        }
+        self.word()
     }
 }
 
 impl std::str::FromStr for RadarInput {
     type Err = ConfigError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "height" => Ok(Self::Height),
-            "raw" => Ok(Self::Raw),
-            "raw-height" => Ok(Self::RawHeight),
-            "mer" => Ok(Self::Mer),
-            o => Err(ConfigError::Invalid(format!(
-                "unknown radar input {o:?} (height, raw, raw-height, mer)"
-            ))),
-        }
+        Self::from_word(s).ok_or_else(|| {
+            ConfigError::Invalid(format!(
+                "unknown radar input {:?} ({})",
+                s.trim().to_ascii_lowercase(),
+                Self::words().join(", ")
+            ))
+        })
     }
 }
 

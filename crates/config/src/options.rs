@@ -1,20 +1,22 @@
 //! Every `--set KEY=VALUE` key: the one registry that [`ModelConfig::set_option`] dispatches
 //! through and that the `--set` help text of every command prints ([`crate::cli::set_help`]).
 
+use depthsense_base::words::Words;
+
 use crate::{
     AttentionGate, ConfigError, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind,
-    StemKind,
+    RadarInput, StemKind,
 };
 
 /// The values a key takes.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 pub enum Values {
     /// A number; the text says what it counts.
     Number(&'static str),
     /// on|off (also 1/0, true/false, yes/no).
     Switch,
-    /// One of these words.
-    Choice(&'static [&'static str]),
+    /// One of these words (`Words::words` of the field's enum, `depthsense_base::words`).
+    Choice(fn() -> Vec<&'static str>),
 }
 
 /// One key of `--set`.
@@ -35,39 +37,11 @@ impl OptionKey {
         let values = match self.values {
             Values::Number(what) => what.to_string(),
             Values::Switch => "on|off".to_string(),
-            Values::Choice(words) => words.join("|"),
+            Values::Choice(words) => words().join("|"),
         };
         format!("{} ({values}): {}", self.key, self.about)
     }
 }
-
-const FUSION: &[(&str, Fusion)] = &[
-    ("late", Fusion::Late),
-    ("early", Fusion::Early),
-    ("none", Fusion::None),
-    ("rgb", Fusion::None),
-];
-const ATTENTION_GATE: &[(&str, AttentionGate)] = &[
-    ("double", AttentionGate::Double),
-    ("bounded", AttentionGate::Bounded),
-];
-const HEAD: &[(&str, HeadKind)] = &[
-    ("ordinal", HeadKind::Ordinal),
-    ("l1", HeadKind::L1),
-    ("l2", HeadKind::L2),
-];
-const RADAR_BRANCH: &[(&str, RadarBranchKind)] = &[
-    ("basic", RadarBranchKind::Basic),
-    ("bottleneck", RadarBranchKind::Bottleneck),
-];
-const DECODER: &[(&str, DecoderKind)] = &[
-    ("topdown", DecoderKind::Topdown),
-    ("released", DecoderKind::Released),
-];
-const STEM: &[(&str, StemKind)] = &[
-    ("torchvision", StemKind::Torchvision),
-    ("deep", StemKind::Deep),
-];
 
 /// Every key, in the order help texts list them.
 pub const OPTIONS: &[OptionKey] = &[
@@ -94,20 +68,20 @@ pub const OPTIONS: &[OptionKey] = &[
     OptionKey {
         key: "stem",
         aliases: &[],
-        values: Values::Choice(&["torchvision", "deep"]),
+        values: Values::Choice(StemKind::words),
         about: "RGB encoder stem",
         set: |c, k, v| {
-            c.stem = choice(k, v, STEM)?;
+            c.stem = choice::<StemKind>(k, v)?;
             Ok(())
         },
     },
     OptionKey {
         key: "decoder",
         aliases: &[],
-        values: Values::Choice(&["topdown", "released"]),
+        values: Values::Choice(DecoderKind::words),
         about: "image decoder",
         set: |c, k, v| {
-            c.decoder = choice(k, v, DECODER)?;
+            c.decoder = choice::<DecoderKind>(k, v)?;
             Ok(())
         },
     },
@@ -124,10 +98,10 @@ pub const OPTIONS: &[OptionKey] = &[
     OptionKey {
         key: "fusion",
         aliases: &[],
-        values: Values::Choice(&["late", "early", "none", "rgb"]),
+        values: Values::Choice(Fusion::words),
         about: "how radar enters the network (none = rgb = RGB only)",
         set: |c, k, v| {
-            c.fusion = choice(k, v, FUSION)?;
+            c.fusion = choice::<Fusion>(k, v)?;
             Ok(())
         },
     },
@@ -144,17 +118,17 @@ pub const OPTIONS: &[OptionKey] = &[
     OptionKey {
         key: "attention-gate",
         aliases: &[],
-        values: Values::Choice(&["double", "bounded"]),
+        values: Values::Choice(AttentionGate::words),
         about: "the attention's gate: 2σ(s) or ½ + σ(s)",
         set: |c, k, v| {
-            c.attention_gate = choice(k, v, ATTENTION_GATE)?;
+            c.attention_gate = choice::<AttentionGate>(k, v)?;
             Ok(())
         },
     },
     OptionKey {
         key: "radar-input",
         aliases: &[],
-        values: Values::Choice(&["height", "raw", "raw-height", "mer"]),
+        values: Values::Choice(RadarInput::words),
         about: "which radar map(s) feed the radar channels (sets radar-channels)",
         set: |c, _, v| {
             c.radar_input = v.parse()?;
@@ -185,10 +159,10 @@ pub const OPTIONS: &[OptionKey] = &[
     OptionKey {
         key: "radar-branch",
         aliases: &[],
-        values: Values::Choice(&["basic", "bottleneck"]),
+        values: Values::Choice(RadarBranchKind::words),
         about: "radar branch of late fusion",
         set: |c, k, v| {
-            c.radar_branch = choice(k, v, RADAR_BRANCH)?;
+            c.radar_branch = choice::<RadarBranchKind>(k, v)?;
             Ok(())
         },
     },
@@ -225,10 +199,10 @@ pub const OPTIONS: &[OptionKey] = &[
     OptionKey {
         key: "head",
         aliases: &["loss"],
-        values: Values::Choice(&["ordinal", "l1", "l2"]),
+        values: Values::Choice(HeadKind::words),
         about: "output head and its loss",
         set: |c, k, v| {
-            c.head = choice(k, v, HEAD)?;
+            c.head = choice::<HeadKind>(k, v)?;
             Ok(())
         },
     },
@@ -460,29 +434,42 @@ fn num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, ConfigError> {
 }
 
 /// The value of an enum option: `v` (ASCII case ignored) looked up in `names`.
-fn choice<T: Copy>(key: &str, v: &str, names: &[(&str, T)]) -> Result<T, ConfigError> {
-    let lower = v.to_ascii_lowercase();
-    names
-        .iter()
-        .find(|(name, _)| *name == lower)
-        .map(|&(_, value)| value)
-        .ok_or_else(|| {
-            let words: Vec<&str> = names.iter().map(|(n, _)| *n).collect();
-            ConfigError::Invalid(format!(
-                "{key}={v}: unknown value (expected {})",
-                words.join(", ")
-            ))
-        })
+fn choice<T: Words>(key: &str, v: &str) -> Result<T, ConfigError> {
+    T::from_word(v).ok_or_else(|| {
+        ConfigError::Invalid(format!(
+            "{key}={v}: unknown value (expected {})",
+            T::words().join(", ")
+        ))
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    #[test]
+    fn every_choice_vocabulary_holds_together() {
+        use depthsense_base::words::check_vocabulary;
+        check_vocabulary::<Fusion>().unwrap();
+        check_vocabulary::<HeadKind>().unwrap();
+        check_vocabulary::<StemKind>().unwrap();
+        check_vocabulary::<DecoderKind>().unwrap();
+        check_vocabulary::<RadarBranchKind>().unwrap();
+        check_vocabulary::<AttentionGate>().unwrap();
+        check_vocabulary::<RadarInput>().unwrap();
+        // The words a key lists are the words it accepts, its enum's list.
+        let fusion = OPTIONS.iter().find(|o| o.key == "fusion").unwrap();
+        assert_eq!(
+            fusion.describe(),
+            format!("fusion (late|early|none|rgb): {}", fusion.about)
+        );
+        assert_eq!(RadarInput::RawHeight.name(), "raw-height");
+    }
+
     /// Values of every key that the paper's network accepts; at least one differs from its.
     fn samples(o: &OptionKey) -> Vec<String> {
         match o.values {
-            Values::Choice(words) => words.iter().map(|w| w.to_string()).collect(),
+            Values::Choice(words) => words().iter().map(|w| w.to_string()).collect(),
             Values::Switch => vec!["on".into(), "off".into()],
             Values::Number(_) => vec![match o.key {
                 "backbone" => "50".into(),

@@ -64,6 +64,12 @@ pub enum TargetKind {
     Sparse,
 }
 
+impl depthsense_base::words::Words for TargetKind {
+    const WHAT: &'static str = "target";
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("dense", Self::Dense), ("sparse", Self::Sparse)];
+}
+
 /// How samples are read and augmented.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LoadOptions {

@@ -16,6 +16,7 @@
 //! (its metrics.jsonl holds the last epoch) is only evaluated; any other run is (re)started
 //! with the trainer's `resume: true`, which continues from its last checkpoint when there is one.
 
+use depthsense_base::words::Words;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
@@ -63,6 +64,19 @@ pub enum Variant {
     LateSamMer,
 }
 
+impl Words for Variant {
+    const WHAT: &'static str = "ablation variant";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("rgb", Variant::Rgb),
+        ("early", Variant::Early),
+        ("late", Variant::Late),
+        ("late-sam", Variant::LateSam),
+        ("l1", Variant::L1),
+        ("l2", Variant::L2),
+        ("late-sam-mer", Variant::LateSamMer),
+    ];
+}
+
 impl Variant {
     pub const ALL: [Variant; 7] = [
         Variant::Rgb,
@@ -75,15 +89,7 @@ impl Variant {
     ];
 
     pub fn name(self) -> &'static str {
-        match self {
-            Variant::Rgb => "rgb",
-            Variant::Early => "early",
-            Variant::Late => "late",
-            Variant::LateSam => "late-sam",
-            Variant::L1 => "l1",
-            Variant::L2 => "l2",
-            Variant::LateSamMer => "late-sam-mer",
-        }
+        Words::word(self)
     }
 
     /// (fusion, attention, head) of the variant.
@@ -136,15 +142,13 @@ impl Variant {
 impl FromStr for Variant {
     type Err = NetError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let s = s.trim().to_ascii_lowercase();
-        Variant::ALL
-            .into_iter()
-            .find(|v| v.name() == s)
-            .ok_or_else(|| {
-                NetError::Config(format!(
-                    "unknown ablation variant {s:?} (rgb, early, late, late-sam, l1, l2, late-sam-mer)"
-                ))
-            })
+        Self::from_word(s).ok_or_else(|| {
+            NetError::Config(format!(
+                "unknown ablation variant {:?} ({})",
+                s.trim().to_ascii_lowercase(),
+                Self::words().join(", ")
+            ))
+        })
     }
 }
 

@@ -69,19 +69,6 @@ impl PerturbOptions {
     }
 }
 
-/// Parse "yaw,pitch,x" into axes.
-pub fn parse_axes(names: &[String]) -> Result<Vec<PerturbAxis>, NetError> {
-    names
-        .iter()
-        .filter(|s| !s.trim().is_empty())
-        .map(|s| {
-            PerturbAxis::parse(s).ok_or_else(|| {
-                NetError::Config(format!("unknown axis {s:?} (yaw, pitch, roll, x, y, z)"))
-            })
-        })
-        .collect()
-}
-
 /// One evaluated perturbation (`axis` "none" = the baseline, magnitude 0).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PerturbRow {

@@ -18,46 +18,13 @@ pub mod ort_bench;
 pub mod python;
 pub mod sidecar;
 
+use depthsense_config::flags::{ExportFormat as Format, ExportPrecision as Precision};
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::{temp_sibling, write_atomic};
 use depthsense_infer::NetError;
 
 pub use sidecar::Sidecar;
-
-/// What an export writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Format {
-    /// ONNX (opset 17): onnxruntime, TensorRT.
-    Onnx,
-    /// A TorchScript archive: `torch.jit.load`, libtorch C++.
-    TorchScript,
-    /// `{"format", "config", "state_dict"}` for `python/depthsense_torch.py` (`torch.load`).
-    PyTorch,
-}
-
-impl Format {
-    /// The name on the command line and in the sidecar.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Onnx => "onnx",
-            Self::TorchScript => "torchscript",
-            Self::PyTorch => "pytorch",
-        }
-    }
-
-    /// Parses `onnx`, `torchscript` or `pytorch`.
-    pub fn parse(s: &str) -> Result<Self, ExportError> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "onnx" => Ok(Self::Onnx),
-            "torchscript" => Ok(Self::TorchScript),
-            "pytorch" => Ok(Self::PyTorch),
-            other => Err(ExportError::Options(format!(
-                "--format {other}: one of onnx, torchscript, pytorch"
-            ))),
-        }
-    }
-}
 
 /// The batch axis of the graph.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -87,33 +54,6 @@ impl Batch {
         match self {
             Self::Dynamic => "dynamic".into(),
             Self::Fixed(n) => n.to_string(),
-        }
-    }
-}
-
-/// Arithmetic precision of the exported network (inputs and output stay float32).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Precision {
-    Fp32,
-    Fp16,
-}
-
-impl Precision {
-    /// Parses `fp32` or `fp16`.
-    pub fn parse(s: &str) -> Result<Self, ExportError> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "fp32" => Ok(Self::Fp32),
-            "fp16" => Ok(Self::Fp16),
-            other => Err(ExportError::Options(format!(
-                "--precision {other}: fp32 or fp16"
-            ))),
-        }
-    }
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Fp32 => "fp32",
-            Self::Fp16 => "fp16",
         }
     }
 }

@@ -7,6 +7,7 @@
 //! errors that write nothing. Skips (counted) without the workspace `.venv`'s torch, onnx and
 //! onnxruntime; `make test` installs them and requires them.
 
+use depthsense_config::flags::{ExportFormat as Format, ExportPrecision as Precision};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -16,8 +17,7 @@ mod reference;
 use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_eval::predict::{predict, PredictInput};
 use depthsense_export::{
-    export, export_many, sidecar_path, Batch, ExportError, ExportOptions, Format, Precision,
-    Sidecar,
+    export, export_many, sidecar_path, Batch, ExportError, ExportOptions, Sidecar,
 };
 use depthsense_model::{checkpoint, DepthNet};
 use depthsense_nuscenes::depth_png::DepthMap;

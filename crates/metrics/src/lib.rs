@@ -21,6 +21,7 @@
 pub mod table;
 pub mod tables;
 
+use depthsense_base::words::{UnknownWord, Words};
 use serde::{Deserialize, Serialize};
 
 /// How pixels beyond the cap are treated (SPEC §9).
@@ -41,19 +42,19 @@ pub enum Protocol {
     Radarnet,
 }
 
+impl Words for Protocol {
+    const WHAT: &'static str = "protocol";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("mask", Self::Mask),
+        ("clamp", Self::Clamp),
+        ("radarnet", Self::Radarnet),
+    ];
+}
+
 impl std::str::FromStr for Protocol {
     type Err = MetricsError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "mask" => Ok(Self::Mask),
-            "clamp" => Ok(Self::Clamp),
-            "radarnet" => Ok(Self::Radarnet),
-            other => Err(MetricsError::BadName {
-                what: "protocol",
-                name: other.to_string(),
-                allowed: "mask, clamp, radarnet",
-            }),
-        }
+        Ok(Self::parse_word(s)?)
     }
 }
 
@@ -91,29 +92,24 @@ pub enum Aggregate {
     Pooled,
 }
 
+impl Words for Aggregate {
+    const WHAT: &'static str = "aggregation";
+    const WORDS: &'static [(&'static str, Self)] =
+        &[("image", Self::Image), ("pooled", Self::Pooled)];
+}
+
 impl std::str::FromStr for Aggregate {
     type Err = MetricsError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "image" => Ok(Self::Image),
-            "pooled" => Ok(Self::Pooled),
-            other => Err(MetricsError::BadName {
-                what: "aggregation",
-                name: other.to_string(),
-                allowed: "image, pooled",
-            }),
-        }
+        Ok(Self::parse_word(s)?)
     }
 }
 
 #[derive(Debug, thiserror::Error)]
 pub enum MetricsError {
-    #[error("unknown {what} {name:?} (allowed: {allowed})")]
-    BadName {
-        what: &'static str,
-        name: String,
-        allowed: &'static str,
-    },
+    /// A protocol or aggregation word outside its vocabulary.
+    #[error(transparent)]
+    BadName(#[from] UnknownWord),
     #[error(
         "image {index}: prediction has {pred} values, ground truth {gt}, low-height mask {mask}"
     )]
@@ -519,3 +515,19 @@ pub fn evaluate(images: &[EvalImage<'_>], cfg: &EvalConfig) -> Result<Report, Me
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod word_tests {
+    use super::*;
+
+    #[test]
+    fn protocol_and_aggregate_words() {
+        depthsense_base::words::check_vocabulary::<Protocol>().unwrap();
+        depthsense_base::words::check_vocabulary::<Aggregate>().unwrap();
+        assert_eq!("radarnet".parse::<Protocol>().unwrap(), Protocol::Radarnet);
+        assert_eq!(
+            "sum".parse::<Aggregate>().unwrap_err().to_string(),
+            "unknown aggregation \"sum\" (allowed: image, pooled)"
+        );
+    }
+}

@@ -1,5 +1,6 @@
 //! Device selection (`--device auto|cpu|cuda|cuda:N`).
 
+use depthsense_config::device::DeviceSpec;
 use tch::{Cuda, Device};
 
 use crate::ModelError;
@@ -8,30 +9,25 @@ use crate::ModelError;
 /// or `cuda:N`. Asking for CUDA explicitly without a usable GPU is an error, not a silent
 /// fall-back to the CPU.
 pub fn parse_device(s: &str) -> Result<Device, ModelError> {
-    let s = s.trim().to_ascii_lowercase();
-    match s.as_str() {
-        "auto" => Ok(Device::cuda_if_available()),
-        "cpu" => Ok(Device::Cpu),
-        _ => {
-            let idx = if s == "cuda" || s == "gpu" {
-                0
-            } else if let Some(n) = s.strip_prefix("cuda:") {
-                n.parse::<usize>()
-                    .map_err(|_| ModelError::InvalidDevice(s.clone()))?
-            } else {
-                return Err(ModelError::InvalidDevice(s));
-            };
-            let count = if Cuda::is_available() {
-                Cuda::device_count()
-            } else {
-                0
-            };
-            if (idx as i64) >= count {
-                return Err(ModelError::CudaUnavailable(s, count));
-            }
-            Ok(Device::Cuda(idx))
-        }
+    let spec = DeviceSpec::parse(s)
+        .ok_or_else(|| ModelError::InvalidDevice(s.trim().to_ascii_lowercase()))?;
+    let idx = match spec {
+        DeviceSpec::Auto => return Ok(Device::cuda_if_available()),
+        DeviceSpec::Cpu => return Ok(Device::Cpu),
+        DeviceSpec::Cuda(idx) => idx,
+    };
+    let count = if Cuda::is_available() {
+        Cuda::device_count()
+    } else {
+        0
+    };
+    if (idx as i64) >= count {
+        return Err(ModelError::CudaUnavailable(
+            s.trim().to_ascii_lowercase(),
+            count,
+        ));
     }
+    Ok(Device::Cuda(idx))
 }
 
 /// A short human description (`cpu`, `cuda:0`).

@@ -4,6 +4,7 @@
 //! 2.11 exports `at::autocast::set_autocast_dtype(DeviceType, ScalarType)` (C++ symbol), which
 //! we call to select bf16.
 
+use depthsense_config::flags::Precision;
 use tch::Cuda;
 
 extern "C" {
@@ -11,29 +12,6 @@ extern "C" {
     // int8-backed; CUDA = 1, BFloat16 = 15, Half = 5.
     #[link_name = "_ZN2at8autocast18set_autocast_dtypeEN3c1010DeviceTypeENS1_10ScalarTypeE"]
     fn at_autocast_set_autocast_dtype(device_type: i8, dtype: i8);
-}
-
-/// Autocast dtype on CUDA.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Precision {
-    /// No autocast.
-    Fp32,
-    /// CUDA autocast to bfloat16.
-    Bf16,
-    /// CUDA autocast to float16.
-    Fp16,
-}
-
-impl std::str::FromStr for Precision {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.to_ascii_lowercase().as_str() {
-            "fp32" | "f32" | "float" => Ok(Precision::Fp32),
-            "bf16" | "bfloat16" => Ok(Precision::Bf16),
-            "fp16" | "f16" | "half" => Ok(Precision::Fp16),
-            o => Err(format!("unknown precision `{o}` (fp32, bf16, fp16)")),
-        }
-    }
 }
 
 /// Runs `f` under CUDA autocast with the given dtype (no effect on the CPU or for fp32).

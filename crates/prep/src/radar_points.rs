@@ -97,6 +97,18 @@ pub enum PerturbAxis {
     Z,
 }
 
+impl depthsense_base::words::Words for PerturbAxis {
+    const WHAT: &'static str = "axis";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("yaw", PerturbAxis::Yaw),
+        ("pitch", PerturbAxis::Pitch),
+        ("roll", PerturbAxis::Roll),
+        ("x", PerturbAxis::X),
+        ("y", PerturbAxis::Y),
+        ("z", PerturbAxis::Z),
+    ];
+}
+
 impl PerturbAxis {
     pub const ALL: [PerturbAxis; 6] = [
         PerturbAxis::Yaw,
@@ -108,18 +120,11 @@ impl PerturbAxis {
     ];
 
     pub fn name(self) -> &'static str {
-        match self {
-            PerturbAxis::Yaw => "yaw",
-            PerturbAxis::Pitch => "pitch",
-            PerturbAxis::Roll => "roll",
-            PerturbAxis::X => "x",
-            PerturbAxis::Y => "y",
-            PerturbAxis::Z => "z",
-        }
+        depthsense_base::words::Words::word(self)
     }
 
     pub fn parse(s: &str) -> Option<PerturbAxis> {
-        Self::ALL.into_iter().find(|a| a.name() == s.trim())
+        <Self as depthsense_base::words::Words>::from_word(s)
     }
 
     pub fn is_rotation(self) -> bool {

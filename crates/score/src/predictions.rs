@@ -78,16 +78,16 @@ impl PredFormat {
     }
 }
 
+impl depthsense_base::words::Words for PredFormat {
+    const WHAT: &'static str = "prediction format";
+    const WORDS: &'static [(&'static str, Self)] = &[("png", Self::Png), ("npy", Self::Npy)];
+}
+
 impl std::str::FromStr for PredFormat {
     type Err = DataError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "png" => Ok(Self::Png),
-            "npy" => Ok(Self::Npy),
-            o => Err(DataError::Config(format!(
-                "unknown prediction format {o:?} (png, npy)"
-            ))),
-        }
+        <Self as depthsense_base::words::Words>::from_word(s)
+            .ok_or_else(|| DataError::Config(format!("unknown prediction format {s:?} (png, npy)")))
     }
 }
 

@@ -38,21 +38,21 @@ pub enum Weather {
     Rain = 2,
 }
 
+impl depthsense_base::words::Words for Weather {
+    const WHAT: &'static str = "weather";
+    const WORDS: &'static [(&'static str, Self)] = &[
+        ("day", Weather::Day),
+        ("night", Weather::Night),
+        ("rain", Weather::Rain),
+    ];
+}
+
 impl Weather {
     pub fn parse(s: &str) -> Option<Weather> {
-        match s.trim().to_lowercase().as_str() {
-            "day" => Some(Weather::Day),
-            "night" => Some(Weather::Night),
-            "rain" => Some(Weather::Rain),
-            _ => None,
-        }
+        <Self as depthsense_base::words::Words>::from_word(s)
     }
     pub fn name(self) -> &'static str {
-        match self {
-            Weather::Day => "day",
-            Weather::Night => "night",
-            Weather::Rain => "rain",
-        }
+        depthsense_base::words::Words::word(self)
     }
 }
 

@@ -1,7 +1,8 @@
 //! The training step's forward half, shared by `train` (trainer::session) and `bench train`:
 //! the precision of a step and the loss of one uploaded batch.
 
-use depthsense_model::precision::{with_autocast, Precision};
+use depthsense_config::flags::Precision;
+use depthsense_model::precision::with_autocast;
 use depthsense_model::DepthNet;
 use tch::{Kind, Tensor};
 

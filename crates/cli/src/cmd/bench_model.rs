@@ -10,9 +10,8 @@ pub struct Args {
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
           help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
-    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Batch size of the forward (inference) benchmark; 0 skips it.
     #[arg(long, default_value_t = 3)]
     pub batch_forward: i64,
@@ -33,8 +32,9 @@ pub struct Args {
     pub repeats: usize,
     /// Arithmetic: fp32, bf16 (CUDA autocast to bfloat16) or fp16 (CUDA autocast to float16).
     /// Ignored on the CPU.
-    #[arg(long, default_value = "fp32")]
-    pub precision: String,
+    #[arg(long, default_value = "fp32",
+          value_parser = crate::cmd::words::words::<depthsense_config::flags::Precision>())]
+    pub precision: depthsense_config::flags::Precision,
     /// Store conv weights and inputs channels-last (NHWC) so cuDNN can use NHWC kernels.
     #[arg(long)]
     pub channels_last: bool,

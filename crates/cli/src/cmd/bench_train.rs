@@ -22,9 +22,8 @@ pub struct Args {
     /// Batches timed for the data loader alone.
     #[arg(long, default_value_t = 8)]
     pub loader_batches: usize,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,

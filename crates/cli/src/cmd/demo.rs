@@ -9,7 +9,7 @@ pub struct Args {
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
     /// Device: auto (CUDA when available: more epochs and batch 8), cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
+    #[arg(long, default_value = "auto", value_parser = depthsense_config::cli::parse_device)]
     pub device: String,
     /// A much smaller run (a few scenes, a few steps): checks the pipeline end to end.
     #[arg(long)]

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use depthsense_dataset::outputs::refuse_existing;
-use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
+use depthsense_metrics::EvalConfig;
 use depthsense_score::predictions::{run_eval_predictions, PredictionsOptions};
 use depthsense_score::tables::{table_paths, write_tables_with_command};
 
@@ -69,23 +69,16 @@ pub struct Args {
     /// Seed of the radar drop and of the clutter.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Pixels beyond the cap: mask (dropped, default), clamp (GT and prediction clamped:
-    /// peers'), or radarnet (RadarNet's evaluation: 0 < GT < cap, prediction not clipped,
-    /// per image then mean; docs/guide/evaluate.md, "RadarNet's protocol").
-    #[arg(long, default_value = "mask")]
-    pub protocol: String,
-    /// Aggregation: image (metrics per image, then mean; default) or pooled (over pixels).
-    #[arg(long, default_value = "image")]
-    pub aggregate: String,
+    #[command(flatten)]
+    pub scoring: crate::cmd::scoring_args::ScoringArgs,
     /// Depth caps in metres (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "50,70,80")]
     pub caps: Vec<f64>,
     /// Batch size of inference.
     #[arg(long, default_value_t = 4)]
     pub batch_size: usize,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,
@@ -108,8 +101,8 @@ pub struct Args {
 pub fn eval_config(a: &Args) -> anyhow::Result<EvalConfig> {
     Ok(EvalConfig {
         caps_m: a.caps.clone(),
-        protocol: a.protocol.parse::<Protocol>()?,
-        aggregate: a.aggregate.parse::<Aggregate>()?,
+        protocol: a.scoring.protocol,
+        aggregate: a.scoring.aggregate,
         ..EvalConfig::default()
     })
 }

@@ -86,9 +86,8 @@ pub struct CostArgs {
     /// Timed passes.
     #[arg(long, default_value_t = 3)]
     pub repeats: usize,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
 }
 
 /// The training settings every run of `ablation` and `reduced-data` shares.
@@ -113,9 +112,8 @@ pub struct RunArgs {
     /// Initial learning rate (paper: 1e-3).
     #[arg(long, default_value_t = 1e-3)]
     pub lr: f64,
-    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores). Runs are trained one after another.
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,
@@ -196,12 +194,8 @@ pub struct DataScaleArgs {
 
 #[derive(clap::Args)]
 pub struct FailureArgs {
-    /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
-    #[arg(long)]
-    pub checkpoint: PathBuf,
-    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
-          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
-    pub config: Option<String>,
+    #[command(flatten)]
+    pub model: crate::cmd::model_source::ModelSource,
     /// Prepared data directory.
     #[arg(long)]
     pub data: PathBuf,
@@ -226,9 +220,8 @@ pub struct FailureArgs {
     /// Batch size of inference.
     #[arg(long, default_value_t = 4)]
     pub batch_size: usize,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,
@@ -239,12 +232,8 @@ pub struct FailureArgs {
 
 #[derive(clap::Args)]
 pub struct PerturbArgs {
-    /// Checkpoint to evaluate (depthsense .safetensors, or a .pth with --config).
-    #[arg(long)]
-    pub checkpoint: PathBuf,
-    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
-          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
-    pub config: Option<String>,
+    #[command(flatten)]
+    pub model: crate::cmd::model_source::ModelSource,
     /// Prepared data directory (prepared with radar_points.bin: a current `prepare`).
     #[arg(long)]
     pub data: PathBuf,
@@ -263,8 +252,9 @@ pub struct PerturbArgs {
     pub translate_m: Vec<f64>,
     /// Axes, comma separated: yaw (camera vertical), pitch (camera x), roll (optical axis),
     /// x (right), y (down), z (forward).
-    #[arg(long, value_delimiter = ',', default_value = "yaw,pitch,roll,x,y,z")]
-    pub axes: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "yaw,pitch,roll,x,y,z",
+          value_parser = crate::cmd::words::words::<depthsense_prep::radar_points::PerturbAxis>())]
+    pub axes: Vec<depthsense_prep::radar_points::PerturbAxis>,
     /// Samples: held-out (test scenes), all, or a split name.
     #[arg(long, default_value = "held-out")]
     pub split: String,
@@ -274,9 +264,8 @@ pub struct PerturbArgs {
     /// Batch size of inference.
     #[arg(long, default_value_t = 4)]
     pub batch_size: usize,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,
@@ -309,10 +298,7 @@ pub struct AblationArgs {
         default_value = "rgb,early,late,late-sam,l1,l2"
     )]
     pub variants: Vec<String>,
-    /// Test protocol beyond the cap: mask (drop) or clamp (peers').
-    #[arg(long, default_value = "mask")]
-    pub protocol: String,
-    /// Test aggregation: image (per image, then mean) or pooled (over all pixels).
-    #[arg(long, default_value = "image")]
-    pub aggregate: String,
+    /// The tests' scoring (the same flags as `eval`).
+    #[command(flatten)]
+    pub scoring: crate::cmd::scoring_args::ScoringArgs,
 }

@@ -5,12 +5,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Checkpoint (depthsense .safetensors, or a .pth with --config).
-    #[arg(long)]
-    pub checkpoint: PathBuf,
-    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
-          help = depthsense_config::cli::config_help("Architecture for a .pth", " or a model-config JSON"))]
-    pub config: Option<String>,
+    #[command(flatten)]
+    pub model: crate::cmd::model_source::ModelSource,
     /// One prepared sample directory (repeatable).
     #[arg(long, conflicts_with = "data")]
     pub sample: Vec<PathBuf>,
@@ -35,9 +31,8 @@ pub struct Args {
     /// Output directory: overlays, grid.png, explain.{json,md}.
     #[arg(long)]
     pub out: PathBuf,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Replace the results of an earlier `explain` in --out (its explain.json, explain.md,
     /// grid.png and overlays of the same names); without it they are refused.
     #[arg(long)]

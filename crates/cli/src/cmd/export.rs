@@ -9,8 +9,8 @@ pub struct Args {
     pub model: super::model_source::ModelSource,
     /// onnx (opset 17: onnxruntime, TensorRT), torchscript (torch.jit.load, libtorch) or
     /// pytorch (a state dict for python/depthsense_torch.py).
-    #[arg(long)]
-    pub format: String,
+    #[arg(long, value_parser = crate::cmd::words::words::<depthsense_config::flags::ExportFormat>())]
+    pub format: depthsense_config::flags::ExportFormat,
     /// The file to write; its sidecar is FILE.json.
     #[arg(long)]
     pub out: PathBuf,
@@ -19,8 +19,9 @@ pub struct Args {
     pub batch: String,
     /// Arithmetic inside the graph: fp32, or fp16 (half precision between float32 inputs and
     /// output; the radar pooling and the decode stay float32). onnx and torchscript only.
-    #[arg(long, default_value = "fp32")]
-    pub precision: String,
+    #[arg(long, default_value = "fp32",
+          value_parser = crate::cmd::words::words::<depthsense_config::flags::ExportPrecision>())]
+    pub precision: depthsense_config::flags::ExportPrecision,
     /// Replace an existing FILE and FILE.json.
     #[arg(long)]
     pub force: bool,

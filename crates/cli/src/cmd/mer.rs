@@ -55,9 +55,8 @@ pub struct TrainArgs {
     /// Seed of initialisation, shuffling and flips.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Continue from OUT/last.safetensors (same options required).
     #[arg(long)]
     pub resume: bool,
@@ -87,9 +86,8 @@ pub struct ApplyArgs {
     /// Prepared data directory; the maps are written into its sample folders.
     #[arg(long)]
     pub data: PathBuf,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Threads reading and encoding maps (0 = all cores).
     #[arg(long, default_value_t = 0)]
     pub jobs: usize,

@@ -1,4 +1,5 @@
-//! The network a command runs, as `predict` and `export` take it: `--checkpoint`, `--config`,
+//! The network a command runs, as `predict`, `export`, `explain` and `experiment
+//! failure|perturb` take it: `--checkpoint`, `--config`,
 //! `--set` (flattened into their arguments).
 
 use std::path::PathBuf;

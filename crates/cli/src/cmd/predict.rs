@@ -19,8 +19,9 @@ pub struct Args {
     #[arg(long, default_value = "held-out", requires = "data")]
     pub split: String,
     /// With --data: file formats, comma separated (png, npy).
-    #[arg(long, value_delimiter = ',', default_value = "png", requires = "data")]
-    pub format: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "png", requires = "data",
+          value_parser = crate::cmd::words::words::<depthsense_score::predictions::PredFormat>())]
+    pub format: Vec<depthsense_score::predictions::PredFormat>,
     /// With --data: batch size of inference.
     #[arg(long, default_value_t = 4, requires = "data")]
     pub batch_size: usize,
@@ -55,9 +56,8 @@ pub struct Args {
     /// Depth of the far end of the colour map, metres.
     #[arg(long, default_value_t = 80.0)]
     pub max_depth: f32,
-    /// Device: auto, cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// PDA checkpoint (`depthsense mer train`) that computes the MER maps of the input, for
     /// a model trained with `--radar-input mer` (SPEC §5). Needed for --token and --image;
     /// a prepared sample uses the maps `mer apply` wrote unless this is given.

@@ -50,9 +50,8 @@ pub struct Args {
     /// Seed of initialisation, shuffling, augmentation and dropout.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
-    #[arg(long, default_value = "auto")]
-    pub device: String,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
     /// Mixed precision (bf16 autocast of the forward pass; CUDA only, ignored on CPU).
     #[arg(long)]
     pub amp: bool,
@@ -94,8 +93,9 @@ pub struct Args {
     #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
     /// Training target: dense (±K accumulated lidar) or sparse (keyframe sweep).
-    #[arg(long, default_value = "dense")]
-    pub target: String,
+    #[arg(long, default_value = "dense",
+          value_parser = crate::cmd::words::words::<depthsense_data::TargetKind>())]
+    pub target: depthsense_data::TargetKind,
     /// Disable flip and brightness/colour/gamma jitter.
     #[arg(long)]
     pub no_augment: bool,
@@ -151,12 +151,9 @@ pub struct Args {
     /// Stop after this global iteration (checkpointed; continue with --resume).
     #[arg(long)]
     pub stop_after: Option<u64>,
-    /// Validation protocol beyond the cap: mask (drop) or clamp (peers').
-    #[arg(long, default_value = "mask")]
-    pub protocol: String,
-    /// Validation aggregation: image (per image, then mean) or pooled (over all pixels).
-    #[arg(long, default_value = "image")]
-    pub aggregate: String,
+    /// Validation's scoring (the same flags as `eval`).
+    #[command(flatten)]
+    pub scoring: crate::cmd::scoring_args::ScoringArgs,
     /// Data-parallel: start N local worker processes (one per GPU, or N CPU processes) with
     /// the environment torchrun sets. --batch-size is the global batch (a multiple of N).
     /// Under torchrun / srun leave this out: the workers read RANK, WORLD_SIZE, … themselves.

@@ -7,10 +7,11 @@ use std::time::Instant;
 
 use anyhow::Context;
 use depthsense_cli::cmd::bench_export::Args;
+use depthsense_config::flags::{ExportFormat, ExportPrecision};
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
 use depthsense_export::ort_bench::{time_onnxruntime, GraphInput};
-use depthsense_export::{export, Batch, ExportOptions, Format, Precision};
+use depthsense_export::{export, Batch, ExportOptions};
 use depthsense_model::{checkpoint, report, DepthNet};
 use serde::Serialize;
 use tch::{nn, Device, Kind, Tensor};
@@ -78,10 +79,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         checkpoint: ckpt,
         config: None,
         set: vec![],
-        format: Format::Onnx,
+        format: ExportFormat::Onnx,
         out: onnx.clone(),
         batch: Batch::Dynamic,
-        precision: Precision::Fp32,
+        precision: ExportPrecision::Fp32,
         force: true,
         python: a.python.clone(),
     })?;

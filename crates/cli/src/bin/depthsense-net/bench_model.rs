@@ -2,8 +2,9 @@
 
 use anyhow::Context;
 use depthsense_cli::cmd::bench_model::Args;
+use depthsense_config::flags::Precision;
 use depthsense_config::{HeadKind, ModelConfig};
-use depthsense_model::precision::{channels_last, vs_to_channels_last, with_autocast, Precision};
+use depthsense_model::precision::{channels_last, vs_to_channels_last, with_autocast};
 use depthsense_model::{device, report, DepthNet};
 use serde::Serialize;
 use std::process::ExitCode;
@@ -184,7 +185,7 @@ impl Bench {
     /// layout and precision this device supports (a note on stderr for each one refused).
     fn new(args: &Args) -> anyhow::Result<Bench> {
         let cfg = depthsense_model::config::resolve(&args.preset)?.with_options(&args.set)?;
-        let dev = device::parse_device(&args.device)?;
+        let dev = device::parse_device(&args.device.name)?;
         if let Some(n) = args.threads {
             tch::set_num_threads(n);
         }
@@ -197,10 +198,7 @@ impl Bench {
         let net = DepthNet::new(&vs.root(), &cfg)?;
         let channels_last = use_channels_last(args.channels_last, dev, &vs);
         let rep = report::model_report(&vs, &net, args.height, args.width);
-        let asked = args
-            .precision
-            .parse::<Precision>()
-            .map_err(anyhow::Error::msg)?;
+        let asked = args.precision;
         let prec = precision_on(asked, dev);
         Ok(Bench {
             cfg,

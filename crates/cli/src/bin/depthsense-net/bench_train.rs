@@ -13,7 +13,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         iterations: a.iterations,
         warmup: a.warmup,
         loader_batches: a.loader_batches,
-        device: a.device,
+        device: a.device.name,
         jobs: a.jobs,
         amp: a.amp,
         set: a.set,

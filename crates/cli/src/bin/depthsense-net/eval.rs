@@ -39,7 +39,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         },
         seed: a.seed,
         batch_size: a.batch_size,
-        device: a.device.clone(),
+        device: a.device.name.clone(),
         jobs: a.jobs,
         max_samples: a.max_samples,
         radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,

@@ -9,7 +9,7 @@ use depthsense_experiments::ablation::{
     run_ablation, AblationOptions, AblationResult, Variant, MD_FILE, PNG_FILE,
 };
 use depthsense_experiments::runner::RunSettings;
-use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
+use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -40,7 +40,7 @@ fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
         width: a.width,
         warmup: a.warmup,
         repeats: a.repeats,
-        device: a.device,
+        device: a.device.name,
         command_line: command_line(),
     };
     let _writing = claim_results(&a.out, "cost", a.force)?;
@@ -121,13 +121,14 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
     use depthsense_eval::evaluate::EvalOptions;
     use depthsense_experiments::failure::{parse_scenarios, run_failure, FAILURE_MD};
     let base = EvalOptions {
-        checkpoint: a.checkpoint,
-        config: a.config,
+        checkpoint: a.model.checkpoint,
+        config: a.model.config,
+        set: a.model.set,
         data: a.data,
         split: a.split,
         seed: a.seed,
         batch_size: a.batch_size,
-        device: a.device,
+        device: a.device.name,
         jobs: a.jobs,
         max_samples: a.max_samples,
         ..EvalOptions::default()
@@ -141,15 +142,16 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
 
 fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
     use depthsense_eval::evaluate::EvalOptions;
-    use depthsense_experiments::perturb::{parse_axes, run_perturb, PerturbOptions, PERTURB_MD};
+    use depthsense_experiments::perturb::{run_perturb, PerturbOptions, PERTURB_MD};
     let base = EvalOptions {
-        checkpoint: a.checkpoint,
-        config: a.config,
+        checkpoint: a.model.checkpoint,
+        config: a.model.config,
+        set: a.model.set,
         data: a.data,
         split: a.split,
         seed: a.seed,
         batch_size: a.batch_size,
-        device: a.device,
+        device: a.device.name,
         jobs: a.jobs,
         max_samples: a.max_samples,
         ..EvalOptions::default()
@@ -157,7 +159,7 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
     let opts = PerturbOptions {
         rotate_deg: a.rotate_deg,
         translate_m: a.translate_m,
-        axes: parse_axes(&a.axes)?,
+        axes: a.axes,
     };
     let _writing = claim_results(&a.out, "perturb", a.force)?;
     let t = std::time::Instant::now();
@@ -176,7 +178,9 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// The ablation's options: variants (empty names skipped), seeds (--seed-list, else
-/// 0..--seeds) and the test protocol and aggregation.
+/// 0..--seeds) and the test protocol and aggregation. (The variants are words of
+/// `depthsense_experiments::ablation::Variant`, checked here: the torch-free front cannot name
+/// that type.)
 fn ablation_options(a: AblationArgs) -> anyhow::Result<AblationOptions> {
     let variants = a
         .variants
@@ -194,8 +198,8 @@ fn ablation_options(a: AblationArgs) -> anyhow::Result<AblationOptions> {
         variants,
         seeds,
         eval: EvalConfig {
-            protocol: a.protocol.parse::<Protocol>()?,
-            aggregate: a.aggregate.parse::<Aggregate>()?,
+            protocol: a.scoring.protocol,
+            aggregate: a.scoring.aggregate,
             ..EvalConfig::default()
         },
         command_line: command_line(),
@@ -251,7 +255,7 @@ fn run_settings(a: RunArgs) -> RunSettings {
         epochs: a.epochs,
         batch_size: a.batch_size,
         lr: a.lr,
-        device: a.device,
+        device: a.device.name,
         jobs: a.jobs,
         max_val_samples: a.max_val_samples,
         max_batches_per_epoch: a.max_batches_per_epoch,

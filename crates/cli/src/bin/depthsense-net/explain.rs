@@ -2,7 +2,6 @@
 
 use depthsense_cli::cmd::explain::Args;
 use depthsense_dataset::Dataset;
-use depthsense_eval::evaluate::load_model;
 use depthsense_eval::explain::run_explain;
 use depthsense_score::predictions::select_split;
 use std::path::PathBuf;
@@ -25,11 +24,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .map(|f| a.out.join(f))
         .collect();
     depthsense_dataset::outputs::refuse_existing(&own, a.force, "explain")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
-    let (loaded, _) = load_model(&a.checkpoint, a.config.as_deref(), &[], device)?;
+    let device = depthsense_model::device::parse_device(&a.device.name)?;
+    let loaded = super::model_source::load(&a.model, device)?;
     let r = run_explain(
         &loaded.net,
-        &a.checkpoint,
+        &a.model.checkpoint,
         &dirs,
         &a.distances,
         a.band,

@@ -1,7 +1,7 @@
 //! `depthsense export`: a trained network as ONNX, TorchScript or a PyTorch state dict, with a (the network side; its flags: `depthsense_cli::cmd::export`).
 
 use depthsense_cli::cmd::export::Args;
-use depthsense_export::{export, Batch, ExportOptions, Format, Precision};
+use depthsense_export::{export, Batch, ExportOptions};
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -9,10 +9,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         checkpoint: a.model.checkpoint,
         config: a.model.config,
         set: a.model.set,
-        format: Format::parse(&a.format)?,
+        format: a.format,
         out: a.out,
         batch: Batch::parse(&a.batch)?,
-        precision: Precision::parse(&a.precision)?,
+        precision: a.precision,
         force: a.force,
         python: a.python,
     };

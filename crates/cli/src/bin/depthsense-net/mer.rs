@@ -32,7 +32,7 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         lr: a.lr,
         weight_decay: a.weight_decay,
         seed: a.seed,
-        device: a.device,
+        device: a.device.name,
         resume: a.resume,
         force: a.force,
         jobs: a.jobs,
@@ -66,7 +66,7 @@ fn run_apply(a: ApplyArgs) -> anyhow::Result<ExitCode> {
     let opts = MerApplyOptions {
         data: a.data,
         checkpoint: a.checkpoint,
-        device: a.device,
+        device: a.device.name,
         jobs: a.jobs,
         batch_size: a.batch_size,
         network_threads: a.network_threads,

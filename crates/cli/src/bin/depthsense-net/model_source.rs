@@ -1,5 +1,6 @@
 //! Loading the network a command names (`depthsense_cli::cmd::model_source::ModelSource`:
-//! `--checkpoint`, `--config`, `--set`), as `predict` and `export` take it.
+//! `--checkpoint`, `--config`, `--set`), as `predict`, `export`, `explain` and
+//! `experiment failure|perturb` take it.
 
 use depthsense_cli::cmd::model_source::ModelSource;
 use depthsense_eval::evaluate::load_model;

@@ -14,12 +14,8 @@ use std::process::ExitCode;
 
 fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
     use depthsense_eval::evaluate::{write_predictions, EvalOptions};
-    use depthsense_score::predictions::{select_split, PredFormat};
-    let formats = a
-        .format
-        .iter()
-        .map(|f| f.parse::<PredFormat>())
-        .collect::<Result<Vec<_>, _>>()?;
+    use depthsense_score::predictions::select_split;
+    let formats = a.format.clone();
     let opts = EvalOptions {
         checkpoint: a.model.checkpoint.clone(),
         config: a.model.config.clone(),
@@ -27,7 +23,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         data: data.to_path_buf(),
         split: a.split.clone(),
         batch_size: a.batch_size,
-        device: a.device.clone(),
+        device: a.device.name.clone(),
         ..EvalOptions::default()
     };
     let ds = depthsense_dataset::Dataset::open(data)?;
@@ -40,14 +36,18 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         })
         .collect();
     refuse_existing(&files, a.force, "predict")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
+    let device = depthsense_model::device::parse_device(&a.device.name)?;
     let loaded = super::model_source::load(&a.model, device)?;
     let pb = progress_bar("predict");
     let n = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
     pb.finish_and_clear();
     eprintln!(
         "{n} predictions ({}) written to {}",
-        a.format.join(", "),
+        formats
+            .iter()
+            .map(|f| f.ext())
+            .collect::<Vec<_>>()
+            .join(", "),
         a.out.display()
     );
     Ok(ExitCode::SUCCESS)
@@ -59,7 +59,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
     refuse_existing(&files, a.force, "predict")?;
-    let device = depthsense_model::device::parse_device(&a.device)?;
+    let device = depthsense_model::device::parse_device(&a.device.name)?;
     let loaded = super::model_source::load(&a.model, device)?;
     let trained = trained_radar_settings(&loaded.extra).or_else(|| sidecar_radar(&a));
     let mut input = read_input(&a, trained.as_ref())?;

@@ -5,10 +5,9 @@ use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_cli::cmd::train::Args;
 use depthsense_config::RadarInput;
 use depthsense_config::{Fusion, ModelConfig};
-use depthsense_data::TargetKind;
 use depthsense_dist::DistEnv;
 use depthsense_infer::NetError;
-use depthsense_metrics::{Aggregate, EvalConfig, Protocol};
+use depthsense_metrics::EvalConfig;
 use depthsense_progress::Progress;
 use depthsense_train::distributed::{self, Dist, DistOptions};
 use depthsense_train::trainer::{train, train_distributed, TrainOptions, TrainSummary};
@@ -124,7 +123,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         momentum: a.momentum,
         weight_decay: a.weight_decay,
         seed: a.seed,
-        device: a.device,
+        device: a.device.name,
         amp: a.amp,
         backbone_weights: a.backbone_weights,
         resume: a.resume,
@@ -140,11 +139,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
             .as_deref()
             .map(str::parse::<RadarInput>)
             .transpose()?,
-        target: match a.target.as_str() {
-            "dense" => TargetKind::Dense,
-            "sparse" => TargetKind::Sparse,
-            o => anyhow::bail!("unknown target {o:?} (dense, sparse)"),
-        },
+        target: a.target,
         augment: !a.no_augment,
         val_every_scene: a.val_every_scene,
         exclude: a
@@ -161,8 +156,8 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         warmup_iters: a.warmup,
         stop_after: a.stop_after,
         eval: EvalConfig {
-            protocol: a.protocol.parse::<Protocol>()?,
-            aggregate: a.aggregate.parse::<Aggregate>()?,
+            protocol: a.scoring.protocol,
+            aggregate: a.scoring.aggregate,
             ..EvalConfig::default()
         },
     })

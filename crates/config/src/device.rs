@@ -1,0 +1,51 @@
+//! The words of `--device` without libtorch: `auto`, `cpu`, `cuda` (= `gpu` = `cuda:0`) and
+//! `cuda:N`. The command line refuses anything else while it is parsed (`cli::parse_device`);
+//! `depthsense_model::device::parse_device` turns a [`DeviceSpec`] into a libtorch device and
+//! checks that the GPU asked for is there.
+
+/// A device as the command line names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DeviceSpec {
+    /// CUDA device 0 when libtorch sees a GPU, else the CPU.
+    Auto,
+    Cpu,
+    /// CUDA device N (`cuda` and `gpu` are device 0).
+    Cuda(usize),
+}
+
+/// The device words, as help texts and errors list them.
+pub const DEVICE_WORDS: &str = "auto, cpu, cuda or cuda:N";
+
+impl DeviceSpec {
+    /// Parses a device word (ASCII case and surrounding blanks ignored); `None` for anything
+    /// else.
+    pub fn parse(s: &str) -> Option<Self> {
+        let s = s.trim().to_ascii_lowercase();
+        match s.as_str() {
+            "auto" => Some(Self::Auto),
+            "cpu" => Some(Self::Cpu),
+            "cuda" | "gpu" => Some(Self::Cuda(0)),
+            _ => s
+                .strip_prefix("cuda:")
+                .and_then(|n| n.parse::<usize>().ok())
+                .map(Self::Cuda),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_words() {
+        assert_eq!(DeviceSpec::parse("auto"), Some(DeviceSpec::Auto));
+        assert_eq!(DeviceSpec::parse(" CPU "), Some(DeviceSpec::Cpu));
+        assert_eq!(DeviceSpec::parse("gpu"), Some(DeviceSpec::Cuda(0)));
+        assert_eq!(DeviceSpec::parse("cuda"), Some(DeviceSpec::Cuda(0)));
+        assert_eq!(DeviceSpec::parse("cuda:3"), Some(DeviceSpec::Cuda(3)));
+        for bad in ["tpu", "cuda:x", "cuda:", "cuda:-1", ""] {
+            assert_eq!(DeviceSpec::parse(bad), None, "{bad}");
+        }
+    }
+}
