@@ -32,7 +32,8 @@ use depthsense_dataset::subsample;
 use depthsense_infer::run::evaluate_net;
 use depthsense_infer::NetError;
 use depthsense_score::tables::write_tables;
-use depthsense_train::trainer::{read_metrics, train, TrainOptions};
+use depthsense_train::metrics_log::read_metrics;
+use depthsense_train::trainer::{train, TrainOptions};
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemoOptions {

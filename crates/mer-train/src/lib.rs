@@ -9,17 +9,16 @@
 //! RUN/last.safetensors     latest PDA checkpoint (+ last.optim.safetensors: momentum)
 //! RUN/best.safetensors     highest validation AUC
 //! ```
-//! Optimiser: Adam with poly learning-rate decay ([`depthsense_train::adam`]), whose state is saved, so
-//! that `--resume` continues exactly from the last finished epoch. The run is a
-//! [`Learner`] driven by the training engine's loop ([`depthsense_train::learner::fit`]), with
-//! its run-folder lock and checkpointer.
+//! Optimiser: Adam with poly learning-rate decay ([`depthsense_train::adam`],
+//! [`depthsense_train::schedule`]), whose state is saved, so that `--resume` continues exactly
+//! from the last checkpoint — an epoch's end, or inside an epoch where `--stop-after` stopped
+//! it. The run is a [`Learner`] driven step by step by the training engine's loop
+//! ([`depthsense_train::learner::fit`]), with its run-folder lock and checkpointer.
 
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_base::hash::splitmix64;
 use depthsense_base::lock::OutputLock;
 use depthsense_config::pda::PdaConfig;
 use depthsense_data::{epoch_order, sample_rng};
@@ -33,9 +32,10 @@ use depthsense_model::pda::{self, balanced_bce, PdaNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use depthsense_train::adam::Adam;
-use depthsense_train::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
-use depthsense_train::sgd::poly_lr;
-use depthsense_train::trainer::{append_jsonl, truncate_metrics};
+use depthsense_train::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
+use depthsense_train::metrics_log::{append_jsonl, read_metrics, truncate_metrics};
+use depthsense_train::optim::Optimizer;
+use depthsense_train::schedule::{poly_lr, seed_step};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
@@ -66,6 +66,10 @@ pub struct MerTrainOptions {
     pub augment: bool,
     pub val_every_scene: usize,
     pub max_val_samples: Option<usize>,
+    /// Stop after this global iteration, checkpointed (continue with `resume`). Absent from
+    /// the JSON when not set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop_after: Option<u64>,
 }
 
 impl Default for MerTrainOptions {
@@ -89,6 +93,7 @@ impl Default for MerTrainOptions {
             augment: true,
             val_every_scene: 5,
             max_val_samples: None,
+            stop_after: None,
         }
     }
 }
@@ -129,6 +134,8 @@ pub struct MerTrainSummary {
     pub parameters: i64,
     pub iterations: u64,
     pub seconds: f64,
+    /// Stopped at `stop_after` before the last epoch's end.
+    pub interrupted: bool,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -316,7 +323,7 @@ struct Run<'o> {
     val: Vec<IndexEntry>,
     vs: VarStore,
     net: PdaNet,
-    sgd: Adam,
+    optim: Adam,
     state: State,
     pool: rayon::ThreadPool,
     bpe: u64,
@@ -324,6 +331,8 @@ struct Run<'o> {
     _lock: OutputLock,
     /// RUN/last.safetensors with its optimiser state.
     ckpt: Checkpointer,
+    /// The current epoch's loss: (sum, steps).
+    epoch_loss: (f64, usize),
 }
 
 impl<'o> Run<'o> {
@@ -367,7 +376,7 @@ impl<'o> Run<'o> {
             .num_threads(jobs)
             .build()
             .map_err(|e| NetError::Config(format!("cannot start loader threads: {e}")))?;
-        let (vs, net, sgd, state, optim_matches) = build(opts, device)?;
+        let (vs, net, optim, state, optim_matches) = build(opts, device)?;
         let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
         let run = Run {
             opts,
@@ -377,12 +386,13 @@ impl<'o> Run<'o> {
             train: part.train.clone(),
             vs,
             net,
-            sgd,
+            optim,
             state,
             pool,
             bpe,
             _lock: lock,
             ckpt: Checkpointer::new(&opts.out, optim_matches),
+            epoch_loss: (0.0, 0),
         };
         run.write_config(&part)?;
         Ok(run)
@@ -422,56 +432,92 @@ impl<'o> Run<'o> {
         Ok(())
     }
 
-    /// One epoch of SGD steps; returns the mean loss.
-    fn run_epoch(&mut self, epoch: u64, progress: &Progress) -> Result<f64, NetError> {
+    /// The batches (training-sample indices) of epoch `epoch` after its first `skip`; the
+    /// epoch's loss starts with the losses logged before a resume.
+    fn epoch_batches(&mut self, epoch: u64, skip: u64) -> Vec<Vec<usize>> {
         let o = self.opts;
         let order = epoch_order(self.train.len(), o.seed, epoch, true);
-        let total = self.bpe * o.epochs as u64;
-        let (mut sum, mut n) = (0.0, 0usize);
-        for chunk in order.chunks(o.batch_size).take(self.bpe as usize) {
-            let refs: Vec<&IndexEntry> = chunk.iter().map(|&i| &self.train[i]).collect();
-            let flips: Vec<bool> = chunk
+        self.epoch_loss = (0.0, 0);
+        if skip > 0 {
+            let from = epoch * self.bpe;
+            let losses = read_metrics(&self.path(METRICS_FILE))
+                .map(|(l, _)| l)
+                .unwrap_or_default();
+            for (_, l) in losses
                 .iter()
-                .map(|&i| o.augment && sample_rng(o.seed, epoch, i).uniform() < 0.5)
-                .collect();
-            let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
-            let b = stack(&samples, self.device)?;
-            let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
-            tch::manual_seed(
-                (splitmix64(o.seed ^ splitmix64(self.state.iteration + 1)) >> 1) as i64,
-            );
-            self.state.iteration += 1;
-            let Some((loss, _)) = batch_loss(&self.net, &b, true) else {
-                continue;
-            };
-            let lv = loss.double_value(&[]);
-            if !lv.is_finite() {
-                return Err(NetError::NonFiniteLoss {
-                    loss: lv,
-                    epoch,
-                    iteration: self.state.iteration,
-                    kept: self.path(LAST_CKPT).display().to_string(),
-                });
+                .filter(|(i, _)| *i > from && *i <= self.state.iteration)
+            {
+                self.epoch_loss = (self.epoch_loss.0 + l, self.epoch_loss.1 + 1);
             }
-            self.sgd.zero_grad();
-            loss.backward();
-            self.sgd.step(lr);
-            (sum, n) = (sum + lv, n + 1);
-            let it = self.state.iteration;
-            append_jsonl(
-                &self.path(METRICS_FILE),
-                &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
-                                    "loss": lv, "lr": lr}),
-            )?;
-            progress.set_message(format!(
-                "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
-                epoch + 1,
-                o.epochs
-            ));
-            progress.set_position(it);
         }
-        self.state.iteration = (epoch + 1) * self.bpe;
-        Ok(sum / n.max(1) as f64)
+        order
+            .chunks(o.batch_size)
+            .take(self.bpe as usize)
+            .skip(skip as usize)
+            .map(<[usize]>::to_vec)
+            .collect()
+    }
+
+    /// One Adam step on the training samples `chunk`; a batch without a labelled pair counts
+    /// as an iteration without an update.
+    fn adam_step(
+        &mut self,
+        chunk: &[usize],
+        epoch: u64,
+        progress: &Progress,
+    ) -> Result<u64, NetError> {
+        let o = self.opts;
+        let refs: Vec<&IndexEntry> = chunk.iter().map(|&i| &self.train[i]).collect();
+        let flips: Vec<bool> = chunk
+            .iter()
+            .map(|&i| o.augment && sample_rng(o.seed, epoch, i).uniform() < 0.5)
+            .collect();
+        let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
+        let b = stack(&samples, self.device)?;
+        let total = self.bpe * o.epochs as u64;
+        let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
+        seed_step(o.seed, self.state.iteration);
+        self.state.iteration += 1;
+        let it = self.state.iteration;
+        let Some((loss, _)) = batch_loss(&self.net, &b, true) else {
+            return Ok(it);
+        };
+        let lv = loss.double_value(&[]);
+        if !lv.is_finite() {
+            return Err(NetError::NonFiniteLoss {
+                loss: lv,
+                epoch,
+                iteration: it,
+                kept: self.path(LAST_CKPT).display().to_string(),
+            });
+        }
+        self.optim.zero_grad();
+        loss.backward();
+        self.optim.step(lr);
+        self.epoch_loss = (self.epoch_loss.0 + lv, self.epoch_loss.1 + 1);
+        append_jsonl(
+            &self.path(METRICS_FILE),
+            &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
+                                "loss": lv, "lr": lr}),
+        )?;
+        progress.set_message(format!(
+            "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
+            epoch + 1,
+            o.epochs
+        ));
+        Ok(it)
+    }
+
+    /// RUN/last.safetensors and its optimiser state: the state's predecessor is kept until the
+    /// checkpoint is written (optim_state::rotate), so a kill anywhere leaves a resumable pair.
+    fn write_last(&mut self) -> Result<(), NetError> {
+        let extra = self.checkpoint_extra();
+        let (vs, pda_cfg, iteration) = (&self.vs, &self.opts.pda, self.state.iteration);
+        let optim = &self.optim;
+        self.ckpt.save_last(
+            |path| optim.save(path, iteration),
+            |last| Ok(pda::save(last, vs, pda_cfg, &extra)?),
+        )
     }
 
     fn validate_at(&self, epoch: u64) -> Result<MerValRecord, NetError> {
@@ -488,21 +534,16 @@ impl<'o> Run<'o> {
         Ok(v)
     }
 
-    fn end_epoch(&mut self, epoch: u64, loss: f64) -> Result<MerValRecord, NetError> {
+    fn close_epoch(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
+        self.state.iteration = (epoch + 1) * self.bpe;
+        let loss = self.epoch_loss.0 / self.epoch_loss.1.max(1) as f64;
         let v = self.validate_at(epoch + 1)?;
         self.state.epoch = epoch + 1;
         let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
         if improved {
             self.state.best_auc = Some(v.auc);
         }
-        // The optimiser state's predecessor is kept until the checkpoint is written
-        // (optim_state::rotate): a kill anywhere leaves a resumable pair.
-        let extra = self.checkpoint_extra();
-        let (vs, pda_cfg, iteration) = (&self.vs, &self.opts.pda, self.state.iteration);
-        self.ckpt.save_last(
-            |optim| self.sgd.save(optim, iteration),
-            |last| Ok(pda::save(last, vs, pda_cfg, &extra)?),
-        )?;
+        self.write_last()?;
         if improved || !self.path(BEST_CKPT).exists() {
             self.save(BEST_CKPT)?;
         }
@@ -537,8 +578,8 @@ fn build(
         let vs = VarStore::new(device);
         let net = PdaNet::new(&vs.root(), &opts.pda)?;
         let _ = std::fs::remove_file(opts.out.join(METRICS_FILE));
-        let sgd = Adam::new(&vs, opts.weight_decay);
-        return Ok((vs, net, sgd, state, true));
+        let optim = Adam::new(&vs, opts.weight_decay);
+        return Ok((vs, net, optim, state, true));
     }
     let l = pda::load(&last, device)?;
     let stored: State =
@@ -556,15 +597,15 @@ fn build(
         )));
     }
     state = stored;
-    let mut sgd = Adam::new(&l.vs, opts.weight_decay);
+    let mut optim = Adam::new(&l.vs, opts.weight_decay);
     let matches = depthsense_train::optim_state::load_matching(
         &opts.out.join(LAST_OPTIM),
         &last,
         state.iteration,
-        |p| sgd.load(p),
+        |p| optim.load(p),
     )?;
     truncate_metrics(&opts.out.join(METRICS_FILE), state.iteration)?;
-    Ok((l.vs, l.net, sgd, state, matches))
+    Ok((l.vs, l.net, optim, state, matches))
 }
 
 /// RUN/curves.png: training loss (left) and validation AUC (right).
@@ -593,17 +634,19 @@ pub fn write_curves(metrics: &Path, png: &Path) -> Result<(), NetError> {
 
 impl Learner for Run<'_> {
     type Val = MerValRecord;
+    type Batch = Vec<usize>;
 
     fn iteration(&self) -> u64 {
         self.state.iteration
     }
 
-    fn total_iterations(&self) -> u64 {
-        self.bpe * self.opts.epochs as u64
-    }
-
-    fn epochs_left(&self) -> Range<u64> {
-        self.state.epoch..self.opts.epochs as u64
+    fn plan(&self) -> Plan {
+        Plan {
+            iterations_per_epoch: self.bpe,
+            epochs: self.opts.epochs as u64,
+            checkpoint_every: 0,
+            stop_after: self.opts.stop_after,
+        }
     }
 
     fn validation(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
@@ -614,21 +657,33 @@ impl Learner for Run<'_> {
         append_jsonl(&self.path(METRICS_FILE), record)
     }
 
-    fn train_epoch(
+    fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Vec<usize>>, NetError> {
+        Ok(Box::new(
+            self.epoch_batches(epoch, skip).into_iter().map(Ok),
+        ))
+    }
+
+    fn step(
         &mut self,
+        chunk: Vec<usize>,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<MerValRecord>, NetError> {
-        let loss = self.run_epoch(epoch, progress)?;
-        progress.set_message(format!(
-            "epoch {}/{}: validating",
-            epoch + 1,
-            self.opts.epochs
-        ));
-        Ok(EpochEnd {
-            val: Some(self.end_epoch(epoch, loss)?),
-            stop: false,
-        })
+    ) -> Result<u64, NetError> {
+        self.adam_step(&chunk, epoch, progress)
+    }
+
+    /// Losses are read at every step.
+    fn flush(&mut self, _: u64, _: &Progress) -> Result<(), NetError> {
+        Ok(())
+    }
+
+    fn save_last(&mut self, epoch: u64) -> Result<(), NetError> {
+        self.state.epoch = epoch;
+        self.write_last()
+    }
+
+    fn end_epoch(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
+        self.close_epoch(epoch)
     }
 }
 
@@ -646,6 +701,7 @@ pub fn train_pda(opts: &MerTrainOptions, progress: &Progress) -> Result<MerTrain
             parameters: pda::parameter_count(&run.vs),
             iterations: run.state.iteration,
             seconds: started.elapsed().as_secs_f64(),
+            interrupted: fitted.interrupted,
         })
     })
 }

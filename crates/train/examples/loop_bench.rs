@@ -16,6 +16,7 @@ use depthsense_dataset::Dataset;
 use depthsense_infer::upload::upload_batch;
 use depthsense_model::ordinal::{ordinal_loss, ordinal_loss_at, SparseTarget};
 use depthsense_model::DepthNet;
+use depthsense_train::optim::Optimizer;
 use depthsense_train::sgd::Sgd;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 

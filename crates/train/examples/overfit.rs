@@ -3,6 +3,7 @@ use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::*;
 use depthsense_dataset::Dataset;
 use depthsense_model::DepthNet;
+use depthsense_train::optim::Optimizer;
 use tch::nn::OptimizerConfig;
 
 fn main() {

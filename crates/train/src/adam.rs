@@ -9,6 +9,7 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
+use crate::optim::Optimizer;
 use crate::optim_state::{self, bad_state, Trainable};
 use depthsense_infer::NetError;
 
@@ -36,13 +37,15 @@ impl Adam {
             weight_decay,
         }
     }
+}
 
-    pub fn zero_grad(&mut self) {
+impl Optimizer for Adam {
+    fn zero_grad(&mut self) {
         self.vars.zero_grad();
     }
 
     /// One update with learning rate `lr`.
-    pub fn step(&mut self, lr: f64) {
+    fn step(&mut self, lr: f64) {
         self.steps += 1;
         let (b1, b2) = (self.beta1, self.beta2);
         let c1 = 1.0 - b1.powi(self.steps as i32);
@@ -65,7 +68,7 @@ impl Adam {
     }
 
     /// Writes the moments and the step count (safetensors, atomically) with `iteration`.
-    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
+    fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = vec![];
         for (k, t) in &self.m {
             named.push((format!("m.{k}"), t.shallow_clone()));
@@ -81,8 +84,8 @@ impl Adam {
         optim_state::write_atomic(path, named)
     }
 
-    /// Restores what [`Adam::save`] wrote; returns the iteration stored with it.
-    pub fn load(&mut self, path: &Path) -> Result<u64, NetError> {
+    /// Restores what [`Optimizer::save`] wrote; returns the iteration stored with it.
+    fn load(&mut self, path: &Path) -> Result<u64, NetError> {
         let named = optim_state::read(path)?;
         let device = self.vars.device();
         let known = self.vars.sizes();

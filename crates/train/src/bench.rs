@@ -11,6 +11,7 @@ use depthsense_model::DepthNet;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 
+use crate::optim::Optimizer;
 use crate::sgd::Sgd;
 use crate::step::{forward_loss, step_precision};
 use depthsense_infer::upload::upload_batch;

@@ -1,20 +1,24 @@
 //! The training loop every training command drives — `train` ([`crate::trainer::Trainer`]) and
-//! `mer train` (the PDA network, `depthsense-mer`) — in the manner of burn-train's `Learner`:
+//! `mer train` (the PDA network, `depthsense-mer-train`) — step by step, in the manner of
+//! burn-train's `Learner`:
 //!
-//! - a [`Learner`] says how to validate the current network, how to log a record and how to
-//!   train one epoch and close it (validation, checkpoints, the epoch record);
-//! - [`fit`] runs it: the progress bar, the validation of the initial network on a fresh run
-//!   (`{"kind":"val","epoch":0,…}` in RUN/metrics.jsonl), then the epochs still to run, stopping
-//!   where an epoch says so (`--stop-after`);
+//! - a [`Learner`] says what one step does (a batch in, the network and optimiser updated:
+//!   [`Learner::step`]), what a validation is, how an epoch's batches are drawn from any
+//!   iteration on, and how the run is checkpointed and an epoch closed;
+//! - [`fit`] owns the loop: the progress bar, the validation of the initial network on a fresh
+//!   run (`{"kind":"val","epoch":0,…}` in RUN/metrics.jsonl), the epochs still to run — a
+//!   resumed run starts inside its epoch, at the batch after the last one done — the checkpoint
+//!   cadence ([`Plan`]: every N iterations, at `--stop-after`) and the epoch ends;
 //! - [`Checkpointer`] writes RUN/last.safetensors with its optimiser state in the order that
 //!   leaves a resumable pair whenever the process is killed ([`crate::optim_state`]);
 //! - [`lock_run_folder`] takes the run folder for one writer and refuses to replace a run
 //!   silently ([`crate::outputs`]).
 //!
-//! What differs between the two networks stays with them: the batch, the step, the loss, the
-//! validation record (depth metrics vs. association AUC), the best-checkpoint rule.
+//! The learning rate and the step's dropout seed come from [`crate::schedule`], the optimiser
+//! is a [`crate::optim::Optimizer`]. What differs between the two networks stays with them: the
+//! batch, the loss, when a loss is read, the validation record (depth metrics vs. association
+//! AUC), the best-checkpoint rule.
 
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use depthsense_base::lock::OutputLock;
@@ -25,35 +29,67 @@ use crate::optim_state;
 use depthsense_dataset::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
 use depthsense_infer::NetError;
 
-/// How one training run validates, logs and trains an epoch; [`fit`] drives it.
+/// How long a run is, when [`fit`] writes RUN/last.safetensors inside an epoch (it always does
+/// at an epoch's end) and where it stops.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Plan {
+    /// Iterations per epoch (at least 1).
+    pub iterations_per_epoch: u64,
+    /// Epochs of the whole run.
+    pub epochs: u64,
+    /// Checkpoint every this many global iterations (0: only at epoch ends).
+    pub checkpoint_every: u64,
+    /// Stop after this global iteration, checkpointed (`--stop-after`; continue with
+    /// `--resume`).
+    pub stop_after: Option<u64>,
+}
+
+impl Plan {
+    /// Iterations of the whole run (the progress bar's length).
+    pub fn total_iterations(&self) -> u64 {
+        self.iterations_per_epoch * self.epochs
+    }
+}
+
+/// An epoch's batches from where the run stands ([`Learner::batches`]).
+pub type Batches<B> = Box<dyn Iterator<Item = Result<B, NetError>>>;
+
+/// One training run, driven step by step by [`fit`].
 pub trait Learner {
     /// One validation record (the `"val"` field of RUN/metrics.jsonl's records); its
     /// `Display` is the progress line of a validation.
     type Val: Serialize + std::fmt::Display;
+    /// What one step takes.
+    type Batch;
     /// Global iterations done (0: a fresh run, whose initial network is validated first).
     fn iteration(&self) -> u64;
-    /// Iterations of the whole run (the progress bar's length).
-    fn total_iterations(&self) -> u64;
-    /// The epochs still to run (a resumed run starts inside or after its last epoch).
-    fn epochs_left(&self) -> Range<u64>;
+    /// The run's length, checkpoint cadence and stop.
+    fn plan(&self) -> Plan;
     /// The current network on the validation samples, its record tagged with `epoch`.
     fn validation(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
     /// Appends `record` to RUN/metrics.jsonl (only in the process that writes RUN/).
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError>;
-    /// Trains epoch `epoch` (0-based) and closes it: validation, checkpoints, epoch record.
-    fn train_epoch(
+    /// The batches of epoch `epoch` (0-based) after its first `skip` (done before a resume),
+    /// at most the epoch's remaining iterations. The epoch's running loss starts here (from
+    /// RUN/metrics.jsonl's records of the skipped iterations).
+    fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Self::Batch>, NetError>;
+    /// One training step on `batch`: the learning rate and dropout seed of the iteration
+    /// ([`crate::schedule`]), forward, backward, optimiser step; returns the global iteration
+    /// after it. A learner may defer reading the loss to [`Learner::flush`].
+    fn step(
         &mut self,
+        batch: Self::Batch,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<EpochEnd<Self::Val>, NetError>;
-}
-
-/// How an epoch ended.
-pub struct EpochEnd<V> {
-    /// Its validation record (None when it was interrupted before its end).
-    pub val: Option<V>,
-    /// Stop here (`--stop-after` reached): the run continues with `--resume`.
-    pub stop: bool,
+    ) -> Result<u64, NetError>;
+    /// Reads (and checks, and logs) the losses not read yet; [`fit`] calls it before anything
+    /// is written and at an epoch's end.
+    fn flush(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError>;
+    /// Writes RUN/last.safetensors and its optimiser state inside epoch `epoch`.
+    fn save_last(&mut self, epoch: u64) -> Result<(), NetError>;
+    /// Closes epoch `epoch` (0-based) after its last step: validation, checkpoints, the epoch
+    /// record.
+    fn end_epoch(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
 }
 
 /// What [`fit`] did.
@@ -64,9 +100,10 @@ pub struct Fitted<V> {
     pub interrupted: bool,
 }
 
-/// Runs `learner` to the end of its last epoch, or to where an epoch says stop.
+/// Runs `learner` to the end of its last epoch, or to its plan's `stop_after`.
 pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L::Val>, NetError> {
-    progress.set_length(learner.total_iterations());
+    let plan = learner.plan();
+    progress.set_length(plan.total_iterations());
     progress.set_position(learner.iteration());
     let mut val = vec![];
     if learner.iteration() == 0 {
@@ -76,19 +113,24 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         progress.println(format!("validation before training: {v}"));
         val.push(v);
     }
-    let epochs = learner.epochs_left();
-    for epoch in epochs.clone() {
-        let end = learner.train_epoch(epoch, progress)?;
-        if let Some(v) = &end.val {
-            progress.println(format!(
-                "validation after epoch {}/{} (iteration {}): {v}",
-                epoch + 1,
-                epochs.end,
-                learner.iteration()
-            ));
+    let (per_epoch, epochs) = (plan.iterations_per_epoch.max(1), plan.epochs);
+    for epoch in learner.iteration() / per_epoch..epochs {
+        let stopped = run_epoch(learner, epoch, per_epoch, &plan, progress)?;
+        if stopped {
+            return Ok(Fitted {
+                val,
+                interrupted: true,
+            });
         }
-        val.extend(end.val);
-        if end.stop {
+        progress.set_message(format!("epoch {}/{epochs}: validating", epoch + 1));
+        let v = learner.end_epoch(epoch)?;
+        progress.println(format!(
+            "validation after epoch {}/{epochs} (iteration {}): {v}",
+            epoch + 1,
+            learner.iteration()
+        ));
+        val.push(v);
+        if plan.stop_after == Some(learner.iteration()) {
             return Ok(Fitted {
                 val,
                 interrupted: true,
@@ -99,6 +141,38 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         val,
         interrupted: false,
     })
+}
+
+/// The steps of one epoch from where the run stands; true when `stop_after` stopped it before
+/// its end (checkpointed). Its losses are all read when it returns.
+fn run_epoch<L: Learner>(
+    learner: &mut L,
+    epoch: u64,
+    per_epoch: u64,
+    plan: &Plan,
+    progress: &Progress,
+) -> Result<bool, NetError> {
+    let skip = learner.iteration() - epoch * per_epoch;
+    for batch in learner.batches(epoch, skip)? {
+        let it = learner.step(batch?, epoch, progress)?;
+        let epoch_end = it.is_multiple_of(per_epoch);
+        let stop_here = plan.stop_after == Some(it);
+        let periodic = plan.checkpoint_every > 0 && it.is_multiple_of(plan.checkpoint_every);
+        // Losses are read (and checked) before anything is written.
+        if epoch_end || stop_here || periodic {
+            learner.flush(epoch, progress)?;
+        }
+        // After the read, so that a progress line carries this iteration's loss.
+        progress.set_position(it);
+        if !epoch_end && (stop_here || periodic) {
+            learner.save_last(epoch)?;
+            if stop_here {
+                return Ok(true);
+            }
+        }
+    }
+    learner.flush(epoch, progress)?;
+    Ok(false)
 }
 
 /// RUN/last.safetensors and its optimiser state RUN/last.optim.safetensors, written so that a
@@ -164,77 +238,135 @@ mod tests {
     use depthsense_dataset::outputs::PREV_OPTIM;
     use std::cell::RefCell;
 
-    /// A learner that records what `fit` asked of it.
+    /// A learner that records what `fit` asked of it: 10 iterations per epoch.
     struct Toy {
         iteration: u64,
-        epochs: Range<u64>,
-        stop_at_epoch: Option<u64>,
+        plan: Plan,
         calls: RefCell<Vec<String>>,
+    }
+
+    impl Toy {
+        fn call(&self, c: String) {
+            self.calls.borrow_mut().push(c);
+        }
     }
 
     impl Learner for Toy {
         type Val = u64;
+        type Batch = u64;
         fn iteration(&self) -> u64 {
             self.iteration
         }
-        fn total_iterations(&self) -> u64 {
-            10 * self.epochs.end
-        }
-        fn epochs_left(&self) -> Range<u64> {
-            self.epochs.clone()
+        fn plan(&self) -> Plan {
+            self.plan
         }
         fn validation(&mut self, epoch: u64) -> Result<u64, NetError> {
-            self.calls.borrow_mut().push(format!("validate {epoch}"));
+            self.call(format!("validate {epoch}"));
             Ok(100 + epoch)
         }
         fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
-            self.calls.borrow_mut().push(record.to_string());
+            self.call(record.to_string());
             Ok(())
         }
-        fn train_epoch(&mut self, epoch: u64, _: &Progress) -> Result<EpochEnd<u64>, NetError> {
-            self.calls.borrow_mut().push(format!("epoch {epoch}"));
-            self.iteration += 10;
-            let stop = self.stop_at_epoch == Some(epoch);
-            Ok(EpochEnd {
-                val: (!stop).then_some(101 + epoch),
-                stop,
-            })
+        fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<u64>, NetError> {
+            self.call(format!("epoch {epoch} from {skip}"));
+            Ok(Box::new((epoch * 10 + skip..epoch * 10 + 10).map(Ok)))
+        }
+        fn step(&mut self, batch: u64, _: u64, _: &Progress) -> Result<u64, NetError> {
+            assert_eq!(
+                batch, self.iteration,
+                "batches in order, none skipped twice"
+            );
+            self.iteration += 1;
+            Ok(self.iteration)
+        }
+        fn flush(&mut self, _: u64, _: &Progress) -> Result<(), NetError> {
+            self.call(format!("flush {}", self.iteration));
+            Ok(())
+        }
+        fn save_last(&mut self, epoch: u64) -> Result<(), NetError> {
+            self.call(format!("save {epoch} at {}", self.iteration));
+            Ok(())
+        }
+        fn end_epoch(&mut self, epoch: u64) -> Result<u64, NetError> {
+            self.call(format!("end {epoch}"));
+            Ok(101 + epoch)
         }
     }
 
-    fn toy(iteration: u64, epochs: Range<u64>, stop_at_epoch: Option<u64>) -> Toy {
+    fn toy(iteration: u64, epochs: u64, checkpoint_every: u64, stop_after: Option<u64>) -> Toy {
         Toy {
             iteration,
-            epochs,
-            stop_at_epoch,
+            plan: Plan {
+                iterations_per_epoch: 10,
+                epochs,
+                checkpoint_every,
+                stop_after,
+            },
             calls: RefCell::new(vec![]),
         }
     }
 
+    fn calls(t: Toy) -> Vec<String> {
+        // The flushes at epoch ends only: a flush after every step would not be a deferred read.
+        t.calls.into_inner()
+    }
+
     #[test]
     fn a_fresh_run_validates_the_initial_network_then_every_epoch() {
-        let mut t = toy(0, 0..2, None);
+        let mut t = toy(0, 2, 0, None);
         let f = fit(&mut t, &Progress::hidden()).unwrap();
         assert_eq!(f.val, [100, 101, 102]);
         assert!(!f.interrupted);
         assert_eq!(
-            t.calls.into_inner(),
+            calls(t),
             [
                 "validate 0",
                 r#"{"epoch":0,"iteration":0,"kind":"val","val":100}"#,
-                "epoch 0",
-                "epoch 1"
+                "epoch 0 from 0",
+                "flush 10",
+                "flush 10",
+                "end 0",
+                "epoch 1 from 0",
+                "flush 20",
+                "flush 20",
+                "end 1"
             ]
         );
     }
 
     #[test]
-    fn a_resumed_run_skips_the_initial_validation_and_a_stop_ends_it() {
-        let mut t = toy(15, 1..4, Some(2));
+    fn a_resumed_run_starts_inside_its_epoch_and_stop_after_checkpoints_and_ends_it() {
+        let mut t = toy(15, 4, 4, Some(27));
         let f = fit(&mut t, &Progress::hidden()).unwrap();
         assert_eq!(f.val, [102]);
         assert!(f.interrupted);
-        assert_eq!(t.calls.into_inner(), ["epoch 1", "epoch 2"]);
+        assert_eq!(t.iteration, 27);
+        assert_eq!(
+            calls(t),
+            [
+                "epoch 1 from 5",
+                "flush 16",
+                "save 1 at 16",
+                "flush 20",
+                "flush 20",
+                "end 1",
+                "epoch 2 from 0",
+                "flush 24",
+                "save 2 at 24",
+                "flush 27",
+                "save 2 at 27"
+            ]
+        );
+    }
+
+    #[test]
+    fn stop_after_at_an_epoch_end_closes_the_epoch_first() {
+        let mut t = toy(0, 3, 0, Some(10));
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
+        assert_eq!(f.val, [100, 101]);
+        assert!(f.interrupted);
+        assert!(calls(t).ends_with(&["flush 10".to_string(), "flush 10".into(), "end 0".into()]));
     }
 
     #[test]

@@ -6,8 +6,10 @@
 //! - [`trainer`]: `train` (RUN/ with config.json, metrics.jsonl, curves.png, checkpoints);
 //! - [`metrics_log`]: RUN/metrics.jsonl — the one writer, reader and resume cut;
 //! - [`step`]: the training step's forward and loss (`train` and `bench train` share it);
-//! - [`adam`], [`sgd`]: Adam (the PDA network) and SGD with momentum, whose state can be saved
-//!   (exact resume, [`optim_state`]);
+//! - [`learner`]: the one loop every training command drives, step by step ([`learner::fit`]);
+//! - [`optim`]: the optimiser trait that [`adam`] (the PDA network) and [`sgd`] (SGD with
+//!   momentum) implement, whose state can be saved (exact resume, [`optim_state`]);
+//! - [`schedule`]: the learning rate and the dropout seed of an iteration;
 //! - [`distributed`]: data-parallel training on c10d (Gloo / NCCL), `--nproc` launcher;
 //! - [`bench`]: training and loader throughput.
 
@@ -16,7 +18,9 @@ pub mod bench;
 pub mod distributed;
 pub mod learner;
 pub mod metrics_log;
+pub mod optim;
 pub mod optim_state;
+pub mod schedule;
 pub mod sgd;
 pub mod step;
 pub mod trainer;

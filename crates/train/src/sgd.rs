@@ -10,29 +10,9 @@ use std::path::Path;
 
 use tch::{nn::VarStore, Kind, Tensor};
 
+use crate::optim::Optimizer;
 use crate::optim_state::{self, bad_state, Trainable};
 use depthsense_infer::NetError;
-
-/// Polynomial learning-rate decay per iteration to 0 at the end (SPEC §8):
-/// lr_i = lr₀ · (1 − i/total)^power.
-pub fn poly_lr(base: f64, iteration: u64, total: u64, power: f64) -> f64 {
-    if total == 0 {
-        return base;
-    }
-    let frac = (1.0 - iteration as f64 / total as f64).max(0.0);
-    base * frac.powf(power)
-}
-
-/// [`poly_lr`] times a linear warmup over the first `warmup` iterations: iteration i
-/// (0-based) uses (i + 1)/warmup of the poly rate while i < warmup. `warmup` = 0: no warmup.
-pub fn warmup_poly_lr(base: f64, iteration: u64, total: u64, power: f64, warmup: u64) -> f64 {
-    let ramp = if warmup > 0 {
-        ((iteration + 1) as f64 / warmup as f64).min(1.0)
-    } else {
-        1.0
-    };
-    poly_lr(base, iteration, total, power) * ramp
-}
 
 /// The optimiser: named trainable variables and one momentum buffer each.
 pub struct Sgd {
@@ -60,13 +40,15 @@ impl Sgd {
     pub fn is_empty(&self) -> bool {
         self.vars.vars.is_empty()
     }
+}
 
-    pub fn zero_grad(&mut self) {
+impl Optimizer for Sgd {
+    fn zero_grad(&mut self) {
         self.vars.zero_grad();
     }
 
     /// One update with learning rate `lr`. Variables without a gradient are left alone.
-    pub fn step(&mut self, lr: f64) {
+    fn step(&mut self, lr: f64) {
         tch::no_grad(|| {
             for (name, p) in self.vars.vars.iter_mut() {
                 let g = p.grad();
@@ -96,7 +78,7 @@ impl Sgd {
     }
 
     /// Write the momentum buffers (safetensors, atomically) with the iteration they belong to.
-    pub fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
+    fn save(&self, path: &Path, iteration: u64) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = self
             .buffers
             .iter()
@@ -109,8 +91,8 @@ impl Sgd {
         optim_state::write_atomic(path, named)
     }
 
-    /// Restore buffers saved by [`Sgd::save`]; returns the iteration stored with them.
-    pub fn load(&mut self, path: &Path) -> Result<u64, NetError> {
+    /// Restore buffers saved by [`Optimizer::save`]; returns the iteration stored with them.
+    fn load(&mut self, path: &Path) -> Result<u64, NetError> {
         let named = optim_state::read(path)?;
         let device = self.vars.device();
         let known = self.vars.sizes();
@@ -147,13 +129,6 @@ impl Sgd {
 mod tests {
     use super::*;
     use tch::nn::{self, Module};
-
-    #[test]
-    fn poly_decay_golden() {
-        assert_eq!(poly_lr(1e-3, 0, 100, 0.9), 1e-3);
-        assert!((poly_lr(1e-3, 50, 100, 0.9) - 1e-3 * 0.5f64.powf(0.9)).abs() < 1e-15);
-        assert_eq!(poly_lr(1e-3, 100, 100, 0.9), 0.0);
-    }
 
     #[test]
     fn matches_hand_computed_momentum_sgd() {

@@ -27,13 +27,8 @@ mod session;
 use depthsense_infer::run::validate_net;
 pub use session::{removing_new_folder_on_failure, train, train_distributed, Trainer};
 
-pub use crate::metrics_log::{
-    append_jsonl, read_metrics, truncate_metrics, write_curves, LossCurve, ValRecord,
-};
+use crate::metrics_log::{append_jsonl, read_metrics, truncate_metrics, write_curves, ValRecord};
 use depthsense_infer::upload::upload_batch;
-
-/// Autocast dtype of `train --amp` ([`crate::step`]).
-pub use crate::step::AMP_PRECISION;
 
 /// Everything a training run is made of. Defaults are the paper's (SPEC §8).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

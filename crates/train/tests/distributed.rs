@@ -9,7 +9,8 @@ use depthsense_config::ModelConfig;
 use depthsense_dataset::outputs::{LAST_CKPT, METRICS_FILE};
 use depthsense_progress::Progress;
 use depthsense_train::distributed::{Dist, DistOptions};
-use depthsense_train::trainer::{read_metrics, train, train_distributed, TrainOptions};
+use depthsense_train::metrics_log::read_metrics;
+use depthsense_train::trainer::{train, train_distributed, TrainOptions};
 
 /// Trainings in this process draw from libtorch's process-wide generator: one at a time.
 static TORCH_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());

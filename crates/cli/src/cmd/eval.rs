@@ -74,17 +74,8 @@ pub struct Args {
     /// Depth caps in metres (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "50,70,80")]
     pub caps: Vec<f64>,
-    /// Batch size of inference.
-    #[arg(long, default_value_t = 4)]
-    pub batch_size: usize,
     #[command(flatten)]
-    pub device: crate::cmd::device_arg::DeviceArg,
-    /// Data-loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub jobs: usize,
-    /// Evaluate at most this many samples (evenly spaced).
-    #[arg(long)]
-    pub max_samples: Option<usize>,
+    pub run: crate::cmd::inference_args::InferenceArgs,
     /// Radar map(s): height, raw, raw-height or mer (default: from the checkpoint's config).
     #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
@@ -117,7 +108,7 @@ pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
         split: a.split.clone(),
         val_every_scene: a.val_every_scene,
         eval: eval_config(&a)?,
-        max_samples: a.max_samples,
+        max_samples: a.run.max_samples,
         allow_missing: a.allow_missing,
     };
     let pb = progress_bar("eval");

@@ -217,17 +217,8 @@ pub struct FailureArgs {
     /// Seed of the random drop and the clutter.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Batch size of inference.
-    #[arg(long, default_value_t = 4)]
-    pub batch_size: usize,
     #[command(flatten)]
-    pub device: crate::cmd::device_arg::DeviceArg,
-    /// Data-loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub jobs: usize,
-    /// Evaluate at most this many samples (evenly spaced).
-    #[arg(long)]
-    pub max_samples: Option<usize>,
+    pub run: crate::cmd::inference_args::InferenceArgs,
 }
 
 #[derive(clap::Args)]
@@ -261,17 +252,8 @@ pub struct PerturbArgs {
     /// Seed of the per-sample sign (+ or − the magnitude).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Batch size of inference.
-    #[arg(long, default_value_t = 4)]
-    pub batch_size: usize,
     #[command(flatten)]
-    pub device: crate::cmd::device_arg::DeviceArg,
-    /// Data-loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
-    pub jobs: usize,
-    /// Evaluate at most this many samples (evenly spaced).
-    #[arg(long)]
-    pub max_samples: Option<usize>,
+    pub run: crate::cmd::inference_args::InferenceArgs,
 }
 
 #[derive(clap::Args)]

@@ -57,9 +57,13 @@ pub struct TrainArgs {
     pub seed: u64,
     #[command(flatten)]
     pub device: crate::cmd::device_arg::DeviceArg,
-    /// Continue from OUT/last.safetensors (same options required).
+    /// Continue from OUT/last.safetensors (same options required): at the iteration it was
+    /// written, inside an epoch after --stop-after.
     #[arg(long)]
     pub resume: bool,
+    /// Stop after this global iteration (checkpointed; continue with --resume).
+    #[arg(long)]
+    pub stop_after: Option<u64>,
     /// Start over in an --out that holds a PDA run (its run files are removed first); without
     /// --resume or --force such a folder is refused.
     #[arg(long, conflicts_with = "resume")]

@@ -21,6 +21,7 @@ pub mod explain;
 pub mod export;
 pub mod help_markdown;
 pub mod index;
+pub mod inference_args;
 pub mod inspect;
 pub mod mer;
 pub mod model_info;

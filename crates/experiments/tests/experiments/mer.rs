@@ -9,7 +9,7 @@ use depthsense_config::pda::{MerWindow, PdaConfig};
 use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_data::{load_sample, LoadOptions, Rng};
 use depthsense_dataset::mer_maps::{derive_channels, quantise_conf, read_mer_maps, THRESHOLDS};
-use depthsense_dataset::outputs::BEST_CKPT;
+use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT, METRICS_FILE};
 use depthsense_dataset::Dataset;
 use depthsense_eval::predict::attach_mer;
 use depthsense_mer::apply::{apply, mer_maps, MerApplyOptions};
@@ -188,6 +188,63 @@ fn mer_bytes(ds: &Dataset) -> Vec<Vec<u8>> {
                 .map(|f| std::fs::read(ds.sample_dir(e).join(f)).unwrap())
         })
         .collect()
+}
+
+/// `mer train --stop-after` inside an epoch, then `--resume`: the same run as an uninterrupted
+/// one — every line of RUN/metrics.jsonl (iteration losses, the epoch's mean loss read back
+/// across the interruption, validations) and every weight.
+#[test]
+fn mer_train_stops_inside_an_epoch_and_resumes_exactly() {
+    let _torch = crate::torch_lock();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data);
+    let whole_out = tmp.path().join("whole");
+    let whole_opts = MerTrainOptions {
+        epochs: 2,
+        ..train_opts(&data, &whole_out)
+    };
+    let whole = train_pda(&whole_opts, &Progress::hidden()).unwrap();
+    assert!(!whole.interrupted);
+    let per_epoch = whole.iterations / 2;
+    assert!(
+        per_epoch >= 2,
+        "{per_epoch} iterations per epoch: no inside"
+    );
+    let split_out = tmp.path().join("split");
+    let first = MerTrainOptions {
+        out: split_out.clone(),
+        stop_after: Some(per_epoch + 1),
+        ..whole_opts.clone()
+    };
+    let stopped = train_pda(&first, &Progress::hidden()).unwrap();
+    assert!(stopped.interrupted);
+    assert_eq!(stopped.iterations, per_epoch + 1);
+    assert_eq!(stopped.val.len(), 2, "the initial network and epoch 1");
+    let resumed = train_pda(
+        &MerTrainOptions {
+            resume: true,
+            stop_after: None,
+            ..first
+        },
+        &Progress::hidden(),
+    )
+    .unwrap();
+    assert!(!resumed.interrupted);
+    assert_eq!(resumed.iterations, whole.iterations);
+    let metrics = |run: &Path| std::fs::read_to_string(run.join(METRICS_FILE)).unwrap();
+    assert_eq!(metrics(&split_out), metrics(&whole_out));
+    let weights = |run: &Path| {
+        let l = depthsense_model::pda::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
+        let mut v: Vec<(String, Vec<f32>)> =
+            l.vs.variables()
+                .into_iter()
+                .map(|(k, t)| (k, Vec::<f32>::try_from(t.flatten(0, -1)).unwrap()))
+                .collect();
+        v.sort_by(|a, b| a.0.cmp(&b.0));
+        v
+    };
+    assert_eq!(weights(&split_out), weights(&whole_out));
 }
 
 /// predict's MER against the stored one: depth exactly; confidence to one 16-bit step. `mer

@@ -12,7 +12,8 @@ use depthsense_infer::NetError;
 use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
 use depthsense_score::tables::write_tables;
-use depthsense_train::trainer::{read_metrics, train, TrainOptions};
+use depthsense_train::metrics_log::read_metrics;
+use depthsense_train::trainer::{train, TrainOptions};
 
 const W: u32 = 128;
 const H: u32 = 64;

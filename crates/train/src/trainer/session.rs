@@ -1,13 +1,13 @@
 //! One training run as a [`Trainer`]: `new` (data, partition, network — fresh or resumed —
-//! and RUN/config.json), `validate`, `step`, `end_epoch`, `checkpoint`; it is the
-//! [`Learner`] that [`crate::learner::fit`] drives ([`train`], [`train_distributed`]).
+//! and RUN/config.json), `validate`, and the [`Learner`] that [`crate::learner::fit`] drives
+//! step by step ([`train`], [`train_distributed`]): an epoch's batches from the prefetching
+//! loader, the SGD step (its loss read every `loss_read_every` steps), checkpoints, epoch ends.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
-use depthsense_base::hash::splitmix64;
 use depthsense_base::lock::OutputLock;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
@@ -16,7 +16,6 @@ use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_model::{checkpoint, DepthNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
-use std::ops::Range;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
@@ -24,9 +23,11 @@ use super::{
     validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
-use crate::learner::{fit, lock_run_folder, Checkpointer, EpochEnd, Learner};
+use crate::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
+use crate::optim::Optimizer;
 use crate::optim_state;
-use crate::sgd::{warmup_poly_lr, Sgd};
+use crate::schedule::{seed_step, warmup_poly_lr};
+use crate::sgd::Sgd;
 use depthsense_dataset::outputs::{
     BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
@@ -43,7 +44,7 @@ pub struct Trainer<'o> {
     vs: VarStore,
     net: DepthNet,
     state: State,
-    sgd: Sgd,
+    optim: Sgd,
     load: LoadOptions,
     run: PathBuf,
     /// Batches per epoch and total iterations.
@@ -62,6 +63,10 @@ pub struct Trainer<'o> {
     ckpt: Checkpointer,
     /// (iteration, loss) of every step of this invocation.
     losses: Vec<(u64, f64)>,
+    /// The current epoch's losses (pending and read).
+    acc: EpochLosses,
+    /// When the previous step ended (a step's time includes waiting for its batch).
+    step_ended: Instant,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -111,7 +116,7 @@ impl<'o> Trainer<'o> {
         std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
         let bpe = batches_per_epoch(opts, part.train.len());
-        let ((vs, net, mut state, sgd), optim_matches) =
+        let ((vs, net, mut state, optim), optim_matches) =
             if continues && run.join(LAST_CKPT).exists() {
                 resume(opts, &run, &cfg, device, main, bpe)?
             } else if opts.extend {
@@ -154,7 +159,7 @@ impl<'o> Trainer<'o> {
             vs,
             net,
             state,
-            sgd,
+            optim,
             load,
             run: run.clone(),
             bpe,
@@ -167,6 +172,8 @@ impl<'o> Trainer<'o> {
             _lock: lock,
             ckpt: Checkpointer::new(&run, optim_matches),
             losses: vec![],
+            acc: EpochLosses::default(),
+            step_ended: Instant::now(),
         };
         if main {
             trainer.write_config()?;
@@ -294,13 +301,13 @@ impl<'o> Trainer<'o> {
 
     /// One SGD step on `batch`. Its loss stays on the device unless losses are read every
     /// iteration: then it is read here and a non-finite one stops before the update.
-    fn step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, NetError> {
+    fn sgd_step(&mut self, batch: &Batch, epoch: u64) -> Result<PendingLoss, NetError> {
         let opts = self.opts;
         let bt = upload_batch(batch, self.device);
         let it = self.state.iteration;
         let lr = self.lr_at(it);
         // Dropout draws depend only on (seed, iteration): exact resume.
-        tch::manual_seed((splitmix64(opts.seed ^ splitmix64(it + 1)) >> 1) as i64);
+        seed_step(opts.seed, it);
         let precision = step_precision(opts.amp);
         if let Some(d) = &self.dist {
             d.before_forward(opts.seed, it, batch.size)?;
@@ -319,7 +326,7 @@ impl<'o> Trainer<'o> {
         } else {
             loss.detach()
         };
-        self.sgd.zero_grad();
+        self.optim.zero_grad();
         match self.dist.as_mut() {
             None => loss.backward(),
             Some(d) => {
@@ -327,7 +334,7 @@ impl<'o> Trainer<'o> {
                 d.sync_grads()?;
             }
         }
-        self.sgd.step(lr);
+        self.optim.step(lr);
         self.state.iteration += 1;
         if let Some(d) = &self.dist {
             d.check_replicas(self.state.iteration)?;
@@ -343,16 +350,11 @@ impl<'o> Trainer<'o> {
 
     /// Reads the pending losses (one device→host copy) and logs them in order; the first
     /// non-finite one stops training with its own iteration.
-    fn read_losses(
-        &mut self,
-        epoch: u64,
-        acc: &mut EpochLosses,
-        progress: &Progress,
-    ) -> Result<(), NetError> {
-        if acc.pending.is_empty() {
+    fn read_losses(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError> {
+        if self.acc.pending.is_empty() {
             return Ok(());
         }
-        let pending = std::mem::take(&mut acc.pending);
+        let pending = std::mem::take(&mut self.acc.pending);
         let stacked: Vec<&tch::Tensor> = pending.iter().map(|p| &p.loss).collect();
         let values = tch::Tensor::stack(&stacked, 0)
             .to_kind(Kind::Double)
@@ -362,8 +364,8 @@ impl<'o> Trainer<'o> {
             if !lv.is_finite() {
                 return Err(self.non_finite(lv, epoch, p.iteration));
             }
-            acc.sum += lv;
-            acc.n += 1;
+            self.acc.sum += lv;
+            self.acc.n += 1;
             self.losses.push((p.iteration, lv));
             if self.is_main() {
                 append_jsonl(
@@ -403,18 +405,14 @@ impl<'o> Trainer<'o> {
         }
         // Optimiser state first, the previous one kept until the checkpoint is written.
         self.ckpt.save_last(
-            |optim| self.sgd.save(optim, state.iteration),
+            |optim| self.optim.save(optim, state.iteration),
             |last| save_ckpt(last, &self.vs, &self.cfg, state, self.opts),
         )
     }
 
     /// Epoch end: validate, checkpoint (best when improved), log, plot.
-    fn end_epoch(
-        &mut self,
-        epoch: u64,
-        epoch_loss: f64,
-        epoch_n: usize,
-    ) -> Result<ValRecord, NetError> {
+    fn close_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
+        let (epoch_loss, epoch_n) = (self.acc.sum, self.acc.n);
         let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
@@ -449,15 +447,11 @@ impl<'o> Trainer<'o> {
         Ok(v)
     }
 
-    /// Runs one epoch's batches and closes it (validation, checkpoints, epoch record);
-    /// `stop` when `stop_after` interrupted it or was reached at its end.
-    fn run_epoch(
-        &mut self,
-        epoch: u64,
-        progress: &Progress,
-    ) -> Result<EpochEnd<ValRecord>, NetError> {
+    /// The loader of epoch `epoch` from its batch `skip` on; the epoch's running loss starts
+    /// with the losses of the iterations before a resume (read back from metrics.jsonl), as in
+    /// an uninterrupted run.
+    fn epoch_loader(&mut self, epoch: u64, skip: u64) -> Result<Loader, NetError> {
         let opts = self.opts;
-        let skip = (self.state.iteration - epoch * self.bpe) as usize;
         // An epoch of `epoch_iterations` draws its samples from the stream of passes itself.
         let (entries, shuffle) = match opts.epoch_iterations {
             Some(block) => (
@@ -472,19 +466,14 @@ impl<'o> Trainer<'o> {
             batch_size: opts.batch_size,
             epoch,
             shuffle,
-            skip_batches: skip,
+            skip_batches: skip as usize,
             jobs: opts.jobs,
             prefetch: opts.prefetch,
         };
-        let (rank, world) = self
-            .dist
-            .as_ref()
-            .map_or((0, 1), |d| (d.rank(), d.world_size()));
+        let (rank, world) = self.rank_world();
         let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
-        let mut acc = EpochLosses::default();
+        self.acc = EpochLosses::default();
         if skip > 0 && self.is_main() {
-            // Resumed inside this epoch: its average loss also counts the iterations before the
-            // interruption (read back from metrics.jsonl), as in an uninterrupted run.
             let from = epoch * self.bpe;
             let losses = read_metrics(&self.path(METRICS_FILE))
                 .map(|(l, _)| l)
@@ -493,48 +482,19 @@ impl<'o> Trainer<'o> {
                 .iter()
                 .filter(|(i, _)| *i > from && *i <= self.state.iteration)
             {
-                acc.sum += l;
-                acc.n += 1;
+                self.acc.sum += l;
+                self.acc.n += 1;
             }
         }
-        let every = self.loss_read_every();
-        let mut t_iter = Instant::now();
-        for batch in loader.take((self.bpe as usize).saturating_sub(skip)) {
-            let batch = batch?;
-            let mut p = self.step(&batch, epoch)?;
-            p.seconds = t_iter.elapsed().as_secs_f64();
-            t_iter = Instant::now();
-            let it = p.iteration;
-            self.train_secs += p.seconds;
-            self.images += batch.size * world;
-            acc.pending.push(p);
-            let epoch_end = it.is_multiple_of(self.bpe);
-            let stop_here = opts.stop_after == Some(it);
-            let periodic = opts.checkpoint_every > 0 && it.is_multiple_of(opts.checkpoint_every);
-            // Losses are read (and checked) before anything is written.
-            if acc.pending.len() >= every || epoch_end || stop_here || periodic {
-                self.read_losses(epoch, &mut acc, progress)?;
-            }
-            // After the read, so that a progress line carries this iteration's loss.
-            progress.set_position(it);
-            if !epoch_end && (stop_here || periodic) {
-                self.state.epoch = epoch;
-                self.checkpoint()?;
-                if stop_here {
-                    return Ok(EpochEnd {
-                        val: None,
-                        stop: true,
-                    });
-                }
-            }
-        }
-        self.read_losses(epoch, &mut acc, progress)?;
-        progress.set_message(format!("epoch {}/{}: validating", epoch + 1, opts.epochs));
-        let v = self.end_epoch(epoch, acc.sum, acc.n)?;
-        Ok(EpochEnd {
-            val: Some(v),
-            stop: opts.stop_after == Some(self.state.iteration),
-        })
+        self.step_ended = Instant::now();
+        Ok(loader)
+    }
+
+    /// (rank, world size) of this process (0, 1 alone).
+    fn rank_world(&self) -> (usize, usize) {
+        self.dist
+            .as_ref()
+            .map_or((0, 1), |d| (d.rank(), d.world_size()))
     }
 
     /// Trains to the end (or to `stop_after`).
@@ -604,17 +564,19 @@ impl<'o> Trainer<'o> {
 
 impl Learner for Trainer<'_> {
     type Val = ValRecord;
+    type Batch = Batch;
 
     fn iteration(&self) -> u64 {
         self.state.iteration
     }
 
-    fn total_iterations(&self) -> u64 {
-        self.total
-    }
-
-    fn epochs_left(&self) -> Range<u64> {
-        self.state.iteration / self.bpe..self.opts.epochs as u64
+    fn plan(&self) -> Plan {
+        Plan {
+            iterations_per_epoch: self.bpe,
+            epochs: self.opts.epochs as u64,
+            checkpoint_every: self.opts.checkpoint_every,
+            stop_after: self.opts.stop_after,
+        }
     }
 
     fn validation(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
@@ -628,12 +590,39 @@ impl Learner for Trainer<'_> {
         Ok(())
     }
 
-    fn train_epoch(
-        &mut self,
-        epoch: u64,
-        progress: &Progress,
-    ) -> Result<EpochEnd<ValRecord>, NetError> {
-        self.run_epoch(epoch, progress)
+    fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Batch>, NetError> {
+        let loader = self.epoch_loader(epoch, skip)?;
+        let left = self.bpe.saturating_sub(skip) as usize;
+        Ok(Box::new(
+            loader.take(left).map(|b| b.map_err(NetError::from)),
+        ))
+    }
+
+    fn step(&mut self, batch: Batch, epoch: u64, progress: &Progress) -> Result<u64, NetError> {
+        let mut p = self.sgd_step(&batch, epoch)?;
+        p.seconds = self.step_ended.elapsed().as_secs_f64();
+        self.step_ended = Instant::now();
+        let it = p.iteration;
+        self.train_secs += p.seconds;
+        self.images += batch.size * self.rank_world().1;
+        self.acc.pending.push(p);
+        if self.acc.pending.len() >= self.loss_read_every() {
+            self.read_losses(epoch, progress)?;
+        }
+        Ok(it)
+    }
+
+    fn flush(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError> {
+        self.read_losses(epoch, progress)
+    }
+
+    fn save_last(&mut self, epoch: u64) -> Result<(), NetError> {
+        self.state.epoch = epoch;
+        self.checkpoint()
+    }
+
+    fn end_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
+        self.close_epoch(epoch)
     }
 }
 
@@ -696,8 +685,9 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), NetError>
 /// The first `n` of `train` in a fixed order (SplitMix64 of each sample token's FNV-1a hash):
 /// nested for growing `n`, the same for every seed and variant; returned in `train`'s order.
 pub fn training_subset(train: &[IndexEntry], n: usize) -> Vec<IndexEntry> {
-    let key =
-        |e: &IndexEntry| splitmix64(depthsense_base::hash::fnv1a64(e.sample_token.as_bytes()));
+    let key = |e: &IndexEntry| {
+        depthsense_base::hash::splitmix64(depthsense_base::hash::fnv1a64(e.sample_token.as_bytes()))
+    };
     let mut order: Vec<usize> = (0..train.len()).collect();
     order.sort_by_key(|&i| (key(&train[i]), i));
     let mut keep: Vec<usize> = order.into_iter().take(n).collect();
@@ -832,7 +822,7 @@ fn fresh(
     if main {
         let _ = std::fs::remove_file(run.join(METRICS_FILE));
     }
-    let sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
+    let optim = Sgd::new(&vs, opts.momentum, opts.weight_decay);
     let state = State {
         kind: "depthsense-train".into(),
         iteration: 0,
@@ -847,7 +837,7 @@ fn fresh(
         init_from,
         data_settings: Default::default(),
     };
-    Ok((vs, net, state, sgd))
+    Ok((vs, net, state, optim))
 }
 
 /// The network, state and optimiser of RUN/last.safetensors, checked against `opts`; and
@@ -907,12 +897,13 @@ fn resume(
             opts.seed
         )));
     }
-    let mut sgd = Sgd::new(&vs, opts.momentum, opts.weight_decay);
-    let matches = optim_state::load_matching(&last_optim, &last, state.iteration, |p| sgd.load(p))?;
+    let mut optim = Sgd::new(&vs, opts.momentum, opts.weight_decay);
+    let matches =
+        optim_state::load_matching(&last_optim, &last, state.iteration, |p| optim.load(p))?;
     if main {
         truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
     }
-    Ok(((vs, net, state, sgd), matches))
+    Ok(((vs, net, state, optim), matches))
 }
 
 /// `--extend`: a new learning-rate segment from the checkpoint's iteration to the end of

@@ -127,10 +127,10 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
         data: a.data,
         split: a.split,
         seed: a.seed,
-        batch_size: a.batch_size,
-        device: a.device.name,
-        jobs: a.jobs,
-        max_samples: a.max_samples,
+        batch_size: a.run.batch_size,
+        device: a.run.device.name,
+        jobs: a.run.jobs,
+        max_samples: a.run.max_samples,
         ..EvalOptions::default()
     };
     let sc = parse_scenarios(&a.scenarios)?;
@@ -150,10 +150,10 @@ fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
         data: a.data,
         split: a.split,
         seed: a.seed,
-        batch_size: a.batch_size,
-        device: a.device.name,
-        jobs: a.jobs,
-        max_samples: a.max_samples,
+        batch_size: a.run.batch_size,
+        device: a.run.device.name,
+        jobs: a.run.jobs,
+        max_samples: a.run.max_samples,
         ..EvalOptions::default()
     };
     let opts = PerturbOptions {

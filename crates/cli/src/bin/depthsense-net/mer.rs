@@ -39,6 +39,7 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         augment: !a.no_augment,
         max_val_samples: a.max_val_samples,
         val_every_scene: a.val_every_scene,
+        stop_after: a.stop_after,
         ..MerTrainOptions::default()
     };
     let pb = progress_bar("mer");
@@ -59,6 +60,12 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         s.seconds,
         s.run_dir.display()
     );
+    if s.interrupted {
+        eprintln!(
+            "stopped at iteration {} as asked; continue with --resume",
+            s.iterations
+        );
+    }
     Ok(ExitCode::SUCCESS)
 }
 

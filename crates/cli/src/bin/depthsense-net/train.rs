@@ -214,7 +214,7 @@ fn train_this_process(
 /// The run's summary on stderr: iterations, times, validation RMSE over the whole history.
 fn print_summary(s: &TrainSummary, out: &std::path::Path) {
     // The whole history (a resumed run's summary only holds its own epochs).
-    let history = depthsense_train::trainer::read_metrics(
+    let history = depthsense_train::metrics_log::read_metrics(
         &out.join(depthsense_dataset::outputs::METRICS_FILE),
     )
     .map(|(_, v)| v)

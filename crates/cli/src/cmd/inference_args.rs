@@ -1,0 +1,18 @@
+//! How a network runs over prepared samples: `--batch-size`, `--device`, `--jobs` and
+//! `--max-samples`, one flag group for `eval` and `experiment failure|perturb` (flattened into
+//! their arguments), with the same defaults and help.
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct InferenceArgs {
+    /// Batch size of inference.
+    #[arg(long, default_value_t = 4)]
+    pub batch_size: usize,
+    #[command(flatten)]
+    pub device: crate::cmd::device_arg::DeviceArg,
+    /// Data-loader threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub jobs: usize,
+    /// Evaluate at most this many samples (evenly spaced).
+    #[arg(long)]
+    pub max_samples: Option<usize>,
+}
