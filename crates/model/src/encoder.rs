@@ -3,7 +3,10 @@
 
 use tch::Tensor;
 
+use std::rc::Rc;
+
 use crate::layers::{out_len, ConvBn, MacRows, P};
+use crate::sync_bn::BatchNormHook;
 use depthsense_config::StemKind;
 
 /// Residual block kind.
@@ -32,7 +35,12 @@ pub(crate) struct Block {
 }
 
 impl Block {
-    fn new(p: &P, kind: BlockKind, cin: i64, planes: i64, stride: i64, dil: i64) -> Block {
+    fn new(
+        p: &P,
+        kind: BlockKind,
+        [cin, planes, stride, dil]: [i64; 4],
+        bn: Option<&Rc<dyn BatchNormHook>>,
+    ) -> Block {
         let out = planes * kind.expansion();
         let down = (stride != 1 || cin != out).then(|| {
             ConvBn::new(
@@ -44,12 +52,24 @@ impl Block {
                 stride,
                 0,
                 1,
+                bn,
             )
         });
+        let hook = bn;
         // `conv{i}` + `bn{i}`: [cin, cout, k, stride, pad, dil].
         let cb = |i: usize, [cin, cout, k, stride, pad, dil]: [i64; 6]| {
             let (conv, bn) = (format!("conv{i}"), format!("bn{i}"));
-            ConvBn::new(&p.sub(&conv), &p.sub(&bn), cin, cout, k, stride, pad, dil)
+            ConvBn::new(
+                &p.sub(&conv),
+                &p.sub(&bn),
+                cin,
+                cout,
+                k,
+                stride,
+                pad,
+                dil,
+                hook,
+            )
         };
         match kind {
             BlockKind::Basic => Block {
@@ -146,9 +166,11 @@ pub(crate) struct ResNet {
 }
 
 impl ResNet {
-    pub fn new(p: &P, s: &ResNetSpec) -> ResNet {
-        let (stem, cin) = Self::stem(p, s);
-        let (layers, channels) = Self::layers(p, s, cin);
+    /// The encoder of `s` under `p`; `bn`: the BatchNorm hook of data-parallel training
+    /// (`crate::sync_bn`), or None.
+    pub fn new(p: &P, s: &ResNetSpec, bn: Option<&Rc<dyn BatchNormHook>>) -> ResNet {
+        let (stem, cin) = Self::stem(p, s, bn);
+        let (layers, channels) = Self::layers(p, s, cin, bn);
         ResNet {
             stem,
             layers,
@@ -157,7 +179,7 @@ impl ResNet {
     }
 
     /// The stem of `s` under `p` and its output channels.
-    fn stem(p: &P, s: &ResNetSpec) -> (Stem, i64) {
+    fn stem(p: &P, s: &ResNetSpec, bn: Option<&Rc<dyn BatchNormHook>>) -> (Stem, i64) {
         let w = s.width;
         let cb = |i: usize, cin: i64, cout: i64, k: i64, st: i64, pad: i64| {
             ConvBn::new(
@@ -169,6 +191,7 @@ impl ResNet {
                 st,
                 pad,
                 1,
+                bn,
             )
         };
         match s.stem {
@@ -196,7 +219,12 @@ impl ResNet {
     }
 
     /// layer1..layer4 of `s` under `p`, from `cin` stem channels, and the channels of C1..C4.
-    fn layers(p: &P, s: &ResNetSpec, mut cin: i64) -> (Vec<Vec<Block>>, [i64; 4]) {
+    fn layers(
+        p: &P,
+        s: &ResNetSpec,
+        mut cin: i64,
+        bn: Option<&Rc<dyn BatchNormHook>>,
+    ) -> (Vec<Vec<Block>>, [i64; 4]) {
         let w = s.width;
         let mut layers = Vec::new();
         let mut channels = [0; 4];
@@ -210,10 +238,8 @@ impl ResNet {
                 blocks.push(Block::new(
                     &lp.sub(&bi.to_string()),
                     s.block,
-                    cin,
-                    planes,
-                    stride,
-                    s.dilations[li],
+                    [cin, planes, stride, s.dilations[li]],
+                    bn,
                 ));
                 cin = planes * s.block.expansion();
             }

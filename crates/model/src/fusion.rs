@@ -51,8 +51,12 @@ pub(crate) struct LateFusion {
 
 impl LateFusion {
     /// The radar paths of `cfg` under `root` (in this order), or `None` without late fusion.
-    pub(crate) fn new(root: &P, cfg: &ModelConfig) -> Option<LateFusion> {
-        let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(root, cfg))?;
+    pub(crate) fn new(
+        root: &P,
+        cfg: &ModelConfig,
+        hooks: &crate::sync_bn::TrainHooks,
+    ) -> Option<LateFusion> {
+        let radar = (cfg.fusion == Fusion::Late).then(|| RadarBranch::new(root, cfg, hooks))?;
         let skip_ch = cfg.radar_skip_channels;
         let skip = (skip_ch > 0).then(|| RadarSkip::new(root, cfg.radar_channels, skip_ch));
         Some(LateFusion { radar, skip })

@@ -166,6 +166,8 @@ impl Conv {
 pub(crate) struct ConvBn {
     pub conv: Conv,
     bn: nn::BatchNorm,
+    /// The training-mode BatchNorm of data-parallel training (`crate::sync_bn`), if any.
+    hook: Option<std::rc::Rc<dyn crate::sync_bn::BatchNormHook>>,
 }
 
 impl ConvBn {
@@ -179,8 +181,10 @@ impl ConvBn {
         stride: i64,
         pad: i64,
         dil: i64,
+        hook: Option<&std::rc::Rc<dyn crate::sync_bn::BatchNormHook>>,
     ) -> ConvBn {
         ConvBn {
+            hook: hook.cloned(),
             conv: Conv::with_init(
                 pc,
                 [cin, cout, k, stride, pad, dil],
@@ -192,7 +196,7 @@ impl ConvBn {
     }
     /// Conv then BN (no activation), shapes as [`Conv::forward`].
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
-        crate::sync_bn::forward_t(&self.bn, &self.conv.forward(x), train)
+        crate::sync_bn::forward_t(&self.bn, &self.conv.forward(x), train, self.hook.as_ref())
     }
 }
 

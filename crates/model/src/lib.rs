@@ -15,7 +15,8 @@
 //!   [`host`]: the edge to the torch-free formats of `depthsense_weights`;
 //! - [`report`]: parameters per module and multiply-adds at 350x800;
 //! - [`pda`]: the MER radar–pixel association network (SPEC §5);
-//! - [`sync_bn`]: the BatchNorm switch of data-parallel training (SyncBatchNorm).
+//! - [`sync_bn`]: what data-parallel training builds a network with (`TrainHooks`:
+//!   SyncBatchNorm, per-sample dropout seeds), given at construction.
 
 pub mod checkpoint;
 pub mod config;

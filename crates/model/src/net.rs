@@ -3,6 +3,7 @@
 //! ([`crate::radar_branch`]), fusion and spatial attention ([`crate::fusion`]) and the head
 //! ([`crate::head`]); then the loss and the decoding to metres ([`crate::ordinal`]).
 
+use crate::sync_bn::TrainHooks;
 use tch::{nn, Kind, Tensor};
 
 use crate::decoder::Decoder;
@@ -38,11 +39,21 @@ impl std::fmt::Debug for DepthNet {
 impl DepthNet {
     /// Creates the variables of `cfg` under `p` (usually `vs.root()`).
     pub fn new(p: &nn::Path, cfg: &ModelConfig) -> Result<DepthNet, ModelError> {
+        Self::with_hooks(p, cfg, &TrainHooks::default())
+    }
+
+    /// [`DepthNet::new`] for data-parallel training: the BatchNorm layers and the head's
+    /// dropout are built with `hooks` (`crate::sync_bn`).
+    pub fn with_hooks(
+        p: &nn::Path,
+        cfg: &ModelConfig,
+        hooks: &TrainHooks,
+    ) -> Result<DepthNet, ModelError> {
         cfg.validate()?;
         let root = P::root(p);
         let in_ch = fusion::encoder_in_channels(cfg);
         let spec = ResNetSpec::standard(cfg.backbone_depth, in_ch, cfg.backbone_width, cfg.stem);
-        let rgb = ResNet::new(&root.sub("rgb"), &spec);
+        let rgb = ResNet::new(&root.sub("rgb"), &spec, hooks.batch_norm.as_ref());
         let ch = rgb.channels;
         let decoder = Decoder::new(
             &root,
@@ -50,12 +61,12 @@ impl DepthNet {
             [ch[1], ch[2], ch[3]],
             cfg.decoder_channels,
         );
-        let late = LateFusion::new(&root, cfg);
+        let late = LateFusion::new(&root, cfg, hooks);
         let fused = decoder.out_channels() + late.as_ref().map_or(0, LateFusion::out_channels);
         let attention = cfg
             .attention
             .then(|| SpatialAttention::new(&root, cfg.attention_gate));
-        let head = Head::new(&root, fused, cfg);
+        let head = Head::new(&root, fused, cfg, hooks);
         Ok(DepthNet {
             cfg: cfg.clone(),
             rgb,

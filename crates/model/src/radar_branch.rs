@@ -2,6 +2,7 @@
 //! radar path (`radar_skip.`) and the nearest-depth pooling that brings radar maps to a
 //! coarser grid (SPEC §5: nearest wins).
 
+use crate::sync_bn::TrainHooks;
 use tch::Tensor;
 
 use crate::encoder::{BlockKind, ResNet, ResNetSpec};
@@ -42,7 +43,7 @@ pub(crate) struct RadarBranch {
 }
 
 impl RadarBranch {
-    pub(crate) fn new(p: &P, cfg: &ModelConfig) -> RadarBranch {
+    pub(crate) fn new(p: &P, cfg: &ModelConfig, hooks: &TrainHooks) -> RadarBranch {
         let r = p.sub("radar");
         match cfg.radar_branch {
             RadarBranchKind::Basic => {
@@ -52,7 +53,7 @@ impl RadarBranch {
                     cfg.radar_width,
                     StemKind::Torchvision,
                 );
-                let resnet = ResNet::new(&r, &spec);
+                let resnet = ResNet::new(&r, &spec, hooks.batch_norm.as_ref());
                 let out_channels = resnet.channels[3];
                 RadarBranch {
                     resnet,
@@ -70,7 +71,7 @@ impl RadarBranch {
                     strides: [1, 2, 1, 1],
                     dilations: [1, 1, 2, 4],
                 };
-                let resnet = ResNet::new(&r, &spec);
+                let resnet = ResNet::new(&r, &spec, hooks.batch_norm.as_ref());
                 let c = resnet.channels[3];
                 let o = cfg.radar_out_channels;
                 let cr = r.sub("conv_radar");

@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 use depthsense_dist::sync_bn::{batch_norm, BnState};
 use depthsense_dist::{broadcast_flat, GradBuckets, ReduceOp};
 use depthsense_metrics::{Aggregate, Metrics, Report};
-use depthsense_model::sync_bn::{set_batch_norm_hook, set_sample_seeds, BatchNormHook};
+use depthsense_model::sync_bn::{BatchNormHook, DropoutSeeds, TrainHooks};
 use serde::{Deserialize, Serialize};
 use tch::{nn, nn::ModuleT, nn::VarStore, Device, Kind, Tensor};
 
@@ -116,6 +116,8 @@ pub struct Dist {
     params: Vec<Tensor>,
     buffers: Vec<Tensor>,
     hook: Option<Rc<SyncBnHook>>,
+    /// The head's per-sample dropout seeds, set before every training forward.
+    seeds: Rc<DropoutSeeds>,
     pub stats: CommStats,
 }
 
@@ -129,6 +131,7 @@ impl Dist {
             params: vec![],
             buffers: vec![],
             hook: None,
+            seeds: Rc::new(DropoutSeeds::default()),
             stats: CommStats::default(),
         }
     }
@@ -165,8 +168,22 @@ impl Dist {
         &self.pg
     }
 
-    /// Make the replicas identical (broadcast from rank 0), prepare the gradient buckets and
-    /// install SyncBatchNorm on this thread when asked.
+    /// What this rank's network is built with (`DepthNet::with_hooks`): SyncBatchNorm when
+    /// asked, and the per-sample dropout seeds that [`Dist::before_forward`] sets.
+    pub(crate) fn train_hooks(&mut self) -> TrainHooks {
+        if self.opts.sync_bn && self.hook.is_none() {
+            self.hook = Some(Rc::new(SyncBnHook {
+                pg: self.pg.clone(),
+                error: RefCell::new(None),
+            }));
+        }
+        TrainHooks {
+            batch_norm: self.hook.clone().map(|h| h as Rc<dyn BatchNormHook>),
+            dropout_seeds: Some(self.seeds.clone()),
+        }
+    }
+
+    /// Make the replicas identical (broadcast from rank 0) and prepare the gradient buckets.
     pub(crate) fn attach(&mut self, vs: &VarStore) -> Result<(), NetError> {
         let mut named: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
         named.sort_by(|a, b| a.0.cmp(&b.0));
@@ -187,14 +204,6 @@ impl Dist {
         self.stats.grad_bytes = grads.bucket_bytes().iter().sum();
         self.stats.buckets = grads.bucket_bytes().len();
         self.grads = Some(grads);
-        if self.opts.sync_bn {
-            let hook = Rc::new(SyncBnHook {
-                pg: self.pg.clone(),
-                error: RefCell::new(None),
-            });
-            set_batch_norm_hook(Some(hook.clone()));
-            self.hook = Some(hook);
-        }
         Ok(())
     }
 
@@ -213,7 +222,7 @@ impl Dist {
                 splitmix64(seed ^ splitmix64(iteration + 1) ^ splitmix64(g as u64 ^ 0xd20_5eed))
             })
             .collect();
-        set_sample_seeds(Some(seeds));
+        self.seeds.set(Some(seeds));
         if !self.opts.sync_bn && !self.buffers.is_empty() {
             broadcast_flat(&self.pg, &self.buffers, 0, self.opts.bucket_bytes)?;
         }
@@ -354,15 +363,6 @@ impl Dist {
     /// Wait for every rank.
     pub fn barrier(&self) -> Result<(), NetError> {
         Ok(self.pg.barrier()?)
-    }
-}
-
-impl Drop for Dist {
-    fn drop(&mut self) {
-        if self.hook.take().is_some() {
-            set_batch_norm_hook(None);
-        }
-        set_sample_seeds(None);
     }
 }
 

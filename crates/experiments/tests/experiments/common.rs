@@ -1,5 +1,5 @@
-//! Set-up shared by the experiment tests (`ablation.rs`, `reduced_data.rs`): a hidden progress
-//! host, file modification times (resume checks) and quick run settings on a toy dataset.
+//! Set-up shared by the experiment tests: a hidden progress host, file modification times
+//! (resume checks), quick run settings on a toy dataset and a random tiny checkpoint.
 #![allow(dead_code)] // each test binary uses its own part
 
 use std::path::Path;
@@ -14,6 +14,32 @@ pub fn hidden() -> Board {
 
 pub fn mtime(p: &Path) -> SystemTime {
     std::fs::metadata(p).unwrap().modified().unwrap()
+}
+
+/// A random `tiny` network at reduced widths (seed 3) with output frame `out_hw` (height,
+/// width), saved as DIR/ck.safetensors.
+pub fn tiny_checkpoint(dir: &Path, out_hw: (u32, u32)) -> std::path::PathBuf {
+    use depthsense_model::{checkpoint, DepthNet};
+    let (h, w) = (
+        format!("out-height={}", out_hw.0),
+        format!("out-width={}", out_hw.1),
+    );
+    let cfg = depthsense_config::ModelConfig::tiny()
+        .with_options(&[
+            "width=8",
+            "decoder-channels=16",
+            "head-channels=16",
+            "radar-width=8",
+            h.as_str(),
+            w.as_str(),
+        ])
+        .unwrap();
+    tch::manual_seed(3);
+    let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+    let _net = DepthNet::new(&vs.root(), &cfg).unwrap();
+    let p = dir.join("ck.safetensors");
+    checkpoint::save(&p, &vs, &cfg, &serde_json::Value::Null).unwrap();
+    p
 }
 
 /// The `tiny` preset at reduced widths, no dropout: seconds per run on 2 cores.

@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::radar_failure::RadarFailure;
 use depthsense_data::{load_sample, LoadOptions, Rng};
@@ -13,7 +12,6 @@ use depthsense_eval::evaluate::{run_eval, EvalOptions};
 use depthsense_experiments::perturb::{
     run_perturb, PerturbOptions, PERTURB_CSV, PERTURB_JSON, PERTURB_MD, PERTURB_PNG,
 };
-use depthsense_model::{checkpoint, DepthNet};
 use depthsense_nuscenes::depth_png::{decode_value, encode_value};
 use depthsense_nuscenes::geometry::to_frame;
 use depthsense_prep::layout::IndexEntry;
@@ -23,26 +21,8 @@ use depthsense_prep::radar_points::{
 use depthsense_prep::{prepare, PrepareOptions};
 use depthsense_progress::Progress;
 use depthsense_synth::{generate, SynthConfig, Weather};
-use tch::{nn::VarStore, Device};
 
-fn tiny_checkpoint(dir: &Path) -> PathBuf {
-    let cfg = ModelConfig::tiny()
-        .with_options(&[
-            "width=8",
-            "decoder-channels=16",
-            "head-channels=16",
-            "radar-width=8",
-            "out-height=350",
-            "out-width=800",
-        ])
-        .unwrap();
-    tch::manual_seed(3);
-    let vs = VarStore::new(Device::Cpu);
-    let _net = DepthNet::new(&vs.root(), &cfg).unwrap();
-    let p = dir.join("ck.safetensors");
-    checkpoint::save(&p, &vs, &cfg, &serde_json::Value::Null).unwrap();
-    p
-}
+use crate::common;
 
 /// A synthetic world of 1 scene × 2 keyframes, prepared once for every test; a random tiny
 /// network.
@@ -69,7 +49,7 @@ fn prepared_once() -> &'static (tempfile::TempDir, PathBuf, PathBuf) {
         };
         let s = prepare(&opts, &Progress::hidden()).unwrap();
         assert_eq!((s.prepared, s.failed.len()), (2, 0), "{:?}", s.failed);
-        let ck = tiny_checkpoint(tmp.path());
+        let ck = common::tiny_checkpoint(tmp.path(), (350, 800));
         (tmp, data, ck)
     })
 }

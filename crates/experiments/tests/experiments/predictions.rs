@@ -5,40 +5,21 @@
 
 use std::path::{Path, PathBuf};
 
-use depthsense_config::ModelConfig;
 use depthsense_data::radar_failure::RadarFailure;
 use depthsense_eval::evaluate::{load_model, run_eval, write_predictions, EvalOptions};
 use depthsense_metrics::{tables, EvalConfig, Protocol, Report};
-use depthsense_model::{checkpoint, DepthNet};
 use depthsense_progress::Progress;
 use depthsense_score::predictions::{run_eval_predictions, PredFormat, PredictionsOptions};
-use tch::{nn::VarStore, Device};
+use tch::Device;
 
-fn tiny_checkpoint(dir: &Path) -> PathBuf {
-    let cfg = ModelConfig::tiny()
-        .with_options(&[
-            "width=8",
-            "decoder-channels=16",
-            "head-channels=16",
-            "radar-width=8",
-            "out-height=64",
-            "out-width=128",
-        ])
-        .unwrap();
-    tch::manual_seed(3);
-    let vs = VarStore::new(Device::Cpu);
-    let _net = DepthNet::new(&vs.root(), &cfg).unwrap();
-    let p = dir.join("ck.safetensors");
-    checkpoint::save(&p, &vs, &cfg, &serde_json::Value::Null).unwrap();
-    p
-}
+use crate::common;
 
 fn setup() -> (tempfile::TempDir, PathBuf, EvalOptions) {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
     // 5 scenes × 2: held-out = the test scene of the scene-modulo partition
     depthsense_data::write_toy_dataset(&data, 5, 2, 128, 64, 9).unwrap();
-    let ck = tiny_checkpoint(tmp.path());
+    let ck = common::tiny_checkpoint(tmp.path(), (64, 128));
     let eo = EvalOptions {
         checkpoint: ck,
         data: data.clone(),

@@ -13,6 +13,7 @@ use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
 use depthsense_dataset::{partition, Dataset, Partition};
+use depthsense_model::sync_bn::TrainHooks;
 use depthsense_model::{checkpoint, DepthNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
@@ -116,9 +117,11 @@ impl<'o> Trainer<'o> {
         std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
         let bpe = batches_per_epoch(opts, part.train.len());
+        // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
+        let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
         let ((vs, net, mut state, optim), optim_matches) =
             if continues && run.join(LAST_CKPT).exists() {
-                resume(opts, &run, &cfg, device, main, bpe)?
+                resume(opts, &run, &cfg, device, main, bpe, &hooks)?
             } else if opts.extend {
                 return Err(NetError::Config(format!(
                     "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
@@ -126,7 +129,7 @@ impl<'o> Trainer<'o> {
                     run.display()
                 )));
             } else {
-                (fresh(opts, &run, &cfg, device, main)?, true)
+                (fresh(opts, &run, &cfg, device, main, &hooks)?, true)
             };
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
@@ -785,6 +788,7 @@ fn fresh(
     cfg: &ModelConfig,
     device: Device,
     main: bool,
+    hooks: &TrainHooks,
 ) -> Result<Built, NetError> {
     let last = run.join(LAST_CKPT);
     if opts.resume && main {
@@ -795,7 +799,7 @@ fn fresh(
     }
     tch::manual_seed(opts.seed as i64);
     let mut vs = VarStore::new(device);
-    let net = DepthNet::new(&vs.root(), cfg)?;
+    let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     if let Some(w) = &opts.backbone_weights {
         let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
         eprintln!("backbone weights from {}:\n{report}", w.display());
@@ -850,13 +854,14 @@ fn resume(
     device: Device,
     main: bool,
     bpe: u64,
+    hooks: &TrainHooks,
 ) -> Result<(Built, bool), NetError> {
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
     // Build the requested network and copy the checkpoint into it: a checkpoint of another
     // configuration fails here with every offending tensor named (model::checkpoint).
     let vs = VarStore::new(device);
-    let net = DepthNet::new(&vs.root(), cfg)?;
+    let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     let bytes = std::fs::read(&last).map_err(|e| NetError::io(&last, e))?;
     let (tensors, _) = depthsense_model::host::parse_safetensors(&last, &bytes)?;
     checkpoint::copy_into(&last, &vs, &tensors)?;

@@ -4,6 +4,8 @@ use depthsense_cli::cmd::experiment::{
     AblationArgs, Args, CostArgs, DataScaleArgs, Experiment, FailureArgs, PerturbArgs,
     ReducedDataArgs, RunArgs,
 };
+use depthsense_cli::cmd::inference_args::InferenceArgs;
+use depthsense_cli::cmd::model_source::ModelSource;
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_experiments::ablation::{
     run_ablation, AblationOptions, AblationResult, Variant, MD_FILE, PNG_FILE,
@@ -117,22 +119,33 @@ fn data_scale(a: DataScaleArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The evaluation an experiment varies (failure, perturb): its network, samples and inference
+/// flags.
+fn evaluation(
+    model: ModelSource,
+    data: std::path::PathBuf,
+    split: String,
+    seed: u64,
+    run: InferenceArgs,
+) -> depthsense_eval::evaluate::EvalOptions {
+    depthsense_eval::evaluate::EvalOptions {
+        checkpoint: model.checkpoint,
+        config: model.config,
+        set: model.set,
+        data,
+        split,
+        seed,
+        batch_size: run.batch_size,
+        device: run.device.name,
+        jobs: run.jobs,
+        max_samples: run.max_samples,
+        ..Default::default()
+    }
+}
+
 fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_eval::evaluate::EvalOptions;
     use depthsense_experiments::failure::{parse_scenarios, run_failure, FAILURE_MD};
-    let base = EvalOptions {
-        checkpoint: a.model.checkpoint,
-        config: a.model.config,
-        set: a.model.set,
-        data: a.data,
-        split: a.split,
-        seed: a.seed,
-        batch_size: a.run.batch_size,
-        device: a.run.device.name,
-        jobs: a.run.jobs,
-        max_samples: a.run.max_samples,
-        ..EvalOptions::default()
-    };
+    let base = evaluation(a.model, a.data, a.split, a.seed, a.run);
     let sc = parse_scenarios(&a.scenarios)?;
     let _writing = claim_results(&a.out, "failure", a.force)?;
     run_failure(&base, &sc, &a.out, command_line(), &Board::new(16))?;
@@ -141,21 +154,8 @@ fn failure(a: FailureArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn perturb(a: PerturbArgs) -> anyhow::Result<ExitCode> {
-    use depthsense_eval::evaluate::EvalOptions;
     use depthsense_experiments::perturb::{run_perturb, PerturbOptions, PERTURB_MD};
-    let base = EvalOptions {
-        checkpoint: a.model.checkpoint,
-        config: a.model.config,
-        set: a.model.set,
-        data: a.data,
-        split: a.split,
-        seed: a.seed,
-        batch_size: a.run.batch_size,
-        device: a.run.device.name,
-        jobs: a.run.jobs,
-        max_samples: a.run.max_samples,
-        ..EvalOptions::default()
-    };
+    let base = evaluation(a.model, a.data, a.split, a.seed, a.run);
     let opts = PerturbOptions {
         rotate_deg: a.rotate_deg,
         translate_m: a.translate_m,
