@@ -1,7 +1,10 @@
-//! The page: report.html (self-contained) and report.md (images by relative path).
+//! The page: report.html (self-contained; a maud template, which escapes every text where it is
+//! placed) and report.md (images by relative path).
+
+use maud::{html, Markup, PreEscaped, DOCTYPE};
 
 use super::images::base64;
-use super::markdown::{escape, to_html};
+use super::markdown::to_html;
 use super::{Kind, ReportSummary, Section};
 
 /// The Files line of a section names at most this many (report.json has them all).
@@ -34,158 +37,172 @@ table.grid img{display:block;width:100%;height:auto}\
 nav ol{columns:2;column-gap:2em}nav li{margin:.15em 0}\
 .top{font-size:.85em}.files code{margin-right:.4em;display:inline-block}";
 
-/// The whole HTML page.
+/// The whole HTML page, from a maud template: every text is escaped where it is placed; only
+/// the CSS above, the sections' Markdown rendered by [`to_html`] (which escapes its text) and
+/// the base64 images go in unescaped.
 pub fn page(s: &ReportSummary) -> String {
-    let mut h = format!(
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
-         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n\
-         <title>{t}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<h1 id=\"top\">{t}</h1>\n",
-        t = escape(&s.title)
-    );
-    h.push_str(&intro_html(s));
-    h.push_str(&contents_html(s));
-    for (i, sec) in s.sections.iter().enumerate() {
-        h.push_str(&section_html(i, sec));
+    let nl = "\n";
+    html! {
+        (DOCTYPE) (nl)
+        html lang="en" {
+            (nl) head {
+                (nl) meta charset="utf-8"; (nl)
+                meta name="viewport" content="width=device-width, initial-scale=1"; (nl)
+                title { (s.title) } (nl)
+                style { (PreEscaped(CSS)) } (nl)
+            } (nl)
+            body {
+                (nl) h1 id="top" { (s.title) } (nl)
+                (intro(s))
+                (contents(s))
+                @for (i, sec) in s.sections.iter().enumerate() {
+                    (section(i, sec))
+                }
+                (skipped(s))
+            } (nl)
+        } (nl)
     }
-    h.push_str(&skipped_html(s));
-    h.push_str("</body>\n</html>\n");
-    h
+    .into_string()
 }
 
-fn intro_html(s: &ReportSummary) -> String {
-    let runs: Vec<String> = s
-        .runs
-        .iter()
-        .map(|r| format!("<code>{}</code>", escape(&r.display().to_string())))
-        .collect();
-    let mut h = format!(
-        "<p>{} experiment outputs found under {}; {} files skipped. Self-contained: every image \
-         is embedded, nothing is loaded from elsewhere.</p>\n",
-        s.sections.len(),
-        runs.join(", "),
-        s.skipped.len()
-    );
-    if let Some(c) = &s.command_line {
-        h.push_str(&format!("<p>Made by:</p>\n<pre>{}</pre>\n", escape(c)));
+fn intro(s: &ReportSummary) -> Markup {
+    html! {
+        p {
+            (s.sections.len()) " experiment outputs found under "
+            @for (k, r) in s.runs.iter().enumerate() {
+                @if k > 0 { ", " }
+                code { (r.display()) }
+            }
+            "; " (s.skipped.len()) " files skipped. Self-contained: every image is embedded, \
+             nothing is loaded from elsewhere."
+        } "\n"
+        @if let Some(c) = &s.command_line {
+            p { "Made by:" } "\n" pre { (c) } "\n"
+        }
     }
-    h
 }
 
-fn contents_html(s: &ReportSummary) -> String {
-    let mut h = String::from("<nav id=\"contents\">\n<h2>Contents</h2>\n<ol>\n");
-    for (i, sec) in s.sections.iter().enumerate() {
-        let dir = match sec.kind {
-            Kind::Models => String::new(),
-            _ => format!(
-                " <code>{}</code>",
-                escape(&sec.source_dir.display().to_string())
-            ),
-        };
-        h.push_str(&format!(
-            "<li><a href=\"#{}\">{}</a>{dir}</li>\n",
-            sec.anchor,
-            escape(&section_title(i, sec))
-        ));
+fn contents(s: &ReportSummary) -> Markup {
+    html! {
+        nav id="contents" {
+            "\n" h2 { "Contents" } "\n"
+            ol {
+                "\n"
+                @for (i, sec) in s.sections.iter().enumerate() {
+                    li {
+                        a href={ "#" (sec.anchor) } { (section_title(i, sec)) }
+                        // The comparison is built from the other sections: no folder of its own.
+                        @if sec.kind != Kind::Models {
+                            " " code { (sec.source_dir.display()) }
+                        }
+                    } "\n"
+                }
+                li { a href="#skipped" { "Skipped files (" (s.skipped.len()) ")" } } "\n"
+            } "\n"
+        } "\n"
     }
-    h.push_str(&format!(
-        "<li><a href=\"#skipped\">Skipped files ({})</a></li>\n</ol>\n</nav>\n",
-        s.skipped.len()
-    ));
-    h
 }
 
 fn section_title(i: usize, sec: &Section) -> String {
     format!("{}. {}", i + 1, sec.title)
 }
 
-fn section_html(i: usize, sec: &Section) -> String {
-    let mut h = format!(
-        "<section id=\"{}\">\n<h2>{}</h2>\n",
-        sec.anchor,
-        escape(&section_title(i, sec))
-    );
-    // The comparison is built from the other sections: no folder, files or command of its own.
-    if sec.kind != Kind::Models {
-        h.push_str(&meta_html(sec));
-    }
-    h.push_str("<div class=\"scroll\">\n");
-    h.push_str(&to_html(&sec.markdown, 2));
-    h.push_str("</div>\n");
-    match &sec.grid {
-        Some(g) => h.push_str(&grid_html(sec, g)),
-        None => {
-            for (k, info) in sec.images.iter().enumerate() {
-                h.push_str(&format!(
-                    "<figure>{}<figcaption>{} ({}x{}, shown at {}x{})</figcaption></figure>\n",
-                    img_tag(sec, k),
-                    escape(&info.caption),
-                    info.original_size.0,
-                    info.original_size.1,
-                    info.embedded_size.0,
-                    info.embedded_size.1
-                ));
+fn section(i: usize, sec: &Section) -> Markup {
+    html! {
+        section id=(sec.anchor) {
+            "\n" h2 { (section_title(i, sec)) } "\n"
+            // The comparison is built from the other sections: no folder, files or command.
+            @if sec.kind != Kind::Models { (meta(sec)) }
+            div class="scroll" { "\n" (PreEscaped(to_html(&sec.markdown, 2))) } "\n"
+            @match &sec.grid {
+                Some(g) => (grid(sec, g)),
+                None => {
+                    @for (k, info) in sec.images.iter().enumerate() {
+                        figure {
+                            (img(sec, k))
+                            figcaption {
+                                (info.caption) " (" (info.original_size.0) "x"
+                                (info.original_size.1) ", shown at " (info.embedded_size.0) "x"
+                                (info.embedded_size.1) ")"
+                            }
+                        } "\n"
+                    }
+                }
             }
-        }
+            (to_contents())
+        } "\n"
     }
-    h.push_str("<p class=\"top\"><a href=\"#contents\">↑ contents</a></p>\n</section>\n");
-    h
 }
 
-fn img_tag(sec: &Section, k: usize) -> String {
+fn to_contents() -> Markup {
+    html! { p class="top" { a href="#contents" { "↑ contents" } } "\n" }
+}
+
+fn img(sec: &Section, k: usize) -> Markup {
     let (Some(info), Some(e)) = (sec.images.get(k), sec.embedded.get(k)) else {
-        return String::new();
+        return html! {};
     };
-    format!(
-        "<img src=\"data:image/png;base64,{}\" width=\"{}\" height=\"{}\" alt=\"{}\">",
-        base64(&e.png),
-        e.width,
-        e.height,
-        escape(&info.caption)
-    )
-}
-
-fn meta_html(sec: &Section) -> String {
-    let mut h = String::from("<dl class=\"meta\">\n");
-    let dir = sec.source_dir.display().to_string();
-    h.push_str(&format!(
-        "<dt>Source</dt><dd><code>{}</code> (written by <code>{}</code>)</dd>\n",
-        escape(&dir),
-        escape(sec.kind.writer())
-    ));
-    let cmd = match &sec.command_line {
-        Some(c) => format!("<pre>{}</pre>", escape(c)),
-        None => "not recorded in its JSON".to_string(),
-    };
-    h.push_str(&format!("<dt>Command</dt><dd>{cmd}</dd>\n"));
-    for (k, v) in &sec.inputs {
-        h.push_str(&format!(
-            "<dt>{}</dt><dd><code>{}</code></dd>\n",
-            escape(k),
-            escape(v)
-        ));
+    html! {
+        img src={ "data:image/png;base64," (PreEscaped(base64(&e.png))) } width=(e.width)
+            height=(e.height) alt=(info.caption);
     }
-    let files = file_list(sec, |f| format!("<code>{}</code>", escape(f)));
-    h.push_str(&format!(
-        "<dt>Files</dt><dd class=\"files\">{}</dd>\n</dl>\n",
-        files.join(" ")
-    ));
-    h
 }
 
-/// The first [`MAX_FILES_SHOWN`] files of a section (relative to its folder), formatted.
-fn file_list(sec: &Section, fmt: impl Fn(&str) -> String) -> Vec<String> {
-    let mut v: Vec<String> = sec
-        .files
+fn meta(sec: &Section) -> Markup {
+    html! {
+        dl class="meta" {
+            "\n"
+            dt { "Source" }
+            dd { code { (sec.source_dir.display()) } " (written by " code { (sec.kind.writer()) } ")" }
+            "\n"
+            dt { "Command" }
+            dd {
+                @match &sec.command_line {
+                    Some(c) => pre { (c) },
+                    None => "not recorded in its JSON",
+                }
+            }
+            "\n"
+            @for (k, v) in &sec.inputs {
+                dt { (k) } dd { code { (v) } } "\n"
+            }
+            dt { "Files" }
+            dd class="files" {
+                @for (n, f) in shown_files(sec).iter().enumerate() {
+                    @if n > 0 { " " }
+                    code { (f) }
+                }
+                @if let Some(more) = more_files(sec) { " " (more) }
+            }
+            "\n"
+        } "\n"
+    }
+}
+
+/// The first [`MAX_FILES_SHOWN`] files of a section, relative to its folder.
+fn shown_files(sec: &Section) -> Vec<String> {
+    sec.files
         .iter()
         .take(MAX_FILES_SHOWN)
-        .map(|f| fmt(&relative(f, &sec.source_dir)))
-        .collect();
-    if sec.files.len() > MAX_FILES_SHOWN {
-        v.push(format!(
+        .map(|f| relative(f, &sec.source_dir))
+        .collect()
+}
+
+/// "and N more (listed in report.json)" when the files are more than [`MAX_FILES_SHOWN`].
+fn more_files(sec: &Section) -> Option<String> {
+    (sec.files.len() > MAX_FILES_SHOWN).then(|| {
+        format!(
             "and {} more (listed in report.json)",
             sec.files.len() - MAX_FILES_SHOWN
-        ));
-    }
+        )
+    })
+}
+
+/// The first [`MAX_FILES_SHOWN`] files of a section (relative to its folder), formatted, and
+/// the count of the others.
+fn file_list(sec: &Section, fmt: impl Fn(&str) -> String) -> Vec<String> {
+    let mut v: Vec<String> = shown_files(sec).iter().map(|f| fmt(f)).collect();
+    v.extend(more_files(sec));
     v
 }
 
@@ -193,50 +210,57 @@ fn relative(f: &std::path::Path, dir: &std::path::Path) -> String {
     f.strip_prefix(dir).unwrap_or(f).display().to_string()
 }
 
-fn grid_html(sec: &Section, g: &super::FigureGrid) -> String {
-    let mut h = String::from("<div class=\"scroll\">\n<table class=\"grid\">\n<tr><th></th>");
-    for c in &g.columns {
-        h.push_str(&format!("<th>{}</th>", escape(c)));
+fn grid(sec: &Section, g: &super::FigureGrid) -> Markup {
+    let widest = sec.embedded.iter().map(|e| e.width).max().unwrap_or(0);
+    html! {
+        div class="scroll" {
+            "\n"
+            table class="grid" {
+                "\n"
+                tr { th {} @for c in &g.columns { th { (c) } } } "\n"
+                @for (label, cells) in &g.rows {
+                    tr {
+                        th { (label) }
+                        @for k in 0..g.columns.len() {
+                            td {
+                                @if let Some(i) = cells.get(k).copied().flatten() { (img(sec, i)) }
+                            }
+                        }
+                    } "\n"
+                }
+            } "\n"
+        } "\n"
+        p class="top" {
+            "Overlays named by " code { "explain.json" } ", each downscaled to at most "
+            (widest) " px wide (rows: sample · radar state; columns: distance · layer); "
+            code { "grid.png" } " holds the same tiles at full size."
+        } "\n"
     }
-    h.push_str("</tr>\n");
-    for (label, cells) in &g.rows {
-        h.push_str(&format!("<tr><th>{}</th>", escape(label)));
-        for k in 0..g.columns.len() {
-            let img = cells.get(k).copied().flatten().map(|i| img_tag(sec, i));
-            h.push_str(&format!("<td>{}</td>", img.unwrap_or_default()));
-        }
-        h.push_str("</tr>\n");
-    }
-    h.push_str("</table>\n</div>\n");
-    h.push_str(&format!(
-        "<p class=\"top\">Overlays named by <code>explain.json</code>, each downscaled to at most \
-         {} px wide (rows: sample · radar state; columns: distance · layer); <code>grid.png</code> \
-         holds the same tiles at full size.</p>\n",
-        sec.embedded.iter().map(|e| e.width).max().unwrap_or(0)
-    ));
-    h
 }
 
-fn skipped_html(s: &ReportSummary) -> String {
-    let mut h = format!(
-        "<section id=\"skipped\">\n<h2>Skipped files ({})</h2>\n",
-        s.skipped.len()
-    );
-    if s.skipped.is_empty() {
-        h.push_str("<p>None.</p>\n");
-    } else {
-        h.push_str("<div class=\"scroll\">\n<table>\n<thead><tr><th>file</th><th>reason</th></tr></thead>\n<tbody>\n");
-        for k in &s.skipped {
-            h.push_str(&format!(
-                "<tr><td><code>{}</code></td><td>{}</td></tr>\n",
-                escape(&k.path.display().to_string()),
-                escape(&k.reason)
-            ));
-        }
-        h.push_str("</tbody>\n</table>\n</div>\n");
+fn skipped(s: &ReportSummary) -> Markup {
+    html! {
+        section id="skipped" {
+            "\n" h2 { "Skipped files (" (s.skipped.len()) ")" } "\n"
+            @if s.skipped.is_empty() {
+                p { "None." } "\n"
+            } @else {
+                div class="scroll" {
+                    "\n"
+                    table {
+                        "\n" thead { tr { th { "file" } th { "reason" } } } "\n"
+                        tbody {
+                            "\n"
+                            @for k in &s.skipped {
+                                tr { td { code { (k.path.display()) } } td { (k.reason) } } "\n"
+                            }
+                        } "\n"
+                    } "\n"
+                } "\n"
+            }
+            (to_contents())
+        } "\n"
     }
-    h.push_str("<p class=\"top\"><a href=\"#contents\">↑ contents</a></p>\n</section>\n");
-    h
 }
 
 /// report.md: the same content; images referenced by their copies under img/.
