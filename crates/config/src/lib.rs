@@ -8,7 +8,7 @@
 //!   sets;
 //! - [`cli`]: the value parsers and help texts the command line builds from them;
 //! - [`device`]: the words of `--device`; [`flags`]: those of the other network flags
-//!   (precision, export format).
+//!   (precision, export format); [`variant`]: the ablation's network variants.
 //!
 //! The depthsense binary parses every command without libtorch, so these live here rather than
 //! in `depthsense-model`, which builds the network from a [`ModelConfig`].
@@ -20,6 +20,7 @@ mod model_config;
 pub mod options;
 pub mod pda;
 pub mod presets;
+pub mod variant;
 
 pub use model_config::{
     is_one, one, AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind,
@@ -47,4 +48,10 @@ pub enum ConfigError {
         .input.channels()
     )]
     RadarChannels { input: RadarInput, expected: i64 },
+    /// A word that names no ablation variant ([`variant::Variant`]).
+    #[error(
+        "unknown ablation variant {0:?} ({words})",
+        words = <variant::Variant as depthsense_base::words::Words>::words().join(", ")
+    )]
+    UnknownVariant(String),
 }

@@ -19,8 +19,8 @@ use depthsense_model::{report::model_report, DepthNet};
 use serde::{Deserialize, Serialize};
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
-use super::ablation::Variant;
 use super::Machine;
+use depthsense_config::variant::Variant;
 
 /// The paper's inference time, seconds per batch of 3 at 350x800 on an RTX 3090.
 pub const PAPER_S_PER_BATCH3: f64 = 0.118;

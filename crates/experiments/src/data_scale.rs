@@ -25,9 +25,10 @@ use depthsense_progress::Board;
 use depthsense_train::trainer::TrainOptions;
 use serde::{Deserialize, Serialize};
 
-use super::ablation::{verdict, Variant, Verdict};
+use super::ablation::{verdict, Verdict};
 use super::runner::{run_bar, train_and_test, PartitionInfo, RunRecord, RunSettings};
 use super::{Machine, Stat};
+use depthsense_config::variant::Variant;
 
 pub const MD_FILE: &str = "data_scale.md";
 pub const CSV_FILE: &str = "data_scale.csv";

@@ -92,7 +92,7 @@ impl From<depthsense_config::ConfigError> for NetError {
         match e {
             // a mismatch between a request and the model, not an invalid model (same message
             // as when the trainer owned the rule)
-            C::RadarChannels { .. } => NetError::Config(e.to_string()),
+            C::RadarChannels { .. } | C::UnknownVariant(_) => NetError::Config(e.to_string()),
             e => NetError::Model(e.into()),
         }
     }

@@ -69,8 +69,9 @@ pub struct CostArgs {
           help = depthsense_config::cli::config_help("Networks, comma separated", " or model-config JSON files"))]
     pub presets: Vec<String>,
     /// Fusion variants, comma separated (rgb, early, late, late-sam, l1, l2).
-    #[arg(long, value_delimiter = ',', default_value = "rgb,early,late,late-sam")]
-    pub variants: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "rgb,early,late,late-sam",
+          value_parser = crate::cmd::words::words::<depthsense_config::variant::Variant>())]
+    pub variants: Vec<depthsense_config::variant::Variant>,
     /// Images per batch (paper: 3).
     #[arg(long, default_value_t = 3)]
     pub batch: i64,
@@ -277,9 +278,10 @@ pub struct AblationArgs {
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "rgb,early,late,late-sam,l1,l2"
+        default_value = "rgb,early,late,late-sam,l1,l2",
+        value_parser = crate::cmd::words::words::<depthsense_config::variant::Variant>()
     )]
-    pub variants: Vec<String>,
+    pub variants: Vec<depthsense_config::variant::Variant>,
     /// The tests' scoring (the same flags as `eval`).
     #[command(flatten)]
     pub scoring: crate::cmd::scoring_args::ScoringArgs,

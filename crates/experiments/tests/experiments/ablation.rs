@@ -9,10 +9,11 @@ use std::path::Path;
 
 use common::{constant_depth_rmse, hidden, mtime, quick_runs};
 
+use depthsense_config::variant::Variant;
 use depthsense_dataset::outputs::BEST_CKPT;
 use depthsense_experiments::ablation::{
-    run_ablation, variant_models, AblationOptions, AblationResult, RunStatus, Variant, CSV_FILE,
-    JSON_FILE, MD_FILE, PNG_FILE, RUN_EVAL_FILE,
+    run_ablation, variant_models, AblationOptions, AblationResult, RunStatus, CSV_FILE, JSON_FILE,
+    MD_FILE, PNG_FILE, RUN_EVAL_FILE,
 };
 use depthsense_experiments::Stat;
 use depthsense_progress::Progress;

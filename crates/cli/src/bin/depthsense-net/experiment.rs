@@ -8,7 +8,7 @@ use depthsense_cli::cmd::inference_args::InferenceArgs;
 use depthsense_cli::cmd::model_source::ModelSource;
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_experiments::ablation::{
-    run_ablation, AblationOptions, AblationResult, Variant, MD_FILE, PNG_FILE,
+    run_ablation, AblationOptions, AblationResult, MD_FILE, PNG_FILE,
 };
 use depthsense_experiments::runner::RunSettings;
 use depthsense_metrics::EvalConfig;
@@ -29,14 +29,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 
 fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
     use depthsense_experiments::cost::{run_cost, CostOptions, MD_FILE};
-    let variants = a
-        .variants
-        .iter()
-        .map(|s| s.parse::<Variant>())
-        .collect::<Result<Vec<_>, _>>()?;
     let o = CostOptions {
         presets: a.presets,
-        variants,
+        variants: a.variants,
         batch: a.batch,
         height: a.height,
         width: a.width,
@@ -177,17 +172,10 @@ fn ablation(a: AblationArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The ablation's options: variants (empty names skipped), seeds (--seed-list, else
-/// 0..--seeds) and the test protocol and aggregation. (The variants are words of
-/// `depthsense_experiments::ablation::Variant`, checked here: the torch-free front cannot name
-/// that type.)
+/// The ablation's options: variants, seeds (--seed-list, else 0..--seeds) and the test
+/// protocol and aggregation.
 fn ablation_options(a: AblationArgs) -> anyhow::Result<AblationOptions> {
-    let variants = a
-        .variants
-        .iter()
-        .filter(|s| !s.trim().is_empty())
-        .map(|s| s.parse::<Variant>())
-        .collect::<Result<Vec<_>, _>>()?;
+    let variants = a.variants;
     let seeds = match a.seed_list {
         Some(l) => l,
         None => (0..a.seeds).collect(),
