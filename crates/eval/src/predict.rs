@@ -100,8 +100,8 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, NetError> {
 /// A map as `prepare` stores it and the loader reads it back: through the 16-bit PNG
 /// (depth × 256, SPEC §3), so that a map computed here equals the prepared file bit for bit.
 pub fn as_stored(map: DepthMap) -> Result<DepthMap, NetError> {
-    let bytes = encode_png(&map).map_err(|e| NetError::Data(e.to_string()))?;
-    decode_png(&bytes, "radar map").map_err(|e| NetError::Data(e.to_string()))
+    let bytes = encode_png(&map)?;
+    Ok(decode_png(&bytes, "radar map")?)
 }
 
 /// Run the `prepare` computation for one sample token of a dataroot (nothing is written); the
@@ -112,8 +112,7 @@ pub fn input_from_token(
     token: &str,
     opts: &depthsense_prep::PrepareOptions,
 ) -> Result<PredictInput, NetError> {
-    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version)
-        .map_err(|e| NetError::Data(e.to_string()))?;
+    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version)?;
     let want = depthsense_nuscenes::tables::Token::parse(token);
     let sample = nu.sample.iter().find(|s| s.token == want).ok_or_else(|| {
         NetError::Data(format!(
@@ -189,8 +188,7 @@ pub fn input_from_raw(
     calibration: &Path,
     radar_filters: bool,
 ) -> Result<PredictInput, NetError> {
-    let calib = depthsense_prep::calibration::read(calibration)
-        .map_err(|e| NetError::Data(e.to_string()))?;
+    let calib = depthsense_prep::calibration::read(calibration)?;
     let full = decode_rgb(jpeg)?;
     let (w, h) = full.dimensions();
     let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| {
@@ -207,8 +205,7 @@ pub fn input_from_raw(
     let mut points = RadarPoints::new(cam);
     let mut sweeps: BTreeMap<String, usize> = BTreeMap::new();
     for (e, path) in chosen_entries(calibration, &calib, radar_files)? {
-        let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path)
-            .map_err(|e| NetError::Data(e.to_string()))?;
+        let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path)?;
         let dt_s = match (velocity, calib.camera_timestamp_us, e.timestamp_us) {
             (true, Some(c), Some(s)) => Some(velocity_dt_s(c, s)),
             _ => None,
@@ -356,10 +353,7 @@ pub fn write_outputs(
         written.push(p);
         Ok(())
     };
-    w(
-        "depth.png",
-        encode_png(depth).map_err(|e| NetError::Data(e.to_string()))?,
-    )?;
+    w("depth.png", encode_png(depth)?)?;
     let color =
         depthsense_viz::plot::colorize_depth(&depth.depth_m, depth.width, depth.height, max_m);
     w("depth_color.png", depthsense_viz::plot::encode_rgb(&color)?)?;

@@ -38,6 +38,15 @@ pub enum NetError {
     Viz(#[from] depthsense_viz::VizError),
     #[error("libtorch: {0}")]
     Torch(#[from] tch::TchError),
+    /// A 16-bit depth PNG that cannot be written or read back.
+    #[error("data: {0}")]
+    DepthPng(#[from] depthsense_nuscenes::depth_png::DepthPngError),
+    /// A nuScenes table or sensor file (`predict --token`, `--image`).
+    #[error("data: {0}")]
+    Nuscenes(#[from] depthsense_nuscenes::NuError),
+    /// `prepare`'s computation or one of its files (a calibration JSON).
+    #[error("data: {0}")]
+    Prep(#[from] depthsense_prep::error::PrepError),
     #[error(
         "non-finite loss ({loss}) at epoch {epoch}, iteration {iteration}: training stopped; \
          the last good checkpoint is kept at {kept}"

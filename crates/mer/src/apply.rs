@@ -182,9 +182,7 @@ fn write_sample(
     // stored values on the grid, then spread over the frame (4x fewer conversions)
     let conf_q: Vec<u16> = conf.iter().map(|&c| conf_to_u16(c)).collect();
     let depth_q: Vec<u16> = depth.iter().map(|&d| encode_value(d)).collect();
-    let png = |q: &[u16]| {
-        encode_png16_fast(fw, fh, &g.to_frame(q)).map_err(|e| NetError::Data(e.to_string()))
-    };
+    let png = |q: &[u16]| encode_png16_fast(fw, fh, &g.to_frame(q)).map_err(NetError::from);
     let (conf_png, depth_png) = (png(&conf_q)?, png(&depth_q)?);
     for (name, bytes) in [(MER_CONF_FILE, conf_png), (MER_DEPTH_FILE, depth_png)] {
         let p = dir.join(name);
