@@ -9,13 +9,13 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_checkpoint::weights::LoadReport;
+use depthsense_checkpoint::{self as checkpoint, Loaded};
 use depthsense_config::RadarInput;
 use depthsense_data::radar_failure::RadarFailure;
 use depthsense_data::LoadOptions;
 use depthsense_dataset::Dataset;
 use depthsense_metrics::{EvalConfig, Report};
-use depthsense_model::checkpoint::{self, Loaded};
-use depthsense_model::weights::LoadReport;
 use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
@@ -98,7 +98,7 @@ pub fn load_model(
     device: tch::Device,
 ) -> Result<(Loaded, Option<LoadReport>), NetError> {
     let cfg = match (config, set.is_empty()) {
-        (Some(c), _) => Some(depthsense_model::config::resolve(c)?.with_options(set)?),
+        (Some(c), _) => Some(depthsense_checkpoint::config::resolve(c)?.with_options(set)?),
         (None, true) => None,
         (None, false)
             if !depthsense_weights::torch_file::is_torch_file(checkpoint_path)
@@ -286,7 +286,7 @@ mod tests {
         let pth = dir.path().join("paper_weights.pth");
         depthsense_weights::pth_writer::write_torch_state_dict(
             &pth,
-            &depthsense_model::host::all_to_host(&sd).unwrap(),
+            &depthsense_checkpoint::host::all_to_host(&sd).unwrap(),
         )
         .unwrap();
 

@@ -42,11 +42,8 @@ fn main() {
             .collect::<Vec<_>>()
     );
     println!("loss last {:?} in {:.1}s", s.losses.last(), s.seconds);
-    let l = depthsense_model::checkpoint::load(
-        &tmp.path().join("run/last.safetensors"),
-        tch::Device::Cpu,
-    )
-    .unwrap();
+    let l = depthsense_checkpoint::load(&tmp.path().join("run/last.safetensors"), tch::Device::Cpu)
+        .unwrap();
     let ds = depthsense_dataset::Dataset::open(&tmp.path().join("data")).unwrap();
     let e = &ds.split("all")[0];
     let inp = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e)).unwrap();

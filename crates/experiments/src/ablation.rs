@@ -156,7 +156,7 @@ impl AblationResult {
 
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
 pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, NetError> {
-    Ok(depthsense_model::config::resolve(spec)?)
+    Ok(depthsense_checkpoint::config::resolve(spec)?)
 }
 
 /// The model config of each variant (preset → `set` → variant fields).

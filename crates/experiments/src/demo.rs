@@ -17,11 +17,11 @@ use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_base::lock::OutputLock;
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::LoadOptions;
 use depthsense_dataset::{partition, Dataset};
 use depthsense_metrics::Report;
-use depthsense_model::checkpoint;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use serde::{Deserialize, Serialize};

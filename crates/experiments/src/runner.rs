@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_data::LoadOptions;
 use depthsense_dataset::outputs::{BEST_CKPT, CONFIG_FILE, METRICS_FILE};
@@ -16,7 +17,6 @@ use depthsense_dataset::{Dataset, Partition};
 use depthsense_infer::run::validate_net;
 use depthsense_infer::NetError;
 use depthsense_metrics::{EvalConfig, Metrics, Report, CONDITIONS, REGIONS};
-use depthsense_model::checkpoint;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
 use depthsense_train::metrics_log::{read_log, BadLine};

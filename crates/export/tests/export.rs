@@ -14,12 +14,13 @@ use std::process::Command;
 #[path = "../../model/tests/model/support/reference.rs"]
 mod reference;
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_eval::predict::{predict, PredictInput};
 use depthsense_export::{
     export, export_many, sidecar_path, Batch, ExportError, ExportOptions, Sidecar,
 };
-use depthsense_model::{checkpoint, DepthNet};
+use depthsense_model::DepthNet;
 use depthsense_nuscenes::depth_png::DepthMap;
 use tch::{nn, Device, Tensor};
 

@@ -423,7 +423,7 @@ impl<'o> Run<'o> {
     }
 
     fn save(&self, name: &str) -> Result<(), NetError> {
-        pda::save(
+        depthsense_checkpoint::pda::save(
             &self.path(name),
             &self.vs,
             &self.opts.pda,
@@ -516,7 +516,7 @@ impl<'o> Run<'o> {
         let optim = &self.optim;
         self.ckpt.save_last(
             |path| optim.save(path, iteration),
-            |last| Ok(pda::save(last, vs, pda_cfg, &extra)?),
+            |last| Ok(depthsense_checkpoint::pda::save(last, vs, pda_cfg, &extra)?),
         )
     }
 
@@ -581,7 +581,7 @@ fn build(
         let optim = Adam::new(&vs, opts.weight_decay);
         return Ok((vs, net, optim, state, true));
     }
-    let l = pda::load(&last, device)?;
+    let l = depthsense_checkpoint::pda::load(&last, device)?;
     let stored: State =
         serde_json::from_value(l.extra["train_state"].clone()).map_err(|e| NetError::Parse {
             path: last.to_path_buf(),

@@ -15,7 +15,7 @@ use depthsense_base::fsutil::write_atomic;
 use depthsense_config::pda::PdaConfig;
 use depthsense_dataset::{decode_rgb, read_depth, Dataset};
 use depthsense_infer::NetError;
-use depthsense_model::pda::{self, PdaNet};
+use depthsense_model::pda::PdaNet;
 use depthsense_nuscenes::depth_png::{encode_png16_fast, encode_value, DepthMap};
 use depthsense_prep::layout::{IndexEntry, IMAGE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use depthsense_progress::Progress;
@@ -234,7 +234,7 @@ pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySumm
         depthsense_base::lock::OutputLock::exclusive(&opts.data, "depthsense mer apply")?;
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
-    let loaded = pda::load(&opts.checkpoint, device)?;
+    let loaded = depthsense_checkpoint::pda::load(&opts.checkpoint, device)?;
     let cfg = loaded.config.clone();
     let record = MerRecord {
         checkpoint: opts.checkpoint.display().to_string(),

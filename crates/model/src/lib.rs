@@ -1,7 +1,8 @@
 //! The DepthSense network, heads and losses on libtorch (SPEC §6–7).
 //!
 //! - the network is built from a `depthsense_config::ModelConfig` (torch-free: presets,
-//!   per-field options); [`config::resolve`] also reads one from a checkpoint or sidecar;
+//!   per-field options); reading and writing weights is `depthsense-checkpoint`'s (no file
+//!   I/O here);
 //! - [`DepthNet`] (`net`): `forward_t` → low-resolution head output, `loss`, `decode`,
 //!   assembled from the paper's boxes (SPEC §6), one module each (crate-private):
 //!   `encoder` (the ResNet RGB encoder, VarStore `rgb.`, and the radar branch's backbone),
@@ -11,23 +12,17 @@
 //!   `head` (the head convs, `head.`); `layers` holds their building blocks (conv, conv + BN,
 //!   initialisation, multiply-add counting);
 //! - [`ordinal`]: the exact and efficient ordinal loss/decoding, [`reference`]: the naive form;
-//! - [`checkpoint`]: safetensors + config JSON; [`weights`]: torchvision / released imports;
-//!   [`host`]: the edge to the torch-free formats of `depthsense_weights`;
 //! - [`report`]: parameters per module and multiply-adds at 350x800;
 //! - [`pda`]: the MER radar–pixel association network (SPEC §5);
 //! - [`sync_bn`]: what data-parallel training builds a network with (`TrainHooks`:
 //!   SyncBatchNorm, per-sample dropout seeds), given at construction.
 
-pub mod checkpoint;
-pub mod config;
 mod decoder;
 pub mod device;
 mod encoder;
 mod error;
-pub mod files;
 mod fusion;
 mod head;
-pub mod host;
 #[cfg(test)]
 mod init_tests;
 mod layers;
@@ -40,7 +35,6 @@ pub mod reference;
 pub mod report;
 pub mod sid;
 pub mod sync_bn;
-pub mod weights;
 
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;

@@ -158,8 +158,16 @@ pub fn temp_dir_name(sample_token: &str) -> String {
     format!(".tmp-{}-{sample_token}", std::process::id())
 }
 
-/// Remove temporary sample folders of processes that are no longer running (never those of a
-/// running process: another `prepare` may be writing there). Returns how many went.
+/// The process id in the name of an atomic write's temporary sibling
+/// (`.index.json.<pid>.tmp`, `depthsense_base::fsutil::temp_sibling`).
+fn temp_file_pid(name: &str) -> Option<u32> {
+    let stem = name.strip_prefix('.')?.strip_suffix(".tmp")?;
+    stem.rsplit_once('.')?.1.parse().ok()
+}
+
+/// Remove temporary sample folders, and the temporary siblings of atomic writes (an index
+/// written when the process was killed), of processes that are no longer running (never those
+/// of a running process: another `prepare` may be writing there). Returns how many went.
 pub fn remove_stale_temp_dirs(out: &Path) -> usize {
     let Ok(rd) = std::fs::read_dir(out) else {
         return 0;
@@ -167,12 +175,15 @@ pub fn remove_stale_temp_dirs(out: &Path) -> usize {
     let mut removed = 0;
     for e in rd.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = temp_dir_pid(&name) else {
-            continue;
+        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+        let gone = match (temp_dir_pid(&name), temp_file_pid(&name)) {
+            (Some(pid), _) if is_dir => {
+                !pid_alive(pid) && std::fs::remove_dir_all(e.path()).is_ok()
+            }
+            (_, Some(pid)) if !is_dir => !pid_alive(pid) && std::fs::remove_file(e.path()).is_ok(),
+            _ => false,
         };
-        if !pid_alive(pid) && std::fs::remove_dir_all(e.path()).is_ok() {
-            removed += 1;
-        }
+        removed += usize::from(gone);
     }
     removed
 }
@@ -530,8 +541,21 @@ mod tests {
         let running = d.path().join(format!(".tmp-{}-bbbb", 1)); // pid 1 runs
         std::fs::create_dir_all(&dead).unwrap();
         std::fs::create_dir_all(&running).unwrap();
-        remove_stale_temp_dirs(d.path());
-        assert!(!dead.exists());
+        // An index written by a process killed between its temporary sibling and the rename.
+        let dead_file = d.path().join(".index.json.4000000000.tmp");
+        let live_file = d
+            .path()
+            .join(format!(".index.json.{}.tmp", std::process::id()));
+        std::fs::write(&dead_file, "{").unwrap();
+        std::fs::write(&live_file, "{").unwrap();
+        assert_eq!(remove_stale_temp_dirs(d.path()), 2);
+        assert!(!dead.exists() && !dead_file.exists());
+        assert!(
+            live_file.exists(),
+            "a running process's temporary file stays"
+        );
         assert!(running.exists() || !Path::new("/proc/1").exists());
+        assert_eq!(temp_file_pid(".index.json.77.tmp"), Some(77));
+        assert_eq!(temp_file_pid("index.json"), None);
     }
 }

@@ -12,12 +12,12 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::TargetKind;
 use depthsense_dataset::Partition;
 use depthsense_metrics::EvalConfig;
-use depthsense_model::checkpoint;
 use serde::{Deserialize, Serialize};
 use tch::nn::VarStore;
 

@@ -4,12 +4,12 @@
 
 use std::path::Path;
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_data::LoadOptions;
 use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
 use depthsense_dataset::{partition, Dataset};
 use depthsense_infer::run::evaluate_net;
-use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
 use depthsense_train::trainer::{train, TrainOptions};
 

@@ -11,7 +11,7 @@
 //!   seeds.
 //!
 //! Tensors are [`HostTensor`]s — dtype, shape and little-endian bytes in row-major order;
-//! `depthsense_model::checkpoint` converts them to and from `tch` tensors (the edge).
+//! `depthsense_checkpoint` converts them to and from `tch` tensors (the edge).
 
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};

@@ -8,10 +8,11 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_eval::evaluate::{run_eval, EvalOptions};
 use depthsense_metrics::{EvalConfig, Report, CONDITIONS};
-use depthsense_model::{checkpoint, sid, DepthNet};
+use depthsense_model::{sid, DepthNet};
 use depthsense_progress::Progress;
 use depthsense_score::predictions::{
     run_eval_predictions, write_prediction, PredFormat, PredictionsOptions,

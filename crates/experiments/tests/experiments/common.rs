@@ -19,7 +19,8 @@ pub fn mtime(p: &Path) -> SystemTime {
 /// A random `tiny` network at reduced widths (seed 3) with output frame `out_hw` (height,
 /// width), saved as DIR/ck.safetensors.
 pub fn tiny_checkpoint(dir: &Path, out_hw: (u32, u32)) -> std::path::PathBuf {
-    use depthsense_model::{checkpoint, DepthNet};
+    use depthsense_checkpoint as checkpoint;
+    use depthsense_model::DepthNet;
     let (h, w) = (
         format!("out-height={}", out_hw.0),
         format!("out-width={}", out_hw.1),

@@ -235,7 +235,7 @@ fn mer_train_stops_inside_an_epoch_and_resumes_exactly() {
     let metrics = |run: &Path| std::fs::read_to_string(run.join(METRICS_FILE)).unwrap();
     assert_eq!(metrics(&split_out), metrics(&whole_out));
     let weights = |run: &Path| {
-        let l = depthsense_model::pda::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
+        let l = depthsense_checkpoint::pda::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
         let mut v: Vec<(String, Vec<f32>)> =
             l.vs.variables()
                 .into_iter()
@@ -328,7 +328,8 @@ fn train_apply_twice_and_the_seven_channel_input() {
         ..train_opts(&data, &run2)
     };
     train_pda(&o2, &Progress::hidden()).unwrap();
-    let loaded2 = depthsense_model::pda::load(&run2.join(BEST_CKPT), tch::Device::Cpu).unwrap();
+    let loaded2 =
+        depthsense_checkpoint::pda::load(&run2.join(BEST_CKPT), tch::Device::Cpu).unwrap();
     assert_eq!(loaded2.config.input_stride, 2);
     let other = MerApplyOptions {
         checkpoint: run2.join(BEST_CKPT),
@@ -341,7 +342,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
     let dir = ds.sample_dir(&ds.index.samples[0]);
     let mut input = depthsense_eval::predict::input_from_prepared(&dir).unwrap();
     let stored = input.mer.take().unwrap();
-    let pda = depthsense_model::pda::load(&ck, tch::Device::Cpu).unwrap();
+    let pda = depthsense_checkpoint::pda::load(&ck, tch::Device::Cpu).unwrap();
     attach_mer(&mut input, &pda.net, tch::Device::Cpu).unwrap();
     assert_same_mer(input.mer.as_ref().unwrap(), &stored);
     // ... and so for the 2x2-folded model, applied with --force on one network thread.
@@ -403,7 +404,7 @@ fn train_apply_twice_and_the_seven_channel_input() {
         ..topts
     };
     train(&topts, &Progress::hidden()).unwrap();
-    let (cfg, _) = depthsense_model::checkpoint::read_config(&topts.out.join(BEST_CKPT)).unwrap();
+    let (cfg, _) = depthsense_checkpoint::read_config(&topts.out.join(BEST_CKPT)).unwrap();
     assert_eq!((cfg.radar_input, cfg.radar_channels), (RadarInput::Mer, 7));
 
     // A corrupt input stops the pipelined `mer apply` with an error naming the file, and the

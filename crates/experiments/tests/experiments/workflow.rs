@@ -3,13 +3,13 @@
 
 use std::path::Path;
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::{Fusion, HeadKind, ModelConfig};
 use depthsense_data::{drop_radar, load_sample, Augment, EpochPlan, LoadOptions, Loader, Rng};
 use depthsense_dataset::outputs::{BEST_CKPT, LAST_CKPT};
 use depthsense_dataset::{partition, Dataset};
 use depthsense_eval::evaluate::{run_eval, EvalOptions};
 use depthsense_infer::NetError;
-use depthsense_model::checkpoint;
 use depthsense_progress::Progress;
 use depthsense_score::tables::write_tables;
 use depthsense_train::metrics_log::read_metrics;

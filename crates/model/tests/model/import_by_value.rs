@@ -15,8 +15,9 @@ use crate::support::reference;
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use depthsense_checkpoint::weights;
 use depthsense_config::{Fusion, ModelConfig};
-use depthsense_model::{weights, DepthNet};
+use depthsense_model::DepthNet;
 use tch::{nn, Device, Kind, Tensor};
 
 /// Source key → (j, shape).

@@ -2,10 +2,12 @@
 
 use std::path::PathBuf;
 
+use depthsense_checkpoint as checkpoint;
+use depthsense_checkpoint::host;
+use depthsense_checkpoint::weights;
 use depthsense_config::{Fusion, HeadKind, ModelConfig};
 use depthsense_model::{
-    checkpoint, device::parse_device, host, ordinal, reference, report, sid, weights, DepthNet,
-    ModelError,
+    device::parse_device, ordinal, reference, report, sid, DepthNet, ModelError,
 };
 use tch::{nn, nn::OptimizerConfig, Device, Kind, Tensor};
 
@@ -699,11 +701,11 @@ fn devices_and_config_serde() {
     let json = dir.path().join("m.json");
     std::fs::write(&json, serde_json::to_string(&c).unwrap()).unwrap();
     assert_eq!(
-        depthsense_model::config::resolve(json.to_str().unwrap()).unwrap(),
+        depthsense_checkpoint::config::resolve(json.to_str().unwrap()).unwrap(),
         c
     );
     assert_eq!(
-        depthsense_model::config::resolve("tiny").unwrap(),
+        depthsense_checkpoint::config::resolve("tiny").unwrap(),
         ModelConfig::tiny()
     );
     let mut bad = ModelConfig::tiny();

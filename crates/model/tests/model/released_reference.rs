@@ -10,8 +10,9 @@ use std::path::Path;
 
 use crate::support::reference;
 
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
-use depthsense_model::{checkpoint, ordinal};
+use depthsense_model::ordinal;
 use tch::{Device, Kind, Tensor};
 
 const H: i64 = 64;
@@ -218,7 +219,7 @@ fn imagenet_file(cfg: &ModelConfig, path: &Path) -> Vec<(String, Tensor)> {
     sd.push(("bn1.num_batches_tracked".into(), Tensor::from(5i64)));
     depthsense_weights::pth_writer::write_torch_state_dict(
         path,
-        &depthsense_model::host::all_to_host(&sd).unwrap(),
+        &depthsense_checkpoint::host::all_to_host(&sd).unwrap(),
     )
     .unwrap();
     sd
@@ -243,7 +244,7 @@ fn torchvision_and_deep_stem_imagenet_files_load_into_released() {
     let tv_path = dir.path().join("resnet101-tv.pth");
     let tv_sd = imagenet_file(&tv, &tv_path);
     let (mut vs, _) = build(&released);
-    let rep = depthsense_model::weights::load_torchvision_resnet(&mut vs, &tv_path).unwrap();
+    let rep = depthsense_checkpoint::weights::load_torchvision_resnet(&mut vs, &tv_path).unwrap();
     let text = rep.to_string();
     eprint!("{text}");
     let partial: Vec<&str> = rep.partial.iter().map(|p| p.0.as_str()).collect();
@@ -298,7 +299,7 @@ fn torchvision_and_deep_stem_imagenet_files_load_into_released() {
     let deep_path = dir.path().join("resnet101-deep.pth");
     let deep_sd = imagenet_file(&released, &deep_path);
     let (mut vs, _) = build(&released);
-    let rep = depthsense_model::weights::load_torchvision_resnet(&mut vs, &deep_path).unwrap();
+    let rep = depthsense_checkpoint::weights::load_torchvision_resnet(&mut vs, &deep_path).unwrap();
     assert!(rep.partial.is_empty(), "{rep}");
     assert!(
         rep.left_random.iter().all(|k| !k.starts_with("rgb.")),
@@ -321,7 +322,7 @@ fn torchvision_and_deep_stem_imagenet_files_load_into_released() {
     // 3. The deep-stem file into a torchvision-stem network: stem skipped, the first 8 of the
     //    file's 16 layer1 input channels copied.
     let (mut vs, _) = build(&tv);
-    let rep = depthsense_model::weights::load_torchvision_resnet(&mut vs, &deep_path).unwrap();
+    let rep = depthsense_checkpoint::weights::load_torchvision_resnet(&mut vs, &deep_path).unwrap();
     assert_eq!(rep.partial.len(), 2, "{rep}");
     assert!(rep.partial[0].1.contains("first 8 of 16"), "{rep}");
     let v = &vs.variables()["rgb.layer1.0.conv1.weight"];

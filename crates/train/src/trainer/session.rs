@@ -9,12 +9,13 @@ use std::time::Instant;
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
 use depthsense_base::lock::OutputLock;
+use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
 use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_model::sync_bn::TrainHooks;
-use depthsense_model::{checkpoint, DepthNet};
+use depthsense_model::DepthNet;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use tch::{nn::VarStore, Device, Kind};
@@ -801,12 +802,12 @@ fn fresh(
     let mut vs = VarStore::new(device);
     let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     if let Some(w) = &opts.backbone_weights {
-        let report = depthsense_model::weights::load_torchvision_resnet(&mut vs, w)?;
+        let report = depthsense_checkpoint::weights::load_torchvision_resnet(&mut vs, w)?;
         eprintln!("backbone weights from {}:\n{report}", w.display());
     }
     let init_from = match &opts.init_from {
         Some(p) => {
-            let r = depthsense_model::weights::init_from(&mut vs, p)?;
+            let r = depthsense_checkpoint::weights::init_from(&mut vs, p)?;
             if main {
                 eprintln!(
                     "initialised from {} (tensors it lacks are new, \"left random\"):\n{r}",
@@ -859,11 +860,11 @@ fn resume(
     let last = run.join(LAST_CKPT);
     let last_optim = run.join(LAST_OPTIM);
     // Build the requested network and copy the checkpoint into it: a checkpoint of another
-    // configuration fails here with every offending tensor named (model::checkpoint).
+    // configuration fails here with every offending tensor named (depthsense_checkpoint).
     let vs = VarStore::new(device);
     let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     let bytes = std::fs::read(&last).map_err(|e| NetError::io(&last, e))?;
-    let (tensors, _) = depthsense_model::host::parse_safetensors(&last, &bytes)?;
+    let (tensors, _) = depthsense_checkpoint::host::parse_safetensors(&last, &bytes)?;
     checkpoint::copy_into(&last, &vs, &tensors)?;
     let (ck_cfg, extra) = checkpoint::read_config(&last)?;
     if &ck_cfg != cfg {

@@ -6,13 +6,14 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
+use depthsense_checkpoint as checkpoint;
 use depthsense_cli::cmd::bench_export::Args;
 use depthsense_config::flags::{ExportFormat, ExportPrecision};
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
 use depthsense_export::ort_bench::{time_onnxruntime, GraphInput};
 use depthsense_export::{export, Batch, ExportOptions};
-use depthsense_model::{checkpoint, report, DepthNet};
+use depthsense_model::{report, DepthNet};
 use serde::Serialize;
 use tch::{nn, Device, Kind, Tensor};
 
@@ -57,7 +58,7 @@ fn values(t: &Tensor) -> anyhow::Result<Vec<f32>> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let cfg = depthsense_model::config::resolve(&a.preset)?.with_options(&a.set)?;
+    let cfg = depthsense_checkpoint::config::resolve(&a.preset)?.with_options(&a.set)?;
     if let Some(n) = a.threads {
         tch::set_num_threads(n as i32);
     }

@@ -184,7 +184,7 @@ impl Bench {
     /// Resolve the network and device, set libtorch up, build the network (seed 0) in the
     /// layout and precision this device supports (a note on stderr for each one refused).
     fn new(args: &Args) -> anyhow::Result<Bench> {
-        let cfg = depthsense_model::config::resolve(&args.preset)?.with_options(&args.set)?;
+        let cfg = depthsense_checkpoint::config::resolve(&args.preset)?.with_options(&args.set)?;
         let dev = device::parse_device(&args.device.name)?;
         if let Some(n) = args.threads {
             tch::set_num_threads(n);
@@ -375,7 +375,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     print_results(&res);
     if let Some(path) = &args.out {
         let text = serde_json::to_string_pretty(&res)?;
-        depthsense_model::files::write_atomic(path, text.as_bytes())
+        depthsense_checkpoint::files::write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }

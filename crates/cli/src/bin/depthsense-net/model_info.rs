@@ -6,7 +6,7 @@ use depthsense_model::{report, DepthNet};
 use std::process::ExitCode;
 
 pub fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let cfg = depthsense_model::config::resolve(&args.config)?.with_options(&args.set)?;
+    let cfg = depthsense_checkpoint::config::resolve(&args.config)?.with_options(&args.set)?;
     let vs = tch::nn::VarStore::new(tch::Device::Cpu);
     let net = DepthNet::new(&vs.root(), &cfg)?;
     let rep = report::model_report(&vs, &net, args.height, args.width);
@@ -30,7 +30,7 @@ pub fn run(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(path) = &args.json {
         let v = serde_json::json!({"config": cfg, "report": rep});
         let text = serde_json::to_string_pretty(&v)?;
-        depthsense_model::files::write_atomic(path, text.as_bytes())
+        depthsense_checkpoint::files::write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }

@@ -2,9 +2,9 @@
 //! `--checkpoint`, `--config`, `--set`), as `predict`, `export`, `explain` and
 //! `experiment failure|perturb` take it.
 
+use depthsense_checkpoint::Loaded;
 use depthsense_cli::cmd::model_source::ModelSource;
 use depthsense_eval::evaluate::load_model;
-use depthsense_model::checkpoint::Loaded;
 
 /// Loads the network on `device`; a PyTorch file's import report goes to stderr.
 pub fn load(source: &ModelSource, device: tch::Device) -> anyhow::Result<Loaded> {

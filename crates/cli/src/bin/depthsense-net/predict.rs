@@ -68,7 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let radar = loaded.config.radar_input_for(None)?;
     if let Some(ck) = &a.mer_checkpoint {
-        let pda = depthsense_model::pda::load(ck, device)?;
+        let pda = depthsense_checkpoint::pda::load(ck, device)?;
         depthsense_eval::predict::attach_mer(&mut input, &pda.net, device)?;
     }
     let depth = predict(&loaded.net, &input, radar, device)?;

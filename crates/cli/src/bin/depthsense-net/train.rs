@@ -87,7 +87,7 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
 
 /// The preset with the command line's model options applied, `--set` last.
 fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
-    let mut model = depthsense_model::config::resolve(&a.config)?;
+    let mut model = depthsense_checkpoint::config::resolve(&a.config)?;
     if let Some(f) = &a.fusion {
         model.apply_option("fusion", f)?;
         if model.fusion != Fusion::Late {

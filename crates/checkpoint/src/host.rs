@@ -8,7 +8,7 @@ use std::path::Path;
 use depthsense_weights::{DType, HostTensor};
 use tch::{Device, Kind, Tensor};
 
-use crate::ModelError;
+use depthsense_model::ModelError;
 
 /// Tensors of a file (header order) and its string metadata.
 pub type Parsed = (Vec<(String, Tensor)>, BTreeMap<String, String>);

@@ -9,7 +9,7 @@ use tch::{nn::VarStore, Tensor};
 
 use crate::files::require_file;
 use crate::host::{parse_safetensors, read_torch_file};
-use crate::{ModelError, ShapeMismatch};
+use depthsense_model::{ModelError, ShapeMismatch};
 
 /// What an import did. `Display` prints a short summary (counts per module, the partly loaded
 /// tensors and the modules left random); `Debug` lists every name.

@@ -2,8 +2,8 @@
 //! — its presets and `--set` keys are the one registry every command parses with — and is
 //! reached there; [`resolve`] adds what needs this crate: reading a checkpoint's config.
 
-use crate::ModelError;
 use depthsense_config::{presets, ModelConfig};
+use depthsense_model::ModelError;
 
 /// Resolves `--config`: a preset name ([`presets::PRESETS`]), a JSON file holding a
 /// `ModelConfig` (or an export sidecar, whose `model_config` it is), or a depthsense checkpoint
@@ -24,7 +24,7 @@ pub fn resolve(spec: &str) -> Result<ModelConfig, ModelError> {
         return Ok(ModelConfig::preset(spec)?);
     }
     if path.extension().is_some_and(|e| e == "safetensors") {
-        return Ok(crate::checkpoint::read_config(path)?.0);
+        return Ok(crate::read_config(path)?.0);
     }
     let text = std::fs::read_to_string(path).map_err(|e| ModelError::io(path, e))?;
     let mut json: serde_json::Value = serde_json::from_str(&text)

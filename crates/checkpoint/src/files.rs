@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use crate::ModelError;
+use depthsense_model::ModelError;
 
 /// Writes `bytes` to `path` atomically: the workspace's one atomic write
 /// (`depthsense_base::fsutil::write_atomic`: temporary sibling, fsync, rename), with the

@@ -1,5 +1,21 @@
-//! Our own checkpoints: one safetensors file whose `__metadata__` holds the model config
-//! (JSON) and free-form extra JSON (epoch, metrics…), written atomically.
+//! depthsense-checkpoint (layer 3, ARCHITECTURE.md): network weights on disk, on libtorch's
+//! side of the torch-free byte formats of `depthsense-weights` — so that `depthsense-model`
+//! holds the paper's boxes and no file I/O.
+//!
+//! - this module's root: our own checkpoints, one safetensors file whose `__metadata__` holds
+//!   the model config (JSON) and free-form extra JSON (epoch, metrics…), written atomically,
+//!   and the "load anything" entry ([`load_any`]);
+//! - [`weights`]: torchvision / the authors' released weights into a network;
+//! - [`host`]: the edge between `depthsense_weights::HostTensor` and `tch`;
+//! - [`files`]: the atomic write and the missing-checkpoint advice;
+//! - [`config`]: a model config from a preset, a JSON, a sidecar or a checkpoint;
+//! - [`pda`]: the MER PDA network's checkpoints.
+
+pub mod config;
+pub mod files;
+pub mod host;
+pub mod pda;
+pub mod weights;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -8,8 +24,8 @@ use tch::{nn::VarStore, Device, Tensor};
 
 use crate::files::{require_file, write_atomic};
 use crate::host::{parse_safetensors, safetensors_bytes};
-use crate::{DepthNet, ModelError, ShapeMismatch};
 use depthsense_config::ModelConfig;
+use depthsense_model::{DepthNet, ModelError, ShapeMismatch};
 
 /// Format tag stored in the metadata.
 pub const FORMAT: &str = "depthsense-checkpoint-v1";
