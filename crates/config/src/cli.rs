@@ -21,11 +21,7 @@ pub fn parse_config_spec(s: &str) -> Result<String, String> {
 pub fn parse_device(s: &str) -> Result<String, String> {
     match crate::device::DeviceSpec::parse(s) {
         Some(_) => Ok(s.to_string()),
-        None => Err(format!(
-            "invalid device `{}` (expected {})",
-            s.trim().to_ascii_lowercase(),
-            crate::device::DEVICE_WORDS
-        )),
+        None => Err(crate::device::InvalidDevice::of(s).to_string()),
     }
 }
 

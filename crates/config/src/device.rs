@@ -16,6 +16,26 @@ pub enum DeviceSpec {
 /// The device words, as help texts and errors list them.
 pub const DEVICE_WORDS: &str = "auto, cpu, cuda or cuda:N";
 
+/// A `--device` value that is not a device word (the one message for the command line's
+/// refusal and `depthsense_model::device::parse_device`'s).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InvalidDevice(pub String);
+
+impl InvalidDevice {
+    /// The error for `s` as given (shown trimmed, lower-case).
+    pub fn of(s: &str) -> Self {
+        Self(s.trim().to_ascii_lowercase())
+    }
+}
+
+impl std::fmt::Display for InvalidDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "invalid device `{}` (expected {DEVICE_WORDS})", self.0)
+    }
+}
+
+impl std::error::Error for InvalidDevice {}
+
 impl DeviceSpec {
     /// Parses a device word (ASCII case and surrounding blanks ignored); `None` for anything
     /// else.

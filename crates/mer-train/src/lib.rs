@@ -33,7 +33,7 @@ use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
-use depthsense_train::metrics_log::{append_jsonl, read_metrics, truncate_metrics};
+use depthsense_train::metrics_log::{append_jsonl, logged_loss_sum, truncate_metrics};
 use depthsense_train::optim::Optimizer;
 use depthsense_train::schedule::{poly_lr, seed_step};
 use rayon::prelude::*;
@@ -439,16 +439,8 @@ impl<'o> Run<'o> {
         let order = epoch_order(self.train.len(), o.seed, epoch, true);
         self.epoch_loss = (0.0, 0);
         if skip > 0 {
-            let from = epoch * self.bpe;
-            let losses = read_metrics(&self.path(METRICS_FILE))
-                .map(|(l, _)| l)
-                .unwrap_or_default();
-            for (_, l) in losses
-                .iter()
-                .filter(|(i, _)| *i > from && *i <= self.state.iteration)
-            {
-                self.epoch_loss = (self.epoch_loss.0 + l, self.epoch_loss.1 + 1);
-            }
+            let path = self.path(METRICS_FILE);
+            self.epoch_loss = logged_loss_sum(&path, epoch * self.bpe, self.state.iteration);
         }
         order
             .chunks(o.batch_size)

@@ -1,6 +1,6 @@
 //! Device selection (`--device auto|cpu|cuda|cuda:N`).
 
-use depthsense_config::device::DeviceSpec;
+use depthsense_config::device::{DeviceSpec, InvalidDevice};
 use tch::{Cuda, Device};
 
 use crate::ModelError;
@@ -9,8 +9,7 @@ use crate::ModelError;
 /// or `cuda:N`. Asking for CUDA explicitly without a usable GPU is an error, not a silent
 /// fall-back to the CPU.
 pub fn parse_device(s: &str) -> Result<Device, ModelError> {
-    let spec = DeviceSpec::parse(s)
-        .ok_or_else(|| ModelError::InvalidDevice(s.trim().to_ascii_lowercase()))?;
+    let spec = DeviceSpec::parse(s).ok_or_else(|| InvalidDevice::of(s))?;
     let idx = match spec {
         DeviceSpec::Auto => return Ok(Device::cuda_if_available()),
         DeviceSpec::Cpu => return Ok(Device::Cpu),

@@ -41,8 +41,8 @@ pub enum ModelError {
     #[error("invalid model config: {0}")]
     InvalidConfig(String),
     /// `parse_device` got a string it does not understand.
-    #[error("invalid device `{0}` (expected {words})", words = depthsense_config::device::DEVICE_WORDS)]
-    InvalidDevice(String),
+    #[error(transparent)]
+    InvalidDevice(#[from] depthsense_config::device::InvalidDevice),
     /// CUDA was asked for explicitly but libtorch sees no usable GPU.
     #[error("device `{0}` requested but CUDA is not available (libtorch sees {1} GPUs; is libtorch_cuda linked and a driver present?): use --device cpu, or auto (CUDA when there is one)")]
     CudaUnavailable(String, i64),

@@ -123,10 +123,6 @@ impl PerturbAxis {
         depthsense_base::words::Words::word(self)
     }
 
-    pub fn parse(s: &str) -> Option<PerturbAxis> {
-        <Self as depthsense_base::words::Words>::from_word(s)
-    }
-
     pub fn is_rotation(self) -> bool {
         matches!(
             self,

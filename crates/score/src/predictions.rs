@@ -83,14 +83,6 @@ impl depthsense_base::words::Words for PredFormat {
     const WORDS: &'static [(&'static str, Self)] = &[("png", Self::Png), ("npy", Self::Npy)];
 }
 
-impl std::str::FromStr for PredFormat {
-    type Err = DataError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        <Self as depthsense_base::words::Words>::from_word(s)
-            .ok_or_else(|| DataError::Config(format!("unknown prediction format {s:?} (png, npy)")))
-    }
-}
-
 /// The prediction file of a sample in `dir`: `<token>.npy`, `<token>.png`,
 /// `<token>/depth.npy` or `<token>/depth.png` (first found, in that order).
 pub fn find_prediction(dir: &Path, token: &str) -> Option<(PathBuf, PredFormat)> {

@@ -163,6 +163,17 @@ pub fn read_metrics(path: &Path) -> Result<(LossCurve, Vec<ValRecord>), NetError
     Ok((log.losses, log.val))
 }
 
+/// (sum, count) of the losses logged for iterations `after` < i ≤ `upto`: an epoch's running
+/// loss before a resume inside it, so that its mean counts every step as in an uninterrupted
+/// run. An unreadable log counts nothing.
+pub fn logged_loss_sum(path: &Path, after: u64, upto: u64) -> (f64, usize) {
+    let losses = read_metrics(path).map(|(l, _)| l).unwrap_or_default();
+    losses
+        .iter()
+        .filter(|(i, _)| *i > after && *i <= upto)
+        .fold((0.0, 0), |(sum, n), (_, l)| (sum + l, n + 1))
+}
+
 /// Render RUN/curves.png from RUN/metrics.jsonl.
 pub fn write_curves(metrics_path: &Path, png: &Path) -> Result<(), NetError> {
     let (losses, val) = read_metrics(metrics_path)?;
@@ -189,6 +200,19 @@ mod tests {
         "\n",
         r#"{"kind":"iter","iteration":3,"lo"#,
     );
+
+    #[test]
+    fn logged_losses_of_an_interval_are_summed() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("metrics.jsonl");
+        let lines: Vec<String> = (1..=6)
+            .map(|i| format!(r#"{{"kind":"iter","epoch":0,"iteration":{i},"loss":{i}.0}}"#))
+            .collect();
+        std::fs::write(&p, lines.join("\n")).unwrap();
+        assert_eq!(logged_loss_sum(&p, 2, 5), (3.0 + 4.0 + 5.0, 3));
+        assert_eq!(logged_loss_sum(&p, 6, 9), (0.0, 0));
+        assert_eq!(logged_loss_sum(&d.path().join("none"), 0, 9), (0.0, 0));
+    }
 
     #[test]
     fn a_bad_line_fails_or_is_skipped_as_asked() {

@@ -21,11 +21,12 @@ use depthsense_progress::Progress;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, read_metrics, save_ckpt, subsample, truncate_metrics, upload_batch,
-    validate_net, write_curves, State, TrainOptions, TrainSummary, ValRecord,
+    all_finite, append_jsonl, save_ckpt, subsample, truncate_metrics, upload_batch, validate_net,
+    write_curves, State, TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
 use crate::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
+use crate::metrics_log::logged_loss_sum;
 use crate::optim::Optimizer;
 use crate::optim_state;
 use crate::schedule::{seed_step, warmup_poly_lr};
@@ -478,17 +479,9 @@ impl<'o> Trainer<'o> {
         let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
         self.acc = EpochLosses::default();
         if skip > 0 && self.is_main() {
-            let from = epoch * self.bpe;
-            let losses = read_metrics(&self.path(METRICS_FILE))
-                .map(|(l, _)| l)
-                .unwrap_or_default();
-            for (_, l) in losses
-                .iter()
-                .filter(|(i, _)| *i > from && *i <= self.state.iteration)
-            {
-                self.acc.sum += l;
-                self.acc.n += 1;
-            }
+            let path = self.path(METRICS_FILE);
+            (self.acc.sum, self.acc.n) =
+                logged_loss_sum(&path, epoch * self.bpe, self.state.iteration);
         }
         self.step_ended = Instant::now();
         Ok(loader)
