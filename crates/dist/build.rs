@@ -16,71 +16,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+include!("../../build-support/torch_find.rs");
 include!("../../build-support/torch_link.rs");
-
-struct Torch {
-    includes: Vec<PathBuf>,
-    lib: PathBuf,
-    cxx11_abi: String,
-    site_packages: Option<PathBuf>,
-}
-
-fn find_torch() -> Torch {
-    println!("cargo:rerun-if-env-changed=LIBTORCH");
-    println!("cargo:rerun-if-env-changed=LIBTORCH_CXX11_ABI");
-    if let Ok(root) = std::env::var("LIBTORCH") {
-        let root = PathBuf::from(root);
-        return Torch {
-            includes: vec![
-                root.join("include"),
-                root.join("include/torch/csrc/api/include"),
-            ],
-            lib: root.join("lib"),
-            cxx11_abi: std::env::var("LIBTORCH_CXX11_ABI").unwrap_or_else(|_| "1".into()),
-            site_packages: None,
-        };
-    }
-    let python = if std::env::var_os("VIRTUAL_ENV").is_some() {
-        "python"
-    } else {
-        "python3"
-    };
-    let script = "import os, torch\n\
-                  d = os.path.dirname(torch.__file__)\n\
-                  print('DIR:', d)\n\
-                  print('ABI:', int(torch._C._GLIBCXX_USE_CXX11_ABI))\n";
-    let out = Command::new(python)
-        .args(["-c", script])
-        .output()
-        .unwrap_or_else(|e| panic!("depthsense-dist: cannot run {python}: {e}"));
-    if !out.status.success() {
-        panic!(
-            "depthsense-dist: `{python} -c 'import torch'` failed (activate .venv or set LIBTORCH): {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
-    let text = String::from_utf8_lossy(&out.stdout);
-    let mut dir = None;
-    let mut abi = "1".to_string();
-    for l in text.lines() {
-        if let Some(d) = l.strip_prefix("DIR: ") {
-            dir = Some(PathBuf::from(d.trim()));
-        }
-        if let Some(a) = l.strip_prefix("ABI: ") {
-            abi = a.trim().to_string();
-        }
-    }
-    let dir = dir.expect("depthsense-dist: python printed no torch directory");
-    Torch {
-        includes: vec![
-            dir.join("include"),
-            dir.join("include/torch/csrc/api/include"),
-        ],
-        lib: dir.join("lib"),
-        cxx11_abi: abi,
-        site_packages: dir.parent().map(Path::to_path_buf),
-    }
-}
 
 fn env_dir(var: &str) -> Option<PathBuf> {
     println!("cargo:rerun-if-env-changed={var}");

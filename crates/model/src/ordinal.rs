@@ -126,13 +126,17 @@ impl SparseTarget {
 }
 
 /// `t` on `device`: a plain copy to the CPU, else through pinned memory without blocking the
-/// host (the copy is ordered on the current stream before any kernel that reads it).
+/// host (the copy is ordered on the current stream before any kernel that reads it); a blocking
+/// copy if no pinned memory can be had.
 pub fn to_device_async(t: Tensor, device: Device) -> Tensor {
     if device == Device::Cpu || t.device() == device {
         return t.to_device(device);
     }
     let kind = t.kind();
-    t.pin_memory(device).to_device_(device, kind, true, false)
+    match depthsense_torch_ext::pin_memory(&t) {
+        Ok(pinned) => pinned.to_device_(device, kind, true, false),
+        Err(_) => t.to_device(device),
+    }
 }
 
 /// [`ordinal_loss`] over the valid pixels `target` (no `nonzero`, no host synchronisation).

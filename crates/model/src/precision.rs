@@ -1,29 +1,21 @@
-//! Mixed precision: bf16 autocast on CUDA.
-//!
-//! `tch::autocast` enables libtorch's CUDA autocast, whose default dtype is fp16; libtorch
-//! 2.11 exports `at::autocast::set_autocast_dtype(DeviceType, ScalarType)` (C++ symbol), which
-//! we call to select bf16.
+//! Mixed precision: bf16 (or fp16) autocast on CUDA, through `torch_ext::cuda_autocast` (the
+//! device-typed libtorch API: `tch::autocast` logs a deprecation warning on every call and knows
+//! only fp16).
 
 use depthsense_config::flags::Precision;
-use tch::Cuda;
-
-extern "C" {
-    // void at::autocast::set_autocast_dtype(c10::DeviceType, c10::ScalarType); both enums are
-    // int8-backed; CUDA = 1, BFloat16 = 15, Half = 5.
-    #[link_name = "_ZN2at8autocast18set_autocast_dtypeEN3c1010DeviceTypeENS1_10ScalarTypeE"]
-    fn at_autocast_set_autocast_dtype(device_type: i8, dtype: i8);
-}
+use tch::{Cuda, Kind};
 
 /// Runs `f` under CUDA autocast with the given dtype (no effect on the CPU or for fp32).
 pub fn with_autocast<T>(precision: Precision, f: impl FnOnce() -> T) -> T {
     if precision == Precision::Fp32 || !Cuda::is_available() {
         return f();
     }
-    let dtype = if precision == Precision::Bf16 { 15 } else { 5 };
-    // SAFETY: plain C++ function taking two int8-backed enums by value; it only sets a
-    // thread-local/global dtype and cannot fail for CUDA with a floating dtype.
-    unsafe { at_autocast_set_autocast_dtype(1, dtype) };
-    tch::autocast(true, f)
+    let dtype = if precision == Precision::Bf16 {
+        Kind::BFloat16
+    } else {
+        Kind::Half
+    };
+    depthsense_torch_ext::cuda_autocast(dtype, f)
 }
 
 /// The same logical NCHW tensor with channels-last (NHWC) strides (tch has no memory-format
