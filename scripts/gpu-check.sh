@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 9: every GPU measurement and CUDA check of depthsense in one run (< 8 min on one H200).
+# Issue 9: every GPU measurement and CUDA check of depthsense in one run (≈ 9 min on one H200).
 #
 # On the CPU machine (Rust toolchain):   make gpu-bundle        # → .gpu/ (< 64 MiB, git-ignored)
 # On the GPU machine (Python 3.12 + torch 2.11.0+cu130, no Rust), from the repository root with
@@ -13,11 +13,11 @@
 #   summary.json      the table printed at the end: ratios ours/PyTorch, targets, checks
 #   log.txt           every command and its output (tail-truncated)
 # Steps run most important first, each under `timeout`, within a total budget (--budget, default
-# 450 s): a step that no longer fits is recorded as skipped, and every JSON is written even then.
+# 520 s): a step that no longer fits is recorded as skipped, and every JSON is written even then.
 #
 # Options:
 #   --out DIR          where the results go (default: $OUT, else ./gpu-check-out)
-#   --budget SECONDS   total time budget (default 450)
+#   --budget SECONDS   total time budget (default 520)
 #   --demo-epochs N    epochs of each demo model (default 4; 0 = the CUDA plan's own 30)
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: ours_<preset>_
@@ -31,7 +31,7 @@ set -u -o pipefail
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 REPO="$(cd "$HERE/.." && pwd)"
 DRY=0
-BUDGET=450
+BUDGET=520
 DEMO_EPOCHS=4
 OUTDIR="${OUT:-}"
 MAKE_BUNDLE=""
@@ -224,7 +224,8 @@ else
   BTRAIN_ARGS=(--config paper --batch-size 8 --iterations 10 --warmup 3 --loader-batches 12 --jobs 0)
   DEMO_ARGS=(--device cuda --jobs 0)
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
-  CAP_OURS=75; CAP_TORCH=150; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
+  # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
+  CAP_OURS=75; CAP_TORCH=200; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
 fi
 
 ours() {  # ours PRESET VARIANT

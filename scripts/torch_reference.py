@@ -91,7 +91,9 @@ class Runner:
             h, w = image.shape[-2:]
             up = F.interpolate(self.net(image, radar), size=(h, w), mode="bilinear",
                                align_corners=True)
-            return released_ordinal_layer(up)
+            # The released layer's `.clone().view(...)` assumes NCHW strides: with a channels-last
+            # network the logits come back channels-last and the view fails (first H200 run).
+            return released_ordinal_layer(up.contiguous())
         return head_output(self.net, image, radar)
 
     def decode(self, out, h, w):
@@ -470,6 +472,7 @@ def main():
             p.error(f"--ordinal {m}: expected released, efficient or efficient-dense")
     baseline = gpu_used_total_mib(dev)
     runs = []
+    failed = False
     print(f"{'config':<9} {'ordinal':<16} {'prec':<5} cl {'fwd ms':>10} {'fwd+dec ms':>10} "
           f"{'train ms':>11} {'peak MiB':>9}", flush=True)
     for cfg in cfgs:
@@ -477,15 +480,20 @@ def main():
             for mode in modes:
                 try:
                     r = bench(cfg, a, dev, prec, cl, mode, baseline)
-                except torch.cuda.OutOfMemoryError as e:  # the released form at batch 8
+                except Exception as e:  # noqa: BLE001 — e.g. the released form OOM at batch 8:
+                    # recorded, and the other variants still run
+                    oom = isinstance(e, torch.cuda.OutOfMemoryError)
+                    msg = "CUDA out of memory" if oom else f"{type(e).__name__}"
                     r = {"config": cfg["name"], "ordinal": mode, "precision": prec,
                          "channels_last": cl, "implementation": "pytorch-eager",
                          "variant_requested": prec + ("-cl" if cl else ""),
-                         "error": f"CUDA out of memory: {str(e)[:300]}"}
-                    torch.cuda.empty_cache()
+                         "error": f"{msg}: {str(e)[:300]}"}
+                    if dev.type == "cuda":
+                        torch.cuda.empty_cache()
                     print(f"{cfg['name']:<9} {mode:<16} {prec:<5} {'cl' if cl else '  '} "
-                          f"out of memory", flush=True)
+                          f"failed: {msg}: {str(e)[:200]}", flush=True)
                     runs.append(r)
+                    failed = True
                     continue
                 runs.append(r)
                 print(fmt_row(r), flush=True)
@@ -497,7 +505,11 @@ def main():
                     with open(a.out, "w") as f:
                         json.dump(runs[0] if len(runs) == 1 and len(cfgs) * len(variants)
                                   * len(modes) == 1 else {"runs": runs}, f, indent=2)
-    return 0
+    if a.out:  # the failed runs too
+        with open(a.out, "w") as f:
+            json.dump(runs[0] if len(runs) == 1 and len(cfgs) * len(variants)
+                      * len(modes) == 1 else {"runs": runs}, f, indent=2)
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
