@@ -11,7 +11,8 @@
 //! A failed or timed-out collective names the peer that stopped: every rank beats a counter
 //! in the store every 250 ms, and on failure the survivors look for counters that stopped.
 //!
-//! [`DistEnv`] reads the environment `torchrun`, Slurm and Kubernetes PyTorchJob set.
+//! [`DistEnv`] reads the environment `torchrun`, Slurm and Kubernetes PyTorchJob set;
+//! [`launch`] starts local workers as `torchrun --nproc-per-node` does.
 
 use std::ffi::{c_char, c_int, c_void, CStr, CString};
 use std::ptr::NonNull;
@@ -20,6 +21,7 @@ use std::time::Duration;
 use tch::{Device, Kind, Tensor};
 
 mod env;
+pub mod launch;
 pub mod sync_bn;
 
 pub use env::{first_host, DistEnv, DEFAULT_PORT};
@@ -35,6 +37,9 @@ pub enum DistError {
     Collective(String),
     #[error("distributed: {0}")]
     Other(String),
+    /// A local job (`--nproc`): the launcher or its workers.
+    #[error(transparent)]
+    Launch(#[from] launch::LaunchError),
 }
 
 mod ffi {

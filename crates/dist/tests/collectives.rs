@@ -11,10 +11,7 @@ use depthsense_dist::{
 use tch::{Device, Kind, Tensor};
 
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
+    depthsense_dist::launch::free_port().expect("a free port")
 }
 
 struct Out {

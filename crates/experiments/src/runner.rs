@@ -500,12 +500,11 @@ fn train_or_reuse(
         topts.force = !topts.resume && cfg_path.exists();
         let s = train(&topts, pb)?;
         if s.interrupted || s.iterations_done < s.total_iterations {
-            return Err(NetError::Other(format!(
-                "{}: training stopped at iteration {} of {}",
-                run.display(),
-                s.iterations_done,
-                s.total_iterations
-            )));
+            return Err(NetError::TrainingStopped {
+                run: run.to_path_buf(),
+                done: s.iterations_done,
+                total: s.total_iterations,
+            });
         }
         let status = if resumed {
             RunStatus::Resumed

@@ -81,6 +81,22 @@ pub enum NetError {
     /// own messages.
     #[error(transparent)]
     Dataset(#[from] depthsense_dataset::DataError),
+    /// A SyncBatchNorm collective inside a forward (kept by the hook, reported after it).
+    #[error("sync batch norm: {0}")]
+    SyncBatchNorm(#[source] depthsense_dist::DistError),
+    /// `--check-replicas`: this rank's weights are no longer rank 0's.
+    #[error(
+        "rank {rank}: the model differs from rank 0's after iteration {iteration} \
+         (max |Δ| = {max_abs_diff:e})"
+    )]
+    ReplicasDiffer {
+        rank: usize,
+        iteration: u64,
+        max_abs_diff: f64,
+    },
+    /// An experiment's training run ended before its last iteration (interrupted or stopped).
+    #[error("{}: training stopped at iteration {done} of {total}", .run.display())]
+    TrainingStopped { run: PathBuf, done: u64, total: u64 },
     #[error("{0}")]
     Other(String),
 }
@@ -104,5 +120,39 @@ impl From<depthsense_config::ConfigError> for NetError {
             C::RadarChannels { .. } | C::UnknownVariant(_) => NetError::Config(e.to_string()),
             e => NetError::Model(e.into()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The typed variants read as the strings they replaced did.
+    #[test]
+    fn typed_variants_keep_their_messages() {
+        let e = NetError::ReplicasDiffer {
+            rank: 1,
+            iteration: 7,
+            max_abs_diff: 0.5,
+        };
+        assert_eq!(
+            e.to_string(),
+            "rank 1: the model differs from rank 0's after iteration 7 (max |Δ| = 5e-1)"
+        );
+        let e = NetError::TrainingStopped {
+            run: PathBuf::from("runs/a/rgb"),
+            done: 3,
+            total: 10,
+        };
+        assert_eq!(
+            e.to_string(),
+            "runs/a/rgb: training stopped at iteration 3 of 10"
+        );
+        let e = NetError::SyncBatchNorm(depthsense_dist::DistError::Collective("timeout".into()));
+        assert_eq!(e.to_string(), "sync batch norm: timeout");
+        let e = NetError::from(depthsense_dist::DistError::from(
+            depthsense_dist::launch::LaunchError::NoWorkers,
+        ));
+        assert_eq!(e.to_string(), "configuration: --nproc must be at least 1");
     }
 }

@@ -7,9 +7,9 @@
 use std::time::Duration;
 
 use depthsense_config::ModelConfig;
+use depthsense_dist::launch::launch_local;
 use depthsense_dist::{Backend, DistEnv, ProcessGroup};
 use depthsense_model::DepthNet;
-use depthsense_train::distributed::launch_local;
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

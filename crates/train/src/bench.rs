@@ -64,7 +64,7 @@ pub fn bench_train(
     let root = match &opts.data {
         Some(p) => p.clone(),
         None => {
-            tmp = tempfile::tempdir().map_err(|e| NetError::Other(e.to_string()))?;
+            tmp = tempfile::tempdir().map_err(|e| NetError::io(&std::env::temp_dir(), e))?;
             progress.set_message("writing a toy 800x350 dataset");
             let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
             depthsense_data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;

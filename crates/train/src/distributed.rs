@@ -25,11 +25,10 @@
 //!   progress bar. Checkpoints do not depend on N: `--resume` works with any world size.
 
 use std::cell::RefCell;
-use std::ffi::OsString;
-use std::process::{Child, Command};
+
 use std::rc::Rc;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use depthsense_dist::sync_bn::{batch_norm, BnState};
 use depthsense_dist::{broadcast_flat, GradBuckets, ReduceOp};
@@ -81,7 +80,7 @@ pub struct CommStats {
 
 struct SyncBnHook {
     pg: Arc<ProcessGroup>,
-    error: RefCell<Option<String>>,
+    error: RefCell<Option<depthsense_dist::DistError>>,
 }
 
 impl BatchNormHook for SyncBnHook {
@@ -97,7 +96,7 @@ impl BatchNormHook for SyncBnHook {
             };
             match batch_norm(&self.pg, x, &state) {
                 Ok(y) => return y,
-                Err(e) => *self.error.borrow_mut() = Some(format!("sync batch norm: {e}")),
+                Err(e) => *self.error.borrow_mut() = Some(e),
             }
         }
         // After a failure: local statistics; the trainer reports the error after the forward.
@@ -233,7 +232,7 @@ impl Dist {
     pub(crate) fn after_forward(&self) -> Result<(), NetError> {
         if let Some(h) = &self.hook {
             if let Some(e) = h.error.borrow_mut().take() {
-                return Err(NetError::Other(e));
+                return Err(NetError::SyncBatchNorm(e));
             }
         }
         Ok(())
@@ -283,11 +282,11 @@ impl Dist {
         self.pg.broadcast(std::slice::from_ref(&theirs), 0)?;
         if !mine.equal(&theirs) {
             let d = (&mine - &theirs).abs().max().double_value(&[]);
-            return Err(NetError::Other(format!(
-                "rank {}: the model differs from rank 0's after iteration {iteration} \
-                 (max |Δ| = {d:e})",
-                self.rank()
-            )));
+            return Err(NetError::ReplicasDiffer {
+                rank: self.rank(),
+                iteration,
+                max_abs_diff: d,
+            });
         }
         Ok(())
     }
@@ -373,113 +372,5 @@ pub fn device_for_local_rank(device: &str, local_rank: usize) -> String {
         "cuda" => format!("cuda:{local_rank}"),
         "auto" if tch::Cuda::is_available() => format!("cuda:{local_rank}"),
         d => d.to_string(),
-    }
-}
-
-/// A free TCP port on the loopback interface (for a local job's MASTER_PORT).
-pub fn free_port() -> Result<u16, NetError> {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .map_err(|e| NetError::Other(format!("no free loopback port for MASTER_PORT: {e}")))
-}
-
-/// Start `nproc` local workers of this executable with `args` and the environment torchrun
-/// sets (RANK, LOCAL_RANK, WORLD_SIZE, LOCAL_WORLD_SIZE, GROUP_RANK, ROLE_RANK,
-/// ROLE_WORLD_SIZE, MASTER_ADDR=127.0.0.1, MASTER_PORT), and wait for them. When a worker
-/// fails, the others get `grace` to fail on their own (they name the peer that stopped), then
-/// are killed. Errors list every failed worker.
-pub fn launch_local(
-    nproc: usize,
-    args: &[OsString],
-    master_port: Option<u16>,
-    grace: Duration,
-) -> Result<(), NetError> {
-    if nproc == 0 {
-        return Err(NetError::Config("--nproc must be at least 1".into()));
-    }
-    if std::env::var_os("WORLD_SIZE").is_some() {
-        return Err(NetError::Config(
-            "--nproc inside a distributed job (WORLD_SIZE is set): let torchrun / srun start \
-             the workers, or drop --nproc"
-                .into(),
-        ));
-    }
-    let exe = std::env::current_exe()
-        .map_err(|e| NetError::Other(format!("cannot find this executable: {e}")))?;
-    let port = match master_port {
-        Some(p) => p,
-        None => free_port()?,
-    };
-    let mut children: Vec<(usize, Child)> = Vec::with_capacity(nproc);
-    for rank in 0..nproc {
-        let child = Command::new(&exe)
-            .args(args)
-            .env("RANK", rank.to_string())
-            .env("LOCAL_RANK", rank.to_string())
-            .env("WORLD_SIZE", nproc.to_string())
-            .env("LOCAL_WORLD_SIZE", nproc.to_string())
-            .env("GROUP_RANK", "0")
-            .env("ROLE_RANK", rank.to_string())
-            .env("ROLE_WORLD_SIZE", nproc.to_string())
-            .env("MASTER_ADDR", "127.0.0.1")
-            .env("MASTER_PORT", port.to_string())
-            .spawn();
-        match child {
-            Ok(c) => children.push((rank, c)),
-            Err(e) => {
-                for (_, c) in children.iter_mut() {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                }
-                return Err(NetError::Other(format!(
-                    "cannot start worker rank {rank} ({}): {e}",
-                    exe.display()
-                )));
-            }
-        }
-    }
-    let mut failed: Vec<String> = vec![];
-    let mut first_failure: Option<Instant> = None;
-    let mut running: Vec<(usize, Child)> = children;
-    while !running.is_empty() {
-        let mut still = vec![];
-        for (rank, mut c) in running {
-            match c.try_wait() {
-                Ok(Some(status)) => {
-                    if !status.success() {
-                        failed.push(format!("rank {rank} ({status})"));
-                        first_failure.get_or_insert_with(Instant::now);
-                    }
-                }
-                Ok(None) => still.push((rank, c)),
-                Err(e) => {
-                    failed.push(format!("rank {rank} (cannot wait: {e})"));
-                    first_failure.get_or_insert_with(Instant::now);
-                }
-            }
-        }
-        running = still;
-        if first_failure.is_some_and(|t| t.elapsed() > grace) {
-            for (rank, c) in running.iter_mut() {
-                let _ = c.kill();
-                let _ = c.wait();
-                failed.push(format!(
-                    "rank {rank} (killed {:.0} s after the first failure)",
-                    grace.as_secs_f64()
-                ));
-            }
-            running.clear();
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    if failed.is_empty() {
-        Ok(())
-    } else {
-        Err(NetError::Other(format!(
-            "{} of {nproc} worker(s) failed: {}",
-            failed.len(),
-            failed.join(", ")
-        )))
     }
 }

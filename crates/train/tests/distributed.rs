@@ -54,7 +54,7 @@ fn opts(data: &Path, out: &Path) -> TrainOptions {
 }
 
 fn free_port() -> u16 {
-    depthsense_train::distributed::free_port().unwrap()
+    depthsense_dist::launch::free_port().unwrap()
 }
 
 fn spawn(world: usize, o: &TrainOptions, d: &DistOptions, timeout_s: u64) -> Vec<Child> {

@@ -76,7 +76,7 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
         &a.out,
         "depthsense train",
     )?);
-    distributed::launch_local(
+    depthsense_dist::launch::launch_local(
         n,
         &worker_args(),
         a.master_port,
