@@ -4,11 +4,13 @@
 //! - `sid_goldens`: SID thresholds and the ordinal decoding against golden values;
 //! - `torch_reference_params`: parameter counts and outputs against the PyTorch reference;
 //! - `import_by_value`: torchvision / released imports checked value by value;
-//! - `released_reference`: the authors' checkpoint layout (`support::reference`).
+//! - `released_reference`: the authors' checkpoint layout (`support::reference`);
+//! - `torch_ext`: the libtorch shim (pinned copies, CUDA autocast) that `model` uses.
 
 mod import_by_value;
 mod model;
 mod released_reference;
 mod sid_goldens;
 mod support;
+mod torch_ext;
 mod torch_reference_params;
