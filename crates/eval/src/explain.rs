@@ -30,6 +30,7 @@ use depthsense_base::fsutil::write_atomic;
 use depthsense_config::{HeadKind, SidConfig};
 use depthsense_data::{normalise_image, Augment};
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::{Doc, Documented};
 use depthsense_metrics::table::{md_num, Align, MdTable};
 use depthsense_model::{ordinal, sid, DepthNet};
 use depthsense_nuscenes::depth_png::DepthMap;
@@ -346,11 +347,15 @@ fn write_results(
         &depthsense_viz::plot::encode_rgb(&grid_image(tiles))?,
     )
     .map_err(|e| NetError::io(&grid, e))?;
-    let json = serde_json::to_string_pretty(r)?;
+    let doc = document(r);
+    let json = serde_json::to_string_pretty(&Documented {
+        record: r,
+        document: &doc,
+    })?;
     let jp = out.join("explain.json");
     write_atomic(&jp, json.as_bytes()).map_err(|e| NetError::io(&jp, e))?;
     let mp = out.join("explain.md");
-    write_atomic(&mp, markdown(r).as_bytes()).map_err(|e| NetError::io(&mp, e))?;
+    write_atomic(&mp, doc.to_markdown().as_bytes()).map_err(|e| NetError::io(&mp, e))?;
     Ok(())
 }
 
@@ -383,11 +388,14 @@ fn grid_image(rows: &[Vec<image::RgbImage>]) -> image::RgbImage {
     g
 }
 
-fn markdown(r: &ExplainResult) -> String {
-    let mut md = String::from(
-        "# Grad-CAM++ by distance class (SPEC §10.6)\n\nTarget, band and heat fraction: docs/guide/experiments.md, \
-         \"Grad-CAM++ by distance class\". Heat in band vs chance (the fraction an even heat map would give).\n\n",
-    );
+/// The heat table with its reading (explain.md, and the report's section).
+fn document(r: &ExplainResult) -> Doc {
+    let mut doc = Doc::new();
+    doc.heading(1, "Grad-CAM++ by distance class (SPEC §10.6)")
+        .paragraph(
+            "Target, band and heat fraction: docs/guide/experiments.md, \"Grad-CAM++ by distance \
+         class\". Heat in band vs chance (the fraction an even heat map would give).",
+        );
     let mut t = MdTable::new(&[
         ("sample", Align::Left),
         ("d (m)", Align::Right),
@@ -408,17 +416,15 @@ fn markdown(r: &ExplainResult) -> String {
             format!("{:.3}", x.chance),
         ]);
     }
-    md.push_str(&t.finish());
-    md.push_str(&format!(
-        "\nGrid (`{}`): one row per sample; columns: for each radar state (with, then zeroed), \
-         for each distance, each layer; white = lidar pixels in the band; colour bar: heat 0 → 1 \
-         (turbo).\n",
-        r.grid.display()
-    ));
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        r.command_line.as_deref(),
-    ));
-    md
+    doc.table(t)
+        .paragraph(format!(
+            "Grid (`{}`): one row per sample; columns: for each radar state (with, then zeroed), \
+             for each distance, each layer; white = lidar pixels in the band; colour bar: heat 0 \
+             → 1 (turbo).",
+            r.grid.display()
+        ))
+        .command(r.command_line.as_deref());
+    doc
 }
 
 #[cfg(test)]

@@ -24,6 +24,7 @@ use std::time::Instant;
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_field, csv_num, csv_row, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
@@ -394,10 +395,8 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
 }
 
 fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r)?;
-    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
-    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
     super::save(&dir.join(PNG_FILE), &chart(r)?)?;
     Ok(())
 }
@@ -517,13 +516,15 @@ fn csv(r: &AblationResult) -> String {
 /// The paper's MER table (SPEC §5 / §10): every variant, full image and low-height, combined
 /// conditions at `cap_m`, δ1–3, RMSE, AbsRel and RMSE_log (mean ± std over seeds, from each
 /// run's full test report). Written only when the ablation has the `late-sam-mer` variant.
-pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
+/// The paper's MER table (heading and table; no block without a `late-sam-mer` run).
+pub fn mer_table(r: &AblationResult, cap_m: f64) -> Doc {
+    let mut doc = Doc::new();
     if !r
         .runs
         .iter()
         .any(|x| x.variant == Variant::LateSamMer.name())
     {
-        return String::new();
+        return doc;
     }
     type Get = fn(&depthsense_metrics::Metrics) -> f64;
     let cols: [Get; 6] = [
@@ -534,8 +535,10 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
         |m| m.abs_rel,
         |m| m.rmse_log,
     ];
-    let mut md =
-        format!("## MER table: full image and low-height, cap {cap_m:.0} m (test scenes)\n\n");
+    doc.heading(
+        2,
+        format!("MER table: full image and low-height, cap {cap_m:.0} m (test scenes)"),
+    );
     let mut t = MdTable::new(&[
         ("variant", Align::Left),
         ("region", Align::Left),
@@ -568,36 +571,40 @@ pub fn mer_table(r: &AblationResult, cap_m: f64) -> String {
             t.row(&cells);
         }
     }
-    md.push_str(&t.finish());
-    md.push('\n');
-    md
+    doc.table(t);
+    doc
 }
 
-fn markdown(r: &AblationResult) -> String {
-    let mut md = md_intro(r);
-    md.push_str(&md_verdicts(r));
+/// ablation.md, and the report's section: intro, verdicts, tables, per run, setup.
+fn document(r: &AblationResult) -> Doc {
+    let mut doc = Doc::new();
+    md_intro(r, &mut doc);
+    md_verdicts(r, &mut doc);
     let cap = r
         .summary
         .iter()
         .map(|x| x.cap_m)
         .find(|c| c.is_finite())
         .unwrap_or(r.options.eval.main_cap());
-    md.push_str(&md_region_tables(r, cap));
-    md.push_str(&mer_table(r, cap));
-    md.push_str(&md_per_run(r));
-    md.push_str(&md_setup(r));
-    md
+    md_region_tables(r, cap, &mut doc);
+    doc.blocks.extend(mer_table(r, cap).blocks);
+    md_per_run(r, &mut doc);
+    md_setup(r, &mut doc);
+    doc
 }
 
 /// Title, what was run, and the variants' fields.
-fn md_intro(r: &AblationResult) -> String {
+fn md_intro(r: &AblationResult, doc: &mut Doc) {
     let o = &r.options;
     let seeds: Vec<String> = o.seeds.iter().map(|s| s.to_string()).collect();
-    let mut md = String::from("# Ablation: fusion variants and loss (SPEC §6, §10.1, §10.4)\n\n");
-    md.push_str(&format!(
+    doc.heading(
+        1,
+        "Ablation: fusion variants and loss (SPEC §6, §10.1, §10.4)",
+    );
+    doc.paragraph(format!(
         "Each variant trained with seeds {} (n = {} per variant) on the same data; each run's \
          `best.safetensors` (lowest RMSE on the validation scenes) evaluated on the **test** \
-         scenes. Values: mean ± sample std over seeds (divisor n − 1; \"–\" when n < 2).\n\n",
+         scenes. Values: mean ± sample std over seeds (divisor n − 1; \"–\" when n < 2).",
         seeds.join(", "),
         seeds.len()
     ));
@@ -618,38 +625,28 @@ fn md_intro(r: &AblationResult) -> String {
             desc.to_string(),
         ]);
     }
-    md.push_str(&t.finish());
-    md.push('\n');
-
-    md
+    doc.table(t);
 }
 
-/// The paired verdicts against rgb (empty without any).
-fn md_verdicts(r: &AblationResult) -> String {
-    let mut md = String::new();
+/// The paired verdicts against rgb (nothing without any).
+fn md_verdicts(r: &AblationResult, doc: &mut Doc) {
     if !r.verdicts.is_empty() {
-        md.push_str("## Verdicts vs rgb (combined, full image)\n\n");
-        md.push_str(
+        doc.heading(2, "Verdicts vs rgb (combined, full image)");
+        doc.paragraph(
             "Rule: each seed trains both the variant and rgb, so the test is paired over the \
              seeds both ran: the per-seed differences (variant − rgb), their mean ± standard \
              error (sd/√n), and a two-sided paired t-test at 5 % (Student's t, n − 1 degrees of \
              freedom). A difference that is not significant is not a finding; with fewer than 2 \
-             shared seeds there is no verdict.\n\n",
+             shared seeds there is no verdict.",
         );
-        for v in &r.verdicts {
-            md.push_str(&format!("- {}\n", v.text));
-        }
-        md.push('\n');
+        doc.list(r.verdicts.iter().map(|v| v.text.clone()));
     }
-
-    md
 }
 
 /// Full image and low-height tables at `cap` m (test scenes).
-fn md_region_tables(r: &AblationResult, cap: f64) -> String {
-    let mut md = String::new();
+fn md_region_tables(r: &AblationResult, cap: f64, doc: &mut Doc) {
     for (region, title) in [("full", "Full image"), ("lowheight", "Low-height region")] {
-        md.push_str(&format!("## {title}, cap {cap:.0} m (test scenes)\n\n"));
+        doc.heading(2, format!("{title}, cap {cap:.0} m (test scenes)"));
         let mut t = MdTable::new(&[
             ("variant", Align::Left),
             ("condition", Align::Left),
@@ -670,17 +667,13 @@ fn md_region_tables(r: &AblationResult, cap: f64) -> String {
                 Stat::md_cell(x.mae),
             ]);
         }
-        md.push_str(&t.finish());
-        md.push('\n');
+        doc.table(t);
     }
-
-    md
 }
 
 /// Per run (combined, full image).
-fn md_per_run(r: &AblationResult) -> String {
-    let mut md = String::new();
-    md.push_str("## Per run (combined, full image)\n\n");
+fn md_per_run(r: &AblationResult, doc: &mut Doc) {
+    doc.heading(2, "Per run (combined, full image)");
     let mut t = MdTable::new(&[
         ("variant", Align::Left),
         ("seed", Align::Right),
@@ -713,65 +706,62 @@ fn md_per_run(r: &AblationResult) -> String {
                 .unwrap_or_default(),
         ]);
     }
-    md.push_str(&t.finish());
-    md.push('\n');
-
-    md
+    doc.table(t);
 }
 
 /// Partition, model, metrics, machine, this invocation, files.
-fn md_setup(r: &AblationResult) -> String {
+fn md_setup(r: &AblationResult, doc: &mut Doc) {
     let o = &r.options;
-    let mut md = String::new();
     let p = &r.partition;
-    md.push_str(&format!(
-        "## Setup\n\n\
-         - Partition: {} — {} train, {} validation, {} test samples.\n\
-         - Validation scenes (checkpoint selection): {}\n\
-         - Test scenes (reported above; never used for selection): {}\n\
-         - Model preset `{}`{}; {} epochs, batch {}, lr {}, max batches/epoch {}, max validation samples {}.\n\
-         - Metrics: caps {:?} m, protocol {:?}, aggregation {:?}, prediction clipped to [{}, {}] m (SPEC §9).\n\
-         - Machine: {}.\n\
-         - This invocation: {} trained, {} resumed, {} evaluated only, {} skipped (finished before); {:.1} s.\n",
-        p.method,
-        p.train_samples,
-        p.val_samples,
-        p.test_samples,
-        p.val_scenes.join(", "),
-        p.test_scenes.join(", "),
-        o.run.preset,
-        if o.run.set.is_empty() {
-            String::new()
-        } else {
-            format!(" with `--set {}`", o.run.set.join(" --set "))
-        },
-        o.run.epochs,
-        o.run.batch_size,
-        o.run.lr,
-        o.run.max_batches_per_epoch
-            .map_or("all".to_string(), |m| m.to_string()),
-        o.run.max_val_samples.map_or("all".to_string(), |m| m.to_string()),
-        o.eval.caps_m,
-        o.eval.protocol,
-        o.eval.aggregate,
-        o.eval.clip_min_m,
-        o.eval.clip_max_m,
-        r.machine.line(),
-        r.trained,
-        r.resumed,
-        r.evaluated,
-        r.skipped,
-        r.total_seconds
-    ));
+    let all = |m: Option<usize>| m.map_or("all".to_string(), |m| m.to_string());
+    let set = if o.run.set.is_empty() {
+        String::new()
+    } else {
+        format!(" with `--set {}`", o.run.set.join(" --set "))
+    };
+    let mut items = vec![
+        format!(
+            "Partition: {} — {} train, {} validation, {} test samples.",
+            p.method, p.train_samples, p.val_samples, p.test_samples
+        ),
+        format!(
+            "Validation scenes (checkpoint selection): {}",
+            p.val_scenes.join(", ")
+        ),
+        format!(
+            "Test scenes (reported above; never used for selection): {}",
+            p.test_scenes.join(", ")
+        ),
+        format!(
+            "Model preset `{}`{set}; {} epochs, batch {}, lr {}, max batches/epoch {}, max \
+             validation samples {}.",
+            o.run.preset,
+            o.run.epochs,
+            o.run.batch_size,
+            o.run.lr,
+            all(o.run.max_batches_per_epoch),
+            all(o.run.max_val_samples)
+        ),
+        format!(
+            "Metrics: caps {:?} m, protocol {:?}, aggregation {:?}, prediction clipped to [{}, \
+             {}] m (SPEC §9).",
+            o.eval.caps_m, o.eval.protocol, o.eval.aggregate, o.eval.clip_min_m, o.eval.clip_max_m
+        ),
+        format!("Machine: {}.", r.machine.line()),
+        format!(
+            "This invocation: {} trained, {} resumed, {} evaluated only, {} skipped (finished \
+             before); {:.1} s.",
+            r.trained, r.resumed, r.evaluated, r.skipped, r.total_seconds
+        ),
+    ];
     if let Some(c) = &o.command_line {
-        md.push_str(&format!("- Command: `{c}`\n"));
+        items.push(format!("Command: `{c}`"));
     }
-    md.push_str(&format!(
-        "\nFiles: `{CSV_FILE}` (per-run and mean rows), `{JSON_FILE}` (everything, with each \
+    doc.heading(2, "Setup").list(items).paragraph(format!(
+        "Files: `{CSV_FILE}` (per-run and mean rows), `{JSON_FILE}` (everything, with each \
          run's full report), `{PNG_FILE}` (test RMSE and δ1 per variant, error bars ± 1 std), \
-         `runs/<variant>/seed<k>/` (training runs with their `{RUN_EVAL_FILE}`).\n"
+         `runs/<variant>/seed<k>/` (training runs with their `{RUN_EVAL_FILE}`)."
     ));
-    md
 }
 
 #[cfg(test)]

@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use depthsense_config::ModelConfig;
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_field, csv_row, Align, MdTable, MISSING};
 use depthsense_model::{report::model_report, DepthNet};
 use serde::{Deserialize, Serialize};
@@ -138,20 +139,19 @@ pub fn run_cost(
         rows,
     };
     std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
-    let save = |name: &str, b: &[u8]| super::save(&out.join(name), b);
-    let json = serde_json::to_string_pretty(&r)?;
-    save(JSON_FILE, json.as_bytes())?;
-    save(MD_FILE, markdown(&r).as_bytes())?;
-    save(CSV_FILE, csv(&r).as_bytes())?;
+    super::save_record(&out.join(JSON_FILE), &out.join(MD_FILE), &r, &document(&r))?;
+    super::save(&out.join(CSV_FILE), csv(&r).as_bytes())?;
     Ok(r)
 }
 
-pub fn markdown(r: &CostResult) -> String {
+/// The cost table with its setup (cost.md, and the report's section).
+pub fn document(r: &CostResult) -> Doc {
     let o = &r.options;
-    let mut md = String::from("# Parameters, MACs and inference time (SPEC §10.9)\n\n");
-    md.push_str(&format!(
+    let mut doc = Doc::new();
+    doc.heading(1, "Parameters, MACs and inference time (SPEC §10.9)");
+    doc.paragraph(format!(
         "Batch {} at {}x{} (H×W), forward + decode, no_grad, eval mode; {} warm-up + {} timed \
-         passes on {} ({} torch threads). MACs: convolutions per image, analytic.\n\n",
+         passes on {} ({} torch threads). MACs: convolutions per image, analytic.",
         o.batch,
         o.height,
         o.width,
@@ -194,11 +194,8 @@ pub fn markdown(r: &CostResult) -> String {
         &format!("{:.0}", DORN_S_PER_BATCH3 * 1e3),
         MISSING,
     ]);
-    md.push_str(&t.finish());
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        o.command_line.as_deref(),
-    ));
-    md
+    doc.table(t).command(o.command_line.as_deref());
+    doc
 }
 
 fn csv(r: &CostResult) -> String {

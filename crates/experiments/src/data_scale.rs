@@ -19,6 +19,7 @@ use std::time::Instant;
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset};
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
@@ -447,10 +448,8 @@ fn trend(opts: &DataScaleOptions, rows: &[ScaleRow]) -> Option<String> {
 
 fn write_outputs(r: &DataScaleResult) -> Result<(), NetError> {
     let dir = &r.options.out;
-    let json = serde_json::to_string_pretty(r)?;
-    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
-    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
     super::save(&dir.join(PNG_FILE), &chart(r)?)
 }
 
@@ -523,17 +522,19 @@ fn chart(r: &DataScaleResult) -> Result<Vec<u8>, NetError> {
     Ok(depthsense_viz::plot::line_charts_png(&panels)?)
 }
 
-fn markdown(r: &DataScaleResult) -> String {
+/// The margin table with its setup (data_scale.md, and the report's section).
+fn document(r: &DataScaleResult) -> Doc {
     let o = &r.options;
-    let mut md = String::from("# Radar's margin against training-set size\n\n");
-    md.push_str(&format!(
+    let mut doc = Doc::new();
+    doc.heading(1, "Radar's margin against training-set size");
+    doc.paragraph(format!(
         "Every run trains `{}`{} for the same **{} iterations** of batch {} ({} images seen), \
          validated every {} iterations on the same {} validation samples, its best checkpoint \
          tested on the same **test** scenes ({} samples: {}). The t of the margin is the paired \
          t-test's over seeds (positive: the arm is better), its verdict at 5 % two-sided. N distinct training samples are \
          nested subsets of the {} training samples, the same for every seed and arm. Seeds \
          {:?}; full image, cap {} m. Margin = {}'s test RMSE − the arm's, per seed (positive: \
-         the arm is better); ± is the standard error of the mean over seeds.\n\n",
+         the arm is better); ± is the standard error of the mean over seeds.",
         o.run.preset,
         if o.run.set.is_empty() {
             String::new()
@@ -590,20 +591,22 @@ fn markdown(r: &DataScaleResult) -> String {
             },
         ]);
     }
-    md.push_str(&t.finish());
+    doc.table(t);
     if let Some(tr) = &r.trend {
-        md.push_str(&format!("\n**Trend.** {tr}.\n"));
+        doc.paragraph(format!("**Trend.** {tr}."));
     }
-    md.push_str(&format!(
-        "\nMachine: {}; the runs took {:.1} s of training and test in all, this invocation {:.1} s.\n",
+    doc.paragraph(format!(
+        "Machine: {}; the runs took {:.1} s of training and test in all, this invocation {:.1} s.",
         r.machine.line(),
-        r.runs.iter().map(|x| x.wall_seconds).filter(|x| x.is_finite()).sum::<f64>(),
+        r.runs
+            .iter()
+            .map(|x| x.wall_seconds)
+            .filter(|x| x.is_finite())
+            .sum::<f64>(),
         r.total_seconds
-    ));
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        o.command_line.as_deref(),
-    ));
-    md
+    ))
+    .command(o.command_line.as_deref());
+    doc
 }
 
 fn csv(r: &DataScaleResult) -> String {

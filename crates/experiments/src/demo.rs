@@ -21,6 +21,8 @@ use depthsense_checkpoint as checkpoint;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::LoadOptions;
 use depthsense_dataset::{partition, Dataset};
+use depthsense_metrics::doc::Doc;
+use depthsense_metrics::table::{Align, MdTable};
 use depthsense_metrics::Report;
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::{Board, Progress};
@@ -694,9 +696,10 @@ fn write_readme(
 ) -> Result<(), NetError> {
     let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
     scenes.dedup();
-    let mut md = String::from("# depthsense demo report\n\n");
-    md.push_str(&format!(
-        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes{}).\n\n",
+    let mut doc = Doc::new();
+    doc.heading(1, "depthsense demo report");
+    doc.paragraph(format!(
+        "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes{}).",
         s.device,
         s.preset,
         plan.epochs,
@@ -706,52 +709,56 @@ fn write_readme(
         plan.keyframes_per_scene,
         if plan.lean { ", lean" } else { "" }
     ));
-    md.push_str(&format!(
+    doc.paragraph(format!(
         "Training set: **{} distinct images**; each model trained {} iterations of batch {} \
-         ({:.1} passes over them).\n\n",
+         ({:.1} passes over them).",
         s.train_samples,
         s.iterations,
         plan.batch_size,
         (s.iterations as f64 * plan.batch_size as f64) / s.train_samples.max(1) as f64
     ));
-    md.push_str(&format!(
+    doc.paragraph(format!(
         "Split ({}): validation scenes (select the best epoch → `best.safetensors`): {}; \
-         test scenes (reported below, {} samples, never used for any choice): {}.\n\n",
+         test scenes (reported below, {} samples, never used for any choice): {}.",
         s.split_method,
         s.val_scenes.join(", "),
         test.len(),
         scenes.join(", ")
     ));
-    md.push_str(
-        "| model | initial RMSE (m, val) | test RMSE, epoch chosen on val (m) |\n|---|---:|---:|\n",
-    );
-    md.push_str(&format!(
-        "| RGB only | {:.3} | {:.3} |\n| late fusion + spatial attention (radar) | {:.3} | {:.3} |\n\n",
-        s.rgb_initial_rmse, s.rgb_rmse, s.fusion_initial_rmse, s.fusion_rmse
-    ));
-    md.push_str(&format!(
-        "Radar fusion vs RGB only: RMSE {:+.1} %.\n\n",
+    let mut headline = MdTable::new(&[
+        ("model", Align::Left),
+        ("initial RMSE (m, val)", Align::Right),
+        ("test RMSE, epoch chosen on val (m)", Align::Right),
+    ]);
+    let m3 = |x: f64| format!("{x:.3}");
+    headline
+        .row(&["RGB only".into(), m3(s.rgb_initial_rmse), m3(s.rgb_rmse)])
+        .row(&[
+            "late fusion + spatial attention (radar)".into(),
+            m3(s.fusion_initial_rmse),
+            m3(s.fusion_rmse),
+        ]);
+    doc.table(headline).paragraph(format!(
+        "Radar fusion vs RGB only: RMSE {:+.1} %.",
         100.0 * (s.fusion_rmse - s.rgb_rmse) / s.rgb_rmse
     ));
-    md.push_str("| stage | seconds |\n|---|---:|\n");
+    let mut stages = MdTable::new(&[("stage", Align::Left), ("seconds", Align::Right)]);
     for (n, t) in &s.stage_seconds {
-        md.push_str(&format!("| {n} | {t:.1} |\n"));
+        stages.row(&[n.clone(), format!("{t:.1}")]);
     }
-    md.push_str(&format!("| total | {:.1} |\n\n", s.total_seconds));
-    md.push_str("The same stages as separate commands (same settings):\n\n```\n");
-    for c in &s.commands {
-        md.push_str(c);
-        md.push('\n');
-    }
-    md.push_str("```\n\n");
-    md.push_str(&depthsense_metrics::tables::markdown_report(models));
-    md.push_str(
-        "\nPictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
+    stages.row(&["total".into(), format!("{:.1}", s.total_seconds)]);
+    doc.table(stages)
+        .paragraph("The same stages as separate commands (same settings):")
+        .code(s.commands.join("\n"));
+    doc.blocks
+        .extend(depthsense_metrics::tables::report_doc(models).blocks);
+    doc.paragraph(
+        "Pictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
          and the single panels (image, radar overlay, GT, prediction and |error| per model); \
-         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.\n",
+         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.",
     );
     let p = dir.join("README.md");
-    write_atomic(&p, md.as_bytes()).map_err(|e| NetError::io(&p, e))?;
+    write_atomic(&p, doc.to_markdown().as_bytes()).map_err(|e| NetError::io(&p, e))?;
     let p = dir.join("summary.json");
     write_atomic(
         &p,
@@ -759,6 +766,7 @@ fn write_readme(
             "summary": s,
             "plan": plan,
             "command_line": opts.command_line,
+            depthsense_metrics::doc::DOCUMENT_KEY: doc,
         }))?
         .as_bytes(),
     )

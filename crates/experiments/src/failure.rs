@@ -2,6 +2,7 @@
 //! scenarios. The failures themselves ([`RadarFailure`]) are applied by the loader:
 //! [`depthsense_data::radar_failure`].
 
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, md_num, Align, MdTable};
 
 use crate::runner::RowValues;
@@ -136,9 +137,8 @@ pub fn run_failure(
 }
 
 fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r)?;
-    super::save(&out.join(FAILURE_JSON), json.as_bytes())?;
-    super::save(&out.join(FAILURE_MD), failure_markdown(r).as_bytes())?;
+    let (json, md) = (out.join(FAILURE_JSON), out.join(FAILURE_MD));
+    super::save_record(&json, &md, r, &failure_document(r))?;
     super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;
     let names: Vec<&str> = r.results.iter().map(|x| x.scenario.name.as_str()).collect();
     let metric = |f: fn(&super::runner::RowValues) -> f64| -> Vec<f64> {
@@ -168,13 +168,15 @@ fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), NetErro
     super::save(&out.join(FAILURE_PNG), &png)
 }
 
-fn failure_markdown(r: &FailureResult) -> String {
+/// The scenario table with its setup (failure.md, and the report's section).
+fn failure_document(r: &FailureResult) -> Doc {
     let e = &r.eval;
-    let mut md = String::from("# Sensor failure (SPEC §10.8)\n\n");
-    md.push_str(&format!(
+    let mut doc = Doc::new();
+    doc.heading(1, "Sensor failure (SPEC §10.8)");
+    doc.paragraph(format!(
         "Checkpoint `{}` on `{}` (split {}), cap {} m, full image; seed {} (radar drop and \
          clutter draws). Scenario rules: docs/guide/experiments.md, \"Sensor failure\". ΔRMSE is against the \
-         first scenario.\n\n",
+         first scenario.",
         e.checkpoint.display(),
         e.data.display(),
         e.split,
@@ -201,12 +203,10 @@ fn failure_markdown(r: &FailureResult) -> String {
         cells.extend([cond("day"), cond("night"), cond("rain")]);
         t.row(&cells);
     }
-    md.push_str(&t.finish());
-    md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        r.command_line.as_deref(),
-    ));
-    md
+    doc.table(t)
+        .paragraph(format!("Machine: {}.", r.machine.line()))
+        .command(r.command_line.as_deref());
+    doc
 }
 
 fn failure_csv(r: &FailureResult) -> String {

@@ -102,11 +102,26 @@ impl Machine {
     }
 }
 
-/// A signed number with a true minus sign ("−1.2", "+0.3").
 /// Writes one experiment output file atomically; an error names the file.
 pub(crate) fn save(path: &std::path::Path, bytes: &[u8]) -> Result<(), depthsense_infer::NetError> {
     depthsense_base::fsutil::write_atomic(path, bytes)
         .map_err(|e| depthsense_infer::NetError::io(path, e))
+}
+
+/// `record` as pretty JSON at `json` with `doc` inside it (after the record's own fields:
+/// `depthsense report` renders it), and `doc` as Markdown at `md`.
+pub(crate) fn save_record<T: Serialize>(
+    json: &std::path::Path,
+    md: &std::path::Path,
+    record: &T,
+    doc: &depthsense_metrics::doc::Doc,
+) -> Result<(), depthsense_infer::NetError> {
+    let text = serde_json::to_string_pretty(&depthsense_metrics::doc::Documented {
+        record,
+        document: doc,
+    })?;
+    save(json, text.as_bytes())?;
+    save(md, doc.to_markdown().as_bytes())
 }
 
 pub(crate) fn signed(x: f64, prec: usize) -> String {

@@ -12,6 +12,7 @@ use std::path::Path;
 
 use depthsense_eval::evaluate::EvalOptions;
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_row, Align, MdTable};
 use depthsense_prep::radar_points::{PerturbAxis, Perturbation};
 use serde::{Deserialize, Serialize};
@@ -174,9 +175,8 @@ pub fn run_perturb(
 }
 
 fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), NetError> {
-    let json = serde_json::to_string_pretty(r)?;
-    super::save(&out.join(PERTURB_JSON), json.as_bytes())?;
-    super::save(&out.join(PERTURB_MD), perturb_markdown(r).as_bytes())?;
+    let (json, md) = (out.join(PERTURB_JSON), out.join(PERTURB_MD));
+    super::save_record(&json, &md, r, &perturb_document(r))?;
     super::save(&out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;
     super::save(&out.join(PERTURB_PNG), &perturb_png(r)?)
 }
@@ -233,15 +233,17 @@ fn md_row(t: &mut MdTable, x: &PerturbRow, base: Option<f64>) {
     t.row(&cells);
 }
 
-fn perturb_markdown(r: &PerturbResult) -> String {
+/// The perturbation table with its setup (perturb.md, and the report's section).
+fn perturb_document(r: &PerturbResult) -> Doc {
     let e = &r.eval;
-    let mut md = String::from("# Calibration perturbation (SPEC §10.7)\n\n");
-    md.push_str(&format!(
+    let mut doc = Doc::new();
+    doc.heading(1, "Calibration perturbation (SPEC §10.7)");
+    doc.paragraph(format!(
         "Checkpoint `{}` on `{}` (split {}), cap {} m, full image, combined conditions; seed {} \
          (sign of each sample's perturbation). Rotations turn the radar about its own position \
          (yaw: camera vertical axis, pitch: camera x, roll: optical axis); translations move \
          it along camera x (right), y (down), z (forward). Each sample gets + or − the \
-         magnitude at random. ΔRMSE is against the unperturbed row.\n\n",
+         magnitude at random. ΔRMSE is against the unperturbed row.",
         e.checkpoint.display(),
         e.data.display(),
         e.split,
@@ -256,12 +258,10 @@ fn perturb_markdown(r: &PerturbResult) -> String {
     for x in &r.rows {
         md_row(&mut t, x, base);
     }
-    md.push_str(&t.finish());
-    md.push_str(&format!("\nMachine: {}.\n", r.machine.line()));
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        r.command_line.as_deref(),
-    ));
-    md
+    doc.table(t)
+        .paragraph(format!("Machine: {}.", r.machine.line()))
+        .command(r.command_line.as_deref());
+    doc
 }
 
 fn perturb_csv(r: &PerturbResult) -> String {

@@ -16,6 +16,7 @@ use std::time::Instant;
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset};
 use depthsense_infer::NetError;
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
 use depthsense_progress::Board;
@@ -188,10 +189,8 @@ pub fn run_reduced_data(
 
 fn write_outputs(r: &ReducedDataResult) -> Result<(), NetError> {
     let dir = &r.options.out;
-    let json = serde_json::to_string_pretty(r)?;
-    super::save(&dir.join(JSON_FILE), json.as_bytes())?;
+    super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
-    super::save(&dir.join(MD_FILE), markdown(r).as_bytes())?;
     super::save(&dir.join(PNG_FILE), &chart(r)?)
 }
 
@@ -231,14 +230,16 @@ fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, NetError> {
     Ok(depthsense_viz::plot::bar_charts_png(&panels)?)
 }
 
-fn markdown(r: &ReducedDataResult) -> String {
+/// The cells' tables with their setup (reduced_data.md, and the report's section).
+fn document(r: &ReducedDataResult) -> Doc {
     let o = &r.options;
-    let mut md = String::from("# Reduced training data (SPEC §10.5)\n\n");
-    md.push_str(&format!(
+    let mut doc = Doc::new();
+    doc.heading(1, "Reduced training data (SPEC §10.5)");
+    doc.paragraph(format!(
         "Each cell trains `{}` with the listed training scenes withheld (rule: docs/guide/experiments.md, \
          \"Reduced training data\"), seeds {:?}, {} epoch(s); every run is selected on the \
          same validation scenes and tested on the same **test** scenes ({}). Mean ± std over \
-         seeds, full image, cap {} m.\n\n",
+         seeds, full image, cap {} m.",
         o.run.preset,
         o.seeds,
         o.run.epochs,
@@ -252,7 +253,7 @@ fn markdown(r: &ReducedDataResult) -> String {
         ),
         ("Test δ1 per test condition", |x: &SummaryRow| x.delta1),
     ] {
-        md.push_str(&format!("### {title}\n\n"));
+        doc.heading(3, title);
         let mut t = MdTable::new(&[
             ("trained without", Align::Left),
             ("train samples", Align::Right),
@@ -270,30 +271,24 @@ fn markdown(r: &ReducedDataResult) -> String {
             );
             t.row(&cells);
         }
-        md.push_str(&t.finish());
-        md.push('\n');
+        doc.table(t);
     }
-    md.push_str("### Withheld training scenes\n\n");
-    for c in &r.cells {
-        md.push_str(&format!(
-            "- {}: {}\n",
-            c.name,
-            if c.withheld_scenes.is_empty() {
-                "none".to_string()
-            } else {
-                c.withheld_scenes.join(", ")
-            }
-        ));
-    }
-    md.push_str(&format!(
-        "\nMachine: {}; {:.1} s.\n",
+    doc.heading(3, "Withheld training scenes");
+    doc.list(r.cells.iter().map(|c| {
+        let scenes = if c.withheld_scenes.is_empty() {
+            "none".to_string()
+        } else {
+            c.withheld_scenes.join(", ")
+        };
+        format!("{}: {scenes}", c.name)
+    }));
+    doc.paragraph(format!(
+        "Machine: {}; {:.1} s.",
         r.machine.line(),
         r.total_seconds
-    ));
-    md.push_str(&depthsense_metrics::table::md_command_line(
-        o.command_line.as_deref(),
-    ));
-    md
+    ))
+    .command(o.command_line.as_deref());
+    doc
 }
 
 fn csv(r: &ReducedDataResult) -> String {

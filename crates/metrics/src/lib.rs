@@ -18,6 +18,7 @@
 //! - aggregation `image` (default, RadarNet): metrics per image, then the mean over images that
 //!   have at least one valid pixel; `pooled` (DORN): one mean over all valid pixels.
 
+pub mod doc;
 pub mod table;
 pub mod tables;
 

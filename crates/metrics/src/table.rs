@@ -10,49 +10,60 @@
 pub const MISSING: &str = "–";
 
 /// Column alignment of a Markdown table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Align {
     Left,
     Right,
 }
 
-/// A Markdown table: a header row, the separator row, then one line per row; every line is
-/// `| a | b |` and ends with a newline.
-#[derive(Debug, Clone)]
+/// A Markdown table: column titles with their alignment, then rows of cells (inline Markdown:
+/// `code`, **bold**). As text ([`MdTable::finish`]): a header row, the separator row, then one
+/// line per row; every line is `| a | b |` and ends with a newline. The report renders the same
+/// value as an HTML table (`doc`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MdTable {
-    text: String,
-    columns: usize,
+    pub columns: Vec<(String, Align)>,
+    pub rows: Vec<Vec<String>>,
 }
 
 impl MdTable {
     /// A table with these column titles and alignments (`Left` → `---`, `Right` → `---:`).
     pub fn new(columns: &[(&str, Align)]) -> Self {
-        let titles: Vec<&str> = columns.iter().map(|(t, _)| *t).collect();
+        Self {
+            columns: columns.iter().map(|(t, a)| (t.to_string(), *a)).collect(),
+            rows: vec![],
+        }
+    }
+
+    /// Append one row (as many cells as columns).
+    pub fn row<S: AsRef<str>>(&mut self, cells: &[S]) -> &mut Self {
+        debug_assert_eq!(cells.len(), self.columns.len(), "cells of a Markdown row");
+        self.rows
+            .push(cells.iter().map(|c| c.as_ref().to_string()).collect());
+        self
+    }
+
+    /// The table's text.
+    pub fn finish(self) -> String {
+        self.to_markdown()
+    }
+
+    /// The table's text, the table kept.
+    pub fn to_markdown(&self) -> String {
+        let titles: Vec<&str> = self.columns.iter().map(|(t, _)| t.as_str()).collect();
         let mut text = format!("| {} |\n|", titles.join(" | "));
-        for (_, a) in columns {
+        for (_, a) in &self.columns {
             text.push_str(match a {
                 Align::Left => "---|",
                 Align::Right => "---:|",
             });
         }
         text.push('\n');
-        Self {
-            text,
-            columns: columns.len(),
+        for r in &self.rows {
+            text.push_str(&format!("| {} |\n", r.join(" | ")));
         }
-    }
-
-    /// Append one row (as many cells as columns).
-    pub fn row<S: AsRef<str>>(&mut self, cells: &[S]) -> &mut Self {
-        debug_assert_eq!(cells.len(), self.columns, "cells of a Markdown row");
-        let cells: Vec<&str> = cells.iter().map(|c| c.as_ref()).collect();
-        self.text.push_str(&format!("| {} |\n", cells.join(" | ")));
-        self
-    }
-
-    /// The table's text.
-    pub fn finish(self) -> String {
-        self.text
+        text
     }
 }
 
@@ -77,12 +88,6 @@ pub fn csv_num(x: Option<f64>, prec: usize) -> String {
 /// double quotes, which are therefore not escaped).
 pub fn csv_quoted(s: &str) -> String {
     format!("\"{s}\"")
-}
-
-/// The paragraph that closes an output's Markdown with the command that made it (nothing when
-/// it is not known): `\nCommand: `…`\n`.
-pub fn md_command_line(command: Option<&str>) -> String {
-    command.map_or(String::new(), |c| format!("\nCommand: `{c}`\n"))
 }
 
 /// A CSV field as RFC 4180 writes it: in double quotes (inner quotes doubled) when it holds a
@@ -128,11 +133,6 @@ mod tests {
             csv_row(&[csv_quoted("a,b"), "1".into(), String::new()]),
             "\"a,b\",1,\n"
         );
-        assert_eq!(
-            md_command_line(Some("depthsense eval")),
-            "\nCommand: `depthsense eval`\n"
-        );
-        assert_eq!(md_command_line(None), "");
         assert_eq!(csv_field("plain"), "plain");
         assert_eq!(csv_field("a,b"), "\"a,b\"");
         assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");

@@ -2,6 +2,7 @@
 
 use serde::Serialize;
 
+use crate::doc::Doc;
 use crate::table::{csv_field, csv_row, Align, MdTable, MISSING};
 use crate::{Report, Row, CONDITIONS};
 
@@ -17,6 +18,11 @@ impl Table {
     /// `### title`, a blank line, then the table: the first two columns (model, cap or
     /// condition) left-aligned, the numbers right-aligned.
     pub fn to_markdown(&self) -> String {
+        format!("### {}\n\n{}", self.title, self.md_table().finish())
+    }
+
+    /// The table without its title (what [`Table::to_markdown`] writes below it).
+    pub fn md_table(&self) -> MdTable {
         let columns: Vec<(&str, Align)> = self
             .header
             .iter()
@@ -27,7 +33,7 @@ impl Table {
         for r in &self.rows {
             t.row(r);
         }
-        format!("### {}\n\n{}", self.title, t.finish())
+        t
     }
 
     /// CSV with a header line; fields containing a comma, quote or newline are quoted.
@@ -174,12 +180,19 @@ pub fn all_tables(models: &[(&str, &Report)]) -> Vec<Table> {
     ]
 }
 
-/// All three tables as one Markdown document, with the protocol/aggregation noted.
+/// All three tables as one Markdown document, with the protocol/aggregation noted (as printed
+/// by `eval`: [`report_doc`] and a closing empty line).
 pub fn markdown_report(models: &[(&str, &Report)]) -> String {
-    let mut s = String::new();
+    report_doc(models).to_markdown() + "\n"
+}
+
+/// All three tables as a document: the protocol/aggregation line, then each table under its
+/// `###` title.
+pub fn report_doc(models: &[(&str, &Report)]) -> Doc {
+    let mut doc = Doc::new();
     if let Some((_, rep)) = models.first() {
-        s.push_str(&format!(
-            "Protocol `{}`, aggregation `{}`, predictions clipped to [{}, {}] m (SPEC §9).\n\n",
+        doc.paragraph(format!(
+            "Protocol `{}`, aggregation `{}`, predictions clipped to [{}, {}] m (SPEC §9).",
             serde_json::to_value(rep.config.protocol)
                 .ok()
                 .and_then(|v| v.as_str().map(String::from))
@@ -193,10 +206,9 @@ pub fn markdown_report(models: &[(&str, &Report)]) -> String {
         ));
     }
     for t in all_tables(models) {
-        s.push_str(&t.to_markdown());
-        s.push('\n');
+        doc.heading(3, t.title.clone()).table(t.md_table());
     }
-    s
+    doc
 }
 
 /// The three tables as one CSV: a `table` column first, one header line per table.

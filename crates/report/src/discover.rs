@@ -3,7 +3,8 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use depthsense_score::mer_coverage::{report_markdown, CoverageRow, MerReport};
+use depthsense_metrics::doc::Doc;
+use depthsense_score::mer_coverage::{report_doc, CoverageRow, MerReport};
 use serde_json::Value;
 
 use super::{FigureGrid, Kind, ReportError, Skipped};
@@ -29,7 +30,8 @@ pub struct Found {
     pub files: Vec<PathBuf>,
     pub command_line: Option<String>,
     pub inputs: Vec<(String, String)>,
-    pub markdown: String,
+    /// What the section says: built from the JSON, or the writer's Markdown as one block.
+    pub doc: Doc,
     pub images: Vec<ImageSource>,
     /// Cells index `images`.
     pub grid: Option<FigureGrid>,
@@ -178,6 +180,13 @@ fn skip(p: &Path, reason: String) -> Skipped {
     }
 }
 
+/// The document an output's JSON holds (`"document"`, written with it since issue 35), or
+/// `None` for an output written before: its Markdown file is shown instead.
+fn document(v: &Value) -> Option<Doc> {
+    v.get(depthsense_metrics::doc::DOCUMENT_KEY)
+        .and_then(|d| serde_json::from_value(d.clone()).ok())
+}
+
 pub(crate) fn read_json(p: &Path) -> Result<Value, String> {
     let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read: {e}"))?;
     serde_json::from_str(&text).map_err(|e| format!("not valid JSON: {e}"))
@@ -192,9 +201,13 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
     if v.get("summary").is_none() || v.get("plan").is_none() {
         return Err("not a demo summary (no `summary` / `plan`)".into());
     }
-    let readme = dir.join("README.md");
-    let markdown = std::fs::read_to_string(&readme)
-        .map_err(|e| format!("README.md beside it: cannot read: {e}"))?;
+    let doc = match document(v) {
+        Some(d) => d,
+        None => Doc::from_markdown(
+            std::fs::read_to_string(dir.join("README.md"))
+                .map_err(|e| format!("README.md beside it: cannot read: {e}"))?,
+        ),
+    };
     let command_line = string_at(v, &["command_line"]);
     let mut f = Found {
         kind: Kind::Demo,
@@ -202,7 +215,7 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         files: files.to_vec(),
         inputs: inputs(v, command_line.as_deref()),
         command_line,
-        markdown,
+        doc,
         images: vec![],
         grid: None,
         models: vec![],
@@ -257,7 +270,7 @@ fn probe_mer(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>, d: 
             files: vec![f.clone()],
             command_line: r.command_line.clone(),
             inputs,
-            markdown: report_markdown(&r),
+            doc: report_doc(&r),
             images: vec![],
             grid: None,
             models: vec![],
@@ -355,7 +368,7 @@ fn found(
         files: vec![json.to_path_buf()],
         inputs: inputs(v, command_line.as_deref()),
         command_line,
-        markdown: String::new(),
+        doc: Doc::new(),
         images: vec![],
         grid: None,
         models: vec![],
@@ -366,11 +379,17 @@ fn found(
             f.files.push(dir.join(name));
         }
     }
-    f.markdown = if names.contains(format!("{stem}.md").as_str()) {
-        std::fs::read_to_string(dir.join(format!("{stem}.md")))
-            .map_err(|e| format!("{stem}.md: cannot read: {e}"))?
+    f.doc = if let Some(doc) = document(v) {
+        doc
+    } else if names.contains(format!("{stem}.md").as_str()) {
+        Doc::from_markdown(
+            std::fs::read_to_string(dir.join(format!("{stem}.md")))
+                .map_err(|e| format!("{stem}.md: cannot read: {e}"))?,
+        )
     } else {
-        format!("(no `{stem}.md` beside `{stem}.json`)\n")
+        let mut d = Doc::new();
+        d.paragraph(format!("(no `{stem}.md` beside `{stem}.json`)"));
+        d
     };
     if kind == Kind::Eval {
         f.models = super::runs::eval_models(dir, v);
@@ -427,9 +446,9 @@ fn explain_images(f: &mut Found, v: &Value, names: &BTreeSet<&str>) {
         cells[ci] = Some(f.images.len() - 1);
     }
     if more_rows > 0 {
-        f.markdown.push_str(&format!(
-            "\nThe report's grid shows the first {MAX_GRID_ROWS} rows; {more_rows} more \
-             overlays are in `{}`.\n",
+        f.doc.paragraph(format!(
+            "The report's grid shows the first {MAX_GRID_ROWS} rows; {more_rows} more \
+             overlays are in `{}`.",
             f.dir.display()
         ));
     }

@@ -4,7 +4,10 @@
 use maud::{html, Markup, PreEscaped, DOCTYPE};
 
 use super::images::base64;
-use super::markdown::to_html;
+use depthsense_metrics::doc::{Block, Doc};
+use depthsense_metrics::table::{Align, MdTable};
+
+use super::markdown::{inline, to_html};
 use super::{Kind, ReportSummary, Section};
 
 /// The Files line of a section names at most this many (report.json has them all).
@@ -103,6 +106,79 @@ fn contents(s: &ReportSummary) -> Markup {
     }
 }
 
+/// A section's document as HTML, its headings moved down `shift` levels: the blocks built from
+/// the JSON through this template (text escaped, inline `code` / **bold** / *italic* marked up),
+/// a writer's Markdown through [`to_html`].
+pub fn doc_html(doc: &Doc, shift: u8) -> Markup {
+    html! {
+        @for b in &doc.blocks {
+            @match b {
+                Block::Heading { level, text } => (heading(level.saturating_add(shift), text)),
+                Block::Paragraph { text } => { p { (PreEscaped(inline(text))) } "\n" }
+                Block::Table { table } => (table_html(table)),
+                Block::List { items } => {
+                    ul { "\n" @for it in items { li { (PreEscaped(inline(it))) } "\n" } } "\n"
+                }
+                Block::Code { text } => { pre { code { (PreEscaped(code_text(text))) } } "\n" }
+                Block::Markdown { text } => (PreEscaped(to_html(text, usize::from(shift)))),
+            }
+        }
+    }
+}
+
+/// A code block's text as markdown.rs writes it: escaped, every line ending in a newline.
+fn code_text(text: &str) -> String {
+    let mut out = super::markdown::escape(text);
+    if !out.ends_with('\n') {
+        out.push('\n');
+    }
+    out
+}
+
+fn heading(level: u8, text: &str) -> Markup {
+    let t = PreEscaped(inline(text));
+    let h = match level {
+        0 | 1 => html! { h1 { (t) } },
+        2 => html! { h2 { (t) } },
+        3 => html! { h3 { (t) } },
+        4 => html! { h4 { (t) } },
+        5 => html! { h5 { (t) } },
+        _ => html! { h6 { (t) } },
+    };
+    html! { (h) "\n" }
+}
+
+/// The alignment class markdown.rs gives a column (`---:` → "r"; `---` → none).
+fn align_class(a: Align) -> Option<&'static str> {
+    match a {
+        Align::Left => None,
+        Align::Right => Some("r"),
+    }
+}
+
+fn table_html(t: &MdTable) -> Markup {
+    html! {
+        table {
+            "\n"
+            thead { tr { @for (title, a) in &t.columns { th class=[align_class(*a)] { (PreEscaped(inline(title))) } } } }
+            "\n"
+            tbody {
+                "\n"
+                @for row in &t.rows {
+                    tr {
+                        @for (k, c) in row.iter().enumerate() {
+                            td class=[t.columns.get(k).and_then(|(_, a)| align_class(*a))] { (PreEscaped(inline(c))) }
+                        }
+                    }
+                    "\n"
+                }
+            }
+            "\n"
+        }
+        "\n"
+    }
+}
+
 fn section_title(i: usize, sec: &Section) -> String {
     format!("{}. {}", i + 1, sec.title)
 }
@@ -113,7 +189,7 @@ fn section(i: usize, sec: &Section) -> Markup {
             "\n" h2 { (section_title(i, sec)) } "\n"
             // The comparison is built from the other sections: no folder, files or command.
             @if sec.kind != Kind::Models { (meta(sec)) }
-            div class="scroll" { "\n" (PreEscaped(to_html(&sec.markdown, 2))) } "\n"
+            div class="scroll" { "\n" (doc_html(&sec.doc, 2)) } "\n"
             @match &sec.grid {
                 Some(g) => (grid(sec, g)),
                 None => {
@@ -312,7 +388,7 @@ fn section_markdown(i: usize, sec: &Section) -> String {
             "<a id=\"{}\"></a>\n\n## {}\n\n{}\n",
             sec.anchor,
             section_title(i, sec),
-            shift_headings(&sec.markdown, 2)
+            shift_headings(&sec.doc.to_markdown(), 2)
         );
     }
     let mut m = format!(
@@ -331,7 +407,7 @@ fn section_markdown(i: usize, sec: &Section) -> String {
         Some(c) => m.push_str(&format!("- Command:\n\n```\n{c}\n```\n\n")),
         None => m.push_str("- Command: not recorded in its JSON\n\n"),
     }
-    m.push_str(&shift_headings(&sec.markdown, 2));
+    m.push_str(&shift_headings(&sec.doc.to_markdown(), 2));
     m.push('\n');
     match &sec.grid {
         Some(g) => m.push_str(&grid_markdown(sec, g)),
@@ -382,4 +458,28 @@ fn grid_markdown(sec: &Section, g: &super::FigureGrid) -> String {
     }
     m.push('\n');
     m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A document built from data renders as its Markdown rendered by markdown.rs did: the page
+    /// looks the same whichever way a section came.
+    #[test]
+    fn a_document_renders_as_its_markdown_did() {
+        let mut t = MdTable::new(&[("model", Align::Left), ("RMSE (m)", Align::Right)]);
+        t.row(&["`rgb` <b>", "8.385"])
+            .row(&["fusion **best**", "–"]);
+        let mut d = Doc::new();
+        d.heading(1, "Run <x>")
+            .paragraph("`tiny` & *it*, 4 epochs 'quoted'.")
+            .table(t)
+            .list(["one `a<b`", "two"])
+            .code("let x = a < b && 'c';")
+            .heading(3, "Next");
+        assert_eq!(doc_html(&d, 2).into_string(), to_html(&d.to_markdown(), 2));
+        let md = Doc::from_markdown("# T\n\ntext");
+        assert_eq!(doc_html(&md, 1).into_string(), to_html("# T\n\ntext", 1));
+    }
 }

@@ -119,7 +119,7 @@ pub fn load_section(
         files: f.files,
         command_line: f.command_line,
         inputs: f.inputs,
-        markdown: f.markdown,
+        doc: f.doc,
         grid,
         images,
         embedded,

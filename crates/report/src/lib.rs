@@ -8,8 +8,9 @@
 //! `failure.json`, `perturb.json`, `cost.json`, `explain.json`, `tables.json`) or, for the MER
 //! report (`mer report --json FILE`, any name), by its JSON fields; the demo's `OUT/report/` by
 //! its `summary.json` (its README, tables, curves and every sample row). Each becomes one section:
-//! its Markdown rendered to HTML ([`markdown`]), its plot or figure grid, and the command and
-//! data that produced it (the JSON's `command_line` / options).
+//! its document (`metrics::doc::Doc`: built from the JSON and rendered by the page's template,
+//! or the writer's Markdown file rendered by [`markdown`]), its plot or figure grid, and the
+//! command and data that produced it (the JSON's `command_line` / options).
 //!
 //! REPORT/ gets `report.html` (images embedded as `data:` URIs, inline CSS, no script, no
 //! external link), `report.md` (the same content, images copied to `img/`) and `report.json`
@@ -207,9 +208,9 @@ pub struct Section {
     pub command_line: Option<String>,
     /// Data, checkpoint and output folders named by its JSON / command line.
     pub inputs: Vec<(String, String)>,
-    /// The Markdown shown (the writer's own, or rendered from the JSON).
+    /// What the section says (built from the JSON, or the writer's own Markdown).
     #[serde(skip)]
-    pub markdown: String,
+    pub doc: depthsense_metrics::doc::Doc,
     /// Figure grid (explain): column labels, then rows of (row label, image indices).
     #[serde(skip)]
     pub grid: Option<FigureGrid>,

@@ -12,6 +12,8 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use depthsense_metrics::doc::Doc;
+use depthsense_metrics::table::{Align, MdTable};
 use serde_json::Value;
 
 use super::discover::{file_name, read_json, string_at, Found, ImageSource};
@@ -86,17 +88,17 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
             .iter()
             .filter_map(|k| string_at(&cfg, &["train", k]).map(|v| (k.to_string(), v)))
             .collect(),
-        markdown: String::new(),
+        doc: Doc::new(),
         images: vec![],
         grid: None,
         models: vec![],
     };
-    f.markdown = if pda {
-        pda_markdown(&cfg, &vals)
+    f.doc = if pda {
+        pda_doc(&cfg, &vals)
     } else {
-        let (md, best) = depth_markdown(dir, &cfg, &vals);
+        let (doc, best) = depth_doc(dir, &cfg, &vals);
         f.models.extend(best);
-        md
+        doc
     };
     if names.contains("curves.png") {
         f.images.push(ImageSource {
@@ -109,7 +111,7 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
 }
 
 /// A depth network's run: settings, every validation, and its best validation as a model row.
-fn depth_markdown(dir: &Path, cfg: &Value, vals: &[&Value]) -> (String, Option<ModelRow>) {
+fn depth_doc(dir: &Path, cfg: &Value, vals: &[&Value]) -> (Doc, Option<ModelRow>) {
     let t = &cfg["train"];
     let m = &cfg["model"];
     let fusion = match (m["fusion"].as_str(), m["attention"].as_bool()) {
@@ -118,9 +120,10 @@ fn depth_markdown(dir: &Path, cfg: &Value, vals: &[&Value]) -> (String, Option<M
         (Some("early"), _) => "early fusion",
         _ => "RGB only",
     };
-    let mut s = format!(
+    let mut doc = Doc::new();
+    doc.paragraph(format!(
         "`{}` ({fusion}), {} epochs of batch {}, lr {}, seed {}, on `{}` ({} training / {} \
-         validation samples used).\n\n",
+         validation samples used).",
         m["name"].as_str().unwrap_or("?"),
         t["epochs"],
         t["batch_size"],
@@ -129,36 +132,43 @@ fn depth_markdown(dir: &Path, cfg: &Value, vals: &[&Value]) -> (String, Option<M
         t["data"].as_str().unwrap_or("?"),
         cfg["partition"]["train_samples"],
         cfg["partition"]["val_samples_used"],
-    );
+    ));
     if let Some(init) = cfg.get("init_from") {
-        s += &format!(
-            "Initialised from `{}` ({} tensors loaded, {} new).\n\n",
+        doc.paragraph(format!(
+            "Initialised from `{}` ({} tensors loaded, {} new).",
             init["file"].as_str().unwrap_or("?"),
             init["loaded"],
             init["new"].as_array().map_or(0, Vec::len)
-        );
+        ));
     }
     if let Some(segments) = cfg.get("schedule").and_then(Value::as_array) {
-        s += &format!(
-            "Extended (`train --extend`): {} learning-rate segments.\n\n",
+        doc.paragraph(format!(
+            "Extended (`train --extend`): {} learning-rate segments.",
             segments.len()
-        );
+        ));
     }
-    s += "| epoch | iteration | val RMSE (m) | MAE (m) | AbsRel | δ1 | images |\n\
-          |---:|---:|---:|---:|---:|---:|---:|\n";
+    let mut t = right_aligned(&[
+        "epoch",
+        "iteration",
+        "val RMSE (m)",
+        "MAE (m)",
+        "AbsRel",
+        "δ1",
+        "images",
+    ]);
     for r in vals {
         let v = &r["val"];
-        s += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} |\n",
-            r["epoch"],
-            r["iteration"],
+        t.row(&[
+            r["epoch"].to_string(),
+            r["iteration"].to_string(),
             cell(num(v, "rmse"), 3),
             cell(num(v, "mae"), 3),
             cell(num(v, "abs_rel"), 3),
             cell(num(v, "delta1"), 3),
-            v["n_images"]
-        );
+            v["n_images"].to_string(),
+        ]);
     }
+    doc.table(t);
     let best = vals
         .iter()
         .filter(|r| r["kind"] == "epoch")
@@ -178,33 +188,46 @@ fn depth_markdown(dir: &Path, cfg: &Value, vals: &[&Value]) -> (String, Option<M
             abs_rel: num(&r["val"], "abs_rel"),
             delta1: num(&r["val"], "delta1"),
         });
-    (s, best)
+    (doc, best)
+}
+
+/// A table whose columns are all numbers (right-aligned).
+fn right_aligned(titles: &[&str]) -> MdTable {
+    let cols: Vec<(&str, Align)> = titles.iter().map(|t| (*t, Align::Right)).collect();
+    MdTable::new(&cols)
 }
 
 /// A PDA (MER) run: every validation's association metrics.
-fn pda_markdown(cfg: &Value, vals: &[&Value]) -> String {
-    let mut s = format!(
-        "PDA network (MER, SPEC §5), {} epochs of batch {}, lr {}, on `{}`.\n\n\
-         | epoch | iteration | val loss | AUC | precision | recall |\n\
-         |---:|---:|---:|---:|---:|---:|\n",
+fn pda_doc(cfg: &Value, vals: &[&Value]) -> Doc {
+    let mut doc = Doc::new();
+    doc.paragraph(format!(
+        "PDA network (MER, SPEC §5), {} epochs of batch {}, lr {}, on `{}`.",
         cfg["train"]["epochs"],
         cfg["train"]["batch_size"],
         cfg["train"]["lr"],
         cfg["train"]["data"].as_str().unwrap_or("?"),
-    );
+    ));
+    let mut t = right_aligned(&[
+        "epoch",
+        "iteration",
+        "val loss",
+        "AUC",
+        "precision",
+        "recall",
+    ]);
     for r in vals {
         let v = &r["val"];
-        s += &format!(
-            "| {} | {} | {} | {} | {} | {} |\n",
-            r["epoch"],
-            r["iteration"],
+        t.row(&[
+            r["epoch"].to_string(),
+            r["iteration"].to_string(),
             cell(num(v, "loss"), 4),
             cell(num(v, "auc"), 4),
             cell(num(v, "precision"), 3),
-            cell(num(v, "recall"), 3)
-        );
+            cell(num(v, "recall"), 3),
+        ]);
     }
-    s
+    doc.table(t);
+    doc
 }
 
 /// Exported models of `dir`: every `FILE.json` that is an export sidecar, with `FILE`.
@@ -235,7 +258,7 @@ pub fn exports(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>) -
                 "checkpoint".into(),
                 v["checkpoint"].as_str().unwrap_or("?").into(),
             )],
-            markdown: export_markdown(&model, &v),
+            doc: export_doc(&model, &v),
             images: vec![],
             grid: None,
             models: vec![],
@@ -244,7 +267,7 @@ pub fn exports(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>) -
     out
 }
 
-fn export_markdown(model: &Path, v: &Value) -> String {
+fn export_doc(model: &Path, v: &Value) -> Doc {
     let shape = |t: &Value| {
         let dims: Vec<String> = t["shape"]
             .as_array()
@@ -265,9 +288,10 @@ fn export_markdown(model: &Path, v: &Value) -> String {
         .map(|a| a.iter().map(shape).collect())
         .unwrap_or_default();
     let bytes = std::fs::metadata(model).map_or(0, |m| m.len());
-    let mut s = format!(
+    let mut doc = Doc::new();
+    doc.paragraph(format!(
         "`{}`: {} ({}, batch {}), {:.1} MB, preset `{}`; inputs {}; output {} in metres. From \
-         `{}` (SHA-256 {}…).\n",
+         `{}` (SHA-256 {}…).",
         file_name(model).unwrap_or("?"),
         v["format"].as_str().unwrap_or("?"),
         v["precision"].as_str().unwrap_or("?"),
@@ -280,11 +304,11 @@ fn export_markdown(model: &Path, v: &Value) -> String {
         v["checkpoint_sha256"]
             .as_str()
             .map_or("?".into(), |h| h.chars().take(12).collect::<String>()),
-    );
+    ));
     if let Some(r) = v.get("trained_radar") {
-        s += &format!(
-            "\nTrained on radar of {} sweep(s) per channel ({}), devkit filters {}, velocity \
-             compensation {}: feed it radar gathered the same way.\n",
+        doc.paragraph(format!(
+            "Trained on radar of {} sweep(s) per channel ({}), devkit filters {}, velocity \
+             compensation {}: feed it radar gathered the same way.",
             r["radar_sweeps"],
             r["radar_channels"]
                 .as_array()
@@ -304,9 +328,9 @@ fn export_markdown(model: &Path, v: &Value) -> String {
             } else {
                 "off"
             },
-        );
+        ));
     }
-    s
+    doc
 }
 
 /// Each model of an evaluation's `tables.json` as a row of the comparison.
@@ -349,33 +373,42 @@ pub fn comparison(sections: &[Found]) -> Option<Found> {
     if rows.is_empty() {
         return None;
     }
-    let mut s = String::from(
+    let mut doc = Doc::new();
+    doc.paragraph(
         "Every model found: the headline row of each evaluation (`tables.json`: combined \
          conditions, full image, largest cap) and the best validation of each training run. \
-         Validation rows pick checkpoints; only test rows compare methods.\n\n\
-         | model | folder | rows | images | RMSE (m) | MAE (m) | AbsRel | δ1 |\n\
-         |---|---|---|---:|---:|---:|---:|---:|\n",
+         Validation rows pick checkpoints; only test rows compare methods.",
     );
+    let mut t = MdTable::new(&[
+        ("model", Align::Left),
+        ("folder", Align::Left),
+        ("rows", Align::Left),
+        ("images", Align::Right),
+        ("RMSE (m)", Align::Right),
+        ("MAE (m)", Align::Right),
+        ("AbsRel", Align::Right),
+        ("δ1", Align::Right),
+    ]);
     for r in rows {
-        s += &format!(
-            "| {} | `{}` | {} | {} | {} | {} | {} | {} |\n",
-            r.name,
-            r.dir.display(),
-            r.rows,
+        t.row(&[
+            r.name.clone(),
+            format!("`{}`", r.dir.display()),
+            r.rows.clone(),
             r.images.map_or("–".into(), |n| n.to_string()),
             cell(r.rmse_m, 3),
             cell(r.mae_m, 3),
             cell(r.abs_rel, 3),
-            cell(r.delta1, 3)
-        );
+            cell(r.delta1, 3),
+        ]);
     }
+    doc.table(t);
     Some(Found {
         kind: Kind::Models,
         dir: PathBuf::new(),
         files: vec![],
         command_line: None,
         inputs: vec![],
-        markdown: s,
+        doc,
         images: vec![],
         grid: None,
         models: vec![],

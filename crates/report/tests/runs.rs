@@ -82,7 +82,7 @@ fn training_runs_exports_and_the_model_comparison() {
     assert_eq!(kinds, [Kind::Models, Kind::Eval, Kind::Train, Kind::Export]);
     assert!(s.skipped.is_empty(), "{:?}", s.skipped);
 
-    let models = &s.sections[0].markdown;
+    let models = &s.sections[0].doc.to_markdown();
     assert!(
         models.contains("| fusion | `") && models.contains("test, cap 80 m | 8 | 9.750 |"),
         "{models}"
@@ -94,14 +94,11 @@ fn training_runs_exports_and_the_model_comparison() {
 
     let train = &s.sections[2];
     assert_eq!(train.images.len(), 1, "curves.png");
-    assert!(train
-        .markdown
-        .contains("`tiny` (late fusion + attention), 2 epochs of batch 4"));
-    assert!(train
-        .markdown
-        .contains("| 2 | 32 | 10.000 | 5.000 | 0.300 | 0.500 | 4 |"));
+    let train_md = train.doc.to_markdown();
+    assert!(train_md.contains("`tiny` (late fusion + attention), 2 epochs of batch 4"));
+    assert!(train_md.contains("| 2 | 32 | 10.000 | 5.000 | 0.300 | 0.500 | 4 |"));
 
-    let export = &s.sections[3].markdown;
+    let export = &s.sections[3].doc.to_markdown();
     assert!(
         export.contains("`fusion.onnx`: onnx (fp32, batch dynamic)"),
         "{export}"
@@ -109,5 +106,58 @@ fn training_runs_exports_and_the_model_comparison() {
     assert!(
         export.contains("5 sweep(s) per channel (RADAR_FRONT)"),
         "{export}"
+    );
+}
+
+/// An output whose JSON records its document is rendered from that document (its `.md` beside
+/// it is not read back), every text escaped by the page's template; one written before
+/// documents were recorded shows its `.md`.
+#[test]
+fn a_recorded_document_is_rendered_from_the_json() {
+    let tmp = tempfile::tempdir().unwrap();
+    let runs = tmp.path().join("runs");
+    let mut t = depthsense_metrics::table::MdTable::new(&[
+        ("preset", depthsense_metrics::table::Align::Left),
+        ("ms", depthsense_metrics::table::Align::Right),
+    ]);
+    t.row(&["<script>x</script>", "12"]);
+    let mut doc = depthsense_metrics::doc::Doc::new();
+    doc.heading(1, "Cost")
+        .table(t)
+        .command(Some("depthsense experiment cost"));
+    write(
+        &runs.join("new/cost.json"),
+        json!({"rows": [], "document": doc}).to_string().as_bytes(),
+    );
+    write(&runs.join("new/cost.md"), b"# Not this one\n");
+    write(
+        &runs.join("old/cost.json"),
+        json!({"rows": []}).to_string().as_bytes(),
+    );
+    write(&runs.join("old/cost.md"), b"# Old\n\n| a |\n|---|\n| 1 |\n");
+    let out = tmp.path().join("page");
+    let (s, html) = render(&ReportOptions {
+        runs: vec![runs],
+        out,
+        ..ReportOptions::default()
+    })
+    .unwrap();
+    let new = s
+        .sections
+        .iter()
+        .find(|x| x.source_dir.ends_with("new"))
+        .unwrap();
+    assert_eq!(new.doc, doc);
+    let old = s
+        .sections
+        .iter()
+        .find(|x| x.source_dir.ends_with("old"))
+        .unwrap();
+    assert_eq!(old.doc.to_markdown(), "# Old\n\n| a |\n|---|\n| 1 |\n");
+    assert!(html.contains("<td>&lt;script&gt;x&lt;/script&gt;</td><td class=\"r\">12</td>"));
+    assert!(!html.contains("<script>") && !html.contains("Not this one"));
+    assert!(
+        html.contains("<h3>Old</h3>"),
+        "the old output's Markdown, headings shifted"
     );
 }

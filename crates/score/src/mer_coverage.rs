@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 
 use depthsense_dataset::DataError;
 use depthsense_dataset::{partition, read_depth, Dataset};
+use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{Align, MdTable};
 use depthsense_prep::layout::{IndexEntry, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE};
 use rayon::prelude::*;
@@ -152,15 +153,13 @@ pub fn mer_report(data: &Path, split: &str, cap_m: f64) -> Result<MerReport, Dat
     })
 }
 
-/// The report as a Markdown table.
+/// The report as Markdown: a line, then the table ([`report_doc`] as text).
 pub fn report_markdown(r: &MerReport) -> String {
-    let mut s = format!(
-        "{} images of split `{}`, sparse lidar GT ≤ {} m ({} GT pixels)\n\n",
-        r.images,
-        r.split,
-        r.cap_m,
-        r.rows.first().map_or(0, |x| x.gt_pixels)
-    );
+    report_doc(r).to_markdown()
+}
+
+/// The report as a document: one paragraph (images, split, cap), then the coverage table.
+pub fn report_doc(r: &MerReport) -> Doc {
     // A map that covers no GT pixel has no error to report: "–", never "NaN %".
     let pct = |v: f64, decimals: usize| {
         if v.is_finite() {
@@ -187,8 +186,16 @@ pub fn report_markdown(r: &MerReport) -> String {
             pct(x.p90_rel_error, 1),
         ]);
     }
-    s.push_str(&t.finish());
-    s
+    let mut doc = Doc::new();
+    doc.paragraph(format!(
+        "{} images of split `{}`, sparse lidar GT ≤ {} m ({} GT pixels)",
+        r.images,
+        r.split,
+        r.cap_m,
+        r.rows.first().map_or(0, |x| x.gt_pixels)
+    ))
+    .table(t);
+    doc
 }
 
 #[cfg(test)]

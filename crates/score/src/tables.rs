@@ -28,13 +28,15 @@ pub fn write_tables_with_command(
     command_line: Option<&str>,
 ) -> Result<(), DataError> {
     std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let mut md = tables::markdown_report(models);
-    md.push_str(&depthsense_metrics::table::md_command_line(command_line));
+    let mut doc = tables::report_doc(models);
+    doc.command(command_line);
+    let md = doc.to_markdown();
     let csv = tables::csv_report(models);
     let json = serde_json::json!({
         "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),
         "tables": tables::all_tables(models),
         "command_line": command_line,
+        depthsense_metrics::doc::DOCUMENT_KEY: doc,
     });
     let w = |name: &str, bytes: &[u8]| {
         let p = dir.join(name);

@@ -178,7 +178,9 @@ fn ablation_runs_reports_and_resumes() {
     assert_eq!(p.significant, Some((mean / se).abs() > 12.706));
     // The paper's MER table appears with the late-sam-mer variant only; its cells are the
     // mean ± std over seeds of each run's full report (checked for δ2, which no other table has).
-    assert!(depthsense_experiments::ablation::mer_table(&r, 80.0).is_empty());
+    assert!(depthsense_experiments::ablation::mer_table(&r, 80.0)
+        .blocks
+        .is_empty());
     let mut m = r.clone();
     for x in m.runs.iter_mut().filter(|x| x.variant == "late-sam") {
         x.variant = "late-sam-mer".into();
@@ -186,7 +188,7 @@ fn ablation_runs_reports_and_resumes() {
     for (name, _) in m.models.iter_mut().filter(|(n, _)| n == "late-sam") {
         *name = "late-sam-mer".into();
     }
-    let table = depthsense_experiments::ablation::mer_table(&m, 80.0);
+    let table = depthsense_experiments::ablation::mer_table(&m, 80.0).to_markdown();
     let d2: Vec<f64> = m
         .runs
         .iter()
