@@ -67,3 +67,17 @@ fn find_torch() -> Torch {
         site_packages: dir.parent().map(Path::to_path_buf),
     }
 }
+
+/// A C++17 build against this libtorch: its include paths and the C++ ABI torch-sys uses.
+#[allow(dead_code)]
+fn shim_build(torch: &Torch) -> cc::Build {
+    let mut build = cc::Build::new();
+    build
+        .cpp(true)
+        .pic(true)
+        .warnings(false)
+        .includes(&torch.includes)
+        .flag("-std=c++17")
+        .flag(format!("-D_GLIBCXX_USE_CXX11_ABI={}", torch.cxx11_abi));
+    build
+}

@@ -28,14 +28,8 @@ fn main() {
     println!("cargo:rerun-if-changed=shim/dist.cpp");
     println!("cargo:rerun-if-changed=shim/gloo_decl");
     let torch = find_torch();
-    let mut build = cc::Build::new();
+    let mut build = shim_build(&torch);
     build
-        .cpp(true)
-        .pic(true)
-        .warnings(false)
-        .includes(&torch.includes)
-        .flag("-std=c++17")
-        .flag(format!("-D_GLIBCXX_USE_CXX11_ABI={}", torch.cxx11_abi))
         .flag("-DGLOG_USE_GLOG_EXPORT")
         .define("USE_C10D_GLOO", None)
         .file("shim/dist.cpp");

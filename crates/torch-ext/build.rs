@@ -10,13 +10,7 @@ include!("../../build-support/torch_link.rs");
 fn main() {
     println!("cargo:rerun-if-changed=shim/torch_ext.cpp");
     let torch = find_torch();
-    cc::Build::new()
-        .cpp(true)
-        .pic(true)
-        .warnings(false)
-        .includes(&torch.includes)
-        .flag("-std=c++17")
-        .flag(format!("-D_GLIBCXX_USE_CXX11_ABI={}", torch.cxx11_abi))
+    shim_build(&torch)
         .file("shim/torch_ext.cpp")
         .compile("depthsense_torch_ext_shim");
     println!("cargo:rustc-link-search=native={}", torch.lib.display());
