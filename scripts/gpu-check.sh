@@ -390,7 +390,7 @@ prec += [{"config": r["config"], "variant": r["variant"], "impl": f"torch-{r['or
 # Training fp32 vs amp.
 train = {}
 for m in ("fp32", "amp"):
-    vals, ep = [], []
+    vals, ep, ep_own = [], [], []
     try:
         with open(os.path.join(S, f"train_{m}", "metrics.jsonl")) as f:
             for line in f:
@@ -399,11 +399,12 @@ for m in ("fp32", "amp"):
                     vals.append(d["val"]["rmse"])
                 if d.get("kind") == "epoch":
                     ep.append(d.get("images_per_s"))
+                    ep_own.append(d.get("epoch_images_per_s"))
     except OSError:
         pass
     train[m] = {"status": status.get(f"train_{m}"), "val_rmse": vals,
                 "best_val_rmse": min(vals[1:] or vals or [None]) if vals else None,
-                "images_per_s": ep}
+                "images_per_s": ep, "epoch_images_per_s": ep_own}
 bt = load(os.path.join(S, "bench_train.json"))
 loader = None
 if bt:

@@ -342,6 +342,20 @@ fn train_resume_mismatch_eval_predict() {
     );
     let rate = 40.0 * 4.0 / full.train_seconds;
     assert!((full.train_images_per_s - rate).abs() <= 1e-9 * rate);
+    // Each epoch line's own rate covers that epoch's 16 images: together they add up to the
+    // training time.
+    let metrics = std::fs::read_to_string(tmp.path().join("a/metrics.jsonl")).unwrap();
+    let epoch_secs: f64 = metrics
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["kind"] == "epoch")
+        .map(|v| 16.0 / v["epoch_images_per_s"].as_f64().unwrap())
+        .sum();
+    assert!(
+        (epoch_secs - full.train_seconds).abs() <= 1e-6 * full.train_seconds,
+        "{epoch_secs} vs {}",
+        full.train_seconds
+    );
     // A short run lowers both the training loss and the validation RMSE.
     assert!(last < first, "validation RMSE {first} → {last}");
     let (l0, l1) = (full.losses[0].1, full.losses.last().unwrap().1);

@@ -58,6 +58,9 @@ pub struct Trainer<'o> {
     /// Seconds in training steps (loader waits included) and in validation, this invocation.
     train_secs: f64,
     val_secs: f64,
+    /// `images` and `train_secs` when the current epoch began (this invocation): the epoch's
+    /// own rate, without the first epoch's warm-up (cuDNN autotuning, first allocations).
+    epoch_mark: (usize, f64),
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
     /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
@@ -173,6 +176,7 @@ impl<'o> Trainer<'o> {
             images: 0,
             train_secs: 0.0,
             val_secs: 0.0,
+            epoch_mark: (0, 0.0),
             dist,
             _lock: lock,
             ckpt: Checkpointer::new(&run, optim_matches),
@@ -418,6 +422,10 @@ impl<'o> Trainer<'o> {
     /// Epoch end: validate, checkpoint (best when improved), log, plot.
     fn close_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         let (epoch_loss, epoch_n) = (self.acc.sum, self.acc.n);
+        let (mark_images, mark_secs) = self.epoch_mark;
+        let epoch_rate =
+            (self.images - mark_images) as f64 / (self.train_secs - mark_secs).max(1e-9);
+        self.epoch_mark = (self.images, self.train_secs);
         let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
@@ -445,6 +453,7 @@ impl<'o> Trainer<'o> {
                                 "train_loss": epoch_loss / epoch_n.max(1) as f64,
                                 "lr": self.lr_at(it),
                                 "images_per_s": self.images as f64 / self.train_secs.max(1e-9),
+                                "epoch_images_per_s": epoch_rate,
                                 "train_seconds": self.train_secs, "val_seconds": self.val_secs,
                                 "seconds": self.started.elapsed().as_secs_f64(), "val": v}),
         )?;
