@@ -124,6 +124,7 @@ pub(crate) fn save_record<T: Serialize>(
     save(md, doc.to_markdown().as_bytes())
 }
 
+/// A signed number with a true minus sign ("−1.2", "+0.3").
 pub(crate) fn signed(x: f64, prec: usize) -> String {
     if x < 0.0 {
         format!("−{:.prec$}", -x)

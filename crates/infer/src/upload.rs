@@ -65,9 +65,8 @@ fn host_to_device(data: &[f32], shape: &[i64], device: Device) -> Tensor {
         return Tensor::from_slice(data).view(shape).to_device(device);
     }
     // SAFETY: the view borrows `data` (len × 4 bytes, f32-aligned, contiguous) only until
-    // `pin_memory` has copied it into a freshly allocated pinned buffer (or the fall-back has
-    // copied it to the device); it is dropped at the end of this function while `data` is
-    // still borrowed.
+    // `to_device_nonblocking` has read it (into a pinned buffer, or by a blocking copy); it is
+    // dropped at the end of this function while `data` is still borrowed.
     let view = unsafe {
         Tensor::from_blob(
             data.as_ptr().cast::<u8>(),
@@ -77,13 +76,7 @@ fn host_to_device(data: &[f32], shape: &[i64], device: Device) -> Tensor {
             Device::Cpu,
         )
     };
-    match depthsense_torch_ext::pin_memory(&view) {
-        // Non-blocking from pinned memory: the host returns at once. The caching host
-        // allocator keeps the pinned block alive until the copy on the stream has finished.
-        Ok(pinned) => pinned.to_device_(device, Kind::Float, true, false),
-        // No pinned memory to be had: a blocking copy (done before `view` is dropped).
-        Err(_) => view.to_device(device),
-    }
+    depthsense_torch_ext::to_device_nonblocking(&view, device)
 }
 
 #[cfg(test)]

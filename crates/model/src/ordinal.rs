@@ -132,11 +132,7 @@ pub fn to_device_async(t: Tensor, device: Device) -> Tensor {
     if device == Device::Cpu || t.device() == device {
         return t.to_device(device);
     }
-    let kind = t.kind();
-    match depthsense_torch_ext::pin_memory(&t) {
-        Ok(pinned) => pinned.to_device_(device, kind, true, false),
-        Err(_) => t.to_device(device),
-    }
+    depthsense_torch_ext::to_device_nonblocking(&t, device)
 }
 
 /// [`ordinal_loss`] over the valid pixels `target` (no `nonzero`, no host synchronisation).

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use depthsense_metrics::doc::Doc;
 use depthsense_score::mer_coverage::{report_doc, CoverageRow, MerReport};
+use serde::Deserialize;
 use serde_json::Value;
 
 use super::{FigureGrid, Kind, ReportError, Skipped};
@@ -184,7 +185,7 @@ fn skip(p: &Path, reason: String) -> Skipped {
 /// `None` for an output written before: its Markdown file is shown instead.
 fn document(v: &Value) -> Option<Doc> {
     v.get(depthsense_metrics::doc::DOCUMENT_KEY)
-        .and_then(|d| serde_json::from_value(d.clone()).ok())
+        .and_then(|d| Doc::deserialize(d).ok())
 }
 
 pub(crate) fn read_json(p: &Path) -> Result<Value, String> {

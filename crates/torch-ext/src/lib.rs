@@ -6,7 +6,7 @@
 
 use std::ffi::{c_char, c_void, CStr};
 
-use tch::{Kind, TchError, Tensor};
+use tch::{Device, Kind, TchError, Tensor};
 use torch_sys::C_tensor;
 
 extern "C" {
@@ -44,16 +44,28 @@ pub fn pin_memory(t: &Tensor) -> Result<Tensor, TchError> {
     Ok(unsafe { Tensor::from_ptr(ptr) })
 }
 
+/// `t` on `device` without blocking the host: copied once into pinned memory, then sent with a
+/// non-blocking copy (ordered on the current stream before any kernel that reads it; the
+/// caching host allocator keeps the pinned block until the copy is done). Without pinned memory,
+/// a blocking copy. Either way `t` has been read when this returns.
+pub fn to_device_nonblocking(t: &Tensor, device: Device) -> Tensor {
+    match pin_memory(t) {
+        Ok(pinned) => pinned.to_device_(device, t.kind(), true, false),
+        Err(_) => t.to_device(device),
+    }
+}
+
+/// The autocast dtypes by their `c10::ScalarType` code (tch keeps its own mapping private).
+const AUTOCAST_KINDS: [(Kind, i8); 2] = [(Kind::Half, 5), (Kind::BFloat16, 15)];
+
 /// Runs `f` with CUDA autocast enabled for `dtype` (`Kind::BFloat16` or `Kind::Half`; any other
 /// kind runs `f` without autocast), as
 /// `torch.autocast("cuda", dtype)` does: the previous state (enabled, dtype) is restored after,
 /// and the cast cache is cleared when the outermost autocast region ends. The state is
 /// thread-local, and setting it needs no GPU; only CUDA operations read it.
 pub fn cuda_autocast<T>(dtype: Kind, f: impl FnOnce() -> T) -> T {
-    let code: i8 = match dtype {
-        Kind::Half => 5,
-        Kind::BFloat16 => 15,
-        _ => return f(),
+    let Some(&(_, code)) = AUTOCAST_KINDS.iter().find(|(k, _)| *k == dtype) else {
+        return f();
     };
     // SAFETY (all calls below): plain functions on libtorch's thread-local autocast state.
     let (prev_enabled, prev_dtype) =
@@ -76,10 +88,9 @@ pub fn cuda_autocast<T>(dtype: Kind, f: impl FnOnce() -> T) -> T {
 pub fn cuda_autocast_state() -> (bool, Kind) {
     // SAFETY: reads libtorch's thread-local autocast state.
     let (on, code) = unsafe { (dsx_autocast_cuda_enabled(), dsx_autocast_cuda_dtype()) };
-    let kind = match code {
-        5 => Kind::Half,
-        15 => Kind::BFloat16,
-        _ => Kind::Float,
-    };
+    let kind = AUTOCAST_KINDS
+        .iter()
+        .find(|(_, c)| *c == code)
+        .map_or(Kind::Float, |(k, _)| *k);
     (on, kind)
 }

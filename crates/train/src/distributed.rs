@@ -25,7 +25,6 @@
 //!   progress bar. Checkpoints do not depend on N: `--resume` works with any world size.
 
 use std::cell::RefCell;
-
 use std::rc::Rc;
 use std::sync::Arc;
 use std::time::Duration;

@@ -44,3 +44,18 @@ fn pin_memory_pins_on_cuda_and_is_an_error_without_it() {
         }
     }
 }
+
+#[test]
+fn a_nonblocking_copy_arrives_whole_pinned_or_not() {
+    let t = Tensor::from_slice(&[1.5f32, -2.0, 3.25]).view([1, 3]);
+    let device = if tch::Cuda::is_available() {
+        Device::Cuda(0)
+    } else {
+        Device::Cpu // no pinned memory: the blocking fall-back
+    };
+    let d = depthsense_torch_ext::to_device_nonblocking(&t, device);
+    assert_eq!(d.device(), device);
+    assert_eq!(d.size(), [1, 3]);
+    let back = Vec::<f32>::try_from(d.to_device(Device::Cpu).view([-1])).unwrap();
+    assert_eq!(back, vec![1.5, -2.0, 3.25]);
+}
