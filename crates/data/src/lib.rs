@@ -28,6 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 pub mod exclusion;
+pub mod net_input;
 pub mod radar_failure;
 pub mod radar_oracle;
 
@@ -259,11 +260,11 @@ pub fn drop_radar(raw: &mut DepthMap, height: Option<&mut DepthMap>, p: f64, see
     }
 }
 
-/// The 7 MER radar planes (SPEC §5): raw, then d·[conf > θ] for the 6 thresholds, derived
-/// from `radar_mer_depth.png` / `radar_mer_conf.png`. A MER pixel carries the exact depth of
+/// The MER (depth, confidence) maps of a sample (`radar_mer_depth.png` /
+/// `radar_mer_conf.png`, SPEC §5) for its raw map `raw`. A MER pixel carries the exact depth of
 /// one raw return, so MER pixels whose depth is no longer among the raw returns (dropped by
 /// `radar_drop` or a failure mode) are removed with them.
-fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), DataError> {
+fn kept_mer_maps(dir: &Path, raw: &DepthMap) -> Result<(DepthMap, DepthMap), DataError> {
     let (mut depth, conf) = depthsense_dataset::mer_maps::read_mer_maps(dir)?;
     let mp = dir.join(depthsense_prep::layout::MER_DEPTH_FILE);
     check_size(&depth, raw.width as usize, raw.height as usize, &mp)?;
@@ -273,12 +274,7 @@ fn mer_planes(dir: &Path, raw: &DepthMap, out: &mut Vec<f32>) -> Result<(), Data
             *d = 0.0;
         }
     }
-    out.extend_from_slice(&raw.depth_m);
-    out.extend_from_slice(&depthsense_dataset::mer_maps::derive_channels(
-        &depth.depth_m,
-        &conf.depth_m,
-    ));
-    Ok(())
+    Ok((depth, conf))
 }
 
 /// Read one sample directory. `draw` is the sample's random stream (augmentation). A file that
@@ -329,7 +325,7 @@ fn read_sample(
         };
         let (raw, height) = corrupt_radar(&dir, entry, opts, draws.train_drop, maps)?;
         (
-            radar_planes(&dir, opts.radar, &raw, &height)?,
+            sample_radar_planes(&dir, opts.radar, &raw, &height)?,
             opts.radar.channels(),
         )
     };
@@ -502,13 +498,37 @@ fn corrupt_radar(
     Ok((raw, height))
 }
 
-/// The network's radar planes [C, H, W] for input `radar` from the (corrupted) maps.
-fn radar_planes(
+/// The network's radar planes [C, H, W] for input `radar` from the (corrupted) maps of a
+/// prepared sample `dir`.
+fn sample_radar_planes(
     dir: &Path,
     radar: RadarInput,
     raw: &DepthMap,
     height: &DepthMap,
 ) -> Result<Vec<f32>, DataError> {
+    if radar == RadarInput::Mer {
+        let (depth, conf) = kept_mer_maps(dir, raw)?;
+        return Ok(radar_planes(
+            radar,
+            raw,
+            height,
+            Some((&depth.depth_m, &conf.depth_m)),
+        ));
+    }
+    Ok(radar_planes(radar, raw, height, None))
+}
+
+/// The network's radar planes [C, H, W] for input `radar` (SPEC §5), in metres, 0 = no
+/// return: the height-extended map, the raw map, raw then height-extended, or for MER the raw
+/// map then the 6 channels of the MER (depth, confidence) maps `mer`
+/// (`mer_maps::derive_channels`; all 0 when `mer` is None). Training's loader and every
+/// network input ([`net_input::net_inputs`]: `predict`, the Python module) build them here.
+pub fn radar_planes(
+    radar: RadarInput,
+    raw: &DepthMap,
+    height: &DepthMap,
+    mer: Option<(&[f32], &[f32])>,
+) -> Vec<f32> {
     let mut planes = Vec::new();
     match radar {
         RadarInput::Height => planes.extend_from_slice(&height.depth_m),
@@ -517,9 +537,16 @@ fn radar_planes(
             planes.extend_from_slice(&raw.depth_m);
             planes.extend_from_slice(&height.depth_m);
         }
-        RadarInput::Mer => mer_planes(dir, raw, &mut planes)?,
+        RadarInput::Mer => {
+            planes.extend_from_slice(&raw.depth_m);
+            match mer {
+                Some((depth, conf)) => planes
+                    .extend_from_slice(&depthsense_dataset::mer_maps::derive_channels(depth, conf)),
+                None => planes.resize(planes.len() * RadarInput::Mer.channels(), 0.0),
+            }
+        }
     }
-    Ok(planes)
+    planes
 }
 
 /// The evaluation maps: sparse GT (metres) and the low-height mask (empty when absent).
@@ -566,7 +593,28 @@ pub fn normalise_image(rgb: &image::RgbImage, aug: &Augment) -> Vec<f32> {
                 x = (x * aug.brightness * aug.colour[c]).clamp(0.0, 1.0);
                 x = x.powf(aug.gamma);
             }
-            image[c * plane + i] = (x - IMAGENET_MEAN[c]) / IMAGENET_STD[c];
+            image[c * plane + i] = normalise_value(x, c);
+        }
+    }
+    image
+}
+
+/// One value of channel `c` in [0, 1] as the network takes it (SPEC §6): less the ImageNet
+/// mean, over the ImageNet standard deviation — the first operation of an exported graph.
+#[inline]
+pub fn normalise_value(x: f32, c: usize) -> f32 {
+    (x - IMAGENET_MEAN[c]) / IMAGENET_STD[c]
+}
+
+/// An RGB8 image as `[3, H, W]` values in [0, 1] (each value / 255): the input of an exported
+/// graph ([`net_input::NetInputs::image`]); [`normalise_image`] without augmentation is
+/// [`normalise_value`] of it, bit for bit.
+pub fn rgb01(rgb: &image::RgbImage) -> Vec<f32> {
+    let plane = rgb.width() as usize * rgb.height() as usize;
+    let mut image = vec![0f32; 3 * plane];
+    for (i, px) in rgb.pixels().enumerate() {
+        for c in 0..3 {
+            image[c * plane + i] = px.0[c] as f32 / 255.0;
         }
     }
     image

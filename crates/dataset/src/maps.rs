@@ -27,8 +27,13 @@ pub fn read_depth(path: &Path) -> Result<DepthMap, DataError> {
 }
 
 pub fn decode_rgb(path: &Path) -> Result<image::RgbImage, DataError> {
-    let bytes = read_file(path)?;
-    let img = image::load_from_memory(&bytes).map_err(|e| DataError::Parse {
+    decode_rgb_bytes(&read_file(path)?, path)
+}
+
+/// An image file's bytes (PNG, JPEG: the format is read from the bytes) as RGB8, decoded as
+/// [`decode_rgb`] decodes a file; `path` names it in errors.
+pub fn decode_rgb_bytes(bytes: &[u8], path: &Path) -> Result<image::RgbImage, DataError> {
+    let img = image::load_from_memory(bytes).map_err(|e| DataError::Parse {
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
