@@ -80,6 +80,11 @@ impl std::fmt::Debug for Loaded {
 
 /// Reads only the config and extra JSON of a checkpoint.
 pub fn read_config(path: &Path) -> Result<(ModelConfig, serde_json::Value), ModelError> {
+    let path = &if path.is_dir() {
+        require_file(path, "a depthsense checkpoint or run folder")?
+    } else {
+        path.to_path_buf()
+    };
     let bytes = std::fs::read(path).map_err(|e| ModelError::io(path, e))?;
     let (_, meta) = parse_safetensors(path, &bytes)?;
     config_of(path, &meta)
@@ -187,7 +192,7 @@ pub fn load_any(
     config: Option<&ModelConfig>,
     device: Device,
 ) -> Result<(Loaded, Option<crate::weights::LoadReport>), ModelError> {
-    require_file(
+    let path = &require_file(
         path,
         "--checkpoint takes RUN/best.safetensors or RUN/last.safetensors of `depthsense train`, \
          or a PyTorch .pth with --config",

@@ -48,7 +48,7 @@ pub fn save(
 
 /// Loads a checkpoint written by [`save`], building the network from its stored config.
 pub fn load(path: &Path, device: Device) -> Result<LoadedPda, ModelError> {
-    require_file(
+    let path = &require_file(
         path,
         "a PDA checkpoint is RUN/best.safetensors of `depthsense mer train`",
     )?;

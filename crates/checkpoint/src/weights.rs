@@ -442,7 +442,7 @@ pub fn released_key(key: &str) -> Option<String> {
 /// fusion, another radar input): the channels both have are copied. Any other shape mismatch is
 /// an error naming every offending tensor.
 pub fn init_from(vs: &mut VarStore, path: &Path) -> Result<LoadReport, ModelError> {
-    require_file(
+    let path = &require_file(
         path,
         "--init-from takes a depthsense checkpoint (RUN/best.safetensors), an `export --format \
          pytorch` .pth or the authors' released .pth",

@@ -14,6 +14,8 @@ use clap::{Parser, Subcommand};
 
 pub mod cmd;
 pub mod handoff;
+pub mod preflight;
+pub mod stop;
 
 /// Metric depth for a car's front camera, fused with sparse automotive radar (DepthSense),
 /// trained and evaluated on nuScenes or on the embedded synthetic world.
@@ -71,6 +73,17 @@ pub enum Command {
     /// The command-line reference as Markdown (docs/guide/cli.md).
     #[command(hide = true)]
     HelpMarkdown(cmd::help_markdown::Args),
+}
+
+/// Parses this process's command line (clap's own errors and `--help` exit as clap does),
+/// then refuses what must be refused before any work ([`preflight`]: outputs that cannot be
+/// written, flag combinations that need a word of advice).
+pub fn parse() -> anyhow::Result<Cli> {
+    use clap::{CommandFactory, FromArgMatches};
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    preflight::check(&matches)?;
+    Ok(cli)
 }
 
 /// Runs `command` in this process when it needs no network, i.e. without libtorch; gives it

@@ -4,11 +4,13 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
-use depthsense_cli::{finish, handoff, run_without_torch, Cli};
+use depthsense_cli::{finish, handoff, run_without_torch};
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match depthsense_cli::parse() {
+        Ok(cli) => cli,
+        Err(e) => return finish(Err(e)),
+    };
     depthsense_progress::configure(cli.log_every);
     finish(match run_without_torch(cli.command) {
         Ok(result) => result,

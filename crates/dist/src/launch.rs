@@ -2,11 +2,19 @@
 //! rendezvous ([`free_port`]) and the workers themselves, watched until every one has exited
 //! ([`launch_local`]). Each failure is typed ([`LaunchError`], [`WorkerFailure`]) so that a
 //! caller can tell a worker that failed from a launcher that could not start.
+//!
+//! A stop signal (SIGINT / SIGTERM, [`depthsense_base::interrupt`]) that reaches the launcher
+//! is passed on to every worker once; the workers agree on the iteration, checkpoint and exit
+//! with the signal's status, which is then a stop, not a failure. The workers run in their own
+//! process group, so that a terminal's Ctrl-C reaches them only through the launcher, and each
+//! gets SIGTERM should the launcher die.
 
 use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
+
+use depthsense_base::interrupt::{self, StopSignal};
 
 /// Why a local job could not run or did not succeed.
 #[derive(Debug, thiserror::Error)]
@@ -89,13 +97,14 @@ pub fn free_port() -> Result<u16, LaunchError> {
 /// sets (RANK, LOCAL_RANK, WORLD_SIZE, LOCAL_WORLD_SIZE, GROUP_RANK, ROLE_RANK,
 /// ROLE_WORLD_SIZE, MASTER_ADDR=127.0.0.1, MASTER_PORT), and wait for them. When a worker
 /// fails, the others get `grace` to fail on their own (they name the peer that stopped), then
-/// are killed. The error lists every failed worker.
+/// are killed. The error lists every failed worker. `Ok(Some(signal))`: the launcher received
+/// a stop signal, passed it on, and every worker stopped for it.
 pub fn launch_local(
     nproc: usize,
     args: &[OsString],
     master_port: Option<u16>,
     grace: Duration,
-) -> Result<(), LaunchError> {
+) -> Result<Option<StopSignal>, LaunchError> {
     if nproc == 0 {
         return Err(LaunchError::NoWorkers);
     }
@@ -108,9 +117,9 @@ pub fn launch_local(
         None => free_port()?,
     };
     let children = spawn_workers(&exe, nproc, args, port)?;
-    let failed = wait_workers(children, grace);
+    let (failed, stopped) = wait_workers(children, grace);
     if failed.is_empty() {
-        Ok(())
+        Ok(stopped)
     } else {
         Err(LaunchError::WorkersFailed { nproc, failed })
     }
@@ -125,7 +134,19 @@ fn spawn_workers(
 ) -> Result<Vec<(usize, Child)>, LaunchError> {
     let mut children: Vec<(usize, Child)> = Vec::with_capacity(nproc);
     for rank in 0..nproc {
-        let child = Command::new(exe)
+        let mut command = Command::new(exe);
+        {
+            use std::os::unix::process::CommandExt;
+            command.process_group(0);
+            // SAFETY: prctl(2) is async-signal-safe; nothing else runs between fork and exec.
+            unsafe {
+                command.pre_exec(|| {
+                    libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM);
+                    Ok(())
+                });
+            }
+        }
+        let child = command
             .args(args)
             .env("RANK", rank.to_string())
             .env("LOCAL_RANK", rank.to_string())
@@ -155,14 +176,28 @@ fn spawn_workers(
     Ok(children)
 }
 
-/// Wait for every worker; the failures, the first first.
-fn wait_workers(mut running: Vec<(usize, Child)>, grace: Duration) -> Vec<WorkerFailure> {
+/// Wait for every worker; the failures, the first first, and the stop signal passed on to the
+/// workers (a worker that exited with that signal's status after it stopped, not failed).
+fn wait_workers(
+    mut running: Vec<(usize, Child)>,
+    grace: Duration,
+) -> (Vec<WorkerFailure>, Option<StopSignal>) {
     let mut failed = vec![];
     let mut first_failure: Option<Instant> = None;
+    let mut passed_on: Option<StopSignal> = None;
     while !running.is_empty() {
+        if let (None, Some(sig)) = (passed_on, interrupt::requested()) {
+            for (_, c) in &running {
+                // SAFETY: kill(2) of our own child's pid (not reaped yet: try_wait reaps).
+                unsafe { libc::kill(c.id() as libc::pid_t, sig.number()) };
+            }
+            passed_on = Some(sig);
+        }
         let mut still = vec![];
         for (rank, mut c) in running {
             match c.try_wait() {
+                Ok(Some(status))
+                    if passed_on.is_some_and(|s| status.code() == Some(s.exit_code().into())) => {}
                 Ok(Some(status)) if !status.success() => {
                     failed.push(WorkerFailure::Exited { rank, status });
                     first_failure.get_or_insert_with(Instant::now);
@@ -186,7 +221,7 @@ fn wait_workers(mut running: Vec<(usize, Child)>, grace: Duration) -> Vec<Worker
         }
         std::thread::sleep(Duration::from_millis(50));
     }
-    failed
+    (failed, passed_on)
 }
 
 #[cfg(test)]

@@ -70,6 +70,10 @@ pub struct MerTrainOptions {
     /// the JSON when not set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stop_after: Option<u64>,
+    /// The command line that started the run (its words, program first), recorded in
+    /// RUN/config.json as `"command"` (empty: not recorded).
+    #[serde(skip)]
+    pub command: Vec<String>,
 }
 
 impl Default for MerTrainOptions {
@@ -94,6 +98,7 @@ impl Default for MerTrainOptions {
             val_every_scene: 5,
             max_val_samples: None,
             stop_after: None,
+            command: Vec::new(),
         }
     }
 }
@@ -131,11 +136,17 @@ pub struct MerTrainSummary {
     pub run_dir: PathBuf,
     pub val: Vec<MerValRecord>,
     pub best_auc: f64,
+    /// The iteration of RUN/best.safetensors (0: the network before training).
+    pub best_iteration: Option<u64>,
     pub parameters: i64,
     pub iterations: u64,
     pub seconds: f64,
-    /// Stopped at `stop_after` before the last epoch's end.
+    /// Stopped at `stop_after` or by a stop signal before the last epoch's end.
     pub interrupted: bool,
+    /// The stop signal (SIGINT / SIGTERM) that interrupted it, checkpointed first.
+    pub signal: Option<depthsense_base::interrupt::StopSignal>,
+    /// Iterations of the whole run.
+    pub total_iterations: u64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -148,6 +159,10 @@ struct State {
     epochs: usize,
     lr: f64,
     best_auc: Option<f64>,
+    /// The iteration of RUN/best.safetensors (`None` in checkpoints written before it was
+    /// recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    best_iteration: Option<u64>,
 }
 
 /// A batch on the device: image `[B,3,h,w]`, radar `[B,1,h,w]`, flat radar-pixel indices
@@ -403,7 +418,7 @@ impl<'o> Run<'o> {
     }
 
     fn write_config(&self, part: &depthsense_dataset::Partition) -> Result<(), NetError> {
-        let j = serde_json::json!({
+        let mut j = serde_json::json!({
             "mer_train": self.opts,
             "pda": self.opts.pda,
             "parameters": pda::parameter_count(&self.vs),
@@ -412,6 +427,9 @@ impl<'o> Run<'o> {
                           "val_samples": part.val.len(), "val_samples_used": self.val.len(),
                           "val_scenes": part.val_scenes},
         });
+        if !self.opts.command.is_empty() {
+            j["command"] = serde_json::json!(self.opts.command);
+        }
         let p = self.path(CONFIG_FILE);
         let text = serde_json::to_string_pretty(&j)?;
         write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
@@ -526,15 +544,22 @@ impl<'o> Run<'o> {
         Ok(v)
     }
 
+    /// Records `v` as the best validation when its AUC beats the best so far.
+    fn note_best(&mut self, v: &MerValRecord) -> bool {
+        let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
+        if improved {
+            self.state.best_auc = Some(v.auc);
+            self.state.best_iteration = Some(self.state.iteration);
+        }
+        improved
+    }
+
     fn close_epoch(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
         self.state.iteration = (epoch + 1) * self.bpe;
         let loss = self.epoch_loss.0 / self.epoch_loss.1.max(1) as f64;
         let v = self.validate_at(epoch + 1)?;
         self.state.epoch = epoch + 1;
-        let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
-        if improved {
-            self.state.best_auc = Some(v.auc);
-        }
+        let improved = self.note_best(&v);
         self.write_last()?;
         if improved || !self.path(BEST_CKPT).exists() {
             self.save(BEST_CKPT)?;
@@ -564,6 +589,7 @@ fn build(
         epochs: opts.epochs,
         lr: opts.lr,
         best_auc: None,
+        best_iteration: None,
     };
     if !(opts.resume && last.exists()) {
         tch::manual_seed(opts.seed as i64);
@@ -641,8 +667,14 @@ impl Learner for Run<'_> {
         }
     }
 
+    /// The validation before training is a candidate for RUN/best.safetensors like every
+    /// epoch's.
     fn validation(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
-        self.validate_at(epoch)
+        let v = self.validate_at(epoch)?;
+        if self.state.iteration == 0 && self.note_best(&v) {
+            self.save(BEST_CKPT)?;
+        }
+        Ok(v)
     }
 
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
@@ -690,10 +722,13 @@ pub fn train_pda(opts: &MerTrainOptions, progress: &Progress) -> Result<MerTrain
             run_dir: opts.out.clone(),
             val: fitted.val,
             best_auc: run.state.best_auc.unwrap_or(f64::NAN),
+            best_iteration: run.state.best_iteration,
             parameters: pda::parameter_count(&run.vs),
             iterations: run.state.iteration,
             seconds: started.elapsed().as_secs_f64(),
             interrupted: fitted.interrupted,
+            signal: fitted.signal,
+            total_iterations: run.plan().total_iterations(),
         })
     })
 }

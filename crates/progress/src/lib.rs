@@ -10,6 +10,7 @@
 //!
 //! A [`Board`] holds several bars at once (the demo's stages, an experiment's runs).
 
+use std::collections::VecDeque;
 use std::fmt;
 use std::io::IsTerminal;
 use std::str::FromStr;
@@ -138,7 +139,44 @@ struct LineState {
     origin: Option<(Instant, u64)>,
     /// Time and position of the last line printed.
     last: (Instant, u64),
+    /// The latest position updates (at most [`RATE_WINDOW`], none older than
+    /// [`RATE_WINDOW_SECS`] but the last two): the rate and ETA of a line are this window's,
+    /// so that a slow start (set-up, the first validation, a loaded machine) stops weighing on
+    /// the estimate once it is past.
+    recent: VecDeque<(Instant, u64)>,
     finished: bool,
+}
+
+/// Position updates in the rate's moving window.
+const RATE_WINDOW: usize = 32;
+/// The moving window's longest span.
+const RATE_WINDOW_SECS: f64 = 120.0;
+
+impl LineState {
+    /// Records an update at `pos`.
+    fn record(&mut self, now: Instant, pos: u64) {
+        if self.recent.back().is_some_and(|&(_, p)| p == pos) {
+            return;
+        }
+        self.recent.push_back((now, pos));
+        while self.recent.len() > RATE_WINDOW
+            || (self.recent.len() > 2
+                && self
+                    .recent
+                    .front()
+                    .is_some_and(|&(t, _)| now.duration_since(t).as_secs_f64() > RATE_WINDOW_SECS))
+        {
+            self.recent.pop_front();
+        }
+    }
+
+    /// Steps per second over the moving window (at `now`, position `pos`).
+    fn rate(&self, now: Instant, pos: u64) -> Option<f64> {
+        let &(t0, p0) = self.recent.front()?;
+        let secs = now.duration_since(t0).as_secs_f64();
+        let done = pos.saturating_sub(p0);
+        (done > 0 && secs > 0.0).then(|| done as f64 / secs)
+    }
 }
 
 /// A progress bar on a terminal, plain lines in a log file, or nothing (module docs).
@@ -209,6 +247,7 @@ impl Progress {
                             created: now,
                             origin: None,
                             last: (now, 0),
+                            recent: VecDeque::new(),
                             finished: false,
                         }),
                     })),
@@ -298,6 +337,7 @@ impl Progress {
                     let now = Instant::now();
                     st.origin = Some((now, pos));
                     st.last = (now, pos);
+                    st.record(now, pos);
                 }
             }
         }
@@ -308,6 +348,7 @@ impl Progress {
         let Ok(mut st) = l.state.lock() else { return };
         let now = Instant::now();
         let pos = self.bar.position();
+        st.record(now, pos);
         let due = match l.every {
             LogEvery::Seconds(s) => now.duration_since(st.last.0).as_secs_f64() >= s,
             LogEvery::Iterations(n) => pos >= st.last.1.saturating_add(n),
@@ -333,16 +374,11 @@ impl Progress {
         }
         let elapsed = now.duration_since(st.created);
         s += &format!("; elapsed {}", human(elapsed));
-        if let Some((t0, p0)) = st.origin {
-            let secs = now.duration_since(t0).as_secs_f64();
-            let done = pos.saturating_sub(p0);
-            if done > 0 && secs > 0.0 {
-                let rate = done as f64 / secs;
-                s += &format!(", {rate:.2} steps/s");
-                if let Some(len) = self.bar.length().filter(|&n| n >= pos) {
-                    let eta = (len - pos) as f64 / rate;
-                    s += &format!(", ETA {}", human(Duration::from_secs_f64(eta)));
-                }
+        if let Some(rate) = st.rate(now, pos) {
+            s += &format!(", {rate:.2} steps/s");
+            if let Some(len) = self.bar.length().filter(|&n| n >= pos) {
+                let eta = (len - pos) as f64 / rate;
+                s += &format!(", ETA {}", human(Duration::from_secs_f64(eta)));
             }
         }
         s
@@ -477,6 +513,32 @@ mod tests {
         assert_eq!(human(Duration::from_secs(45)), "45s");
         assert_eq!(human(Duration::from_secs(125)), "2m05s");
         assert_eq!(human(Duration::from_secs(3720)), "1h02m");
+    }
+
+    #[test]
+    fn the_rate_is_the_moving_window_s_not_the_slow_start_s() {
+        let t0 = Instant::now();
+        let mut st = LineState {
+            created: t0,
+            origin: Some((t0, 0)),
+            last: (t0, 0),
+            recent: VecDeque::new(),
+            finished: false,
+        };
+        st.record(t0, 0);
+        // A first step of 100 s (set-up under load), then 100 steps of 1 s each.
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        st.record(at(100), 1);
+        for i in 2..=101 {
+            st.record(at(100 + i - 1), i);
+        }
+        let rate = st.rate(at(200), 101).unwrap();
+        assert!(
+            (rate - 1.0).abs() < 1e-9,
+            "{rate}: the window's steps of 1 s"
+        );
+        // Since the start it would read 101 / 200 ≈ 0.5 steps/s, an ETA twice as long.
+        assert_eq!(st.recent.len(), RATE_WINDOW);
     }
 
     #[test]

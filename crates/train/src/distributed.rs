@@ -358,6 +358,31 @@ impl Dist {
         Ok(out)
     }
 
+    /// The stop signal any rank received (SIGINT / SIGTERM), so that every rank stops after the
+    /// same step: one scalar all-reduce, asked after every step.
+    pub fn agree_on_stop(
+        &self,
+        local: Option<depthsense_base::interrupt::StopSignal>,
+    ) -> Result<Option<depthsense_base::interrupt::StopSignal>, NetError> {
+        use depthsense_base::interrupt::StopSignal;
+        // Per signal, how many ranks received it (SIGTERM before SIGINT when both were).
+        let mine = |s: StopSignal| f64::from(u8::from(local == Some(s)));
+        let v = [mine(StopSignal::Terminate), mine(StopSignal::Interrupt)];
+        let s = self.pg.all_reduce_f64(&v, ReduceOp::Sum, Device::Cpu)?;
+        let agreed = if s[0] > 0.0 {
+            Some(StopSignal::Terminate)
+        } else if s[1] > 0.0 {
+            Some(StopSignal::Interrupt)
+        } else {
+            None
+        };
+        if let Some(sig) = agreed {
+            // A rank that did not receive it stops as if it had.
+            depthsense_base::interrupt::request(sig);
+        }
+        Ok(agreed)
+    }
+
     /// Wait for every rank.
     pub fn barrier(&self) -> Result<(), NetError> {
         Ok(self.pg.barrier()?)

@@ -9,6 +9,9 @@
 //!   run (`{"kind":"val","epoch":0,…}` in RUN/metrics.jsonl), the epochs still to run — a
 //!   resumed run starts inside its epoch, at the batch after the last one done — the checkpoint
 //!   cadence ([`Plan`]: every N iterations, at `--stop-after`) and the epoch ends;
+//! - a stop signal (SIGINT / SIGTERM, [`depthsense_base::interrupt`]) ends the loop after the
+//!   current step with a checkpoint that `--resume` continues from exactly ([`Fitted::signal`];
+//!   at an epoch's last step the epoch is closed first, its validation included);
 //! - [`Checkpointer`] writes RUN/last.safetensors with its optimiser state in the order that
 //!   leaves a resumable pair whenever the process is killed ([`crate::optim_state`]);
 //! - [`lock_run_folder`] takes the run folder for one writer and refuses to replace a run
@@ -20,7 +23,9 @@
 //! AUC), the best-checkpoint rule.
 
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
+use depthsense_base::interrupt::{self, StopSignal};
 use depthsense_base::lock::OutputLock;
 use depthsense_progress::Progress;
 use serde::Serialize;
@@ -90,6 +95,11 @@ pub trait Learner {
     /// Closes epoch `epoch` (0-based) after its last step: validation, checkpoints, the epoch
     /// record.
     fn end_epoch(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
+    /// The stop signal this run is asked to stop for, asked after every step. A data-parallel
+    /// learner makes its ranks agree (all stop at the same iteration, or none).
+    fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
+        Ok(interrupt::requested())
+    }
 }
 
 /// What [`fit`] did.
@@ -98,6 +108,29 @@ pub struct Fitted<V> {
     pub val: Vec<V>,
     /// Stopped before the last epoch's end.
     pub interrupted: bool,
+    /// The signal that stopped it (checkpointed first), when one did.
+    pub signal: Option<StopSignal>,
+}
+
+impl<V> Fitted<V> {
+    fn stopped(val: Vec<V>, signal: Option<StopSignal>) -> Self {
+        Self {
+            val,
+            interrupted: true,
+            signal,
+        }
+    }
+}
+
+/// Why an epoch's steps ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum EpochStop {
+    /// At the epoch's last step.
+    End,
+    /// At `--stop-after`, checkpointed.
+    StopAfter,
+    /// At a stop signal, checkpointed.
+    Signal(StopSignal),
 }
 
 /// Runs `learner` to the end of its last epoch, or to its plan's `stop_after`.
@@ -114,13 +147,17 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         val.push(v);
     }
     let (per_epoch, epochs) = (plan.iterations_per_epoch.max(1), plan.epochs);
+    let mut pace = Pace::default();
     for epoch in learner.iteration() / per_epoch..epochs {
-        let stopped = run_epoch(learner, epoch, per_epoch, &plan, progress)?;
-        if stopped {
-            return Ok(Fitted {
-                val,
-                interrupted: true,
-            });
+        // Nothing of this epoch done yet: a signal here needs no checkpoint (the last one, or
+        // none at iteration 0, is where `--resume` starts).
+        if let Some(sig) = learner.stop_requested()? {
+            return Ok(Fitted::stopped(val, Some(sig)));
+        }
+        match run_epoch(learner, epoch, &plan, &mut pace, progress)? {
+            EpochStop::StopAfter => return Ok(Fitted::stopped(val, None)),
+            EpochStop::Signal(sig) => return Ok(Fitted::stopped(val, Some(sig))),
+            EpochStop::End => {}
         }
         progress.set_message(format!("epoch {}/{epochs}: validating", epoch + 1));
         let v = learner.end_epoch(epoch)?;
@@ -131,48 +168,101 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         ));
         val.push(v);
         if plan.stop_after == Some(learner.iteration()) {
-            return Ok(Fitted {
-                val,
-                interrupted: true,
-            });
+            return Ok(Fitted::stopped(val, None));
         }
     }
     Ok(Fitted {
         val,
         interrupted: false,
+        signal: None,
     })
 }
 
-/// The steps of one epoch from where the run stands; true when `stop_after` stopped it before
-/// its end (checkpointed). Its losses are all read when it returns.
+/// The steps of one epoch from where the run stands, to its end, to `stop_after` or to a stop
+/// signal (both checkpointed). Its losses are all read when it returns.
 fn run_epoch<L: Learner>(
     learner: &mut L,
     epoch: u64,
-    per_epoch: u64,
     plan: &Plan,
+    pace: &mut Pace,
     progress: &Progress,
-) -> Result<bool, NetError> {
+) -> Result<EpochStop, NetError> {
+    let per_epoch = plan.iterations_per_epoch.max(1);
     let skip = learner.iteration() - epoch * per_epoch;
     for batch in learner.batches(epoch, skip)? {
         let it = learner.step(batch?, epoch, progress)?;
+        if let Some(line) = pace.step(it, plan) {
+            progress.println(line);
+        }
         let epoch_end = it.is_multiple_of(per_epoch);
         let stop_here = plan.stop_after == Some(it);
         let periodic = plan.checkpoint_every > 0 && it.is_multiple_of(plan.checkpoint_every);
+        // At an epoch's last step the epoch is closed (validated, checkpointed) first.
+        let signal = if epoch_end {
+            None
+        } else {
+            learner.stop_requested()?
+        };
         // Losses are read (and checked) before anything is written.
-        if epoch_end || stop_here || periodic {
+        if epoch_end || stop_here || periodic || signal.is_some() {
             learner.flush(epoch, progress)?;
         }
         // After the read, so that a progress line carries this iteration's loss.
         progress.set_position(it);
-        if !epoch_end && (stop_here || periodic) {
+        if !epoch_end && (stop_here || periodic || signal.is_some()) {
             learner.save_last(epoch)?;
+            if let Some(sig) = signal {
+                return Ok(EpochStop::Signal(sig));
+            }
             if stop_here {
-                return Ok(true);
+                return Ok(EpochStop::StopAfter);
             }
         }
     }
     learner.flush(epoch, progress)?;
-    Ok(false)
+    Ok(EpochStop::End)
+}
+
+/// Steps timed before the run says how long an epoch takes (after the first, untimed one).
+const PACE_STEPS: u64 = 5;
+
+/// The time of an epoch, measured on this invocation's first steps and said once: a run on a
+/// machine too slow for its network says so within a few steps, not after an epoch.
+#[derive(Default)]
+struct Pace {
+    /// When the first step of this invocation ended (its own time is set-up: not counted).
+    first: Option<(Instant, u64)>,
+    said: bool,
+}
+
+impl Pace {
+    /// After the step that reached iteration `it`: the line to print, once.
+    fn step(&mut self, it: u64, plan: &Plan) -> Option<String> {
+        if self.said {
+            return None;
+        }
+        let now = Instant::now();
+        let Some((t0, it0)) = self.first else {
+            self.first = Some((now, it));
+            return None;
+        };
+        let timed = it.saturating_sub(it0);
+        if timed < PACE_STEPS {
+            return None;
+        }
+        self.said = true;
+        let per_step = now.duration_since(t0).as_secs_f64() / timed as f64;
+        let left = plan.total_iterations().saturating_sub(it);
+        Some(format!(
+            "pace: {per_step:.2} s per iteration over iterations {}–{it} → an epoch of {}              iterations ≈ {}, the {left} iterations left ≈ {} (validations not included)",
+            it0 + 1,
+            plan.iterations_per_epoch,
+            depthsense_progress::human(Duration::from_secs_f64(
+                per_step * plan.iterations_per_epoch as f64
+            )),
+            depthsense_progress::human(Duration::from_secs_f64(per_step * left as f64)),
+        ))
+    }
 }
 
 /// RUN/last.safetensors and its optimiser state RUN/last.optim.safetensors, written so that a
@@ -243,6 +333,8 @@ mod tests {
         iteration: u64,
         plan: Plan,
         calls: RefCell<Vec<String>>,
+        /// A SIGTERM arrives during this iteration's step.
+        signal_at: Option<u64>,
     }
 
     impl Toy {
@@ -292,6 +384,10 @@ mod tests {
             self.call(format!("end {epoch}"));
             Ok(101 + epoch)
         }
+        fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
+            let signalled = self.signal_at.is_some_and(|at| self.iteration >= at);
+            Ok(signalled.then_some(StopSignal::Terminate))
+        }
     }
 
     fn toy(iteration: u64, epochs: u64, checkpoint_every: u64, stop_after: Option<u64>) -> Toy {
@@ -304,6 +400,7 @@ mod tests {
                 stop_after,
             },
             calls: RefCell::new(vec![]),
+            signal_at: None,
         }
     }
 
@@ -358,6 +455,35 @@ mod tests {
                 "save 2 at 27"
             ]
         );
+    }
+
+    #[test]
+    fn a_signal_checkpoints_after_the_current_step_and_stops() {
+        let mut t = toy(0, 3, 0, None);
+        t.signal_at = Some(13);
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
+        assert!(f.interrupted);
+        assert_eq!(f.signal, Some(StopSignal::Terminate));
+        assert_eq!(t.iteration, 13);
+        assert!(calls(t).ends_with(&[
+            "end 0".to_string(),
+            "epoch 1 from 0".into(),
+            "flush 13".into(),
+            "save 1 at 13".into()
+        ]));
+    }
+
+    #[test]
+    fn a_signal_at_an_epoch_end_closes_the_epoch_then_stops() {
+        let mut t = toy(0, 3, 0, None);
+        t.signal_at = Some(10);
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
+        assert_eq!(
+            (f.signal, f.val),
+            (Some(StopSignal::Terminate), vec![100, 101])
+        );
+        assert_eq!(t.iteration, 10);
+        assert!(calls(t).ends_with(&["flush 10".to_string(), "flush 10".into(), "end 0".into()]));
     }
 
     #[test]

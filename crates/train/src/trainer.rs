@@ -35,6 +35,10 @@ use depthsense_infer::upload::upload_batch;
 pub struct TrainOptions {
     pub data: PathBuf,
     pub out: PathBuf,
+    /// The command line that started the run (its words, program first), recorded in
+    /// RUN/config.json as `"command"` (empty: not recorded, e.g. a run an experiment made).
+    #[serde(skip)]
+    pub command: Vec<String>,
     pub model: ModelConfig,
     pub epochs: usize,
     pub batch_size: usize,
@@ -133,6 +137,7 @@ impl Default for TrainOptions {
         Self {
             data: PathBuf::from("prepared"),
             out: PathBuf::from("runs/train"),
+            command: Vec::new(),
             model: ModelConfig::paper(),
             epochs: 40,
             batch_size: 8,
@@ -180,9 +185,13 @@ pub struct TrainSummary {
     pub val: Vec<ValRecord>,
     pub iterations_done: u64,
     pub total_iterations: u64,
-    /// True when `stop_after` interrupted the run.
+    /// True when `stop_after` or a stop signal interrupted the run.
     pub interrupted: bool,
+    /// The stop signal (SIGINT / SIGTERM) that interrupted it, checkpointed first.
+    pub signal: Option<depthsense_base::interrupt::StopSignal>,
     pub best_val_rmse: f64,
+    /// What RUN/best.safetensors holds and whether this invocation wrote it.
+    pub best: BestCheckpoint,
     /// Images per second of the training steps alone (`images / train_seconds`).
     pub train_images_per_s: f64,
     /// Seconds in training steps, loader waits included (this invocation).
@@ -196,6 +205,42 @@ pub struct TrainSummary {
     pub val_samples_used: usize,
 }
 
+/// What RUN/best.safetensors holds: the network of the lowest validation RMSE of the run, the
+/// validation before training included (so a fine-tuning or an extension that only makes the
+/// network worse keeps the weights it started from).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BestCheckpoint {
+    /// Its validation RMSE (m); `None` before any validation.
+    pub val_rmse: Option<f64>,
+    /// Its iteration and epoch (0: the network before training); `None` for a checkpoint
+    /// written before they were recorded.
+    pub iteration: Option<u64>,
+    pub epoch: Option<u64>,
+    /// Whether this invocation wrote it (false: an earlier invocation's, e.g. before
+    /// `--extend` or `--resume`).
+    pub written_by_this_run: bool,
+}
+
+impl std::fmt::Display for BestCheckpoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let Some(rmse) = self.val_rmse else {
+            return write!(f, "best.safetensors: none yet (no validation finished)");
+        };
+        write!(f, "best.safetensors: ")?;
+        match (self.iteration, self.epoch) {
+            (Some(0), _) => write!(f, "the network before training (iteration 0)")?,
+            (Some(it), Some(e)) => write!(f, "epoch {e} (iteration {it})")?,
+            _ => write!(f, "an epoch not recorded (an older checkpoint)")?,
+        }
+        write!(f, ", validation RMSE {rmse:.3} m; ")?;
+        if self.written_by_this_run {
+            write!(f, "written by this run")
+        } else {
+            write!(f, "unchanged by this run (no validation beat it)")
+        }
+    }
+}
+
 /// Training state stored in a checkpoint's `extra` (with the options that must not change
 /// across a resume).
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -204,8 +249,15 @@ struct State {
     iteration: u64,
     epoch: u64,
     seed: u64,
-    /// Lowest validation RMSE so far; `None` before the first epoch ends (JSON has no ∞).
+    /// Lowest validation RMSE so far, the validation before training included; `None` before
+    /// any validation (JSON has no ∞).
     best_val_rmse: Option<f64>,
+    /// The iteration and epoch of RUN/best.safetensors (`None` in checkpoints written before
+    /// they were recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    best_iteration: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    best_epoch: Option<u64>,
     batch_size: usize,
     epochs: usize,
     /// The learning rate of the current schedule segment (the run's `--lr`, or the last

@@ -5,14 +5,14 @@
 #[derive(clap::Args, Debug, Clone)]
 pub struct InferenceArgs {
     /// Batch size of inference.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     #[command(flatten)]
     pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
     pub jobs: usize,
     /// Evaluate at most this many samples (evenly spaced).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_samples: Option<usize>,
 }

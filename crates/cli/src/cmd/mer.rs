@@ -41,16 +41,16 @@ pub struct TrainArgs {
     #[arg(long)]
     pub affinity: Option<i64>,
     /// Epochs.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub epochs: usize,
     /// Batch size.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     /// Initial learning rate (Adam, poly decay 0.9 per iteration).
-    #[arg(long, default_value_t = 1e-2)]
+    #[arg(long, default_value_t = 1e-2, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
     pub lr: f64,
     /// Weight decay.
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(long, default_value_t = 1e-4, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
     pub weight_decay: f64,
     /// Seed of initialisation, shuffling and flips.
     #[arg(long, default_value_t = 0)]
@@ -62,23 +62,23 @@ pub struct TrainArgs {
     #[arg(long)]
     pub resume: bool,
     /// Stop after this global iteration (checkpointed; continue with --resume).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
     pub stop_after: Option<u64>,
     /// Start over in an --out that holds a PDA run (its run files are removed first); without
     /// --resume or --force such a folder is refused.
     #[arg(long, conflicts_with = "resume")]
     pub force: bool,
     /// Loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
     pub jobs: usize,
     /// Disable the horizontal flip augmentation.
     #[arg(long)]
     pub no_augment: bool,
     /// Validate on at most this many validation samples (evenly spaced).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_val_samples: Option<usize>,
     /// Only without validation lists: every N-th training scene is held out for validation.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub val_every_scene: usize,
 }
 

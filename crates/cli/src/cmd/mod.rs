@@ -30,6 +30,7 @@ pub mod predict;
 pub mod prepare;
 pub mod progress;
 pub mod radar_args;
+pub mod ranges;
 pub mod report;
 pub mod scoring_args;
 pub mod synth;

@@ -23,7 +23,7 @@ pub struct Args {
           value_parser = crate::cmd::words::words::<depthsense_score::predictions::PredFormat>())]
     pub format: Vec<depthsense_score::predictions::PredFormat>,
     /// With --data: batch size of inference.
-    #[arg(long, default_value_t = 4, requires = "data")]
+    #[arg(long, default_value_t = 4, requires = "data", value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
     #[arg(long, requires = "dataroot", conflicts_with = "image")]
@@ -34,8 +34,9 @@ pub struct Args {
     /// Version folder for --token.
     #[arg(long, default_value = "v1.0-mini")]
     pub version: String,
-    /// Input 3: a 1600x900 CAM_FRONT JPEG (with --calibration).
-    #[arg(long, requires = "calibration")]
+    /// Input 3: a 1600x900 CAM_FRONT JPEG (with --calibration; without it the command says
+    /// how to write one).
+    #[arg(long)]
     pub image: Option<PathBuf>,
     /// Radar .pcd files for --image (repeat the flag or separate with commas); each must be
     /// in the calibration. Default: every file the calibration lists.

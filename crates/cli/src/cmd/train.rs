@@ -21,7 +21,7 @@ pub struct Args {
           help = depthsense_config::cli::value_help("head", "Override the preset's head"))]
     pub head: Option<String>,
     /// Override the preset's Dropout2d probability in the head (paper: 0.5).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::probability, allow_negative_numbers = true)]
     pub dropout: Option<f64>,
     /// Disable the spatial attention module of late fusion.
     #[arg(long)]
@@ -30,22 +30,22 @@ pub struct Args {
           help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
     pub set: Vec<String>,
     /// Epochs (paper: 40).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 40, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub epochs: usize,
     /// Batch size (paper: 8).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     /// Initial learning rate (paper: 1e-3).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = 1e-3, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
     pub lr: f64,
     /// Power of the per-iteration polynomial decay to 0 (paper: 0.9).
-    #[arg(long, default_value_t = 0.9)]
+    #[arg(long, default_value_t = 0.9, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
     pub lr_power: f64,
     /// SGD momentum (paper: 0.9).
-    #[arg(long, default_value_t = 0.9)]
+    #[arg(long, default_value_t = 0.9, value_parser = crate::cmd::ranges::probability, allow_negative_numbers = true)]
     pub momentum: f64,
     /// Weight decay (paper: 1e-4).
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(long, default_value_t = 1e-4, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
     pub weight_decay: f64,
     /// Seed of initialisation, shuffling, augmentation and dropout.
     #[arg(long, default_value_t = 0)]
@@ -81,10 +81,10 @@ pub struct Args {
     #[arg(long, conflicts_with = "resume")]
     pub force: bool,
     /// Data-loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
     pub jobs: usize,
     /// Batches decoded ahead of the training step.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub prefetch: usize,
     /// Radar map(s) for the radar channels: height, raw, raw-height or mer (raw + 6 MER
     /// channels, after `depthsense mer apply`; sets radar_channels = 7). Default: from the
@@ -102,7 +102,7 @@ pub struct Args {
     /// Training-time radar dropout (not in the paper): each training sample loses a fraction
     /// U(0, P) of its radar returns with their height-extended strips, so that the network
     /// cannot read "no return here" as a depth cue. 0 = off. docs/guide/train.md.
-    #[arg(long, default_value_t = 0.0, value_name = "P")]
+    #[arg(long, default_value_t = 0.0, value_name = "P", value_parser = crate::cmd::ranges::probability, allow_negative_numbers = true)]
     pub train_radar_drop: f64,
     /// The oracle radar (an upper bound, not a model): every radar return keeps its pixel but
     /// takes the lidar target's depth there (or the nearest valid target pixel within 3 px;
@@ -112,12 +112,12 @@ pub struct Args {
     pub radar_oracle: bool,
     /// Linear learning-rate warmup over the first N iterations, then the poly decay (0 = none,
     /// the paper).
-    #[arg(long, default_value_t = 0, value_name = "N")]
+    #[arg(long, default_value_t = 0, value_name = "N", value_parser = crate::cmd::ranges::non_negative_u64, allow_negative_numbers = true)]
     pub warmup: u64,
     /// Only for data prepared without validation lists: every N-th training scene (sorted by
     /// name) is held out for validation (and, without any split lists, every N-th scene is
     /// test and the one before it validation). Never selects on test scenes.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub val_every_scene: usize,
     /// Withhold a fraction of one condition's TRAINING scenes (SPEC §10.5), e.g.
     /// `night=1.0,rain=0.5`: per condition, its training scenes ordered by a fixed hash of
@@ -128,28 +128,28 @@ pub struct Args {
     /// Train on the first N training samples only, in a fixed order of the samples (nested for
     /// growing N, the same for every seed): training-set size experiments. Validation and test
     /// scenes are unchanged.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub train_subset: Option<usize>,
     /// Make each epoch N iterations drawn from consecutive passes over the training samples
     /// (each pass a fresh shuffle), whatever their number: runs on 100 or 3,000 images then take
     /// --epochs × N iterations and validate every N. Default: an epoch is one pass.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
     pub epoch_iterations: Option<u64>,
     /// Validate on at most this many validation samples (evenly spaced).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_batches_per_epoch: Option<usize>,
     /// Also write OUT/last.safetensors every N iterations (0 = only at epoch ends).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_u64, allow_negative_numbers = true)]
     pub checkpoint_every: u64,
     /// Read the training loss to the host every N iterations (one GPU synchronisation per N;
     /// always before checkpoints and at epoch ends). 0 = 1 on the CPU, 25 on CUDA.
-    #[arg(long, default_value_t = 0, value_name = "N")]
+    #[arg(long, default_value_t = 0, value_name = "N", value_parser = crate::cmd::ranges::non_negative_u64, allow_negative_numbers = true)]
     pub loss_read_every: u64,
     /// Stop after this global iteration (checkpointed; continue with --resume).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
     pub stop_after: Option<u64>,
     /// Validation's scoring (the same flags as `eval`).
     #[command(flatten)]
@@ -157,7 +157,7 @@ pub struct Args {
     /// Data-parallel: start N local worker processes (one per GPU, or N CPU processes) with
     /// the environment torchrun sets. --batch-size is the global batch (a multiple of N).
     /// Under torchrun / srun leave this out: the workers read RANK, WORLD_SIZE, … themselves.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub nproc: Option<usize>,
     /// With --nproc: the rendezvous port on 127.0.0.1 (default: a free one).
     #[arg(long)]
@@ -167,10 +167,10 @@ pub struct Args {
     #[arg(long)]
     pub sync_bn: bool,
     /// Data-parallel: seconds before a rendezvous or collective fails (naming the peer).
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 300, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
     pub dist_timeout: u64,
     /// Data-parallel: gradient all-reduce bucket size in MB (DDP's default 25).
-    #[arg(long, default_value_t = 25.0)]
+    #[arg(long, default_value_t = 25.0, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
     pub bucket_mb: f64,
     /// Data-parallel: after every step check that each rank's model equals rank 0's
     /// (bitwise; one broadcast of the model per step — for tests and debugging).

@@ -2,6 +2,7 @@
 //! and waits with a deadline.
 #![allow(dead_code)] // each test binary uses its own part
 
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus};
 use std::time::{Duration, Instant};
@@ -80,4 +81,26 @@ pub fn tiny_train(data: &Path, out: &Path, epochs: u32) -> Command {
         .env_remove("WORLD_SIZE")
         .env_remove("RANK");
     c
+}
+
+/// The tensors of a safetensors checkpoint.
+pub fn tensors(p: &Path) -> BTreeMap<String, Vec<u8>> {
+    let bytes = std::fs::read(p).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let data = &bytes[8 + n..];
+    header
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, _)| *k != "__metadata__")
+        .map(|(k, v)| {
+            let o = &v["data_offsets"];
+            let (a, b) = (
+                o[0].as_u64().unwrap() as usize,
+                o[1].as_u64().unwrap() as usize,
+            );
+            (k.clone(), data[a..b].to_vec())
+        })
+        .collect()
 }

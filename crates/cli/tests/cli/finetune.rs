@@ -71,7 +71,7 @@ fn a_finished_run_is_said_finished_extended_with_a_new_schedule_and_fine_tuned_f
     );
 
     // --extend --epochs 3 at another lr: two more epochs, a new poly schedule from 0.001.
-    ok(&{
+    let extended = ok(&{
         let mut c = tiny_train(&data, &run, 3);
         c.args(["--max-batches-per-epoch", "2", "--lr", "0.001", "--extend"]);
         c.output().unwrap()
@@ -100,6 +100,21 @@ fn a_finished_run_is_said_finished_extended_with_a_new_schedule_and_fine_tuned_f
         "the first step of the extension: the new lr"
     );
     assert!(iters[5].1 < iters[2].1, "decaying towards the new end");
+    // The closing line says what best.safetensors holds and whether the extension changed it:
+    // the lowest validation of the whole run, the one before training included.
+    let (best_it, best_epoch) = best_of(&records(&run));
+    let said = if best_it <= 2 {
+        "unchanged by this run"
+    } else {
+        "written by this run"
+    };
+    assert!(
+        extended.contains(&format!(
+            "best.safetensors: epoch {best_epoch} (iteration {best_it})"
+        )) || (best_it == 0 && extended.contains("the network before training")),
+        "{extended}"
+    );
+    assert!(extended.contains(said), "{extended}");
     let err = ok(&{
         let mut c = tiny_train(&data, &run, 3);
         c.args(["--max-batches-per-epoch", "2", "--lr", "0.001", "--resume"]);
@@ -126,6 +141,26 @@ fn a_finished_run_is_said_finished_extended_with_a_new_schedule_and_fine_tuned_f
     let first = &records(&tuned)[0];
     assert_eq!(first["kind"], "val");
     assert_eq!(first["val"]["rmse"].as_f64().unwrap(), best_rmse);
+    // The validation before training is a candidate for best: when the fine-tuning epoch does
+    // not beat it, best.safetensors keeps the weights it started from.
+    let (best_it, _) = best_of(&records(&tuned));
+    if best_it == 0 {
+        assert!(
+            err.contains("best.safetensors: the network before training (iteration 0)"),
+            "{err}"
+        );
+        assert!(
+            crate::common::tensors(&tuned.join("best.safetensors"))
+                == crate::common::tensors(&run.join("best.safetensors")),
+            "best.safetensors holds the weights the fine-tuning started from"
+        );
+    } else {
+        assert!(
+            err.contains("best.safetensors: epoch 1 (iteration 1)"),
+            "{err}"
+        );
+    }
+    assert!(err.contains("written by this run"), "{err}");
     let init = &json(&tuned.join("config.json"))["init_from"];
     assert!(init["loaded"].as_u64().unwrap() > 50, "{init}");
     assert_eq!(init["new"].as_array().unwrap().len(), 0, "{init}");
@@ -149,4 +184,24 @@ fn a_finished_run_is_said_finished_extended_with_a_new_schedule_and_fine_tuned_f
             .all(|k| k.as_str().unwrap().starts_with("attention.")),
         "{new}"
     );
+}
+
+/// (iteration, epoch) of the lowest validation RMSE in a run's records, the validation before
+/// training (epoch 0) included; the earliest on a tie.
+fn best_of(records: &[serde_json::Value]) -> (u64, u64) {
+    let mut best = (f64::INFINITY, 0, 0);
+    for r in records
+        .iter()
+        .filter(|r| r["kind"] == "val" || r["kind"] == "epoch")
+    {
+        let rmse = r["val"]["rmse"].as_f64().unwrap();
+        if rmse < best.0 {
+            best = (
+                rmse,
+                r["iteration"].as_u64().unwrap(),
+                r["epoch"].as_u64().unwrap(),
+            );
+        }
+    }
+    (best.1, best.2)
 }

@@ -16,7 +16,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::common;
-use common::Guard;
+use common::{tensors, Guard};
 
 const BIN: &str = env!("CARGO_BIN_EXE_depthsense");
 
@@ -172,28 +172,6 @@ fn train(data: &Path, out: &Path) -> Command {
     common::tiny_train(data, out, 4)
 }
 
-/// The tensors of a safetensors checkpoint.
-fn tensors(p: &Path) -> BTreeMap<String, Vec<u8>> {
-    let bytes = std::fs::read(p).unwrap();
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    let data = &bytes[8 + n..];
-    header
-        .as_object()
-        .unwrap()
-        .iter()
-        .filter(|(k, _)| *k != "__metadata__")
-        .map(|(k, v)| {
-            let o = &v["data_offsets"];
-            let (a, b) = (
-                o[0].as_u64().unwrap() as usize,
-                o[1].as_u64().unwrap() as usize,
-            );
-            (k.clone(), data[a..b].to_vec())
-        })
-        .collect()
-}
-
 /// The records of metrics.jsonl without the wall-time fields.
 fn records(p: &Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(p)
@@ -314,4 +292,56 @@ fn records_or_empty(p: &Path) -> usize {
             .filter(|l| l.contains("\"kind\":\"epoch\"") || l.contains("\"kind\":\"iter\""))
             .count()
     })
+}
+
+/// Slurm's pre-emption (SIGTERM) in the middle of an epoch: the run checkpoints after its
+/// current step, says where it stopped and how to continue, exits with 143, and the command it
+/// names (`--resume`) ends with the weights and the metrics of an uninterrupted run.
+#[test]
+fn train_stopped_by_sigterm_resumes_to_the_uninterrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = toy(tmp.path());
+    let full = tmp.path().join("full");
+    ok(&output(&mut train(&data, &full)));
+
+    let run = tmp.path().join("term");
+    let log = tmp.path().join("term.log");
+    let mut c = train(&data, &run);
+    c.stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap());
+    let mut g = Guard::new(c.spawn().unwrap());
+    let t = Instant::now();
+    while records_or_empty(&run.join("metrics.jsonl")) < 3 {
+        assert!(!g.ended(), "finished before the signal");
+        assert!(t.elapsed() < Duration::from_secs(120), "too slow to start");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // SAFETY: kill(2) of our own running child.
+    unsafe { libc::kill(g.child().id() as libc::pid_t, libc::SIGTERM) };
+    let status = g.wait(Duration::from_secs(60));
+    let err = std::fs::read_to_string(&log).unwrap();
+    assert_eq!(status.code(), Some(143), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("interrupted at iteration "))
+        .unwrap_or_else(|| panic!("no interruption line in:\n{err}"));
+    assert!(line.contains(" of 32; continue with: "), "{line}");
+    assert!(
+        line.ends_with(" --resume") && line.contains("--max-val-samples 2"),
+        "{line}"
+    );
+    assert!(!run.join("last.optim.prev.safetensors").exists());
+    let mut c = train(&data, &run);
+    c.arg("--resume");
+    ok(&output(&mut c));
+    for ck in ["last.safetensors", "best.safetensors"] {
+        assert!(
+            tensors(&full.join(ck)) == tensors(&run.join(ck)),
+            "{ck}: weights differ from the uninterrupted run"
+        );
+    }
+    assert_eq!(
+        records(&full.join("metrics.jsonl")),
+        records(&run.join("metrics.jsonl"))
+    );
 }

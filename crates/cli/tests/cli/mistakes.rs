@@ -164,6 +164,42 @@ const MISTAKES: &[(&str, &[&str], &[&str])] = &[
         &["--log-every \"often\""],
         &["100it"],
     ),
+    // Refused before any work (docs/guide/reliability.md, "Refused before any work").
+    (
+        "eval --checkpoint run/best.safetensors --data toy --out /proc/x",
+        &["--out /proc/x: cannot create files in /proc"],
+        &["choose a folder you can write to"],
+    ),
+    (
+        "synth --out /proc/x --scenes 1",
+        &["--out /proc/x: cannot create files in /proc"],
+        &["choose a folder you can write to"],
+    ),
+    (
+        "report --runs run --out /proc/x",
+        &["--out /proc/x: cannot create files in /proc"],
+        &["choose a folder you can write to"],
+    ),
+    (
+        "train --data toy --config tiny --lr=-1 --out r",
+        &["invalid value '-1' for '--lr <LR>'"],
+        &["must be greater than 0"],
+    ),
+    (
+        "train --data toy --config tiny --epochs -3 --out r",
+        &["invalid value '-3' for '--epochs <EPOCHS>'"],
+        &["must be at least 1"],
+    ),
+    (
+        "train --data toy --config tiny --dropout 1.5 --out r",
+        &["invalid value '1.5' for '--dropout <DROPOUT>'"],
+        &["must be between 0 and 1"],
+    ),
+    (
+        "predict --checkpoint run/best.safetensors --image frame.jpg --out pr",
+        &["--image needs --calibration FILE.json"],
+        &["depthsense calibration --dataroot"],
+    ),
 ];
 
 #[test]
@@ -186,9 +222,46 @@ fn every_mistake_names_its_cause_once_and_the_next_step() {
     assert!(MISTAKES.len() >= 12);
     assert!(problems.is_empty(), "{}", problems.join("\n---\n"));
     // None of the failed trains left a run folder behind.
-    for out in ["r", "nothing"] {
-        assert!(!s.path(out).exists(), "a failed train left {out}/");
+    for out in ["r", "nothing", "pr", "e"] {
+        assert!(!s.path(out).exists(), "a failed command left {out}/");
     }
+    // A missing checkpoint lists the loadable ones beside it, not the optimiser states.
+    let o = run(
+        &[
+            "eval",
+            "--checkpoint",
+            "run/bset.safetensors",
+            "--data",
+            "toy",
+        ],
+        s.tmp.path(),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("run/last.safetensors") && !err.contains("optim"),
+        "{err}"
+    );
+    // A run folder as --checkpoint is its best.safetensors, said once.
+    let o = run(
+        &[
+            "eval",
+            "--checkpoint",
+            "run",
+            "--data",
+            "toy",
+            "--out",
+            "e-run",
+        ],
+        s.tmp.path(),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert_eq!(
+        err.matches("run: a run folder; using its best.safetensors")
+            .count(),
+        1,
+        "{err}"
+    );
 }
 
 /// Truncates a file to half its length (a copy cut short).

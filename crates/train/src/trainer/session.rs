@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
+use depthsense_base::interrupt::StopSignal;
 use depthsense_base::lock::OutputLock;
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
@@ -73,6 +74,8 @@ pub struct Trainer<'o> {
     acc: EpochLosses,
     /// When the previous step ended (a step's time includes waiting for its batch).
     step_ended: Instant,
+    /// Whether this invocation wrote RUN/best.safetensors.
+    best_written: bool,
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -183,6 +186,7 @@ impl<'o> Trainer<'o> {
             losses: vec![],
             acc: EpochLosses::default(),
             step_ended: Instant::now(),
+            best_written: false,
         };
         if main {
             trainer.write_config()?;
@@ -224,6 +228,9 @@ impl<'o> Trainer<'o> {
         }
         if let Some(init) = &self.state.init_from {
             config_json["init_from"] = init.clone();
+        }
+        if !self.opts.command.is_empty() {
+            config_json["command"] = serde_json::json!(self.opts.command);
         }
         let path = self.path(CONFIG_FILE);
         let text = serde_json::to_string_pretty(&config_json)?;
@@ -429,22 +436,13 @@ impl<'o> Trainer<'o> {
         let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
-        let improved = v.rmse < self.state.best_val_rmse.unwrap_or(f64::INFINITY);
-        if improved {
-            self.state.best_val_rmse = Some(v.rmse);
-        }
+        let improved = self.note_best(&v);
         self.checkpoint()?;
+        if improved {
+            self.save_best()?;
+        }
         if !self.is_main() {
             return Ok(v);
-        }
-        if improved {
-            save_ckpt(
-                &self.path(BEST_CKPT),
-                &self.vs,
-                &self.cfg,
-                &self.state,
-                self.opts,
-            )?;
         }
         let it = self.state.iteration;
         append_jsonl(
@@ -459,6 +457,42 @@ impl<'o> Trainer<'o> {
         )?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
         Ok(v)
+    }
+
+    /// Records `v` as the best validation when it beats the best so far; true when it does.
+    fn note_best(&mut self, v: &ValRecord) -> bool {
+        let improved = v.rmse < self.state.best_val_rmse.unwrap_or(f64::INFINITY);
+        if improved {
+            self.state.best_val_rmse = Some(v.rmse);
+            self.state.best_iteration = Some(self.state.iteration);
+            self.state.best_epoch = Some(self.state.epoch);
+            self.best_written = true;
+        }
+        improved
+    }
+
+    /// Writes RUN/best.safetensors (the process that writes RUN/ only).
+    fn save_best(&self) -> Result<(), NetError> {
+        if !self.is_main() {
+            return Ok(());
+        }
+        save_ckpt(
+            &self.path(BEST_CKPT),
+            &self.vs,
+            &self.cfg,
+            &self.state,
+            self.opts,
+        )
+    }
+
+    /// What RUN/best.safetensors holds now.
+    fn best(&self) -> super::BestCheckpoint {
+        super::BestCheckpoint {
+            val_rmse: self.state.best_val_rmse,
+            iteration: self.state.best_iteration,
+            epoch: self.state.best_epoch,
+            written_by_this_run: self.best_written,
+        }
     }
 
     /// The loader of epoch `epoch` from its batch `skip` on; the epoch's running loss starts
@@ -514,7 +548,9 @@ impl<'o> Trainer<'o> {
             iterations_done: self.state.iteration,
             total_iterations: self.total,
             interrupted: fitted.interrupted,
+            signal: fitted.signal,
             best_val_rmse: self.state.best_val_rmse.unwrap_or(f64::INFINITY),
+            best: self.best(),
             train_images_per_s: 0.0,
             train_seconds: 0.0,
             val_seconds: 0.0,
@@ -532,9 +568,10 @@ impl<'o> Trainer<'o> {
             0 => String::new(),
             it => format!(", resumed at iteration {it}"),
         };
+        let params = depthsense_model::pda::parameter_count(&self.vs) as f64 / 1e6;
         format!(
-            "{} ({}) on {} training / {} validation samples of {}; {} epochs × {} iterations = \
-             {} iterations, batch {}, lr {}, {}{from} → {}",
+            "{} ({}, {params:.2} M parameters) on {} training / {} validation samples of {}; {} \
+             epochs × {} iterations = {} iterations, batch {}, lr {}, {}{from} → {}",
             self.cfg.name,
             fusion_words(&self.cfg),
             self.part.train.len(),
@@ -553,6 +590,7 @@ impl<'o> Trainer<'o> {
     fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, NetError> {
         summary.iterations_done = self.state.iteration;
         summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
+        summary.best = self.best();
         summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
         summary.train_seconds = self.train_secs;
         summary.val_seconds = self.val_secs;
@@ -585,8 +623,14 @@ impl Learner for Trainer<'_> {
         }
     }
 
+    /// The validation before training is a candidate for RUN/best.safetensors like every
+    /// epoch's: fine-tuning (`--init-from`) that makes the network worse keeps its start.
     fn validation(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
-        self.validate_timed(epoch)
+        let v = self.validate_timed(epoch)?;
+        if self.state.iteration == 0 && self.note_best(&v) {
+            self.save_best()?;
+        }
+        Ok(v)
     }
 
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
@@ -629,6 +673,14 @@ impl Learner for Trainer<'_> {
 
     fn end_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         self.close_epoch(epoch)
+    }
+
+    fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
+        let local = depthsense_base::interrupt::requested();
+        match &self.dist {
+            Some(d) => d.agree_on_stop(local),
+            None => Ok(local),
+        }
     }
 }
 
@@ -836,6 +888,8 @@ fn fresh(
         epoch: 0,
         seed: opts.seed,
         best_val_rmse: None,
+        best_iteration: None,
+        best_epoch: None,
         batch_size: opts.batch_size,
         epochs: opts.epochs,
         lr: opts.lr,

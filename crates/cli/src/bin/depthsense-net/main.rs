@@ -5,8 +5,7 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
-use depthsense_cli::{cmd, finish, run_without_torch, Cli, Command};
+use depthsense_cli::{cmd, finish, run_without_torch, Command};
 
 mod bench_export;
 mod bench_model;
@@ -74,7 +73,10 @@ fn tune_memory() {
 
 fn main() -> ExitCode {
     tune_memory();
-    let cli = Cli::parse();
+    let cli = match depthsense_cli::parse() {
+        Ok(cli) => cli,
+        Err(e) => return finish(Err(e)),
+    };
     depthsense_progress::configure(cli.log_every);
     finish(match run_without_torch(cli.command) {
         Ok(result) => result,

@@ -40,8 +40,10 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         max_val_samples: a.max_val_samples,
         val_every_scene: a.val_every_scene,
         stop_after: a.stop_after,
+        command: depthsense_cli::stop::invocation(),
         ..MerTrainOptions::default()
     };
+    depthsense_cli::stop::catch_stop_signals()?;
     let pb = progress_bar("mer");
     let s = train_pda(&opts, &pb)?;
     pb.finish_and_clear();
@@ -52,14 +54,26 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         );
     }
     eprintln!(
-        "PDA {} ({} parameters): best val AUC {:.3}, {} iterations in {:.1} s → {}",
+        "PDA {} ({} parameters): best val AUC {:.3}{}, {} iterations in {:.1} s → {}",
         opts.pda.name,
         s.parameters,
         s.best_auc,
+        match s.best_iteration {
+            Some(0) => " (best.safetensors: the network before training)".to_string(),
+            Some(it) => format!(" (best.safetensors: iteration {it})"),
+            None => String::new(),
+        },
         s.iterations,
         s.seconds,
         s.run_dir.display()
     );
+    if let Some(sig) = s.signal {
+        return Ok(depthsense_cli::stop::interrupted(
+            sig,
+            s.iterations,
+            s.total_iterations,
+        ));
+    }
     if s.interrupted {
         eprintln!(
             "stopped at iteration {} as asked; continue with --resume",

@@ -41,8 +41,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         timeout,
     };
     let out = a.out.clone();
+    if let Some(note) = default_network_note(&a.device.name) {
+        eprintln!("{note}");
+    }
     let model = model_config(&a)?;
     let opts = train_options(a, model)?;
+    depthsense_cli::stop::catch_stop_signals()?;
     let trained = match train_this_process(opts, &dist) {
         // `--resume` of a finished run: said, nothing to do.
         Err(e) => match e.downcast::<NetError>() {
@@ -57,11 +61,45 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let Some((s, pb)) = trained else {
         // a rank other than 0: rank 0 reports
-        return Ok(ExitCode::SUCCESS);
+        return Ok(depthsense_base::interrupt::requested()
+            .map_or(ExitCode::SUCCESS, |sig| ExitCode::from(sig.exit_code())));
     };
     pb.finish();
     print_summary(&s, &out);
+    if let Some(sig) = s.signal {
+        return Ok(depthsense_cli::stop::interrupted(
+            sig,
+            s.iterations_done,
+            s.total_iterations,
+        ));
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Whether the command line names the network (`--config`); without it `train` trains the
+/// `paper` preset on every machine.
+fn config_given() -> bool {
+    std::env::args().any(|a| a == "--config" || a.starts_with("--config="))
+}
+
+/// The note of a bare `train` (no `--config`) on a machine without CUDA. The default stays
+/// `paper` everywhere: the same command trains the same network on a laptop and on the
+/// cluster, so a result never depends on where it ran; the note names the network and points
+/// to the quick preset, and the run's `pace:` line says within a few iterations how long an
+/// epoch takes.
+fn default_network_note(device: &str) -> Option<String> {
+    if config_given() {
+        return None;
+    }
+    let cuda = match device {
+        "cpu" => false,
+        d if d.starts_with("cuda") => true,
+        _ => tch::Cuda::is_available(),
+    };
+    (!cuda).then(|| {
+        "note: no --config: training `paper`, the paper's network (57 M parameters), without          CUDA, where an epoch of nuScenes takes many hours (the `pace:` line below measures          it); `--config tiny` (0.9 M parameters) is the preset for a CPU"
+            .to_string()
+    })
 }
 
 /// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
@@ -76,13 +114,18 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
         &a.out,
         "depthsense train",
     )?);
-    depthsense_dist::launch::launch_local(
+    // The workers record and print this command (with --nproc), not their own.
+    let words = serde_json::to_string(&depthsense_cli::stop::invocation())?;
+    std::env::set_var(depthsense_cli::stop::INVOCATION_ENV, words);
+    depthsense_cli::stop::catch_stop_signals()?;
+    let stopped = depthsense_dist::launch::launch_local(
         n,
         &worker_args(),
         a.master_port,
         timeout + Duration::from_secs(30),
     )?;
-    Ok(ExitCode::SUCCESS)
+    // Rank 0 printed where it stopped and how to continue.
+    Ok(stopped.map_or(ExitCode::SUCCESS, |sig| ExitCode::from(sig.exit_code())))
 }
 
 /// The preset with the command line's model options applied, `--set` last.
@@ -115,6 +158,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
     Ok(TrainOptions {
         data: a.data,
         out: a.out.clone(),
+        command: depthsense_cli::stop::invocation(),
         model,
         epochs: a.epochs,
         batch_size: a.batch_size,
@@ -234,7 +278,7 @@ fn print_summary(s: &TrainSummary, out: &std::path::Path) {
         if s.best_val_rmse.is_finite() {
             format!("{:.3} m", s.best_val_rmse)
         } else {
-            "none yet: no epoch completed".to_string()
+            "none yet: no validation finished".to_string()
         },
         s.val_samples_used,
         if s.val_samples_used < s.partition.val.len() {
@@ -244,7 +288,8 @@ fn print_summary(s: &TrainSummary, out: &std::path::Path) {
         },
         s.partition.method
     );
-    if s.interrupted {
+    eprintln!("{}", s.best);
+    if s.interrupted && s.signal.is_none() {
         eprintln!(
             "stopped at iteration {} as asked; continue with --resume",
             s.iterations_done
