@@ -6,13 +6,14 @@
 #               its last line lists every skipped test and why
 #   make test-browser  `depthsense report`'s page in headless Chromium (installs Debian's chromium)
 #   make gpu-bundle  .gpu/: stripped binary + small prepared world + scripts for scripts/gpu-check.sh
+#   make python the Python module `depthsense` (crates/python) built by maturin into .venv
 
 SHELL := /bin/bash
 PYTHON ?= python3
 TORCH_VERSION := 2.11.0
 VENV := $(CURDIR)/.venv
 # Bumped when the package list changes, so that an existing .venv gets the new packages.
-SETUP_VERSION := 2
+SETUP_VERSION := 3
 STAMP := $(VENV)/.depthsense-setup-$(TORCH_VERSION)-$(SETUP_VERSION)
 
 export VIRTUAL_ENV := $(VENV)
@@ -22,18 +23,19 @@ export LIBTORCH_USE_PYTORCH := 1
 CARGO ?= cargo
 BIN := target/release/depthsense
 
-.PHONY: all setup build install demo test test-browser bench fmt clippy check clean-venv gpu-bundle
+.PHONY: all setup build install demo test test-browser bench fmt clippy check clean-venv gpu-bundle python
 
 all: build
 
 # The venv: torch (libtorch + CUDA runtime wheels; runs on CPU-only machines too),
 # numpy, the official nuScenes devkit used by the format check of the synthetic world, and
-# onnx + onnxruntime for `depthsense export` (its ONNX check and tests). One pip call, so that
-# onnx's ml_dtypes is resolved against the devkit's numpy < 2 (a later, separate install of
-# onnx upgrades numpy to 2 and breaks the devkit).
+# onnx + onnxruntime for `depthsense export` (its ONNX check and tests), maturin (builds the
+# Python module, `make python`) and pytest (its tests). One pip call, so that onnx's ml_dtypes
+# is resolved against the devkit's numpy < 2 (a later, separate install of onnx upgrades numpy
+# to 2 and breaks the devkit).
 $(STAMP):
 	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
-	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime "maturin>=1.9.4,<2" pytest
 	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
 	@touch $@
 
@@ -41,6 +43,22 @@ setup: $(STAMP)
 
 build: setup
 	$(CARGO) build --release -p depthsense-cli
+
+# The Python module `depthsense` (crates/python, PyO3, no libtorch): a release wheel built by
+# maturin into target/wheels/depthsense and installed into .venv — again whenever a crate's
+# source, a Cargo.toml or Cargo.lock changes (cargo rebuilds only what the module is built
+# from). `make test` and `make demo` run it.
+PY_WHEELS := target/wheels/depthsense
+PY_STAMP := $(VENV)/.depthsense-python
+PY_SOURCES := $(shell find crates -path '*/src/*.rs' -o -name Cargo.toml -o -name pyproject.toml) Cargo.toml Cargo.lock
+
+$(PY_STAMP): $(STAMP) $(PY_SOURCES)
+	rm -rf $(PY_WHEELS)
+	$(VENV)/bin/maturin build --release --quiet -i $(VENV)/bin/python -m crates/python/Cargo.toml --out $(PY_WHEELS)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q --force-reinstall --no-deps $(PY_WHEELS)/depthsense-*.whl
+	@touch $@
+
+python: $(PY_STAMP)
 
 # Both binaries into $(PREFIX)/bin (depthsense-net must stay beside depthsense; it finds
 # libtorch in this checkout's .venv through its rpath).
@@ -53,7 +71,7 @@ install: build
 
 # A finished demo in runs/demo is never replaced silently: `make demo DEMO_ARGS=--force`.
 DEMO_ARGS ?=
-demo: build
+demo: build python
 	$(BIN) demo --out runs/demo $(DEMO_ARGS)
 
 # The test binaries run with the memory settings `depthsense-net` makes at start (tune_memory
@@ -66,11 +84,16 @@ TEST_MALLOC := glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=
 # instead of skipping. Every skip that remains is listed on the last line (SKIP_LOG).
 SKIP_LOG := $(CURDIR)/target/test-skips.log
 
-test: setup
+# The Python module's tests (pytest, python/tests) run after the Rust tests, with the debug
+# `depthsense` that `cargo test` built.
+test: setup python
 	$(CARGO) test --workspace --no-run
 	@rm -f $(SKIP_LOG)
 	GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 DEPTHSENSE_REQUIRE_DEVKIT=1 DEPTHSENSE_REQUIRE_TORCH=1 \
-	  DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) $(CARGO) test --workspace; rc=$$?; scripts/skip-summary.sh $(SKIP_LOG); exit $$rc
+	  DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) $(CARGO) test --workspace; rc=$$?; \
+	DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) DEPTHSENSE_BIN=$(CURDIR)/target/debug/depthsense \
+	  $(VENV)/bin/python -m pytest -q -p no:cacheprovider python/tests || rc=1; \
+	scripts/skip-summary.sh $(SKIP_LOG); exit $$rc
 
 # `depthsense report`'s page in headless Chromium (Debian's package; installed with apt-get when
 # missing, as root). `make test` skips that test when chromium is absent; here it must run.

@@ -6,9 +6,9 @@
 //!   `radar`) from raw files (a CAM_FRONT JPEG as a path or bytes, radar `.pcd` files, the
 //!   calibration JSON) or a prepared sample — the arrays `depthsense predict` feeds its network,
 //!   bit for bit, because both are built by `depthsense_data::net_input`;
-//! - [`read_sample`] / [`read_radar_points`]: a prepared sample's files as numpy (every map in
-//!   metres, the low-height mask as booleans, `meta.json` as a dict, `radar_points.bin` as a
-//!   structured array);
+//! - [`read_sample`] / [`read_radar_points`] / [`read_depth`]: a prepared sample's files as
+//!   numpy (every map in metres, the low-height mask as booleans, `meta.json` as a dict,
+//!   `radar_points.bin` as structured arrays), a 16-bit depth PNG (`predict`'s depth.png);
 //! - [`score`] / [`score_sample`]: depth maps scored with the evaluation protocol
 //!   (`depthsense_score::score_image`, the one scorer of `eval`), its report as a dict.
 //!
@@ -290,6 +290,13 @@ fn to_dtype<'py>(
         tuples.append(pyo3::types::PyTuple::new(py, parts)?)?;
     }
     np.call_method1("dtype", (tuples,))
+}
+
+/// A 16-bit depth PNG (value = depth × 256, 0 = no data: `predict`'s depth.png, a prepared
+/// sample's lidar and radar maps) as float32 [H, W] metres, read as depthsense reads it.
+#[pyfunction]
+fn read_depth<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyAny>> {
+    depth_array(py, depthsense_dataset::read_depth(&path).map_err(py_err)?)
 }
 
 fn read_points(path: &Path) -> PyResult<RadarPoints> {
@@ -575,6 +582,7 @@ fn depthsense(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(inputs_from_sample, m)?)?;
     m.add_function(wrap_pyfunction!(read_sample, m)?)?;
     m.add_function(wrap_pyfunction!(read_radar_points, m)?)?;
+    m.add_function(wrap_pyfunction!(read_depth, m)?)?;
     m.add_function(wrap_pyfunction!(score, m)?)?;
     m.add_function(wrap_pyfunction!(score_sample, m)?)?;
     Ok(())
