@@ -372,3 +372,71 @@ pub fn radar_warnings(trained: Option<&RadarSettings>, input: &PredictInput) -> 
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn input(w: u32, h: u32) -> PredictInput {
+        let image = image::RgbImage::from_fn(w, h, |x, y| {
+            image::Rgb([(x * 37 + y) as u8, (y * 91 + x * 3) as u8, (x ^ y) as u8])
+        });
+        let map = |seed: u32| DepthMap {
+            width: w,
+            height: h,
+            depth_m: (0..w * h)
+                .map(|i| {
+                    if (i * 7 + seed).is_multiple_of(11) {
+                        1.0 + (i % 50) as f32 / 4.0
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+        };
+        PredictInput {
+            name: "t".into(),
+            image,
+            radar_raw: map(1),
+            radar_height: map(2),
+            gt: None,
+            mer: None,
+            radar_settings: None,
+        }
+    }
+
+    /// What `predict` feeds its network is what training's loader normalises, bit for bit.
+    #[test]
+    fn the_network_image_is_the_loaders_bit_for_bit() {
+        let inp = input(13, 7);
+        let x = net_inputs(&inp, Some(RadarInput::Height)).unwrap();
+        let loader = crate::normalise_image(&inp.image, &crate::Augment::NONE);
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&x.normalised_image()), bits(&loader));
+        assert_eq!(x.image[0], inp.image.get_pixel(0, 0).0[0] as f32 / 255.0);
+        assert_eq!(
+            x.image[13 * 7],
+            inp.image.get_pixel(0, 0).0[1] as f32 / 255.0
+        );
+    }
+
+    #[test]
+    fn radar_planes_follow_the_radar_input() {
+        let inp = input(5, 4);
+        let n = 20;
+        let none = net_inputs(&inp, None).unwrap();
+        assert_eq!((none.radar_channels, none.radar.len()), (0, 0));
+        let h = net_inputs(&inp, Some(RadarInput::Height)).unwrap();
+        assert_eq!(h.radar, inp.radar_height.depth_m);
+        let rh = net_inputs(&inp, Some(RadarInput::RawHeight)).unwrap();
+        assert_eq!(rh.radar_channels, 2);
+        assert_eq!(rh.radar[..n], inp.radar_raw.depth_m[..]);
+        assert_eq!(rh.radar[n..], inp.radar_height.depth_m[..]);
+        let err = net_inputs(&inp, Some(RadarInput::Mer)).unwrap_err();
+        assert!(err.to_string().contains("no MER maps"), "{err}");
+        let mut with_mer = inp.clone();
+        with_mer.mer = Some((inp.radar_raw.clone(), inp.radar_raw.clone()));
+        let mer = net_inputs(&with_mer, Some(RadarInput::Mer)).unwrap();
+        assert_eq!(mer.radar_channels, 7);
+    }
+}
