@@ -9,10 +9,13 @@
 //!                 /lowheight_mask.png  8-bit, 255 where the sparse GT point is 0.3–2.0 m above ground
 //!                 /radar_raw.png       16-bit depth×256, one pixel per radar point
 //!                 /radar_height.png    16-bit depth×256, height-extended strips
+//!                 /radar_points.bin    the radar returns behind both maps (`radar_points`)
 //!                 /meta.json           SampleMeta
 //! ```
 //! A sample directory is complete iff `meta.json` exists: it is written last, and the
-//! directory is first assembled under a temporary name and renamed into place.
+//! directory is first assembled under a temporary name and renamed into place. Every file's
+//! coding, `radar_points.bin`'s byte layout included: docs/guide/deploy.md, "A prepared
+//! sample's files".
 
 use std::collections::BTreeMap;
 
