@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The conversion step of `depthsense export` (crates/export): a depthsense network as ONNX,
 TorchScript or a PyTorch state dict, through `depthsense_torch.DepthSense` (the same module
-PyTorch users fine-tune, checked against depthsense by crates/model/tests/model/torch_reference_params.rs
+PyTorch users fine-tune, checked against depthsense by crates/checkpoint/tests/model/torch_reference_params.rs
 and crates/export/tests/export.rs).
 
     python depthsense_export.py --weights W.safetensors --config CONFIG.json \

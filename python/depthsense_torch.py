@@ -15,7 +15,7 @@ are depthsense's checkpoint keys (`rgb.layer1.0.conv1.weight`, …; PyTorch's ex
 Configurations are plain dicts with depthsense's serde field names (`model-info
 --print-config` / `--json` writes them). Used by scripts/torch_reference.py (the PyTorch side of
 `depthsense bench model`'s comparison) and checked against depthsense by
-crates/model/tests/model/torch_reference_params.rs: equal parameter counts and multiply-adds for every
+crates/checkpoint/tests/model/torch_reference_params.rs: equal parameter counts and multiply-adds for every
 preset, equal head outputs with depthsense's weights.
 """
 
@@ -149,7 +149,7 @@ def load_config(preset, config_json):
 # Layers (crates/model/src/layers.rs). Module attribute names follow our var-store names, so
 # `state_dict()` keys equal `DepthNet`'s variables (`rgb.layer1.0.conv1.weight`, …; PyTorch's
 # extra `num_batches_tracked` buffers aside) and a depthsense checkpoint loads directly
-# (`--check`, crates/model/tests/model/torch_reference_params.rs).
+# (`--check`, crates/checkpoint/tests/model/torch_reference_params.rs).
 
 def conv(cin, cout, k, stride=1, pad=0, dil=1, bias=True, init="pytorch"):
     """nn.Conv2d with the Rust initialisation rules (`ConvInit`)."""

@@ -8,7 +8,7 @@ run. This script builds, in plain PyTorch:
   layer for layer as crates/model/src/{config,net,layers}.rs build them: same modules, same
   order, same strides/paddings/dilations, same initialisation rules, so the parameter count and
   the multiply-adds equal `depthsense model-info` (checked by
-  crates/model/tests/model/torch_reference_params.rs);
+  crates/checkpoint/tests/model/torch_reference_params.rs);
 * two ordinal heads/losses (`--ordinal`):
   - `released`: the authors' released code path (SPEC §6.1, §7): all 2K logit channels
     bilinearly upsampled (align_corners=True) to the full input size, `a = y[:, ::2].clone()`,

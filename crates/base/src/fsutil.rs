@@ -33,6 +33,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     result
 }
 
+/// Makes the file `tmp` (written by another writer, e.g. libtorch or Python) durable and renames
+/// it over `path`: the second half of [`write_atomic`] for a temporary sibling someone else
+/// filled.
+pub fn sync_and_rename(tmp: &Path, path: &Path) -> std::io::Result<()> {
+    std::fs::File::open(tmp)?.sync_all()?;
+    std::fs::rename(tmp, path)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

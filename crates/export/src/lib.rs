@@ -87,8 +87,12 @@ pub enum ExportError {
     Options(String),
     #[error("{path}: exists (a file of an earlier export); --force replaces it")]
     Exists { path: String },
-    #[error("{path}: {reason}")]
-    Io { path: String, reason: String },
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
     /// The conversion in Python failed; `detail` is its stderr's end.
     #[error("exporting {out} with {python}: {detail}")]
     Python {
@@ -102,7 +106,7 @@ impl ExportError {
     pub(crate) fn io(path: &Path, e: std::io::Error) -> Self {
         Self::Io {
             path: path.display().to_string(),
-            reason: e.to_string(),
+            source: e,
         }
     }
 }
@@ -207,7 +211,7 @@ pub fn export_many(
     }
     let mut done = vec![];
     for ((o, info), (_, tmp)) in per_target.into_iter().zip(infos).zip(&tmps) {
-        std::fs::rename(tmp, &o.out).map_err(|e| {
+        depthsense_base::fsutil::sync_and_rename(tmp, &o.out).map_err(|e| {
             remove_all(&tmps);
             ExportError::io(&o.out, e)
         })?;

@@ -11,7 +11,7 @@ use depthsense_config::flags::{ExportFormat as Format, ExportPrecision as Precis
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[path = "../../model/tests/model/support/reference.rs"]
+#[path = "../../checkpoint/tests/model/support/reference.rs"]
 mod reference;
 
 use depthsense_checkpoint as checkpoint;
@@ -387,7 +387,7 @@ fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
     };
     let both = [Format::Onnx, Format::TorchScript];
     // The `pytorch` state dict in python/depthsense_torch.py: once (the module is checked for
-    // every option by crates/model/tests/model/torch_reference_params.rs).
+    // every option by crates/checkpoint/tests/model/torch_reference_params.rs).
     let mut variants = vec![export_variant(
         &py,
         &small(&[]),
@@ -601,7 +601,7 @@ fn paper_with_random_weights_at_batch_2() {
 }
 
 /// The authors' layout: a `.pth` written by `torch.save(model.state_dict())` of the reference
-/// RVMDE network (crates/model/tests/released_reference.py; ResNet-101 layout at narrow widths),
+/// RVMDE network (crates/checkpoint/tests/released_reference.py; ResNet-101 layout at narrow widths),
 /// exported with `--config released` as `predict` loads it, runs in onnxruntime like `predict`.
 #[test]
 fn the_authors_pth_with_config_released() {

@@ -553,7 +553,7 @@ fn synthetic_points() -> Vec<RadarPoint> {
 
 /// Real `torch.save` files of the model crate's tests plus one written by the project.
 fn torch_seeds() -> Vec<Vec<u8>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../model/tests/data");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../checkpoint/tests/data");
     let mut v: Vec<Vec<u8>> = std::fs::read_dir(&dir)
         .map(|rd| {
             let mut p: Vec<PathBuf> = rd.filter_map(|e| e.ok().map(|e| e.path())).collect();

@@ -63,7 +63,10 @@ pub(crate) fn write_atomic(path: &Path, named: Vec<(String, Tensor)>) -> Result<
             source: e,
         }
     })?;
-    std::fs::rename(&tmp, path).map_err(|e| NetError::io(path, e))
+    depthsense_base::fsutil::sync_and_rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        NetError::io(path, e)
+    })
 }
 
 /// Reads an optimiser state written by [`write_atomic`].

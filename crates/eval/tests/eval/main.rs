@@ -7,6 +7,6 @@
 
 mod eval_known_answers;
 mod predict_raw;
-#[path = "../../../model/tests/model/support/reference.rs"]
+#[path = "../../../checkpoint/tests/model/support/reference.rs"]
 mod reference;
 mod released_real_keyframe;

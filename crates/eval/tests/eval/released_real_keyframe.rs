@@ -1,5 +1,5 @@
 //! The authors' checkpoint layout on the real keyframe (issue 22, SPEC §6.1, §7): the reference
-//! network of `crates/model/tests/released_reference.py` — its module tree named as the
+//! network of `crates/checkpoint/tests/released_reference.py` — its module tree named as the
 //! authors' `RVMDE` (`retinanet`, `resnet_radar`, a top-level `conv_radar`, `concat_process`) —
 //! writes a state dict with `torch.save(model.state_dict())` and predicts the real nuScenes
 //! keyframe `../shared/fixtures/nuscenes-kf0` from the image and height-extended radar that

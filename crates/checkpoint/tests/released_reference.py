@@ -1,5 +1,5 @@
 # The authors' released architecture (SPEC §6.1) in plain PyTorch, for
-# crates/model/tests/model/released_reference.rs: random weights (fixed seed, random BN statistics),
+# crates/checkpoint/tests/model/released_reference.rs: random weights (fixed seed, random BN statistics),
 # `torch.save(model.state_dict())` with the authors' key names, and their inference
 # conventions (ImageNet-normalised image, radar in metres, 2K logits bilinearly upsampled with
 # align_corners=True, clamped to [1e-8, 1e8], pairwise softmax, count of P_k >= 0.5, SID bin
@@ -220,7 +220,7 @@ with torch.no_grad():
     model.concat_process[4].weight.mul_(cfg["head_gain"])
 model.eval()
 if cfg.get("fill") == "distinct":
-    # Weight import by value (crates/model/tests/model/import_by_value.rs): state-dict entry j holds
+    # Weight import by value (crates/checkpoint/tests/model/import_by_value.rs): state-dict entry j holds
     # j + 1 + (i mod 4096)/8192 at flat index i — exact in float32, different for every tensor,
     # so a swap of two same-shaped tensors or a transposed copy cannot go unseen.
     sd = model.state_dict()

@@ -1,5 +1,5 @@
 # An ImageNet ResNet state dict with torchvision's key names, for
-# crates/model/tests/model/import_by_value.rs. The module tree carries the attribute names of
+# crates/checkpoint/tests/model/import_by_value.rs. The module tree carries the attribute names of
 # torchvision's public `torchvision/models/resnet.py` (read for names only): `conv1`, `bn1`,
 # `layer1..4` of `BasicBlock` (`conv1`, `bn1`, `conv2`, `bn2`, `downsample` = Sequential(1x1 conv,
 # BN)) or `Bottleneck` (`conv1..3`, `bn1..3`, `downsample`, stride on the 3x3), `fc`. Widths are

@@ -1,5 +1,6 @@
-//! The model crate's one integration-test binary (each test binary links libtorch, and linking
-//! dominates the test build; issue 35):
+//! The network's one integration-test binary, in `checkpoint`: the lowest crate that sees both
+//! the network and its files on disk, so that `model` needs no dev-dependency on `checkpoint`
+//! (each test binary links libtorch, and linking dominates the test build; issue 35):
 //! - `model`: the network, heads, losses, checkpoints and imports;
 //! - `sid_goldens`: SID thresholds and the ordinal decoding against golden values;
 //! - `torch_reference_params`: parameter counts and outputs against the PyTorch reference;

@@ -1,5 +1,0 @@
-include!("../../build-support/torch_link.rs");
-
-fn main() {
-    link_torch();
-}
