@@ -254,7 +254,8 @@ impl Pace {
         let per_step = now.duration_since(t0).as_secs_f64() / timed as f64;
         let left = plan.total_iterations().saturating_sub(it);
         Some(format!(
-            "pace: {per_step:.2} s per iteration over iterations {}–{it} → an epoch of {}              iterations ≈ {}, the {left} iterations left ≈ {} (validations not included)",
+            "pace: {per_step:.2} s per iteration over iterations {}–{it} → an epoch of {} \
+             iterations ≈ {}, the {left} iterations left ≈ {} (validations not included)",
             it0 + 1,
             plan.iterations_per_epoch,
             depthsense_progress::human(Duration::from_secs_f64(

@@ -177,3 +177,47 @@ pub struct Args {
     #[arg(long)]
     pub check_replicas: bool,
 }
+
+/// The note of a bare `train` (no `--config` among `words`) on a machine without CUDA. The
+/// default stays `paper` everywhere: the same command trains the same network on a laptop and
+/// on the cluster, so a result never depends on where it ran; the note names the network and
+/// the preset for a CPU, and the run's `pace:` line says within a few iterations how long an
+/// epoch takes.
+pub fn default_network_note(words: &[String], cuda: bool) -> Option<String> {
+    let config_given = words
+        .iter()
+        .any(|a| a == "--config" || a.starts_with("--config="));
+    (!config_given && !cuda).then(|| {
+        "note: no --config: training `paper`, the paper's network (57 M parameters), without \
+         CUDA, where an epoch of nuScenes takes many hours (the `pace:` line below measures \
+         it); `--config tiny` (0.9 M parameters) is the preset for a CPU"
+            .to_string()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bare_train_without_cuda_names_its_network() {
+        let w = |s: &str| s.split(' ').map(String::from).collect::<Vec<_>>();
+        let note = default_network_note(&w("depthsense train --data p"), false).unwrap();
+        assert!(
+            note.contains("`paper`") && note.contains("--config tiny"),
+            "{note}"
+        );
+        assert_eq!(
+            default_network_note(&w("depthsense train --data p"), true),
+            None
+        );
+        assert_eq!(
+            default_network_note(&w("depthsense train --data p --config=tiny"), false),
+            None
+        );
+        assert_eq!(
+            default_network_note(&w("depthsense train --config paper"), false),
+            None
+        );
+    }
+}

@@ -619,21 +619,29 @@ fn layer_table(md: &str) -> Vec<(String, u32)> {
         .collect()
 }
 
-/// The `depthsense-*` crates of a Cargo.toml's `[dependencies]` (without the prefix).
-fn normal_deps(toml: &str) -> Vec<String> {
-    let mut in_deps = false;
+/// The `depthsense-*` crates of a Cargo.toml's `[dependencies]`, `[dev-dependencies]` and
+/// `[build-dependencies]` (without the prefix), each with whether it is a normal dependency.
+/// A normal dependency is on a lower layer; a test's or build script's on a lower layer or the
+/// same one (a crate of the same layer never depends on it): one on a higher layer would build
+/// the crate's tests against the crates built on it, a circle.
+fn deps(toml: &str) -> Vec<(String, bool)> {
+    let mut section: Option<bool> = None;
     let mut out = vec![];
     for l in toml.lines() {
         let l = l.trim();
         if l.starts_with('[') {
-            in_deps = l == "[dependencies]";
-        } else if in_deps {
+            section = match l {
+                "[dependencies]" => Some(true),
+                "[dev-dependencies]" | "[build-dependencies]" => Some(false),
+                _ => None,
+            };
+        } else if let Some(normal) = section {
             if let Some(rest) = l.strip_prefix("depthsense-") {
                 let name: String = rest
                     .chars()
                     .take_while(|c| c.is_alphanumeric() || *c == '-')
                     .collect();
-                out.push(name);
+                out.push((name, normal));
             }
         }
     }
@@ -654,11 +662,16 @@ fn layer_problems(table: &[(String, u32)], root: &Path) -> Vec<String> {
             ));
             continue;
         };
-        for dep in normal_deps(&toml) {
+        for (dep, normal) in deps(&toml) {
             match layer(&dep) {
-                Some(l) if l < own => {}
+                Some(l) if l < own || (!normal && l == own) => {}
                 l => out.push(format!(
-                    "{name} (layer {own}) depends on {dep} (layer {l:?}): not a lower layer"
+                    "{name} (layer {own}) {} {dep} (layer {l:?}): not a lower layer",
+                    if normal {
+                        "depends on"
+                    } else {
+                        "dev-depends on"
+                    }
                 )),
             }
         }
@@ -723,6 +736,14 @@ fn module_graph(
             continue;
         }
         let text = code(f);
+        // In a top-level module (src/x.rs, src/x/mod.rs) `super::` is the crate root.
+        let depth = rel.components().count();
+        let top_level = depth == 1 || (depth == 2 && rel.ends_with("mod.rs"));
+        let text = if top_level {
+            text.replace("super::", "crate::")
+        } else {
+            text
+        };
         let mut refs = std::collections::BTreeSet::new();
         for part in text.split("crate::").skip(1) {
             let names: Vec<String> = if let Some(body) = part.strip_prefix('{') {
@@ -840,4 +861,14 @@ fn the_layer_checks_catch_an_upward_dependency_and_a_circle() {
     assert_eq!(a_circle(&g).unwrap(), ["x", "y", "x"]);
     std::fs::write(src.join("y.rs"), "pub struct Thing;\n").unwrap();
     assert!(a_circle(&module_graph(&src)).is_none());
+    // `super::` from a top-level module is the crate root: a circle as well.
+    std::fs::write(src.join("y.rs"), "use super::x::f;\npub struct Thing;\n").unwrap();
+    assert_eq!(a_circle(&module_graph(&src)).unwrap(), ["x", "y", "x"]);
+    // A dev-dependency on a higher layer is refused like a normal one.
+    std::fs::write(
+        dir.path().join("crates/a/Cargo.toml"),
+        "[dependencies]\n[dev-dependencies]\ndepthsense-b.workspace = true\n",
+    )
+    .unwrap();
+    assert_eq!(layer_problems(&table, dir.path()).len(), 1);
 }

@@ -68,6 +68,16 @@ fn train_into_a_log_file_prints_start_progress_validation_and_closing_lines() {
     assert!(after[1].contains("epoch 2/2"), "{all}");
 
     assert_eq!(with(&lines, &["train: done,"]).len(), 1, "{all}");
+    // The time of an epoch, measured on the first iterations (after the first), said once.
+    let pace = with(
+        &lines,
+        &[
+            "train: pace: ",
+            "s per iteration over iterations 2–6",
+            "an epoch of 8 iterations ≈",
+        ],
+    );
+    assert_eq!(pace.len(), 1, "{all}");
     let closing = with(&lines, &["iterations of", "validation RMSE"]);
     assert_eq!(closing.len(), 1, "{all}");
     assert!(

@@ -3,6 +3,7 @@
 use depthsense_cli::cmd::progress::progress_bar;
 /// This process's arguments without `--nproc N` (what each worker runs).
 use depthsense_cli::cmd::train::Args;
+use depthsense_cli::stop::invocation;
 use depthsense_config::RadarInput;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_dist::DistEnv;
@@ -41,7 +42,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         timeout,
     };
     let out = a.out.clone();
-    if let Some(note) = default_network_note(&a.device.name) {
+    let cuda = match a.device.name.as_str() {
+        "cpu" => false,
+        d if d.starts_with("cuda") => true,
+        _ => tch::Cuda::is_available(),
+    };
+    if let Some(note) = depthsense_cli::cmd::train::default_network_note(&invocation(), cuda) {
         eprintln!("{note}");
     }
     let model = model_config(&a)?;
@@ -74,32 +80,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ));
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// Whether the command line names the network (`--config`); without it `train` trains the
-/// `paper` preset on every machine.
-fn config_given() -> bool {
-    std::env::args().any(|a| a == "--config" || a.starts_with("--config="))
-}
-
-/// The note of a bare `train` (no `--config`) on a machine without CUDA. The default stays
-/// `paper` everywhere: the same command trains the same network on a laptop and on the
-/// cluster, so a result never depends on where it ran; the note names the network and points
-/// to the quick preset, and the run's `pace:` line says within a few iterations how long an
-/// epoch takes.
-fn default_network_note(device: &str) -> Option<String> {
-    if config_given() {
-        return None;
-    }
-    let cuda = match device {
-        "cpu" => false,
-        d if d.starts_with("cuda") => true,
-        _ => tch::Cuda::is_available(),
-    };
-    (!cuda).then(|| {
-        "note: no --config: training `paper`, the paper's network (57 M parameters), without          CUDA, where an epoch of nuScenes takes many hours (the `pace:` line below measures          it); `--config tiny` (0.9 M parameters) is the preset for a CPU"
-            .to_string()
-    })
 }
 
 /// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
