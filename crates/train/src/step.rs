@@ -1,5 +1,6 @@
-//! The training step's forward half, shared by `train` (trainer::session) and `bench train`:
-//! the precision of a step and the loss of one uploaded batch.
+//! The training step, shared by `train` (trainer::session), `bench train` and `bench model`:
+//! the precision of a step, the loss of one uploaded batch ([`forward_loss`]) and the update
+//! after it ([`backward_update`]) — what `bench model` times is what `train` runs.
 
 use depthsense_config::flags::Precision;
 use depthsense_model::precision::with_autocast;
@@ -7,6 +8,8 @@ use depthsense_model::DepthNet;
 use tch::{Kind, Tensor};
 
 use depthsense_infer::upload::BatchTensors;
+
+use crate::optim::Optimizer;
 
 /// `--amp`: bf16 autocast (CUDA only). Not fp16: fp16 without loss scaling underflows the
 /// ≈1e-6 per-pixel gradients of the ordinal loss; bf16 has fp32's exponent range.
@@ -26,4 +29,12 @@ pub fn step_precision(amp: bool) -> Precision {
 pub fn forward_loss(net: &DepthNet, bt: &BatchTensors, precision: Precision) -> Tensor {
     let out = with_autocast(precision, || net.forward_t(&bt.image, &bt.radar, true));
     net.loss_sparse(&out.to_kind(Kind::Float), &bt.target_m, &bt.sparse)
+}
+
+/// The second half of a single-process step: gradients of `loss` and the optimiser's update
+/// at `lr` (a data-parallel step adds its gradient all-reduce between the two).
+pub fn backward_update(optim: &mut dyn Optimizer, loss: &Tensor, lr: f64) {
+    optim.zero_grad();
+    loss.backward();
+    optim.step(lr);
 }

@@ -15,7 +15,8 @@ pub struct Args {
     /// Batch size of the forward (inference) benchmark; 0 skips it.
     #[arg(long, default_value_t = 3)]
     pub batch_forward: i64,
-    /// Batch size of the training-step benchmark (forward, loss, backward, SGD step); 0 skips it.
+    /// Batch size of the training-step benchmark: the step `train` runs (forward, the ordinal
+    /// loss on a sparse target, backward, depthsense's SGD update); 0 skips it.
     #[arg(long, default_value_t = 8)]
     pub batch_train: i64,
     /// Input height.

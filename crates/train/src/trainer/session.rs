@@ -342,15 +342,15 @@ impl<'o> Trainer<'o> {
         } else {
             loss.detach()
         };
-        self.optim.zero_grad();
         match self.dist.as_mut() {
-            None => loss.backward(),
+            None => crate::step::backward_update(&mut self.optim, &loss, lr),
             Some(d) => {
+                self.optim.zero_grad();
                 loss.f_backward()?;
                 d.sync_grads()?;
+                self.optim.step(lr);
             }
         }
-        self.optim.step(lr);
         self.state.iteration += 1;
         if let Some(d) = &self.dist {
             d.check_replicas(self.state.iteration)?;

@@ -9,7 +9,7 @@ use depthsense_model::{device, report, DepthNet};
 use serde::Serialize;
 use std::process::ExitCode;
 use std::time::Instant;
-use tch::{nn, nn::OptimizerConfig, Device, Kind, Tensor};
+use tch::{nn, Device, Kind, Tensor};
 
 #[derive(Serialize, Default)]
 pub struct Timing {
@@ -305,25 +305,21 @@ impl Bench {
         })
     }
 
-    /// The training-step phase: forward, loss, backward and an SGD step.
+    /// The training-step phase: the step `train` runs ([`depthsense_train::step`]): forward
+    /// and the ordinal loss on the sparse target under the run's precision, backward, and
+    /// depthsense's SGD (SPEC §8: momentum 0.9, weight decay 1e-4) at lr 1e-3.
     fn train_step(&self, batch: i64) -> anyhow::Result<Timing> {
-        let (net, prec) = (&self.net, self.prec);
         let (img, radar, target) = self.inputs(batch);
-        // SPEC §8 optimiser: SGD, momentum 0.9, weight decay 1e-4.
-        let mut opt = nn::Sgd {
-            momentum: 0.9,
-            dampening: 0.0,
-            wd: 1e-4,
-            nesterov: false,
-        }
-        .build(&self.vs, 1e-3)?;
+        let bt = depthsense_infer::upload::BatchTensors {
+            sparse: depthsense_model::ordinal::SparseTarget::from_dense(&target),
+            image: img,
+            radar,
+            target_m: target,
+        };
+        let mut opt = depthsense_train::sgd::Sgd::new(&self.vs, 0.9, 1e-4);
         Ok(self.time(batch, || {
-            opt.zero_grad();
-            let loss = with_autocast(prec, || {
-                net.loss(&net.forward_t(&img, &radar, true), &target)
-            });
-            loss.backward();
-            opt.step();
+            let loss = depthsense_train::step::forward_loss(&self.net, &bt, self.prec);
+            depthsense_train::step::backward_update(&mut opt, &loss, 1e-3);
         }))
     }
 }
