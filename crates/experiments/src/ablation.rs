@@ -239,6 +239,10 @@ pub fn verdict(
                     "NOT significant: inside the seed-to-seed noise"
                 }
             ),
+            _ if p.n == 1 => {
+                "one seed shared: no verdict (one seed: not a finding; a paired test needs 2)"
+                    .to_string()
+            }
             _ => format!(
                 "{} shared seed(s): no verdict (a paired test needs 2)",
                 p.n
@@ -844,10 +848,11 @@ mod tests {
         let v = verdict("late", "rgb", "rmse", &sam, &rgb, &noisy);
         assert_eq!(v.paired.unwrap().significant, Some(false));
         assert!(v.text.contains("NOT significant"), "{}", v.text);
-        // One shared seed: no verdict.
+        // One shared seed: no verdict, and the words say it is one seed.
         let v = verdict("l1", "rgb", "rmse", &sam, &rgb, &pairs[..1]);
         assert_eq!(v.paired.unwrap().significant, None);
         assert!(v.text.contains("no verdict"), "{}", v.text);
+        assert!(v.text.contains("one seed: not a finding"), "{}", v.text);
     }
 
     #[test]

@@ -71,15 +71,30 @@ pub fn discover(runs: &[PathBuf], out: &Path, max_depth: usize) -> Result<Discov
         }
     }
     // The demo's section (in DEMO/report/) shows its two training runs (DEMO/rgb, DEMO/fusion)
-    // itself: they are not sections of their own.
-    let demos: Vec<PathBuf> = d
+    // itself: they are not sections of their own, but their validation rows stay in the
+    // comparison (as the demo's).
+    let demos: Vec<(usize, PathBuf)> = d
         .sections
         .iter()
-        .filter(|s| s.kind == Kind::Demo)
-        .filter_map(|s| s.dir.parent().map(Path::to_path_buf))
+        .enumerate()
+        .filter(|(_, s)| s.kind == Kind::Demo)
+        .filter_map(|(i, s)| Some((i, s.dir.parent()?.to_path_buf())))
         .collect();
-    d.sections
-        .retain(|s| s.kind != Kind::Train || !demos.iter().any(|demo| s.dir.starts_with(demo)));
+    let of_demo = |s: &Found| {
+        (s.kind == Kind::Train)
+            .then(|| demos.iter().find(|(_, demo)| s.dir.starts_with(demo)))
+            .flatten()
+            .map(|(i, _)| *i)
+    };
+    let moved: Vec<(usize, Vec<super::runs::ModelRow>)> = d
+        .sections
+        .iter()
+        .filter_map(|s| Some((of_demo(s)?, s.models.clone())))
+        .collect();
+    for (i, rows) in moved {
+        d.sections[i].models.extend(rows);
+    }
+    d.sections.retain(|s| of_demo(s).is_none());
     Ok(d)
 }
 
@@ -210,6 +225,16 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         ),
     };
     let command_line = string_at(v, &["command_line"]);
+    // Its two models on the test scenes (`tables.json` beside the summary), scored on
+    // DEMO/prepared.
+    let models = read_json(&dir.join("tables.json"))
+        .map(|t| {
+            let data = dir
+                .parent()
+                .map(|p| p.join("prepared").display().to_string());
+            super::runs::eval_models(dir, &t, data, "demo")
+        })
+        .unwrap_or_default();
     let mut f = Found {
         kind: Kind::Demo,
         dir: dir.to_path_buf(),
@@ -219,7 +244,7 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         doc,
         images: vec![],
         grid: None,
-        models: vec![],
+        models,
     };
     for name in ["val_rmse.png", "curves_rgb.png", "curves_fusion.png"] {
         let p = dir.join(name);
@@ -392,9 +417,20 @@ fn found(
         d.paragraph(format!("(no `{stem}.md` beside `{stem}.json`)"));
         d
     };
-    if kind == Kind::Eval {
-        f.models = super::runs::eval_models(dir, v);
-    }
+    f.models = match kind {
+        Kind::Eval => {
+            let data = f
+                .inputs
+                .iter()
+                .find(|(k, _)| k == "data")
+                .map(|(_, d)| d.clone());
+            super::runs::eval_models(dir, v, data, "eval")
+        }
+        Kind::Ablation | Kind::ReducedData | Kind::DataScale => {
+            super::runs::experiment_models(kind, dir, v)
+        }
+        _ => vec![],
+    };
     if kind == Kind::Explain {
         explain_images(&mut f, v, names);
     } else if names.contains(format!("{stem}.png").as_str()) {

@@ -235,7 +235,7 @@ fn meta(sec: &Section) -> Markup {
             dd {
                 @match &sec.command_line {
                     Some(c) => pre { (c) },
-                    None => "not recorded in its JSON",
+                    None => (not_recorded(sec.kind)),
                 }
             }
             "\n"
@@ -252,6 +252,14 @@ fn meta(sec: &Section) -> Markup {
             }
             "\n"
         } "\n"
+    }
+}
+
+/// What the Command line says of an output that does not record its invocation.
+fn not_recorded(kind: Kind) -> &'static str {
+    match kind {
+        Kind::Train => "not recorded in its config.json (written before runs recorded it)",
+        _ => "not recorded in its JSON",
     }
 }
 
@@ -405,7 +413,7 @@ fn section_markdown(i: usize, sec: &Section) -> String {
     m.push_str(&format!("- Files: {}\n", files.join(", ")));
     match &sec.command_line {
         Some(c) => m.push_str(&format!("- Command:\n\n```\n{c}\n```\n\n")),
-        None => m.push_str("- Command: not recorded in its JSON\n\n"),
+        None => m.push_str(&format!("- Command: {}\n\n", not_recorded(sec.kind))),
     }
     m.push_str(&shift_headings(&sec.doc.to_markdown(), 2));
     m.push('\n');

@@ -1,13 +1,18 @@
-//! Training runs, exported models and the table that compares every model found.
+//! Training runs, exported models and the tables that compare every model found.
 //!
 //! - A training run (`train` or `mer train`): a folder with `config.json` and `metrics.jsonl`;
-//!   its section shows the settings, every validation and `curves.png`.
+//!   its section shows the command that started it (`"command"` of config.json, when
+//!   recorded), the settings, every validation and `curves.png`, and marks a run that stopped
+//!   before its last epoch "unfinished".
 //! - An exported model: `FILE` beside its sidecar `FILE.json` (`"format_version":
 //!   "depthsense-export-v1"`, `depthsense export`); its section shows the format, the tensors and
 //!   the radar the network was trained on.
-//! - The comparison: one row per evaluated model (the headline row of each `tables.json`: test
-//!   scenes, combined conditions, full image, largest cap) and per training run (its best
-//!   validation), at the top of the page.
+//! - The comparison, at the top of the page: one table of the models scored on test scenes —
+//!   the headline row of each `tables.json` (combined conditions, full image, largest cap), the
+//!   demo's two models, every arm of an ablation, reduced-data or data-scale experiment (mean
+//!   over its seeds) — with the best value of each metric in bold among the rows that share a
+//!   test set; then, in a table of its own, the best validation of each training run (it chose
+//!   a checkpoint and compares nothing).
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -22,19 +27,64 @@ use super::Kind;
 /// The sidecar format `depthsense export` writes.
 const SIDECAR_FORMAT: &str = "depthsense-export-v1";
 
-/// One model of the comparison table.
+/// Which scenes a row of the comparison was scored on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Split {
+    /// Test scenes, never used for a choice: these rows compare models.
+    Test,
+    /// Validation scenes: the best epoch of a training run (they chose the checkpoint).
+    Validation,
+}
+
+/// One model of the comparison tables.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelRow {
     pub name: String,
-    /// `test (eval)` or `validation (best of N epochs)`.
+    pub split: Split,
+    /// Where the row comes from: `eval`, `demo`, `ablation`, …, or for a validation row the
+    /// epoch it picked (`best epoch (3)`).
     pub rows: String,
     pub dir: PathBuf,
+    /// The prepared data it was scored on, when recorded.
+    pub data: Option<String>,
+    /// The depth cap of the row (m).
+    pub cap_m: Option<f64>,
+    /// Seeds behind the values (an experiment's arm: its mean over seeds; a checkpoint: 1).
+    pub seeds: Option<usize>,
+    /// A training run that stopped before its last epoch: the mark shown beside it.
+    pub unfinished: Option<String>,
     pub images: Option<u64>,
     pub rmse_m: Option<f64>,
     pub mae_m: Option<f64>,
     pub abs_rel: Option<f64>,
     pub delta1: Option<f64>,
 }
+
+impl ModelRow {
+    /// The four metrics of the tables, in column order.
+    fn metrics(&self) -> [Option<f64>; 4] {
+        [self.rmse_m, self.mae_m, self.abs_rel, self.delta1]
+    }
+
+    /// The test set a row was scored on: rows compare only with rows of the same data, cap and
+    /// images.
+    fn test_set(&self) -> (String, String, Option<u64>) {
+        (
+            self.data.clone().unwrap_or_default(),
+            self.cap_m.map_or(String::new(), |c| format!("{c}")),
+            self.images,
+        )
+    }
+}
+
+/// The metrics of the comparison: (column title, decimals, higher is better). RMSE, MAE and
+/// AbsRel are errors (lower is better); δ1 is the share of pixels within 1.25× (higher).
+const METRIC_COLUMNS: [(&str, usize, bool); 4] = [
+    ("RMSE (m)", 3, false),
+    ("MAE (m)", 3, false),
+    ("AbsRel", 3, false),
+    ("δ1", 3, true),
+];
 
 /// The records of a `metrics.jsonl` (lines that are not JSON are left out).
 fn records(p: &Path) -> Vec<Value> {
@@ -56,6 +106,57 @@ fn cell(x: Option<f64>, decimals: usize) -> String {
         .map_or("–".into(), |v| format!("{v:.decimals$}"))
 }
 
+/// The training options of a run's config.json: `train` (`depthsense train`) or `mer_train`
+/// (`depthsense mer train`).
+fn train_options(cfg: &Value) -> &Value {
+    cfg.get("train")
+        .or_else(|| cfg.get("mer_train"))
+        .unwrap_or(&Value::Null)
+}
+
+/// The invocation config.json records (`"command"`: the argv, program name first) as one
+/// shell line (words quoted where a shell would need it); `None` for a run written before the
+/// command was recorded.
+pub fn recorded_command(cfg: &Value) -> Option<String> {
+    match cfg.get("command")? {
+        Value::Array(words) => {
+            let words: Vec<String> = words
+                .iter()
+                .map(|w| w.as_str().map(shell_word))
+                .collect::<Option<_>>()?;
+            (!words.is_empty()).then(|| words.join(" "))
+        }
+        Value::String(line) => Some(line.clone()),
+        _ => None,
+    }
+}
+
+/// `w` as a shell reads it back: unchanged when plain, else in single quotes.
+fn shell_word(w: &str) -> String {
+    let plain = !w.is_empty()
+        && w.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c));
+    if plain {
+        w.to_string()
+    } else {
+        format!("'{}'", w.replace('\'', "'\\''"))
+    }
+}
+
+/// A run that stopped before its last epoch (interrupted, `--stop-after`, or still running):
+/// the mark shown beside it. Its epochs are the last `"kind":"epoch"` record of metrics.jsonl
+/// against the run's `epochs` in config.json (an `--extend`ed run: the new total).
+pub fn unfinished(cfg: &Value, records: &[Value]) -> Option<String> {
+    let total = train_options(cfg)["epochs"].as_u64()?;
+    let done = records
+        .iter()
+        .filter(|r| r["kind"] == "epoch")
+        .filter_map(|r| r["epoch"].as_u64())
+        .max()
+        .unwrap_or(0);
+    (done < total).then(|| format!("unfinished (epoch {done} of {total}; continue with --resume)"))
+}
+
 /// The section of a training run in `dir` (`config.json` + `metrics.jsonl`), or `None` when
 /// `dir` is not one.
 pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Option<Found> {
@@ -64,6 +165,7 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
     }
     let cfg = read_json(&dir.join("config.json")).ok()?;
     let recs = records(&dir.join("metrics.jsonl"));
+    let unfinished = unfinished(&cfg, &recs);
     let vals: Vec<&Value> = recs
         .iter()
         .filter(|r| r["kind"] == "val" || (r["kind"] == "epoch" && r.get("val").is_some()))
@@ -83,10 +185,10 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
             })
             .cloned()
             .collect(),
-        command_line: None,
+        command_line: recorded_command(&cfg),
         inputs: ["data", "out"]
             .iter()
-            .filter_map(|k| string_at(&cfg, &["train", k]).map(|v| (k.to_string(), v)))
+            .filter_map(|k| string_at(train_options(&cfg), &[k]).map(|v| (k.to_string(), v)))
             .collect(),
         doc: Doc::new(),
         images: vec![],
@@ -94,9 +196,9 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
         models: vec![],
     };
     f.doc = if pda {
-        pda_doc(&cfg, &vals)
+        pda_doc(&cfg, &vals, unfinished.as_deref())
     } else {
-        let (doc, best) = depth_doc(dir, &cfg, &vals);
+        let (doc, best) = depth_doc(dir, &cfg, &vals, unfinished);
         f.models.extend(best);
         doc
     };
@@ -111,8 +213,14 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
 }
 
 /// A depth network's run: settings, every validation, and its best validation as a model row.
-fn depth_doc(dir: &Path, cfg: &Value, vals: &[&Value]) -> (Doc, Option<ModelRow>) {
-    let t = &cfg["train"];
+fn depth_doc(
+    dir: &Path,
+    cfg: &Value,
+    vals: &[&Value],
+    unfinished: Option<String>,
+) -> (Doc, Option<ModelRow>) {
+    let t = train_options(cfg);
+    let data = t["data"].as_str().map(str::to_string);
     let m = &cfg["model"];
     let fusion = match (m["fusion"].as_str(), m["attention"].as_bool()) {
         (Some("late"), Some(true)) => "late fusion + attention",
@@ -122,10 +230,10 @@ fn depth_doc(dir: &Path, cfg: &Value, vals: &[&Value]) -> (Doc, Option<ModelRow>
     };
     let mut doc = Doc::new();
     doc.paragraph(format!(
-        "`{}` ({fusion}), {} epochs of batch {}, lr {}, seed {}, on `{}` ({} training / {} \
+        "`{}` ({fusion}), {} batch {}, lr {}, seed {}, on `{}` ({} training / {} \
          validation samples used).",
         m["name"].as_str().unwrap_or("?"),
-        t["epochs"],
+        epochs_text(t, unfinished.as_deref()),
         t["batch_size"],
         t["lr"],
         t["seed"],
@@ -180,8 +288,13 @@ fn depth_doc(dir: &Path, cfg: &Value, vals: &[&Value]) -> (Doc, Option<ModelRow>
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default(),
-            rows: format!("validation, best epoch ({})", r["epoch"]),
+            split: Split::Validation,
+            rows: format!("best epoch ({})", r["epoch"]),
             dir: dir.to_path_buf(),
+            data: data.clone(),
+            cap_m: None,
+            seeds: Some(1),
+            unfinished: unfinished.clone(),
             images: r["val"]["n_images"].as_u64(),
             rmse_m: num(&r["val"], "rmse"),
             mae_m: num(&r["val"], "mae"),
@@ -191,6 +304,15 @@ fn depth_doc(dir: &Path, cfg: &Value, vals: &[&Value]) -> (Doc, Option<ModelRow>
     (doc, best)
 }
 
+/// "10 epochs of", or for a run that stopped early its mark in bold: "**unfinished (epoch 3
+/// of 10; continue with --resume)**,".
+fn epochs_text(t: &Value, unfinished: Option<&str>) -> String {
+    match unfinished {
+        Some(mark) => format!("**{mark}**,"),
+        None => format!("{} epochs of", t["epochs"]),
+    }
+}
+
 /// A table whose columns are all numbers (right-aligned).
 fn right_aligned(titles: &[&str]) -> MdTable {
     let cols: Vec<(&str, Align)> = titles.iter().map(|t| (*t, Align::Right)).collect();
@@ -198,14 +320,15 @@ fn right_aligned(titles: &[&str]) -> MdTable {
 }
 
 /// A PDA (MER) run: every validation's association metrics.
-fn pda_doc(cfg: &Value, vals: &[&Value]) -> Doc {
+fn pda_doc(cfg: &Value, vals: &[&Value], unfinished: Option<&str>) -> Doc {
+    let t = train_options(cfg);
     let mut doc = Doc::new();
     doc.paragraph(format!(
-        "PDA network (MER, SPEC §5), {} epochs of batch {}, lr {}, on `{}`.",
-        cfg["train"]["epochs"],
-        cfg["train"]["batch_size"],
-        cfg["train"]["lr"],
-        cfg["train"]["data"].as_str().unwrap_or("?"),
+        "PDA network (MER, SPEC §5), {} batch {}, lr {}, on `{}`.",
+        epochs_text(t, unfinished),
+        t["batch_size"],
+        t["lr"],
+        t["data"].as_str().unwrap_or("?"),
     ));
     let mut t = right_aligned(&[
         "epoch",
@@ -333,8 +456,10 @@ fn export_doc(model: &Path, v: &Value) -> Doc {
     doc
 }
 
-/// Each model of an evaluation's `tables.json` as a row of the comparison.
-pub fn eval_models(dir: &Path, v: &Value) -> Vec<ModelRow> {
+/// Each model of an evaluation's `tables.json` (`eval`, or the demo's) as a test row of the
+/// comparison: its headline row (combined conditions, full image, largest cap). `data`: the
+/// prepared folder it was scored on, when known; `from`: what wrote it.
+pub fn eval_models(dir: &Path, v: &Value, data: Option<String>, from: &str) -> Vec<ModelRow> {
     let Some(models) = v.get("models").and_then(Value::as_array) else {
         return vec![];
     };
@@ -353,10 +478,14 @@ pub fn eval_models(dir: &Path, v: &Value) -> Vec<ModelRow> {
             let metric = |k: &str| head.and_then(|r| num(&r["metrics"], k));
             ModelRow {
                 name: m["name"].as_str().unwrap_or("?").to_string(),
-                rows: head.map_or("test".into(), |r| {
-                    format!("test, cap {} m", num(r, "cap_m").unwrap_or(f64::NAN))
-                }),
+                split: Split::Test,
+                rows: from.to_string(),
                 dir: dir.to_path_buf(),
+                data: data.clone(),
+                cap_m: head.and_then(|r| num(r, "cap_m")),
+                // One checkpoint: one training seed.
+                seeds: Some(1),
+                unfinished: None,
                 images: head.and_then(|r| r["n_images"].as_u64()),
                 rmse_m: metric("rmse"),
                 mae_m: metric("mae"),
@@ -367,41 +496,221 @@ pub fn eval_models(dir: &Path, v: &Value) -> Vec<ModelRow> {
         .collect()
 }
 
-/// The comparison section over every model row of `sections`, or `None` without any.
+/// Every arm of an experiment of many training runs (`ablation.json`: each variant;
+/// `reduced_data.json`: each training-set cell; `data_scale.json`: each arm at each N) as a
+/// test row of the comparison: its mean over seeds on the combined conditions, full image,
+/// largest cap.
+pub fn experiment_models(kind: Kind, dir: &Path, v: &Value) -> Vec<ModelRow> {
+    let data = string_at(v, &["options", "data"]);
+    // Every run of an experiment is tested on the same scenes: their image count, when one.
+    let images: BTreeSet<u64> = v["runs"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|r| {
+            r["rows"].as_array()?.iter().find_map(|x| {
+                (x["condition"] == "combined" && x["region"] == "full")
+                    .then(|| x["n_images"].as_u64())
+                    .flatten()
+            })
+        })
+        .collect();
+    let images = (images.len() == 1)
+        .then(|| images.into_iter().next())
+        .flatten();
+    let mean = |r: &Value, k: &str| num(&r[k], "mean");
+    let row = |name: String, r: &Value, cap_m: Option<f64>| ModelRow {
+        name,
+        split: Split::Test,
+        rows: kind.slug().replace('-', " "),
+        dir: dir.to_path_buf(),
+        data: data.clone(),
+        cap_m,
+        seeds: r["rmse"]["n"].as_u64().map(|n| n as usize),
+        unfinished: None,
+        images,
+        rmse_m: mean(r, "rmse"),
+        mae_m: mean(r, "mae"),
+        abs_rel: mean(r, "abs_rel"),
+        delta1: mean(r, "delta1"),
+    };
+    match kind {
+        Kind::Ablation | Kind::ReducedData => {
+            // Each variant's (cell's) combined / full-image row at its largest cap.
+            let mut best: Vec<(String, &Value)> = vec![];
+            for r in v["summary"].as_array().into_iter().flatten() {
+                if r["condition"] != "combined" || r["region"] != "full" {
+                    continue;
+                }
+                let Some(variant) = r["variant"].as_str() else {
+                    continue;
+                };
+                match best.iter_mut().find(|(n, _)| n == variant) {
+                    Some((_, b)) if num(r, "cap_m") > num(b, "cap_m") => *b = r,
+                    Some(_) => {}
+                    None => best.push((variant.to_string(), r)),
+                }
+            }
+            best.into_iter()
+                .map(|(variant, r)| {
+                    let name = match kind {
+                        Kind::ReducedData => format!("trained on {variant}"),
+                        _ => variant,
+                    };
+                    row(name, r, num(r, "cap_m"))
+                })
+                .collect()
+        }
+        Kind::DataScale => {
+            let cap = v["options"]["eval"]["caps_m"]
+                .as_array()
+                .and_then(|c| c.iter().filter_map(Value::as_f64).reduce(f64::max));
+            v["rows"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(|r| {
+                    let name = format!(
+                        "{}, N = {}",
+                        r["arm"].as_str().unwrap_or("?"),
+                        r["train_samples"]
+                    );
+                    row(name, r, cap)
+                })
+                .collect()
+        }
+        _ => vec![],
+    }
+}
+
+/// For each row, which of its metrics ([`METRIC_COLUMNS`]) is the best among the rows of its
+/// test set ([`ModelRow::test_set`]; ties all marked; a test set of one row marks nothing).
+fn best_marks(rows: &[&ModelRow]) -> Vec<[bool; 4]> {
+    let mut marks = vec![[false; 4]; rows.len()];
+    for (i, r) in rows.iter().enumerate() {
+        let peers: Vec<&ModelRow> = rows
+            .iter()
+            .filter(|p| p.test_set() == r.test_set())
+            .copied()
+            .collect();
+        if peers.len() < 2 {
+            continue;
+        }
+        for (k, &(_, decimals, higher)) in METRIC_COLUMNS.iter().enumerate() {
+            // Compared as shown: values equal to the shown decimals tie.
+            let shown = |m: &ModelRow| {
+                m.metrics()[k]
+                    .filter(|x| x.is_finite())
+                    .and_then(|x| format!("{x:.decimals$}").parse::<f64>().ok())
+            };
+            let Some(mine) = shown(r) else { continue };
+            let best = peers.iter().filter_map(|p| shown(p)).reduce(|a, b| {
+                if higher {
+                    a.max(b)
+                } else {
+                    a.min(b)
+                }
+            });
+            marks[i][k] = best == Some(mine);
+        }
+    }
+    marks
+}
+
+/// The comparison section over every model row of `sections`, or `None` without any: the test
+/// rows (best of each metric in bold), then the validation rows in a table of their own.
 pub fn comparison(sections: &[Found]) -> Option<Found> {
-    let rows: Vec<&ModelRow> = sections.iter().flat_map(|s| &s.models).collect();
-    if rows.is_empty() {
+    let all: Vec<&ModelRow> = sections.iter().flat_map(|s| &s.models).collect();
+    if all.is_empty() {
         return None;
     }
+    let mut test: Vec<&ModelRow> = all
+        .iter()
+        .filter(|r| r.split == Split::Test)
+        .copied()
+        .collect();
+    // Rows of one test set together (stable: each set in the order found).
+    let order: Vec<_> = test.iter().map(|r| r.test_set()).collect();
+    test.sort_by_key(|r| {
+        let key = r.test_set();
+        order.iter().position(|k| *k == key)
+    });
+    let val: Vec<&ModelRow> = all
+        .iter()
+        .filter(|r| r.split == Split::Validation)
+        .copied()
+        .collect();
     let mut doc = Doc::new();
-    doc.paragraph(
-        "Every model found: the headline row of each evaluation (`tables.json`: combined \
-         conditions, full image, largest cap) and the best validation of each training run. \
-         Validation rows pick checkpoints; only test rows compare methods.",
-    );
-    let mut t = MdTable::new(&[
-        ("model", Align::Left),
-        ("folder", Align::Left),
-        ("rows", Align::Left),
-        ("images", Align::Right),
-        ("RMSE (m)", Align::Right),
-        ("MAE (m)", Align::Right),
-        ("AbsRel", Align::Right),
-        ("δ1", Align::Right),
-    ]);
-    for r in rows {
-        t.row(&[
-            r.name.clone(),
-            format!("`{}`", r.dir.display()),
-            r.rows.clone(),
-            r.images.map_or("–".into(), |n| n.to_string()),
-            cell(r.rmse_m, 3),
-            cell(r.mae_m, 3),
-            cell(r.abs_rel, 3),
-            cell(r.delta1, 3),
-        ]);
+    doc.heading(1, "Test scenes");
+    if test.is_empty() {
+        doc.paragraph(
+            "No model was scored on test scenes: `depthsense eval --checkpoint RUN/best.safetensors` \
+             scores one; the validation rows below chose checkpoints and compare nothing.",
+        );
+    } else {
+        doc.paragraph(
+            "Every model scored on test scenes (scenes no choice was made on): the headline row \
+             of each evaluation and of the demo (combined conditions, full image, largest cap) \
+             and every arm of an experiment (mean over its seeds). **Bold**: the best value of \
+             each metric among the rows of one test set (same data, cap and images); lower is \
+             better for RMSE, MAE and AbsRel, higher for δ1.",
+        );
+        let marks = best_marks(&test);
+        let mut t = MdTable::new(&test_columns());
+        for (r, m) in test.iter().zip(&marks) {
+            let mut cells = vec![
+                r.name.clone(),
+                r.rows.clone(),
+                format!("`{}`", r.dir.display()),
+                r.data.as_ref().map_or("–".into(), |d| format!("`{d}`")),
+                r.cap_m.map_or("–".into(), |c| format!("{c}")),
+                r.seeds.map_or("–".into(), |n| n.to_string()),
+                r.images.map_or("–".into(), |n| n.to_string()),
+            ];
+            for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
+                let c = cell(r.metrics()[k], decimals);
+                cells.push(if m[k] { format!("**{c}**") } else { c });
+            }
+            t.row(&cells);
+        }
+        doc.table(t);
+        if let Some(text) = one_seed_caveat(&test) {
+            doc.paragraph(text);
+        }
     }
-    doc.table(t);
+    if !val.is_empty() {
+        doc.heading(1, "Validation (checkpoint selection)");
+        doc.paragraph(
+            "The best validation of each training run: it chose the run's `best.safetensors` \
+             and is no comparison of methods (evaluate the checkpoint on the test scenes for \
+             that). An unfinished run stopped before its last epoch.",
+        );
+        let mut cols = vec![
+            ("model", Align::Left),
+            ("folder", Align::Left),
+            ("epoch", Align::Left),
+            ("run", Align::Left),
+            ("images", Align::Right),
+        ];
+        cols.extend(METRIC_COLUMNS.iter().map(|(t, ..)| (*t, Align::Right)));
+        let mut t = MdTable::new(&cols);
+        for r in val {
+            let mut cells = vec![
+                r.name.clone(),
+                format!("`{}`", r.dir.display()),
+                r.rows.clone(),
+                r.unfinished
+                    .as_ref()
+                    .map_or("finished".into(), |u| format!("**{u}**")),
+                r.images.map_or("–".into(), |n| n.to_string()),
+            ];
+            for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
+                cells.push(cell(r.metrics()[k], decimals));
+            }
+            t.row(&cells);
+        }
+        doc.table(t);
+    }
     Some(Found {
         kind: Kind::Models,
         dir: PathBuf::new(),
@@ -413,4 +722,86 @@ pub fn comparison(sections: &[Found]) -> Option<Found> {
         grid: None,
         models: vec![],
     })
+}
+
+fn test_columns() -> Vec<(&'static str, Align)> {
+    let mut cols = vec![
+        ("model", Align::Left),
+        ("from", Align::Left),
+        ("folder", Align::Left),
+        ("data", Align::Left),
+        ("cap (m)", Align::Right),
+        ("seeds", Align::Right),
+        ("images", Align::Right),
+    ];
+    cols.extend(METRIC_COLUMNS.iter().map(|(t, ..)| (*t, Align::Right)));
+    cols
+}
+
+/// When a row of one seed has a peer in its test set (a difference between them rests on one
+/// seed): the words that say so.
+fn one_seed_caveat(rows: &[&ModelRow]) -> Option<String> {
+    let names: Vec<String> = rows
+        .iter()
+        .filter(|r| r.seeds.is_none_or(|n| n <= 1))
+        .filter(|r| rows.iter().filter(|p| p.test_set() == r.test_set()).count() > 1)
+        .map(|r| format!("`{}`", r.name))
+        .collect();
+    if names.is_empty() {
+        return None;
+    }
+    Some(format!(
+        "**One seed**: {} {} one trained model each; a difference between such rows is one \
+         seed: not a finding. An experiment's arms (mean over seeds, with its paired test) are \
+         the comparison.",
+        names.join(", "),
+        if names.len() == 1 { "is" } else { "are" },
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    /// config.json's argv as one line a shell reads back to the same words.
+    #[test]
+    fn the_recorded_command_is_one_shell_line() {
+        let cfg =
+            json!({"command": ["depthsense", "train", "--set", "a=1", "--out", "it's here", ""]});
+        assert_eq!(
+            recorded_command(&cfg).as_deref(),
+            Some("depthsense train --set a=1 --out 'it'\\''s here' ''")
+        );
+        assert_eq!(recorded_command(&json!({"command": []})), None);
+        assert_eq!(recorded_command(&json!({"train": {}})), None);
+        assert_eq!(
+            recorded_command(&json!({"command": "depthsense mer train"})).as_deref(),
+            Some("depthsense mer train")
+        );
+    }
+
+    /// Unfinished: the last epoch record before the run's epochs (`mer train`'s config too).
+    #[test]
+    fn a_run_short_of_its_epochs_is_unfinished() {
+        let recs = [
+            json!({"kind": "epoch", "epoch": 2}),
+            json!({"kind": "iter", "epoch": 2}),
+        ];
+        let mark = "unfinished (epoch 2 of 5; continue with --resume)";
+        assert_eq!(
+            unfinished(&json!({"train": {"epochs": 5}}), &recs).as_deref(),
+            Some(mark)
+        );
+        assert_eq!(
+            unfinished(&json!({"mer_train": {"epochs": 5}}), &recs).as_deref(),
+            Some(mark)
+        );
+        assert_eq!(unfinished(&json!({"train": {"epochs": 2}}), &recs), None);
+        assert_eq!(
+            unfinished(&json!({"train": {"epochs": 2}}), &[]).as_deref(),
+            Some("unfinished (epoch 0 of 2; continue with --resume)")
+        );
+        assert_eq!(unfinished(&json!({}), &recs), None, "epochs unknown");
+    }
 }

@@ -1,7 +1,7 @@
 //! `depthsense eval`: the paper's tables (SPEC §10 items 1–3) for a checkpoint, or for any
 //! method's predictions on disk (`--predictions DIR`), through the same scorer.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use depthsense_dataset::outputs::refuse_existing;
@@ -79,13 +79,56 @@ pub struct Args {
     /// Radar map(s): height, raw, raw-height or mer (default: from the checkpoint's config).
     #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
-    /// Model name in the tables.
-    #[arg(long, default_value = "model")]
-    pub name: String,
+    /// Model name in the tables (default: the checkpoint's run folder, e.g. `rgb` for
+    /// runs/demo/rgb/best.safetensors; a checkpoint outside a run folder: its file name without
+    /// the extension; with --predictions: the folder's name).
+    #[arg(long)]
+    pub name: Option<String>,
     /// Replace tables an earlier `eval` wrote in the output folder (only tables.md, tables.csv
     /// and tables.json); without it they are refused before anything is computed.
     #[arg(long)]
     pub force: bool,
+}
+
+/// The model's name in the tables: `--name`, else [`default_name`] of the checkpoint or the
+/// predictions folder.
+pub fn model_name(a: &Args) -> String {
+    if let Some(n) = &a.name {
+        return n.clone();
+    }
+    match (&a.checkpoint, &a.predictions) {
+        (Some(c), _) => default_name(c),
+        (None, Some(dir)) => dir_name(dir).unwrap_or_else(|| "model".into()),
+        (None, None) => "model".into(),
+    }
+}
+
+/// A checkpoint's name: its run folder's (the folder of a run's checkpoint file —
+/// `best.safetensors`, `last.safetensors` — or of a folder holding the run's `config.json`),
+/// else its file name without the extension (`paper_weights_rvmde.pth` →
+/// `paper_weights_rvmde`).
+pub fn default_name(checkpoint: &Path) -> String {
+    use depthsense_dataset::outputs::{BEST_CKPT, CONFIG_FILE, LAST_CKPT};
+    let file = checkpoint.file_name().and_then(|n| n.to_str());
+    let parent = checkpoint.parent().filter(|p| !p.as_os_str().is_empty());
+    let in_run = file.is_some_and(|f| f == BEST_CKPT || f == LAST_CKPT)
+        || parent.is_some_and(|p| p.join(CONFIG_FILE).is_file());
+    if in_run {
+        if let Some(run) = parent.and_then(dir_name) {
+            return run;
+        }
+    }
+    checkpoint
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "model".into())
+}
+
+/// The last component of a folder's path (`runs/demo/rgb` → `rgb`; `.` and `..` through the
+/// folder they name).
+fn dir_name(dir: &Path) -> Option<String> {
+    let name = |d: &Path| d.file_name().map(|n| n.to_string_lossy().into_owned());
+    name(dir).or_else(|| name(&std::fs::canonicalize(dir).ok()?))
 }
 
 /// The metrics settings of the command line.
@@ -114,7 +157,8 @@ pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
     let pb = progress_bar("eval");
     let (report, sum) = run_eval_predictions(&opts, &pb)?;
     pb.finish_and_clear();
-    let models = [(a.name.as_str(), &report)];
+    let name = model_name(&a);
+    let models = [(name.as_str(), &report)];
     write_tables_with_command(&out, &models, Some(&crate::command_line()))?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
@@ -127,4 +171,41 @@ pub fn run_predictions(a: Args, dir: PathBuf) -> anyhow::Result<ExitCode> {
         out.display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A run's checkpoint is named after its run folder; any other file after its stem.
+    #[test]
+    fn the_default_name_is_the_run_folder() {
+        assert_eq!(
+            default_name(Path::new("runs/demo/rgb/best.safetensors")),
+            "rgb"
+        );
+        assert_eq!(
+            default_name(Path::new("runs/abl/late-sam/last.safetensors")),
+            "late-sam"
+        );
+        assert_eq!(
+            default_name(Path::new("paper_weights_rvmde.pth")),
+            "paper_weights_rvmde"
+        );
+        assert_eq!(default_name(Path::new("best.safetensors")), "best");
+        assert_eq!(
+            default_name(Path::new("weights/fusion.safetensors")),
+            "fusion"
+        );
+        // A checkpoint of another name inside a run folder (one holding config.json).
+        let tmp = tempfile::tempdir().unwrap();
+        let run = tmp.path().join("fusion-long");
+        std::fs::create_dir_all(&run).unwrap();
+        std::fs::write(run.join("config.json"), "{}").unwrap();
+        assert_eq!(default_name(&run.join("epoch3.safetensors")), "fusion-long");
+        assert_eq!(
+            dir_name(Path::new("runs/other-method/")).as_deref(),
+            Some("other-method")
+        );
+    }
 }

@@ -113,7 +113,26 @@ fn quick_demo_writes_the_report() {
     })
     .unwrap();
     let kinds: Vec<_> = page.0.sections.iter().map(|s| s.kind).collect();
-    assert_eq!(kinds, [depthsense_report::Kind::Demo]);
+    assert_eq!(
+        kinds,
+        [
+            depthsense_report::Kind::Models,
+            depthsense_report::Kind::Demo
+        ]
+    );
+    // Its two models on the test scenes and its two runs' validations, in separate tables; the
+    // headline difference is said to be one seed (issue 42).
+    let models = page.0.sections[0].doc.to_markdown();
+    let (test, val) = models
+        .split_once("# Validation")
+        .expect("a validation table");
+    assert!(
+        test.contains("| rgb | demo | ") && test.contains("| fusion | demo | "),
+        "{models}"
+    );
+    assert!(test.contains("one seed: not a finding"), "{models}");
+    assert_eq!(val.matches(" | finished | ").count(), 2, "{models}");
+    assert!(readme.contains("(one seed: not a finding;"), "{readme}");
 
     // A second demo into the same folder is refused and changes nothing.
     let before = std::fs::read(r.join("summary.json")).unwrap();

@@ -1,6 +1,6 @@
 //! `depthsense eval`: the paper's tables (SPEC §10 items 1–3) for a checkpoint, or for any (the network side; its flags: `depthsense_cli::cmd::eval`).
 
-use depthsense_cli::cmd::eval::{eval_config, Args};
+use depthsense_cli::cmd::eval::{eval_config, model_name, Args};
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_cli::command_line;
 use depthsense_data::radar_failure::RadarFailure;
@@ -22,6 +22,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .unwrap_or_else(|| PathBuf::from("eval"))
     });
     refuse_existing(&table_paths(&out), a.force, "eval")?;
+    let name = model_name(&a);
     let opts = EvalOptions {
         checkpoint,
         config: a.config.clone(),
@@ -43,7 +44,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         jobs: a.run.jobs,
         max_samples: a.run.max_samples,
         radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,
-        name: a.name.clone(),
+        name: name.clone(),
     };
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let (loaded, load_report) =
@@ -54,7 +55,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let pb = progress_bar("eval");
     let report = run_eval_loaded(&opts, &loaded, &pb)?;
     pb.finish_and_clear();
-    let models = [(a.name.as_str(), &report)];
+    let models = [(name.as_str(), &report)];
     write_tables_with_command(&out, &models, Some(&command_line()))?;
     println!("{}", depthsense_metrics::tables::markdown_report(&models));
     eprintln!(
