@@ -8,37 +8,13 @@ use depthsense_score::mer_coverage::{report_doc, CoverageRow, MerReport};
 use serde::Deserialize;
 use serde_json::Value;
 
+use super::found::{file_name, read_json, string_at, Found, ImageSource, ModelRow};
 use super::{FigureGrid, Kind, ReportError, Skipped};
 
 /// JSON files larger than this are not opened to look for a MER report.
 const MAX_PROBE_BYTES: u64 = 4 << 20;
 /// At most this many rows of explain overlays (sample × radar state) go into the grid.
 pub const MAX_GRID_ROWS: usize = 8;
-
-/// An image to embed: source file, caption, and whether it is a grid tile.
-#[derive(Debug, Clone)]
-pub struct ImageSource {
-    pub path: PathBuf,
-    pub caption: String,
-    pub tile: bool,
-}
-
-/// One output found, before its images are read.
-#[derive(Debug, Clone)]
-pub struct Found {
-    pub kind: Kind,
-    pub dir: PathBuf,
-    pub files: Vec<PathBuf>,
-    pub command_line: Option<String>,
-    pub inputs: Vec<(String, String)>,
-    /// What the section says: built from the JSON, or the writer's Markdown as one block.
-    pub doc: Doc,
-    pub images: Vec<ImageSource>,
-    /// Cells index `images`.
-    pub grid: Option<FigureGrid>,
-    /// Models this output evaluated or trained, for the comparison table.
-    pub models: Vec<super::runs::ModelRow>,
-}
 
 /// Everything found under the run folders.
 #[derive(Debug, Default)]
@@ -86,7 +62,7 @@ pub fn discover(runs: &[PathBuf], out: &Path, max_depth: usize) -> Result<Discov
             .flatten()
             .map(|(i, _)| *i)
     };
-    let moved: Vec<(usize, Vec<super::runs::ModelRow>)> = d
+    let moved: Vec<(usize, Vec<ModelRow>)> = d
         .sections
         .iter()
         .filter_map(|s| Some((of_demo(s)?, s.models.clone())))
@@ -185,10 +161,6 @@ fn list(dir: &Path) -> std::io::Result<(Vec<PathBuf>, Vec<PathBuf>)> {
     Ok((files, dirs))
 }
 
-pub(crate) fn file_name(p: &Path) -> Option<&str> {
-    p.file_name().and_then(|n| n.to_str())
-}
-
 fn skip(p: &Path, reason: String) -> Skipped {
     Skipped {
         path: p.to_path_buf(),
@@ -201,11 +173,6 @@ fn skip(p: &Path, reason: String) -> Skipped {
 fn document(v: &Value) -> Option<Doc> {
     v.get(depthsense_metrics::doc::DOCUMENT_KEY)
         .and_then(|d| Doc::deserialize(d).ok())
-}
-
-pub(crate) fn read_json(p: &Path) -> Result<Value, String> {
-    let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read: {e}"))?;
-    serde_json::from_str(&text).map_err(|e| format!("not valid JSON: {e}"))
 }
 
 /// The demo's summary file in `OUT/report/` (`depthsense demo`).
@@ -334,14 +301,6 @@ fn as_mer(v: &Value) -> Option<MerReport> {
         rows,
         command_line: string_at(v, &["command_line"]),
     })
-}
-
-pub(crate) fn string_at(v: &Value, path: &[&str]) -> Option<String> {
-    let mut cur = v;
-    for k in path {
-        cur = cur.get(k)?;
-    }
-    cur.as_str().map(str::to_string)
 }
 
 /// The value of `--flag X` (or `--flag=X`) in a command line.

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use image::imageops::FilterType;
 
-use super::discover::Found;
+use super::found::Found;
 use super::{ImageInfo, ReportOptions, Section, Skipped};
 
 /// One image as embedded (PNG bytes) and copied next to report.md.

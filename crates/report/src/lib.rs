@@ -19,6 +19,7 @@
 //! folder is written beside REPORT and renamed into place (never half-written).
 
 mod discover;
+mod found;
 mod html;
 mod images;
 pub mod markdown;

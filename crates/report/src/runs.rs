@@ -21,61 +21,11 @@ use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{Align, MdTable};
 use serde_json::Value;
 
-use super::discover::{file_name, read_json, string_at, Found, ImageSource};
+use super::found::{file_name, read_json, string_at, Found, ImageSource, ModelRow, Split};
 use super::Kind;
 
 /// The sidecar format `depthsense export` writes.
 const SIDECAR_FORMAT: &str = "depthsense-export-v1";
-
-/// Which scenes a row of the comparison was scored on.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Split {
-    /// Test scenes, never used for a choice: these rows compare models.
-    Test,
-    /// Validation scenes: the best epoch of a training run (they chose the checkpoint).
-    Validation,
-}
-
-/// One model of the comparison tables.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModelRow {
-    pub name: String,
-    pub split: Split,
-    /// Where the row comes from: `eval`, `demo`, `ablation`, …, or for a validation row the
-    /// epoch it picked (`best epoch (3)`).
-    pub rows: String,
-    pub dir: PathBuf,
-    /// The prepared data it was scored on, when recorded.
-    pub data: Option<String>,
-    /// The depth cap of the row (m).
-    pub cap_m: Option<f64>,
-    /// Seeds behind the values (an experiment's arm: its mean over seeds; a checkpoint: 1).
-    pub seeds: Option<usize>,
-    /// A training run that stopped before its last epoch: the mark shown beside it.
-    pub unfinished: Option<String>,
-    pub images: Option<u64>,
-    pub rmse_m: Option<f64>,
-    pub mae_m: Option<f64>,
-    pub abs_rel: Option<f64>,
-    pub delta1: Option<f64>,
-}
-
-impl ModelRow {
-    /// The four metrics of the tables, in column order.
-    fn metrics(&self) -> [Option<f64>; 4] {
-        [self.rmse_m, self.mae_m, self.abs_rel, self.delta1]
-    }
-
-    /// The test set a row was scored on: rows compare only with rows of the same data, cap and
-    /// images.
-    fn test_set(&self) -> (String, String, Option<u64>) {
-        (
-            self.data.clone().unwrap_or_default(),
-            self.cap_m.map_or(String::new(), |c| format!("{c}")),
-            self.images,
-        )
-    }
-}
 
 /// The metrics of the comparison: (column title, decimals, higher is better). RMSE, MAE and
 /// AbsRel are errors (lower is better); δ1 is the share of pixels within 1.25× (higher).
