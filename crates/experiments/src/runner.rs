@@ -487,11 +487,14 @@ fn train_or_reuse(
     let cfg_path = run.join(CONFIG_FILE);
     let (finished, earlier_secs) = training_finished(run, topts.epochs);
     let t = Instant::now();
-    Ok(if finished {
+    let reuse = || {
         let best = checkpoint::read_config(&run.join(BEST_CKPT))
             .ok()
             .and_then(|(_, extra)| extra["train_state"]["best_val_rmse"].as_f64());
         (RunStatus::Evaluated, earlier_secs.unwrap_or(f64::NAN), best)
+    };
+    Ok(if finished {
+        reuse()
     } else {
         let resumed = topts.resume;
         // A run of this experiment (its config matched above) that stopped before its first
@@ -499,6 +502,9 @@ fn train_or_reuse(
         let mut topts = topts.clone();
         topts.force = !topts.resume && cfg_path.exists();
         let s = train(&topts, pb)?;
+        if s.already_finished.is_some() {
+            return Ok(reuse());
+        }
         if s.interrupted || s.iterations_done < s.total_iterations {
             return Err(NetError::TrainingStopped {
                 run: run.to_path_buf(),

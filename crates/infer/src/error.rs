@@ -65,18 +65,6 @@ pub enum NetError {
     },
     #[error(transparent)]
     Lock(#[from] depthsense_base::lock::LockError),
-    /// `train --resume` of a run that has run all its epochs: nothing to do (exit status 0).
-    #[error(
-        "{run} is finished: {epochs} of {epochs} epochs (iteration {iteration}); nothing was \
-         changed. To train it longer, run the same command with --extend --epochs N (N > \
-         {epochs}): a new learning-rate schedule from its last checkpoint \
-         (docs/guide/train.md, \"Longer runs and fine-tuning\")"
-    )]
-    RunFinished {
-        run: String,
-        epochs: usize,
-        iteration: u64,
-    },
     /// The data layer's errors (prepared folders, the loader, unreadable samples), with their
     /// own messages.
     #[error(transparent)]

@@ -25,7 +25,7 @@ use depthsense_infer::NetError;
 
 mod session;
 use depthsense_infer::run::validate_net;
-pub use session::{removing_new_folder_on_failure, train, train_distributed, Trainer};
+pub use session::{removing_new_folder_on_failure, train, train_distributed, Opened, Trainer};
 
 use crate::metrics_log::{append_jsonl, truncate_metrics, write_curves, ValRecord};
 use depthsense_infer::upload::upload_batch;
@@ -189,6 +189,8 @@ pub struct TrainSummary {
     pub interrupted: bool,
     /// The stop signal (SIGINT / SIGTERM) that interrupted it, checkpointed first.
     pub signal: Option<depthsense_base::interrupt::StopSignal>,
+    /// `--resume` of a run that had done all its epochs: nothing was trained or changed.
+    pub already_finished: Option<FinishedRun>,
     pub best_val_rmse: f64,
     /// What RUN/best.safetensors holds and whether this invocation wrote it.
     pub best: BestCheckpoint,
@@ -203,6 +205,28 @@ pub struct TrainSummary {
     pub partition: Partition,
     /// Validation samples each validation scores (`--max-val-samples` of the partition's).
     pub val_samples_used: usize,
+}
+
+/// A run that `--resume` found finished (all its epochs done): an outcome, said to the user,
+/// not an error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FinishedRun {
+    pub run: PathBuf,
+    pub epochs: usize,
+    pub iteration: u64,
+}
+
+impl std::fmt::Display for FinishedRun {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (run, epochs, iteration) = (self.run.display(), self.epochs, self.iteration);
+        write!(
+            f,
+            "{run} is finished: {epochs} of {epochs} epochs (iteration {iteration}); nothing was \
+             changed. To train it longer, run the same command with --extend --epochs N (N > \
+             {epochs}): a new learning-rate schedule from its last checkpoint \
+             (docs/guide/train.md, \"Longer runs and fine-tuning\")"
+        )
+    }
 }
 
 /// What RUN/best.safetensors holds: the network of the lowest validation RMSE of the run, the

@@ -86,7 +86,7 @@ fn exclude_withholds_exactly_the_documented_scenes() {
         exclude: ex,
         ..TrainOptions::default()
     };
-    let _t = Trainer::new(&opts).unwrap();
+    let _t = Trainer::open(&opts).unwrap();
     let cfg: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(opts.out.join(CONFIG_FILE)).unwrap())
             .unwrap();

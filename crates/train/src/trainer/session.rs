@@ -98,15 +98,37 @@ struct EpochLosses {
     n: usize,
 }
 
+/// What opening a run came to: a trainer ready to run, or — `--resume` of a run that has
+/// already done all its epochs — the summary of that finished run (an outcome, not an error:
+/// nothing to do, nothing changed).
+pub enum Opened<'o> {
+    Ready(Box<Trainer<'o>>),
+    Finished(Box<TrainSummary>),
+}
+
+impl Opened<'_> {
+    /// Trains to the end (or to `stop_after`, or to a stop signal); a finished run's summary
+    /// as it is.
+    pub fn run(self, progress: &Progress) -> Result<TrainSummary, NetError> {
+        match self {
+            Opened::Ready(t) => t.run(progress),
+            Opened::Finished(s) => Ok(*s),
+        }
+    }
+}
+
 impl<'o> Trainer<'o> {
     /// Opens the data, partitions it, builds (or resumes) the network and writes RUN/config.json.
-    pub fn new(opts: &'o TrainOptions) -> Result<Self, NetError> {
-        Self::with_dist(opts, None)
+    pub fn open(opts: &'o TrainOptions) -> Result<Opened<'o>, NetError> {
+        Self::open_with_dist(opts, None)
     }
 
-    /// [`Trainer::new`] for one rank of a data-parallel job (`None`: a single process);
+    /// [`Trainer::open`] for one rank of a data-parallel job (`None`: a single process);
     /// `opts.batch_size` is the global batch (see [`crate::distributed`]).
-    pub fn with_dist(opts: &'o TrainOptions, mut dist: Option<Dist>) -> Result<Self, NetError> {
+    pub fn open_with_dist(
+        opts: &'o TrainOptions,
+        mut dist: Option<Dist>,
+    ) -> Result<Opened<'o>, NetError> {
         let started = Instant::now();
         let main = check_options(opts, dist.as_ref())?;
         // One writer per run folder, and a finished run is never replaced silently
@@ -143,11 +165,14 @@ impl<'o> Trainer<'o> {
             state.data_settings = ds.index.settings.clone();
         }
         if opts.resume && !opts.extend && state.iteration >= bpe * opts.epochs as u64 {
-            return Err(NetError::RunFinished {
-                run: run.display().to_string(),
-                epochs: opts.epochs,
-                iteration: state.iteration,
-            });
+            return Ok(Opened::Finished(Box::new(finished_summary(
+                opts,
+                &state,
+                part,
+                val_entries.len(),
+                bpe,
+                started,
+            ))));
         }
         if let Some(d) = dist.as_mut() {
             if part.train.len() < opts.batch_size {
@@ -191,7 +216,7 @@ impl<'o> Trainer<'o> {
         if main {
             trainer.write_config()?;
         }
-        Ok(trainer)
+        Ok(Opened::Ready(Box::new(trainer)))
     }
 
     /// Rank 0 of a job, or a single process: the one that writes RUN/.
@@ -549,6 +574,7 @@ impl<'o> Trainer<'o> {
             total_iterations: self.total,
             interrupted: fitted.interrupted,
             signal: fitted.signal,
+            already_finished: None,
             best_val_rmse: self.state.best_val_rmse.unwrap_or(f64::INFINITY),
             best: self.best(),
             train_images_per_s: 0.0,
@@ -681,6 +707,44 @@ impl Learner for Trainer<'_> {
             Some(d) => d.agree_on_stop(local),
             None => Ok(local),
         }
+    }
+}
+
+/// The summary of a run that `--resume` found finished: nothing trained, nothing written.
+fn finished_summary(
+    opts: &TrainOptions,
+    state: &State,
+    partition: Partition,
+    val_samples_used: usize,
+    bpe: u64,
+    started: Instant,
+) -> TrainSummary {
+    TrainSummary {
+        run_dir: opts.out.clone(),
+        losses: vec![],
+        val: vec![],
+        iterations_done: state.iteration,
+        total_iterations: bpe * opts.epochs as u64,
+        interrupted: false,
+        signal: None,
+        best_val_rmse: state.best_val_rmse.unwrap_or(f64::INFINITY),
+        best: super::BestCheckpoint {
+            val_rmse: state.best_val_rmse,
+            iteration: state.best_iteration,
+            epoch: state.best_epoch,
+            written_by_this_run: false,
+        },
+        train_images_per_s: 0.0,
+        train_seconds: 0.0,
+        val_seconds: 0.0,
+        seconds: started.elapsed().as_secs_f64(),
+        partition,
+        val_samples_used,
+        already_finished: Some(super::FinishedRun {
+            run: opts.out.clone(),
+            epochs: opts.epochs,
+            iteration: state.iteration,
+        }),
     }
 }
 
@@ -1017,7 +1081,7 @@ fn extend_schedule(
 
 /// Train a network. See the module docs for what lands in `opts.out`.
 pub fn train(opts: &TrainOptions, progress: &Progress) -> Result<TrainSummary, NetError> {
-    removing_new_folder_on_failure(&opts.out, || Trainer::new(opts)?.run(progress))
+    removing_new_folder_on_failure(&opts.out, || Trainer::open(opts)?.run(progress))
 }
 
 /// [`train`] as one rank of a data-parallel job (only rank 0 writes RUN/; pass a hidden
@@ -1028,10 +1092,10 @@ pub fn train_distributed(
     progress: &Progress,
 ) -> Result<TrainSummary, NetError> {
     if !dist.is_main() {
-        return Trainer::with_dist(opts, Some(dist))?.run(progress);
+        return Trainer::open_with_dist(opts, Some(dist))?.run(progress);
     }
     removing_new_folder_on_failure(&opts.out, || {
-        Trainer::with_dist(opts, Some(dist))?.run(progress)
+        Trainer::open_with_dist(opts, Some(dist))?.run(progress)
     })
 }
 

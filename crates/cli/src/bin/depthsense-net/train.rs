@@ -7,7 +7,6 @@ use depthsense_cli::stop::invocation;
 use depthsense_config::RadarInput;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_dist::DistEnv;
-use depthsense_infer::NetError;
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Progress;
 use depthsense_train::distributed::{self, Dist, DistOptions};
@@ -53,23 +52,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let model = model_config(&a)?;
     let opts = train_options(a, model)?;
     depthsense_cli::stop::catch_stop_signals()?;
-    let trained = match train_this_process(opts, &dist) {
-        // `--resume` of a finished run: said, nothing to do.
-        Err(e) => match e.downcast::<NetError>() {
-            Ok(finished @ NetError::RunFinished { .. }) => {
-                eprintln!("{finished}");
-                return Ok(ExitCode::SUCCESS);
-            }
-            Ok(other) => return Err(other.into()),
-            Err(other) => return Err(other),
-        },
-        Ok(t) => t,
-    };
+    let trained = train_this_process(opts, &dist)?;
     let Some((s, pb)) = trained else {
         // a rank other than 0: rank 0 reports
         return Ok(depthsense_base::interrupt::requested()
             .map_or(ExitCode::SUCCESS, |sig| ExitCode::from(sig.exit_code())));
     };
+    // `--resume` of a finished run: said, nothing to do.
+    if let Some(finished) = &s.already_finished {
+        pb.finish_and_clear();
+        eprintln!("{finished}");
+        return Ok(ExitCode::SUCCESS);
+    }
     pb.finish();
     print_summary(&s, &out);
     if let Some(sig) = s.signal {
