@@ -854,6 +854,7 @@ pub fn write_toy_dataset(
     let mut index = PreparedIndex {
         version: "v1.0-toy".into(),
         samples: vec![],
+        frame_size: Some([w, h]),
         ..PreparedIndex::default()
     };
     let mut rng = Rng::new(seed);

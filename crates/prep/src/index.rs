@@ -257,6 +257,7 @@ pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> 
     let first = &sources[0].2;
     merged.version = ref_index.version.clone();
     merged.settings = ref_index.settings.clone();
+    merged.frame_size = ref_index.frame_size;
     merged.shard = None;
     if merged.split_source.is_empty() {
         merged.split_source = first.split_source.clone();

@@ -146,6 +146,10 @@ pub struct PreparedIndex {
     /// Set in a shard's own index (`index.shard-I-of-N.json`, see [`shard_index_file`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shard: Option<ShardInfo>,
+    /// [width, height] of every sample's maps ([`FRAME_W`] × [`FRAME_H`] for `prepare`), so that
+    /// a network is sized without reading a sample. `None` in an index written before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_size: Option<[u32; 2]>,
 }
 
 /// Which part of a sharded `prepare` an index holds.

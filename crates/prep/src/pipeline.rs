@@ -1386,6 +1386,7 @@ fn write_index(
     };
     index.version = nu.version.clone();
     index.settings = settings;
+    index.frame_size = Some([layout::FRAME_W, layout::FRAME_H]);
     index.split_source = match &assignment.lists_dir {
         Some(d) => format!("{}: {}", assignment.source, d.display()),
         None => assignment.source.clone(),

@@ -876,6 +876,26 @@ fn model_config_for_data(
     ds: &Dataset,
     first: &IndexEntry,
 ) -> Result<ModelConfig, NetError> {
+    let (width, height) = frame_size(ds, first)?;
+    let mut cfg = opts.model.clone();
+    cfg.out_height = height;
+    cfg.out_width = width;
+    // The radar input is part of the model (SPEC §5): `--radar-input` when given, else the
+    // config's, adjusted to a 2-channel config.
+    cfg.radar_input = match opts.radar_input {
+        Some(r) => r,
+        None if cfg.radar_input.channels() as i64 == cfg.radar_channels => cfg.radar_input,
+        None => RadarInput::for_channels(cfg.radar_channels)?,
+    };
+    Ok(cfg)
+}
+
+/// (width, height) of the prepared maps: the index says (`frame_size`); an index written
+/// before it did is probed with its first sample.
+fn frame_size(ds: &Dataset, first: &IndexEntry) -> Result<(i64, i64), NetError> {
+    if let Some([w, h]) = ds.index.frame_size {
+        return Ok((w.into(), h.into()));
+    }
     let probe = depthsense_data::load_sample(
         ds,
         first,
@@ -885,17 +905,7 @@ fn model_config_for_data(
         },
         &mut depthsense_data::Rng::new(0),
     )?;
-    let mut cfg = opts.model.clone();
-    cfg.out_height = probe.height as i64;
-    cfg.out_width = probe.width as i64;
-    // The radar input is part of the model (SPEC §5): `--radar-input` when given, else the
-    // config's, adjusted to a 2-channel config.
-    cfg.radar_input = match opts.radar_input {
-        Some(r) => r,
-        None if cfg.radar_input.channels() as i64 == cfg.radar_channels => cfg.radar_input,
-        None => RadarInput::for_channels(cfg.radar_channels)?,
-    };
-    Ok(cfg)
+    Ok((probe.width as i64, probe.height as i64))
 }
 
 type Built = (VarStore, DepthNet, State, Sgd);
@@ -1119,6 +1129,24 @@ pub fn removing_new_folder_on_failure<T>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_network_is_sized_from_the_index_without_reading_a_sample() {
+        let d = tempfile::tempdir().unwrap();
+        depthsense_data::write_toy_dataset(d.path(), 1, 1, 96, 40, 1).unwrap();
+        let ds = Dataset::open(d.path()).unwrap();
+        let first = ds.index.samples[0].clone();
+        // The sample's files are gone: only the index can say the size.
+        std::fs::remove_dir_all(d.path().join(&first.dir)).unwrap();
+        assert_eq!(frame_size(&ds, &first).unwrap(), (96, 40));
+        // An index written before `frame_size` existed: the first sample is read.
+        let mut old = ds;
+        old.index.frame_size = None;
+        assert!(
+            frame_size(&old, &first).is_err(),
+            "no index size: the sample is read"
+        );
+    }
 
     fn entries(n: usize) -> Vec<IndexEntry> {
         (0..n)
