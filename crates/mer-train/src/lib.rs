@@ -484,7 +484,7 @@ impl<'o> Run<'o> {
             .collect();
         let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
         let b = stack(&samples, self.device)?;
-        let total = self.bpe * o.epochs as u64;
+        let total = self.plan().total_iterations();
         let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
         seed_step(o.seed, self.state.iteration);
         self.state.iteration += 1;

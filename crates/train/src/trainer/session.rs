@@ -164,7 +164,7 @@ impl<'o> Trainer<'o> {
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
         }
-        if opts.resume && !opts.extend && state.iteration >= bpe * opts.epochs as u64 {
+        if opts.resume && !opts.extend && state.iteration >= plan_of(opts, bpe).total_iterations() {
             return Ok(Opened::Finished(Box::new(finished_summary(
                 opts,
                 &state,
@@ -199,7 +199,7 @@ impl<'o> Trainer<'o> {
             load,
             run: run.clone(),
             bpe,
-            total: bpe * opts.epochs as u64,
+            total: plan_of(opts, bpe).total_iterations(),
             started,
             images: 0,
             train_secs: 0.0,
@@ -641,12 +641,7 @@ impl Learner for Trainer<'_> {
     }
 
     fn plan(&self) -> Plan {
-        Plan {
-            iterations_per_epoch: self.bpe,
-            epochs: self.opts.epochs as u64,
-            checkpoint_every: self.opts.checkpoint_every,
-            stop_after: self.opts.stop_after,
-        }
+        plan_of(self.opts, self.bpe)
     }
 
     /// The validation before training is a candidate for RUN/best.safetensors like every
@@ -710,6 +705,16 @@ impl Learner for Trainer<'_> {
     }
 }
 
+/// The run's length and cadence: the one place iterations × epochs is worked out.
+fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
+    Plan {
+        iterations_per_epoch,
+        epochs: opts.epochs as u64,
+        checkpoint_every: opts.checkpoint_every,
+        stop_after: opts.stop_after,
+    }
+}
+
 /// The summary of a run that `--resume` found finished: nothing trained, nothing written.
 fn finished_summary(
     opts: &TrainOptions,
@@ -724,7 +729,7 @@ fn finished_summary(
         losses: vec![],
         val: vec![],
         iterations_done: state.iteration,
-        total_iterations: bpe * opts.epochs as u64,
+        total_iterations: plan_of(opts, bpe).total_iterations(),
         interrupted: false,
         signal: None,
         best_val_rmse: state.best_val_rmse.unwrap_or(f64::INFINITY),
