@@ -158,6 +158,11 @@ impl LineState {
         if self.recent.back().is_some_and(|&(_, p)| p == pos) {
             return;
         }
+        // The first step's time is set-up (data, the first validation, autotuning): the window
+        // starts when it ends.
+        if self.recent.len() == 1 && self.origin.is_some_and(|(_, p0)| self.recent[0].1 == p0) {
+            self.recent.clear();
+        }
         self.recent.push_back((now, pos));
         while self.recent.len() > RATE_WINDOW
             || (self.recent.len() > 2
@@ -526,10 +531,20 @@ mod tests {
             finished: false,
         };
         st.record(t0, 0);
-        // A first step of 100 s (set-up under load), then 100 steps of 1 s each.
+        // A first step of 100 s (set-up under load), then steps of 1 s each: from the first
+        // step's end on, the rate is theirs.
         let at = |s: u64| t0 + Duration::from_secs(s);
         st.record(at(100), 1);
-        for i in 2..=101 {
+        assert_eq!(st.rate(at(100), 1), None, "one step: no rate yet");
+        for i in 2..=6 {
+            st.record(at(100 + i - 1), i);
+        }
+        let rate = st.rate(at(105), 6).unwrap();
+        assert!(
+            (rate - 1.0).abs() < 1e-9,
+            "{rate}: the first step's 100 s are not counted"
+        );
+        for i in 7..=101 {
             st.record(at(100 + i - 1), i);
         }
         let rate = st.rate(at(200), 101).unwrap();
