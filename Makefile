@@ -106,7 +106,7 @@ bench: build
 	$(BIN) bench synth --out runs/bench/synth.json
 	$(BIN) bench model --out runs/bench/model.json
 	$(BIN) bench train --out runs/bench/train.json
-	$(BIN) bench export --preset tiny --out runs/bench/export-tiny.json
+	$(BIN) bench export --config tiny --out runs/bench/export-tiny.json
 
 # Everything a GPU machine without Rust needs for scripts/gpu-check.sh (issue 9, ../shared/GPU.md):
 # the stripped release binary, a small prepared synthetic world and the scripts, in .gpu/

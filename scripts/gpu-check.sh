@@ -166,8 +166,8 @@ if [ "$DRY" = 0 ]; then
   "$PY" -c 'import torch,sys; sys.exit(0 if torch.cuda.is_available() else 1)' \
     || fail "torch.cuda.is_available() is False"
   # The binary itself on the GPU (`--device cuda` is an error, never a CPU fall-back, without one).
-  if ! timeout 120 "$BIN" bench model --preset tiny --device cuda --height 64 --width 128 \
-      --batch-forward 1 --batch-train 1 --warmup 0 --repeats 1 > "$S/smoke.txt" 2>&1; then
+  if ! timeout 120 "$BIN" bench model --config tiny --device cuda --height 64 --width 128 \
+      --batch-forward 1 --batch-train 1 --warmup-runs 0 --repeats 1 > "$S/smoke.txt" 2>&1; then
     cat "$S/smoke.txt" >> "$LOG"
     fail "depthsense bench model --device cuda failed: $(tail -c 300 "$S/smoke.txt" | tr '\n"' '  ')"
   fi
@@ -213,7 +213,7 @@ if [ "$DRY" = 1 ]; then
   PRESETS="tiny"; VARIANTS="fp32 bf16-cl"
   THR="--threads 1"
   TRAIN_ARGS=(--config tiny --epochs 1 --batch-size 2 --max-batches-per-epoch 2 --max-val-samples 4 --set input-downscale=2 --jobs 1)
-  BTRAIN_ARGS=(--config tiny --batch-size 2 --iterations 2 --warmup 1 --loader-batches 2 --set input-downscale=2 --jobs 1)
+  BTRAIN_ARGS=(--config tiny --batch-size 2 --iterations 2 --warmup-runs 1 --loader-batches 2 --set input-downscale=2 --jobs 1)
   DEMO_ARGS=(--quick --device cpu --jobs 1)
   CAP_OURS=120; CAP_TORCH=240; CAP_TRAIN=240; CAP_BTRAIN=180; CAP_DEMO=400
 else
@@ -221,7 +221,7 @@ else
   PRESETS="released paper"; VARIANTS="bf16-cl fp32 bf16"
   THR=""
   TRAIN_ARGS=(--config tiny --epochs 8 --batch-size 8 --jobs 0)
-  BTRAIN_ARGS=(--config paper --batch-size 8 --iterations 10 --warmup 3 --loader-batches 12 --jobs 0)
+  BTRAIN_ARGS=(--config paper --batch-size 8 --iterations 10 --warmup-runs 3 --loader-batches 12 --jobs 0)
   DEMO_ARGS=(--device cuda --jobs 0)
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
   # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
@@ -231,15 +231,15 @@ fi
 ours() {  # ours PRESET VARIANT
   local p="$1" v="$2" prec="${2%-cl}" cl=()
   [ "$v" = "$prec" ] || cl=(--channels-last)
-  step "ours_${p}_${v}" "$CAP_OURS" 20 "$BIN" bench model --preset "$p" --device "$DEV" \
+  step "ours_${p}_${v}" "$CAP_OURS" 20 "$BIN" bench model --config "$p" --device "$DEV" \
     --precision "$prec" "${cl[@]}" --height "$H" --width "$W" --batch-forward "$BF" \
-    --batch-train "$BT" --warmup "$WU" --repeats "$REP" $THR --out "$S/ours_${p}_${v}.json"
+    --batch-train "$BT" --warmup-runs "$WU" --repeats "$REP" $THR --out "$S/ours_${p}_${v}.json"
 }
 torchref() {  # torchref PRESET : every variant × both ordinal modes in one process
   local p="$1"
-  step "torch_${p}" "$CAP_TORCH" 30 "$PY" "$REF" --preset "$p" --device "$DEV" \
+  step "torch_${p}" "$CAP_TORCH" 30 "$PY" "$REF" --config "$p" --device "$DEV" \
     --variants "$(echo $VARIANTS | tr ' ' ',')" --ordinal released,efficient \
-    --height "$H" --width "$W" --batch-forward "$BF" --batch-train "$BT" --warmup "$WU" \
+    --height "$H" --width "$W" --batch-forward "$BF" --batch-train "$BT" --warmup-runs "$WU" \
     --repeats "$REP" $THR --out "$S/torch_${p}.json"
 }
 

@@ -42,10 +42,10 @@ As in `bench model`, `--precision bf16` and `--channels-last` only apply on CUDA
 the CPU, with a note).
 
 Usage:
-  python scripts/torch_reference.py --params-only --preset released
-  python scripts/torch_reference.py --preset released --device cuda --precision bf16 \
+  python scripts/torch_reference.py --params-only --config released
+  python scripts/torch_reference.py --config released --device cuda --precision bf16 \
       --channels-last --ordinal released --out ref.json
-  python scripts/torch_reference.py --preset released --device cuda \
+  python scripts/torch_reference.py --config released --device cuda \
       --variants fp32,bf16,bf16-cl --ordinal released,efficient --out ref.json   # one process
 """
 
@@ -408,10 +408,11 @@ def check(d):
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="released",
-                   help="released, paper or tiny; comma-separated for several (one process)")
+    p.add_argument("--config", "--preset", dest="preset", default="released",
+                   help="released, paper or tiny; comma-separated for several (one process); "
+                   "--config as `bench model` names it (--preset: the old name)")
     p.add_argument("--config-json", help="a ModelConfig JSON (`model-info --print-config`) "
-                   "or a `model-info --json` report instead of --preset")
+                   "or a `model-info --json` report instead of --config")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     p.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "fp16"])
     p.add_argument("--channels-last", action="store_true")
@@ -423,7 +424,8 @@ def main():
     p.add_argument("--batch-train", type=int, default=8)
     p.add_argument("--height", type=int, default=350)
     p.add_argument("--width", type=int, default=800)
-    p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--warmup-runs", "--warmup", dest="warmup", type=int, default=3,
+                   help="untimed runs before the timed ones (as `bench model --warmup-runs`)")
     p.add_argument("--repeats", type=int, default=10)
     p.add_argument("--cudnn-benchmark", default="true", choices=["true", "false"])
     p.add_argument("--threads", type=int, help="CPU threads (default: torch's choice)")

@@ -14,6 +14,8 @@ use clap::{Parser, Subcommand};
 
 pub mod cmd;
 pub mod handoff;
+#[cfg(test)]
+mod newcomer;
 pub mod preflight;
 pub mod stop;
 
@@ -97,6 +99,7 @@ pub fn run_without_torch(command: Command) -> Result<anyhow::Result<ExitCode>, B
         Command::Calibration(a) => Ok(cmd::calibration::run(a)),
         Command::Report(a) => Ok(cmd::report::run(a)),
         Command::HelpMarkdown(a) => Ok(cmd::help_markdown::run(a)),
+        Command::ModelInfo(a) if a.keys => Ok(cmd::model_info::print_keys()),
         Command::Eval(a) => match a.predictions.clone() {
             Some(dir) => Ok(cmd::eval::run_predictions(a, dir)),
             None => Err(Box::new(Command::Eval(a))),

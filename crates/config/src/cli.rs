@@ -1,11 +1,11 @@
 //! What the command line builds from the registries: value parsers that refuse an unknown preset
 //! or `--set` key while the command line is parsed (before anything runs), and the help texts
-//! that list them. Every command that takes `--config`/`--preset`/`--presets`/`--set` uses these.
+//! that list them. Every command that takes `--config`/`--configs`/`--set` uses these.
 
 use crate::options::{self, OPTIONS};
 use crate::{presets, ModelConfig};
 
-/// `--config` / `--preset`: a preset name, or a path (a model-config JSON, an export sidecar or
+/// `--config` / `--configs`: a preset name, or a path (a model-config JSON, an export sidecar or
 /// a depthsense checkpoint; read, and a missing one named, when the command runs). A bare word
 /// that is neither a preset nor an existing file is refused here, naming the presets.
 pub fn parse_config_spec(s: &str) -> Result<String, String> {

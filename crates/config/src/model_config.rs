@@ -416,7 +416,7 @@ impl ModelConfig {
     }
 
     /// `tiny` with a ResNet-34 encoder and doubled widths: the network of the GPU demo and of
-    /// the experiments' wider runs (`experiment ablation --preset tiny-wide`). Keeps `tiny`'s
+    /// the experiments' wider runs (`experiment ablation --config tiny-wide`). Keeps `tiny`'s
     /// head dropout (the demo sets its own).
     pub fn tiny_wide() -> Self {
         let mut c = ModelConfig::tiny();

@@ -1,5 +1,5 @@
-//! The named networks: the one list that `--config`, `--preset` and `--presets` of every command
-//! accept and that their `--help` texts print.
+//! The named networks: the one list that every command's `--config` (and `experiment cost
+//! --configs`) accepts and that their `--help` texts print.
 
 use crate::{ConfigError, ModelConfig};
 

@@ -34,7 +34,7 @@ fn torch_counts(py: &Path) -> Option<Vec<(String, i64, u64)>> {
             "--params-only",
             "--threads",
             "1",
-            "--preset",
+            "--config",
             &PRESETS.join(","),
         ])
         .output()

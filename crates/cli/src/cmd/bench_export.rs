@@ -4,31 +4,33 @@
 
 use std::path::PathBuf;
 
+use crate::cmd::heading as h;
+
 #[derive(clap::Args)]
 pub struct Args {
-    #[arg(long, default_value = "tiny", value_parser = depthsense_config::cli::parse_config_spec,
+    #[arg(long, help_heading = h::MODEL, alias = "preset", default_value = "tiny", value_parser = depthsense_config::cli::parse_config_spec,
           help = depthsense_config::cli::config_help("Network", " or a model-config JSON; random weights (seed 0), as `bench \
                      model` builds it"))]
-    pub preset: String,
-    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+    pub config: String,
+    #[arg(long = "set", help_heading = h::MODEL, value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     /// Images per run (the graph's batch axis is dynamic).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 1)]
     pub batch: usize,
-    /// Untimed warm-up runs of each engine.
-    #[arg(long, default_value_t = 3)]
-    pub warmup: usize,
+    /// Untimed runs of each engine before the timed ones.
+    #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
+    pub warmup_runs: usize,
     /// Timed runs of each engine; the median is reported.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 10)]
     pub repeats: usize,
     /// CPU threads of both engines (default: libtorch's choice, all cores).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DEVICE)]
     pub threads: Option<usize>,
     /// The Python with onnxruntime (default: as `export --python`).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DEVICE)]
     pub python: Option<PathBuf>,
     /// Write the results as JSON to this file.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, help_heading = h::OUTPUT, value_name = "FILE")]
     pub out: Option<PathBuf>,
 }

@@ -2,50 +2,52 @@
 
 use std::path::PathBuf;
 
+use crate::cmd::heading as h;
+
 #[derive(clap::Args)]
 pub struct Args {
-    #[arg(long, default_value = "released", value_parser = depthsense_config::cli::parse_config_spec,
+    #[arg(long, help_heading = h::MODEL, alias = "preset", default_value = "released", value_parser = depthsense_config::cli::parse_config_spec,
           help = depthsense_config::cli::config_help("Network", ", a model-config JSON file or a checkpoint"))]
-    pub preset: String,
-    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+    pub config: String,
+    #[arg(long = "set", help_heading = h::MODEL, value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: crate::cmd::device_arg::DeviceArg,
     /// Batch size of the forward (inference) benchmark; 0 skips it.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
     pub batch_forward: i64,
     /// Batch size of the training-step benchmark: the step `train` runs (forward, the ordinal
     /// loss on a sparse target, backward, depthsense's SGD update); 0 skips it.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 8)]
     pub batch_train: i64,
     /// Input height.
-    #[arg(long, default_value_t = 350)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 350)]
     pub height: i64,
     /// Input width.
-    #[arg(long, default_value_t = 800)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 800)]
     pub width: i64,
     /// Untimed warm-up iterations (cuDNN autotuning, first allocations).
-    #[arg(long, default_value_t = 3)]
-    pub warmup: usize,
+    #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
+    pub warmup_runs: usize,
     /// Timed iterations; the median is reported.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 10)]
     pub repeats: usize,
     /// Arithmetic: fp32, bf16 (CUDA autocast to bfloat16) or fp16 (CUDA autocast to float16).
     /// Ignored on the CPU.
-    #[arg(long, default_value = "fp32",
+    #[arg(long, help_heading = h::DEVICE, default_value = "fp32",
           value_parser = crate::cmd::words::words::<depthsense_config::flags::Precision>())]
     pub precision: depthsense_config::flags::Precision,
     /// Store conv weights and inputs channels-last (NHWC) so cuDNN can use NHWC kernels.
-    #[arg(long)]
+    #[arg(long, help_heading = h::DEVICE)]
     pub channels_last: bool,
     /// cuDNN autotuning (`cudnn.benchmark`); on by default, `--cudnn-benchmark false` to disable.
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = true, action = clap::ArgAction::Set)]
     pub cudnn_benchmark: bool,
     /// CPU threads for libtorch (default: libtorch's choice, all cores).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DEVICE)]
     pub threads: Option<i32>,
     /// Write the results as JSON to this file.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, help_heading = h::OUTPUT, value_name = "FILE")]
     pub out: Option<PathBuf>,
 }

@@ -11,82 +11,93 @@ use depthsense_score::tables::{table_paths, write_tables_with_command};
 
 use super::progress::progress_bar;
 
+use crate::cmd::heading as h;
+
+/// `eval --help`'s examples (each parsed by the docs test through docs/guide/cli.md).
+const EXAMPLES: &str = "Examples:
+  depthsense eval --checkpoint runs/paper/best.safetensors --data data/prepared
+  depthsense eval --checkpoint paper_weights_rvmde.pth --config released --data data/prepared --out runs/released/eval
+  depthsense eval --checkpoint runs/paper/best.safetensors --data data/prepared --radar-drop 1.0 --out runs/paper/eval-no-radar
+  depthsense eval --predictions preds/other --data data/prepared --protocol radarnet --caps 50,70,80
+(docs/guide/evaluate.md: splits, protocols, sensor failure, other methods' predictions)";
+
 #[derive(clap::Args)]
+#[command(after_help = EXAMPLES)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["checkpoint", "predictions"])))]
 pub struct Args {
     /// Checkpoint written by `train` (e.g. RUN/best.safetensors), or a PyTorch state dict
     /// such as the authors' paper_weights_rvmde.pth together with `--config released`.
-    #[arg(long)]
+    #[arg(long, help_heading = h::MODEL)]
     pub checkpoint: Option<PathBuf>,
     /// Instead of a checkpoint: a folder of another method's predictions, one per sample
     /// token, in the 800x350 training frame: <token>.png (16-bit, depth×256, KITTI
     /// convention) or <token>.npy (float32 metres), or <token>/depth.{npy,png}. Scored with
     /// exactly the same protocol, caps, GT and tables as --checkpoint.
-    #[arg(long, conflicts_with_all = ["checkpoint", "config", "set", "radar_drop", "radar_input", "drop_radars", "drop_beyond_m", "clutter"])]
+    #[arg(long, help_heading = h::MODEL, conflicts_with_all = ["checkpoint", "config", "set", "radar_drop", "radar_input", "drop_radars", "drop_beyond_m", "clutter"])]
     pub predictions: Option<PathBuf>,
     /// With --predictions: score the samples that have a file and list the others, instead
     /// of failing when some are missing.
-    #[arg(long, requires = "predictions")]
+    #[arg(long, help_heading = h::MODEL, requires = "predictions")]
     pub allow_missing: bool,
-    #[arg(long, value_parser = depthsense_config::cli::parse_config_spec,
+    #[arg(long, help_heading = h::MODEL, value_parser = depthsense_config::cli::parse_config_spec,
           help = depthsense_config::cli::config_help("Architecture", ", a model-config JSON or an export sidecar (FILE.json \
                      of `export`). Required for a PyTorch .pth; for a depthsense checkpoint it \
                      replaces the stored config"))]
     pub config: Option<String>,
-    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+    #[arg(long = "set", help_heading = h::MODEL, value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     /// Prepared data directory (holds index.json).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
     /// Output directory for tables.md, tables.csv and tables.json
     /// (default: an `eval/` folder beside the checkpoint).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: Option<PathBuf>,
     /// Samples: held-out (the `test` split, or the scenes `train` held out), all, or a split
     /// name of the index (test-day, test-night, official-val, …).
-    #[arg(long, default_value = "held-out")]
+    #[arg(long, help_heading = h::DATA, default_value = "held-out")]
     pub split: String,
     /// Scene modulo `train` used to hold scenes out when no split lists matched.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, help_heading = h::DATA, default_value_t = 5)]
     pub val_every_scene: usize,
     /// Fraction of radar points removed at random (1.0 = radar absent): sensor failure.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, help_heading = h::FAILURE, default_value_t = 0.0)]
     pub radar_drop: f64,
     /// Radars absent (sensor failure): channel names, comma separated (e.g.
     /// RADAR_FRONT_LEFT,RADAR_FRONT_RIGHT), or `all`. Dropping only some of a sample's radars
     /// re-rasterises its radar_points.bin without them (samples prepared before that file
     /// existed are refused: re-run `depthsense prepare`).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, help_heading = h::FAILURE, value_delimiter = ',')]
     pub drop_radars: Vec<String>,
     /// Remove every radar return (and its height strip) deeper than this many metres.
-    #[arg(long)]
+    #[arg(long, help_heading = h::FAILURE)]
     pub drop_beyond_m: Option<f64>,
     /// Add this many ghost radar points per sample (deterministic in --seed; the rule:
     /// docs/guide/evaluate.md, "Sensor failure at test time").
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::FAILURE, default_value_t = 0)]
     pub clutter: usize,
     /// Seed of the radar drop and of the clutter.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::FAILURE, default_value_t = 0)]
     pub seed: u64,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::SCORING)]
     pub scoring: crate::cmd::scoring_args::ScoringArgs,
     /// Depth caps in metres (comma-separated).
-    #[arg(long, value_delimiter = ',', default_value = "50,70,80")]
+    #[arg(long, help_heading = h::SCORING, value_delimiter = ',', default_value = "50,70,80")]
     pub caps: Vec<f64>,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::INFERENCE)]
     pub run: crate::cmd::inference_args::InferenceArgs,
     /// Radar map(s): height, raw, raw-height or mer (default: from the checkpoint's config).
-    #[arg(long, value_parser = depthsense_config::cli::parse_value("radar-input"))]
+    #[arg(long, help_heading = h::DATA, value_parser = depthsense_config::cli::parse_value("radar-input"))]
     pub radar_input: Option<String>,
     /// Model name in the tables (default: the checkpoint's run folder, e.g. `rgb` for
     /// runs/demo/rgb/best.safetensors; a checkpoint outside a run folder: its file name without
     /// the extension; with --predictions: the folder's name).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub name: Option<String>,
     /// Replace tables an earlier `eval` wrote in the output folder (only tables.md, tables.csv
     /// and tables.json); without it they are refused before anything is computed.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub force: bool,
 }
 

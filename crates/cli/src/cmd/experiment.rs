@@ -5,6 +5,8 @@
 
 use std::path::PathBuf;
 
+use crate::cmd::heading as h;
+
 /// The default grid of `experiment reduced-data`: everything, then without half the day scenes, without night, without
 /// rain (our reading of SPEC §10.5; the paper's exact fractions are not in the SPEC).
 pub const DEFAULT_GRID: &str = "full;day=0.5;night=1;rain=1";
@@ -59,35 +61,35 @@ pub enum Experiment {
 #[derive(clap::Args)]
 pub struct CostArgs {
     /// Output directory for cost.{md,csv,json}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Replace results an earlier run of this experiment wrote in --out (only its own
     /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub force: bool,
-    #[arg(long, value_delimiter = ',', default_value = "paper,released,tiny", value_parser = depthsense_config::cli::parse_config_spec,
+    #[arg(long, help_heading = h::MODEL, alias = "presets", value_delimiter = ',', default_value = "paper,released,tiny", value_parser = depthsense_config::cli::parse_config_spec,
           help = depthsense_config::cli::config_help("Networks, comma separated", " or model-config JSON files"))]
-    pub presets: Vec<String>,
+    pub configs: Vec<String>,
     /// Fusion variants, comma separated (rgb, early, late, late-sam, l1, l2).
-    #[arg(long, value_delimiter = ',', default_value = "rgb,early,late,late-sam",
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = "rgb,early,late,late-sam",
           value_parser = crate::cmd::words::words::<depthsense_config::variant::Variant>())]
     pub variants: Vec<depthsense_config::variant::Variant>,
     /// Images per batch (paper: 3).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
     pub batch: i64,
     /// Input height (SPEC §3: 350).
-    #[arg(long, default_value_t = 350)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 350)]
     pub height: i64,
     /// Input width (SPEC §3: 800).
-    #[arg(long, default_value_t = 800)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 800)]
     pub width: i64,
-    /// Untimed passes before timing.
-    #[arg(long, default_value_t = 1)]
-    pub warmup: usize,
+    /// Untimed passes before the timed ones.
+    #[arg(long, help_heading = h::TIMING, default_value_t = 1)]
+    pub warmup_runs: usize,
     /// Timed passes.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
     pub repeats: usize,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: crate::cmd::device_arg::DeviceArg,
 }
 
@@ -96,180 +98,180 @@ pub struct CostArgs {
 pub struct RunArgs {
     /// Prepared data directory (output of `depthsense prepare`, holds index.json); it must
     /// have test scenes.
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
-    #[arg(long, default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
+    #[arg(long, help_heading = h::MODEL, alias = "preset", default_value = "paper", value_parser = depthsense_config::cli::parse_config_spec,
           help = depthsense_config::cli::config_help("Network", " or a model-config JSON file"))]
-    pub preset: String,
-    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+    pub config: String,
+    #[arg(long = "set", help_heading = h::MODEL, value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     /// Epochs of each run (paper: 40).
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 40)]
     pub epochs: usize,
     /// Batch size of training and evaluation (paper: 8).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 8)]
     pub batch_size: usize,
     /// Initial learning rate (paper: 1e-3).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-3)]
     pub lr: f64,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: crate::cmd::device_arg::DeviceArg,
     /// Data-loader threads (0 = all cores). Runs are trained one after another.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     pub jobs: usize,
     /// Validate (checkpoint selection) on at most this many validation samples.
-    #[arg(long)]
+    #[arg(long, help_heading = h::VALIDATION)]
     pub max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
-    #[arg(long)]
+    #[arg(long, help_heading = h::SCHEDULE)]
     pub max_batches_per_epoch: Option<usize>,
     /// Only for data without split lists: the trainer's scene partition period (see
     /// `depthsense train --help`).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, help_heading = h::VALIDATION, default_value_t = 5)]
     pub val_every_scene: usize,
     /// Training-time radar dropout: each training sample loses a fraction U(0, P) of its radar
     /// returns (0 = off, the paper). See `depthsense train --help`.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, help_heading = h::DATA, default_value_t = 0.0)]
     pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations (0 = none, the paper).
-    #[arg(long, default_value_t = 0, value_name = "N")]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 0, value_name = "N")]
     pub warmup: u64,
     /// An epoch (one validation) is N iterations whatever the training-set size, cycling
     /// through the training set (the demo: 35); default: one pass. `data-scale` sets it itself.
-    #[arg(long, value_name = "N")]
+    #[arg(long, help_heading = h::SCHEDULE, value_name = "N")]
     pub epoch_iterations: Option<u64>,
 }
 
 #[derive(clap::Args)]
 pub struct ReducedDataArgs {
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::SCHEDULE)]
     pub run: RunArgs,
     /// Output directory: runs/<cell>/seed<k>/ and reduced_data.{md,csv,json,png}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Grid cells separated by `;`, each `full` or CONDITION=FRACTION[,…] (the training
     /// scenes withheld, see `train --exclude`).
-    #[arg(long, default_value = DEFAULT_GRID)]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value = DEFAULT_GRID)]
     pub grid: String,
     /// Number of seeds: 0, 1, …, N−1.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value_t = 1)]
     pub seeds: u64,
 }
 
 #[derive(clap::Args)]
 pub struct DataScaleArgs {
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::SCHEDULE)]
     pub run: RunArgs,
     /// Output directory: runs/n<N>/<arm>/seed<k>/ and data_scale.{md,csv,json,png}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Training-set sizes N (distinct training samples), comma separated; the largest must
     /// not exceed the training samples of --data.
-    #[arg(long, value_delimiter = ',', default_value = DEFAULT_SIZES)]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = DEFAULT_SIZES)]
     pub sizes: Vec<usize>,
     /// Arms trained at every size, comma separated: an ablation variant (rgb, early, late,
     /// late-sam, l1, l2, late-sam-mer), optionally with model options joined by `+`
     /// (`late-sam+radar-skip=8`) and the word `oracle` for the oracle radar
     /// (`late-sam+oracle`, see train --radar-oracle). The first is the baseline of the margins.
-    #[arg(long, value_delimiter = ',', default_value = "rgb,late-sam")]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = "rgb,late-sam")]
     pub arms: Vec<String>,
     /// Arms trained at the largest size only (same form as --arms), e.g.
     /// `late-sam+radar-skip=8,late-sam+oracle,late-sam-mer`.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',')]
     pub at_largest: Vec<String>,
     /// Number of seeds: 0, 1, …, N−1.
-    #[arg(long, default_value_t = 5, conflicts_with = "seed_list")]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value_t = 5, conflicts_with = "seed_list")]
     pub seeds: u64,
     /// Explicit seeds instead of --seeds, comma separated (e.g. 3,4: a second process's share
     /// of the runs; the tables of all seeds come from one more call with every seed, which
     /// reads the finished runs back).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',')]
     pub seed_list: Option<Vec<u64>>,
     /// Training iterations of every run (the same at every size), rounded up to a multiple
     /// of --epochs (the validations). Default: the fewest that show the largest size each
     /// image once, ⌈N_max / batch⌉; fewer are refused.
-    #[arg(long)]
+    #[arg(long, help_heading = h::SCHEDULE)]
     pub iterations: Option<u64>,
 }
 
 #[derive(clap::Args)]
 pub struct FailureArgs {
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::MODEL)]
     pub model: crate::cmd::model_source::ModelSource,
     /// Prepared data directory.
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
     /// Output directory for failure.{md,csv,json,png}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Replace results an earlier run of this experiment wrote in --out (only its own
     /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub force: bool,
     /// Scenarios separated by `;`; each `none` or settings joined by `,`: radar-drop=F
     /// (fraction of points), drop-radars=A+B (channel names or all), beyond=M (metres),
     /// clutter=N (ghost points per sample).
-    #[arg(long, default_value = DEFAULT_SCENARIOS)]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value = DEFAULT_SCENARIOS)]
     pub scenarios: String,
     /// Samples: held-out (test scenes), all, or a split name.
-    #[arg(long, default_value = "held-out")]
+    #[arg(long, help_heading = h::DATA, default_value = "held-out")]
     pub split: String,
     /// Seed of the random drop and the clutter.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value_t = 0)]
     pub seed: u64,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::INFERENCE)]
     pub run: crate::cmd::inference_args::InferenceArgs,
 }
 
 #[derive(clap::Args)]
 pub struct PerturbArgs {
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::MODEL)]
     pub model: crate::cmd::model_source::ModelSource,
     /// Prepared data directory (prepared with radar_points.bin: a current `prepare`).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
     /// Output directory for perturb.{md,csv,json,png}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Replace results an earlier run of this experiment wrote in --out (only its own
     /// .md/.csv/.json/.png files); without it they are refused before anything is computed.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub force: bool,
     /// Rotation magnitudes in degrees (yaw, pitch, roll), comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "0.5,1,2,5")]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = "0.5,1,2,5")]
     pub rotate_deg: Vec<f64>,
     /// Translation magnitudes in metres (x, y, z), comma separated.
-    #[arg(long, value_delimiter = ',', default_value = "0.1,0.25,0.5")]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = "0.1,0.25,0.5")]
     pub translate_m: Vec<f64>,
     /// Axes, comma separated: yaw (camera vertical), pitch (camera x), roll (optical axis),
     /// x (right), y (down), z (forward).
-    #[arg(long, value_delimiter = ',', default_value = "yaw,pitch,roll,x,y,z",
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',', default_value = "yaw,pitch,roll,x,y,z",
           value_parser = crate::cmd::words::words::<depthsense_prep::radar_points::PerturbAxis>())]
     pub axes: Vec<depthsense_prep::radar_points::PerturbAxis>,
     /// Samples: held-out (test scenes), all, or a split name.
-    #[arg(long, default_value = "held-out")]
+    #[arg(long, help_heading = h::DATA, default_value = "held-out")]
     pub split: String,
     /// Seed of the per-sample sign (+ or − the magnitude).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value_t = 0)]
     pub seed: u64,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::INFERENCE)]
     pub run: crate::cmd::inference_args::InferenceArgs,
 }
 
 #[derive(clap::Args)]
 pub struct AblationArgs {
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::SCHEDULE)]
     pub run: RunArgs,
     /// Output directory: runs/<variant>/seed<k>/ and ablation.{md,csv,json,png}.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     /// Number of seeds: 0, 1, …, N−1. Each seed trains every variant; the verdicts are a
     /// paired test over the seeds (docs/guide/experiments.md, "The ablation, with seeds").
-    #[arg(long, default_value_t = 5, conflicts_with = "seed_list")]
+    #[arg(long, help_heading = h::EXPERIMENT, default_value_t = 5, conflicts_with = "seed_list")]
     pub seeds: u64,
     /// Explicit seeds instead of --seeds, comma separated (e.g. 0,7,11).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, help_heading = h::EXPERIMENT, value_delimiter = ',')]
     pub seed_list: Option<Vec<u64>>,
     /// Variants, comma separated: rgb (no radar), early (early fusion), late (late fusion, no
     /// attention), late-sam (late fusion + spatial attention: the paper's model), l1 / l2
@@ -277,12 +279,13 @@ pub struct AblationArgs {
     /// (late-sam on raw + 6 MER channels; run `depthsense mer apply` on the data first).
     #[arg(
         long,
+        help_heading = h::EXPERIMENT,
         value_delimiter = ',',
         default_value = "rgb,early,late,late-sam,l1,l2",
         value_parser = crate::cmd::words::words::<depthsense_config::variant::Variant>()
     )]
     pub variants: Vec<depthsense_config::variant::Variant>,
     /// The tests' scoring (the same flags as `eval`).
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::SCORING)]
     pub scoring: crate::cmd::scoring_args::ScoringArgs,
 }

@@ -6,6 +6,8 @@ use std::process::ExitCode;
 use depthsense_base::fsutil::write_atomic;
 use depthsense_score::mer_coverage::{mer_report, report_markdown};
 
+use crate::cmd::heading as h;
+
 #[derive(clap::Args)]
 pub struct Args {
     #[command(subcommand)]
@@ -27,90 +29,90 @@ pub enum Command {
 #[derive(clap::Args)]
 pub struct TrainArgs {
     /// Prepared data directory (holds index.json).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
     /// Run directory: config.json, metrics.jsonl, curves.png, last/best.safetensors.
-    #[arg(long, default_value = "runs/mer")]
+    #[arg(long, help_heading = h::OUTPUT, default_value = "runs/mer")]
     pub out: PathBuf,
     /// PDA preset: paper (32/64/128/256 channels), tiny (8/16/32/64), fast (tiny on the grid
     /// folded 2x2: ≈ 3x cheaper), test, or a JSON file.
-    #[arg(long, default_value = "paper")]
+    #[arg(long, help_heading = h::MODEL, default_value = "paper")]
     pub config: String,
     /// Channels of the appearance-affinity term added to the head (0 = RC-PDA's plain head;
     /// default: the preset's). See docs/guide/mer.md.
-    #[arg(long)]
+    #[arg(long, help_heading = h::MODEL)]
     pub affinity: Option<i64>,
     /// Epochs.
-    #[arg(long, default_value_t = 20, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 20, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub epochs: usize,
     /// Batch size.
-    #[arg(long, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     /// Initial learning rate (Adam, poly decay 0.9 per iteration).
-    #[arg(long, default_value_t = 1e-2, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-2, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
     pub lr: f64,
     /// Weight decay.
-    #[arg(long, default_value_t = 1e-4, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-4, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
     pub weight_decay: f64,
     /// Seed of initialisation, shuffling and flips.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 0)]
     pub seed: u64,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: crate::cmd::device_arg::DeviceArg,
     /// Continue from OUT/last.safetensors (same options required): at the iteration it was
     /// written, inside an epoch after --stop-after.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub resume: bool,
     /// Stop after this global iteration (checkpointed; continue with --resume).
-    #[arg(long, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::SCHEDULE, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
     pub stop_after: Option<u64>,
     /// Start over in an --out that holds a PDA run (its run files are removed first); without
     /// --resume or --force such a folder is refused.
-    #[arg(long, conflicts_with = "resume")]
+    #[arg(long, help_heading = h::OUTPUT, conflicts_with = "resume")]
     pub force: bool,
     /// Loader threads (0 = all cores).
-    #[arg(long, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
     pub jobs: usize,
     /// Disable the horizontal flip augmentation.
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub no_augment: bool,
     /// Validate on at most this many validation samples (evenly spaced).
-    #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::VALIDATION, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_val_samples: Option<usize>,
     /// Only without validation lists: every N-th training scene is held out for validation.
-    #[arg(long, default_value_t = 5, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
+    #[arg(long, help_heading = h::VALIDATION, default_value_t = 5, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub val_every_scene: usize,
 }
 
 #[derive(clap::Args)]
 pub struct ApplyArgs {
     /// PDA checkpoint written by `mer train` (e.g. RUN/best.safetensors).
-    #[arg(long)]
+    #[arg(long, help_heading = h::MODEL)]
     pub checkpoint: PathBuf,
     /// Prepared data directory; the maps are written into its sample folders.
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: crate::cmd::device_arg::DeviceArg,
     /// Threads reading and encoding maps (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     pub jobs: usize,
     /// Samples per forward pass.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 4)]
     pub batch_size: usize,
     /// libtorch threads of the network on a CPU (0 = all cores, or all but one for a PDA on
     /// the folded grid such as `fast`, whose reading and writing then need a core).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     pub network_threads: usize,
     /// Recompute every sample; needed to replace maps written by another PDA model.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub force: bool,
     /// Write preview pictures (raw, height-extended, MER at θ = 0.5 and 0.9) for N samples
     /// (evenly spaced over the test samples, or over all when the index has none).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::OUTPUT, default_value_t = 0)]
     pub preview: usize,
     /// Folder of the preview pictures (default DATA/mer_preview).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     pub preview_dir: Option<PathBuf>,
 }
 

@@ -9,7 +9,7 @@ pub struct Args {
                      checkpoint (.safetensors: its stored config)"))]
     pub config: String,
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     /// Input height the multiply-adds are counted at.
     #[arg(long, default_value_t = 350)]
@@ -23,4 +23,15 @@ pub struct Args {
     /// Print the resolved config as JSON before the table.
     #[arg(long)]
     pub print_config: bool,
+    /// Print every `--set` key with its values (and nothing else): the one list, from the
+    /// registry every command reads.
+    #[arg(long)]
+    pub keys: bool,
+}
+
+/// `model-info --keys`: every `--set` key with its values (torch-free: `depthsense` runs it
+/// itself).
+pub fn print_keys() -> anyhow::Result<std::process::ExitCode> {
+    println!("{}", depthsense_config::cli::set_help());
+    Ok(std::process::ExitCode::SUCCESS)
 }

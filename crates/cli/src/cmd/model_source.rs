@@ -16,6 +16,6 @@ pub struct ModelSource {
                      replaces the stored config"))]
     pub config: Option<String>,
     #[arg(long = "set", value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
-          help = crate::cmd::SET_SHORT, long_help = depthsense_config::cli::set_help())]
+          help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
 }

@@ -6,42 +6,53 @@ use std::process::ExitCode;
 use depthsense_prep::{prepare, PrepareOptions, Shard};
 use depthsense_progress::Progress;
 
+use crate::cmd::heading as h;
+
+/// `prepare --help`'s examples (each parsed by the docs test through docs/guide/cli.md).
+const EXAMPLES: &str = "Examples:
+  depthsense prepare --dataroot data/nuscenes --version v1.0-mini --out data/prepared
+  depthsense prepare --dataroot data/nuscenes --version v1.0-trainval --lidar-sweeps 10 --out data/prepared
+  depthsense prepare --dataroot data/nuscenes --version v1.0-trainval --lidar-sweeps 10 --out data/prepared --shard 3/16
+  depthsense prepare --dataroot data/synth --version v1.0-synth --lidar-sweeps 2 --out data/synth-prepared
+(docs/guide/prepare.md: splits, sweeps, sharding, verifying)";
+
 #[derive(clap::Args)]
+#[command(after_help = EXAMPLES)]
 pub struct Args {
     /// nuScenes dataroot (holds samples/, sweeps/ and the version folder).
-    #[arg(long)]
+    #[arg(long, help_heading = h::DATA)]
     dataroot: PathBuf,
     /// Version folder inside the dataroot: v1.0-mini, v1.0-trainval, v1.0-test, v1.0-synth, …
-    #[arg(long, default_value = "v1.0-mini")]
+    #[arg(long, help_heading = h::DATA, default_value = "v1.0-mini")]
     version: String,
     /// Output directory: one sub-directory per keyframe plus index.json.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     out: PathBuf,
     /// Scene split: train, test, test-day, test-night, test-rain, official-train,
     /// official-val or all (synthetic worlds have their own scene tokens: use all).
-    #[arg(long, default_value = "all")]
+    #[arg(long, help_heading = h::DATA, default_value = "all")]
     split: String,
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = h::RADAR)]
     radar: super::radar_args::RadarArgs,
     /// K: the dense lidar target accumulates the keyframe sweep ±K sweeps (0 = keyframe only).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DATA, default_value_t = 0)]
     lidar_sweeps: usize,
     /// Worker threads (0 = all cores).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     jobs: usize,
     /// Exit with status 0 even when some samples failed (they are still listed).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     keep_going: bool,
     /// Prepare only part I of N (0-based; by scene, disjoint and deterministic), e.g.
     /// `--shard $SLURM_ARRAY_TASK_ID/16`. The part's index goes to
     /// OUT/index.shard-I-of-N.json; combine the parts with `depthsense index merge OUT`.
-    #[arg(long, value_name = "I/N")]
+    #[arg(long, help_heading = h::OUTPUT, value_name = "I/N")]
     shard: Option<String>,
     /// Re-read every sample already in --out (each PNG, meta.json, radar_points.bin) and
     /// prepare the broken ones again (a truncated copy, a disk error); the others are kept.
     /// Add it to the command that wrote the folder when `train`, `eval` or `predict` report an
     /// unreadable sample.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     verify: bool,
 }
 

@@ -6,69 +6,71 @@ use std::process::ExitCode;
 use anyhow::Context;
 use depthsense_synth::{SynthConfig, SynthSummary, Weather};
 
+use crate::cmd::heading as h;
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Output dataroot (created; a synthetic world already there is refused unless --force,
     /// any other non-empty folder always).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     out: Option<PathBuf>,
     /// Number of scenes.
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, help_heading = h::WORLD, default_value_t = 10)]
     scenes: usize,
     /// Keyframes (2 Hz samples) per scene; a scene lasts (keyframes − 1) × 0.5 s.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, help_heading = h::WORLD, default_value_t = 20)]
     keyframes_per_scene: usize,
     /// Random seed; the same seed gives byte-identical output.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::WORLD, default_value_t = 0)]
     seed: u64,
     /// Condition mix: comma-separated day, night, rain, optionally weighted
     /// (e.g. "day=0.5,night=0.25,rain=0.25"); scenes are allocated in proportion.
-    #[arg(long, default_value = "day=0.5,night=0.25,rain=0.25")]
+    #[arg(long, help_heading = h::WORLD, default_value = "day=0.5,night=0.25,rain=0.25")]
     conditions: String,
     /// Name of the version folder holding the tables.
-    #[arg(long, default_value = "v1.0-synth")]
+    #[arg(long, help_heading = h::OUTPUT, default_value = "v1.0-synth")]
     version_name: String,
     /// Worker threads (0 = all cores); does not change the output.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     jobs: usize,
     /// Use the small demo preset (8 scenes × 10 keyframes) instead of --scenes/--keyframes-per-scene.
-    #[arg(long)]
+    #[arg(long, help_heading = h::WORLD)]
     demo: bool,
     /// Also (or only, with --from-dataroot) write a contact sheet PNG: day / night / rain
     /// keyframes with lidar and radar points overlaid, coloured by depth.
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     contact_sheet: Option<PathBuf>,
     /// Make the contact sheet from this existing dataroot instead of generating a world.
-    #[arg(long, requires = "contact_sheet")]
+    #[arg(long, help_heading = h::OUTPUT, requires = "contact_sheet")]
     from_dataroot: Option<PathBuf>,
     /// Replace a synthetic world already in --out (without it, it is refused; any other
     /// non-empty folder is always refused).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     force: bool,
     /// CAM_FRONT rays per pixel side: 2 casts one ray per 2×2 pixels (4× fewer; the training
     /// frame, a 2×2 average, then equals that coarse render). Default 1: every pixel.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    #[arg(long, help_heading = h::OUTPUT, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
     camera_scale: u32,
     /// Write only the lidar keyframe sweeps and the K sweeps on each side of them (what
     /// `prepare --lidar-sweeps K` reads) instead of every 20 Hz sweep.
-    #[arg(long, value_name = "K")]
+    #[arg(long, help_heading = h::OUTPUT, value_name = "K")]
     lidar_sweeps: Option<usize>,
     /// Leave out the exact camera depth maps (`truth/`: not a nuScenes file; the contact
     /// sheet and some tests read it).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     no_truth: bool,
     /// Write only the N radar sweeps up to each keyframe (what `prepare --radar-sweeps N`
     /// reads) instead of every ≈13 Hz sweep.
-    #[arg(long, value_name = "N")]
+    #[arg(long, help_heading = h::OUTPUT, value_name = "N")]
     radar_sweeps: Option<usize>,
     /// Encode CAM_FRONT as 4:2:0 JPEG, as nuScenes' own images are (four times faster than the
     /// default 4:4:4 encoder, which made every world so far).
-    #[arg(long)]
+    #[arg(long, help_heading = h::OUTPUT)]
     jpeg_420: bool,
     /// The lean world of the experiments: --camera-scale 2 --lidar-sweeps 2 --radar-sweeps 5
     /// --no-truth --jpeg-420 (what prepare reads with its defaults and --lidar-sweeps ≤ 2; about
     /// three times faster; still devkit-loadable). docs/guide/prepare.md.
-    #[arg(long, conflicts_with_all = ["camera_scale", "lidar_sweeps", "no_truth", "radar_sweeps", "jpeg_420"])]
+    #[arg(long, help_heading = h::OUTPUT, conflicts_with_all = ["camera_scale", "lidar_sweeps", "no_truth", "radar_sweeps", "jpeg_420"])]
     lean: bool,
 }
 

@@ -17,9 +17,9 @@ fn bench_export_times_both_engines_on_the_same_inputs() {
         .args([
             "bench",
             "export",
-            "--preset",
+            "--config",
             "tiny",
-            "--warmup",
+            "--warmup-runs",
             "0",
             "--repeats",
             "2",

@@ -327,7 +327,7 @@ fn the_command_check_catches_a_renamed_flag() {
         "```bash\ndepthsense train --data d \\\n  --epochz 3\n```\n",
         "Use `depthsense export --formats onnx`.\n",
         "Use `depthsense evaluate --data d`.\n",
-        "```sh\ndepthsense bench modle --preset tiny\n```\n",
+        "```sh\ndepthsense bench modle --config tiny\n```\n",
         "```sh\ndepthsense report --runs DIR... --out R [--titel T]\n```\n",
     ] {
         let p = command_problems("bad.md", bad);

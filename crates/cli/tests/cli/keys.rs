@@ -1,7 +1,8 @@
 //! One set of presets and `--set` keys, the same everywhere: every preset and key named anywhere
 //! in the documentation is in the registry (`depthsense-config`) and is accepted by every command
-//! that takes `--config`/`--preset`/`--presets`/`--set`; every such flag is built from the
-//! registry (its help lists the presets, or every key); and every preset builds a network in
+//! that takes `--config`/`--configs`/`--set`; every such flag is built from the registry (its
+//! help lists the presets; every `--set` points to the one list of keys, `model-info --keys`,
+//! which the binary prints from the registry); and every preset builds a network in
 //! `model-info`, through the real binary.
 
 use std::collections::BTreeSet;
@@ -95,7 +96,7 @@ fn documented() -> (BTreeSet<String>, BTreeSet<(String, String)>) {
     let (mut presets, mut sets) = (BTreeSet::new(), BTreeSet::new());
     for f in files {
         let text = std::fs::read_to_string(&f).unwrap();
-        for flag in ["--config", "--preset", "--presets"] {
+        for flag in ["--config", "--configs"] {
             for v in values_after(&text, flag) {
                 for p in v.split(',') {
                     // Paths are files; `KEY=VALUE`-like words are other flags' values.
@@ -156,12 +157,12 @@ fn accepted(path: &[String], flag: &str, value: &str) -> Result<(), String> {
     }
 }
 
-/// The registry's flags of `cmd`: (flag, its help text) for config/preset/presets/set.
+/// The registry's flags of `cmd`: (flag, its help text) for config/configs/set.
 fn registry_flags(cmd: &clap::Command) -> Vec<(String, String)> {
     cmd.get_arguments()
         .filter_map(|a| {
             let long = a.get_long()?;
-            matches!(long, "config" | "preset" | "presets" | "set").then(|| {
+            matches!(long, "config" | "configs" | "set").then(|| {
                 let help = a
                     .get_long_help()
                     .or(a.get_help())
@@ -214,8 +215,8 @@ fn every_documented_preset_and_key_is_accepted_by_every_command_that_takes_them(
             }
             let words: Vec<String> = if flag == "--set" {
                 assert!(
-                    options::OPTIONS.iter().all(|o| help.contains(o.key)),
-                    "{} {flag}: its help does not list every key",
+                    help == depthsense_cli::cmd::SET_HELP && help.contains("model-info --keys"),
+                    "{} {flag}: its help does not point to the one list of keys: {help}",
                     path.join(" ")
                 );
                 doc_sets.iter().map(|(k, v)| format!("{k}={v}")).collect()
@@ -281,5 +282,29 @@ fn every_preset_builds_its_network_in_model_info() {
     assert!(
         err.contains("`tiny-wider`") && err.contains(&depthsense_config::cli::preset_list()),
         "{err}"
+    );
+}
+
+/// The one list of `--set` keys: `model-info --keys`, printed by the torch-free binary from the
+/// registry — every key with its values, and nothing else.
+#[test]
+fn model_info_keys_prints_every_key_once() {
+    let o = Command::new(env!("CARGO_BIN_EXE_depthsense"))
+        .args(["model-info", "--keys"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout);
+    for o in options::OPTIONS {
+        let described = out
+            .lines()
+            .filter(|l| l.trim_start().starts_with(o.key))
+            .filter(|l| l.trim_start()[o.key.len()..].starts_with(['=', ' ']))
+            .count();
+        assert_eq!(described, 1, "`{}` in model-info --keys:\n{out}", o.key);
+    }
+    assert!(
+        !out.contains("parameters"),
+        "--keys prints the keys only: {out}"
     );
 }

@@ -58,7 +58,7 @@ fn values(t: &Tensor) -> anyhow::Result<Vec<f32>> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let cfg = depthsense_checkpoint::config::resolve(&a.preset)?.with_options(&a.set)?;
+    let cfg = depthsense_checkpoint::config::resolve(&a.config)?.with_options(&a.set)?;
     if let Some(n) = a.threads {
         tch::set_num_threads(n as i32);
     }
@@ -97,9 +97,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let _guard = tch::no_grad_guard();
     let forward = || net.decode_to(&net.forward_t(&normalised, &radar, false), height, width);
     eprintln!("timing depthsense …");
-    let ours = time_it(Device::Cpu, a.warmup, a.repeats, a.batch as i64, || {
-        let _ = forward();
-    });
+    let ours = time_it(
+        Device::Cpu,
+        a.warmup_runs,
+        a.repeats,
+        a.batch as i64,
+        || {
+            let _ = forward();
+        },
+    );
     let ours_depth = values(&forward().to_kind(Kind::Float))?;
 
     eprintln!("timing onnxruntime …");
@@ -127,7 +133,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         &graph_inputs,
         "CPUExecutionProvider",
         threads,
-        a.warmup,
+        a.warmup_runs,
         a.repeats,
     )?;
     anyhow::ensure!(
@@ -149,7 +155,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         width: width as usize,
         batch: a.batch,
         threads,
-        warmup: a.warmup,
+        warmup: a.warmup_runs,
         repeats: a.repeats,
         depthsense: ours,
         onnxruntime: summarise(a.batch as i64, &ort.ms),

@@ -184,7 +184,7 @@ impl Bench {
     /// Resolve the network and device, set libtorch up, build the network (seed 0) in the
     /// layout and precision this device supports (a note on stderr for each one refused).
     fn new(args: &Args) -> anyhow::Result<Bench> {
-        let cfg = depthsense_checkpoint::config::resolve(&args.preset)?.with_options(&args.set)?;
+        let cfg = depthsense_checkpoint::config::resolve(&args.config)?.with_options(&args.set)?;
         let dev = device::parse_device(&args.device.name)?;
         if let Some(n) = args.threads {
             tch::set_num_threads(n);
@@ -212,7 +212,7 @@ impl Bench {
             macs_per_image: rep.total_macs,
             height: args.height,
             width: args.width,
-            warmup: args.warmup,
+            warmup: args.warmup_runs,
             repeats: args.repeats,
         })
     }

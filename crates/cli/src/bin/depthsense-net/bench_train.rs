@@ -11,7 +11,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         preset: a.config,
         batch_size: a.batch_size,
         iterations: a.iterations,
-        warmup: a.warmup,
+        warmup: a.warmup_runs,
         loader_batches: a.loader_batches,
         device: a.device.name,
         jobs: a.jobs,

@@ -30,12 +30,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 fn cost(a: CostArgs) -> anyhow::Result<ExitCode> {
     use depthsense_experiments::cost::{run_cost, CostOptions, MD_FILE};
     let o = CostOptions {
-        presets: a.presets,
+        presets: a.configs,
         variants: a.variants,
         batch: a.batch,
         height: a.height,
         width: a.width,
-        warmup: a.warmup,
+        warmup: a.warmup_runs,
         repeats: a.repeats,
         device: a.device.name,
         command_line: command_line(),
@@ -238,7 +238,7 @@ fn print_ablation(r: &AblationResult, opts: &AblationOptions) {
 fn run_settings(a: RunArgs) -> RunSettings {
     RunSettings {
         data: a.data,
-        preset: a.preset,
+        preset: a.config,
         set: a.set,
         epochs: a.epochs,
         batch_size: a.batch_size,
