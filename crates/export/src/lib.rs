@@ -216,10 +216,10 @@ pub fn export_many(
             ExportError::io(&o.out, e)
         })?;
         let sidecar = sidecar_path(&o.out);
-        let text =
-            serde_json::to_string_pretty(&info).map_err(|e| ExportError::Options(e.to_string()))?;
-        write_atomic(&sidecar, format!("{text}\n").as_bytes())
-            .map_err(|e| ExportError::io(&sidecar, e))?;
+        let text = info
+            .to_json(&sidecar)
+            .map_err(|e| ExportError::Options(e.to_string()))?;
+        write_atomic(&sidecar, text.as_bytes()).map_err(|e| ExportError::io(&sidecar, e))?;
         done.push(Exported {
             out: o.out,
             sidecar,

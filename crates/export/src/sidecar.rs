@@ -14,7 +14,7 @@ use sha2::{Digest, Sha256};
 use crate::{Batch, ExportError, ExportOptions};
 
 /// The sidecar's `format_version`.
-pub const SIDECAR_FORMAT: &str = "depthsense-export-v1";
+pub use depthsense_records::sidecar::SIDECAR_FORMAT;
 
 /// One input or output of the graph.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -116,6 +116,24 @@ pub fn sha256_file(path: &Path) -> Result<String, ExportError> {
 }
 
 impl Sidecar {
+    /// The sidecar as the record the report reads (`depthsense_records::sidecar`): the same
+    /// JSON, checked to carry every field it shows; `path`: where it is written.
+    pub fn record(
+        &self,
+        path: &Path,
+    ) -> Result<depthsense_records::sidecar::SidecarRecord, depthsense_records::RecordError> {
+        depthsense_records::convert(self, path)
+    }
+
+    /// The text of `path` (pretty JSON, keys sorted, a final newline), written through
+    /// [`Sidecar::record`].
+    pub fn to_json(&self, path: &Path) -> Result<String, depthsense_records::RecordError> {
+        let record = self.record(path)?;
+        let text = depthsense_records::to_json_pretty(&record)
+            .map_err(|e| depthsense_records::RecordError::new(path, e.to_string()))?;
+        Ok(format!("{text}\n"))
+    }
+
     /// The sidecar of exporting `opts.checkpoint` as the network `cfg`.
     pub fn new(
         opts: &ExportOptions,

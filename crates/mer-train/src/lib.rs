@@ -31,9 +31,14 @@ use depthsense_infer::NetError;
 use depthsense_model::pda::{self, balanced_bce, PdaNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
+use depthsense_records::metrics_log::MetricsRecord;
+use depthsense_records::run_config::{Command, MerRunConfig, RUN_CONFIG_VERSION};
+use depthsense_records::{convert, to_json_pretty};
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
-use depthsense_train::metrics_log::{append_jsonl, logged_loss_sum, truncate_metrics};
+use depthsense_train::metrics_log::{
+    append_jsonl, append_record, logged_loss_sum, truncate_metrics, EpochRecord, IterRecord,
+};
 use depthsense_train::optim::Optimizer;
 use depthsense_train::schedule::{poly_lr, seed_step};
 use rayon::prelude::*;
@@ -103,32 +108,9 @@ impl Default for MerTrainOptions {
     }
 }
 
-/// Validation of the associations over every labelled (radar pixel, neighbour) pair.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MerValRecord {
-    pub epoch: u64,
-    pub iteration: u64,
-    /// Class-balanced BCE, mean over validation batches.
-    pub loss: f64,
-    /// At confidence > 0.5.
-    pub precision: f64,
-    pub recall: f64,
-    /// ROC area under the curve (ties counted ½).
-    pub auc: f64,
-    pub pairs: u64,
-    pub positives: u64,
-}
-
-/// The progress line of a validation.
-impl std::fmt::Display for MerValRecord {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "loss {:.4}, AUC {:.4}, precision {:.3}, recall {:.3} on {} pairs ({} positive)",
-            self.loss, self.auc, self.precision, self.recall, self.pairs, self.positives
-        )
-    }
-}
+/// Validation of the associations over every labelled (radar pixel, neighbour) pair (the
+/// record metrics.jsonl holds, `depthsense_records`').
+pub use depthsense_records::metrics_log::PdaValRecord as MerValRecord;
 
 /// What `mer train` did.
 #[derive(Debug, Clone)]
@@ -418,20 +400,29 @@ impl<'o> Run<'o> {
     }
 
     fn write_config(&self, part: &depthsense_dataset::Partition) -> Result<(), NetError> {
-        let mut j = serde_json::json!({
-            "mer_train": self.opts,
-            "pda": self.opts.pda,
-            "parameters": pda::parameter_count(&self.vs),
-            "device": depthsense_model::device::describe(self.device),
-            "partition": {"method": part.method, "train_samples": part.train.len(),
-                          "val_samples": part.val.len(), "val_samples_used": self.val.len(),
-                          "val_scenes": part.val_scenes},
-        });
-        if !self.opts.command.is_empty() {
-            j["command"] = serde_json::json!(self.opts.command);
-        }
         let p = self.path(CONFIG_FILE);
-        let text = serde_json::to_string_pretty(&j)?;
+        let record = |e: depthsense_records::RecordError| NetError::Parse {
+            path: e.path.clone(),
+            reason: e.reason(),
+        };
+        let config = MerRunConfig {
+            format_version: RUN_CONFIG_VERSION,
+            mer_train: convert(self.opts, &p).map_err(record)?,
+            pda: Some(serde_json::to_value(&self.opts.pda)?),
+            parameters: Some(pda::parameter_count(&self.vs) as u64),
+            device: Some(depthsense_model::device::describe(self.device)),
+            partition: Some(
+                convert(
+                    &serde_json::json!({"method": part.method, "train_samples": part.train.len(),
+                          "val_samples": part.val.len(), "val_samples_used": self.val.len(),
+                          "val_scenes": part.val_scenes}),
+                    &p,
+                )
+                .map_err(record)?,
+            ),
+            command: Command::of_words(&self.opts.command),
+        };
+        let text = to_json_pretty(&config)?;
         write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
     }
 
@@ -505,10 +496,9 @@ impl<'o> Run<'o> {
         loss.backward();
         self.optim.step(lr);
         self.epoch_loss = (self.epoch_loss.0 + lv, self.epoch_loss.1 + 1);
-        append_jsonl(
+        append_record::<MerValRecord>(
             &self.path(METRICS_FILE),
-            &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": it,
-                                "loss": lv, "lr": lr}),
+            &MetricsRecord::Iter(IterRecord::new(epoch, it, lv, lr)),
         )?;
         progress.set_message(format!(
             "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
@@ -564,10 +554,14 @@ impl<'o> Run<'o> {
         if improved || !self.path(BEST_CKPT).exists() {
             self.save(BEST_CKPT)?;
         }
-        append_jsonl(
+        append_record(
             &self.path(METRICS_FILE),
-            &serde_json::json!({"kind": "epoch", "epoch": epoch + 1,
-                                "iteration": self.state.iteration, "train_loss": loss, "val": v}),
+            &MetricsRecord::Epoch(EpochRecord::new(
+                epoch + 1,
+                self.state.iteration,
+                loss,
+                v.clone(),
+            )),
         )?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
         Ok(v)

@@ -4,6 +4,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use depthsense_metrics::doc::Doc;
+use depthsense_records::tables::TablesRecord;
 use depthsense_score::mer_coverage::{report_doc, CoverageRow, MerReport};
 use serde::Deserialize;
 use serde_json::Value;
@@ -101,13 +102,24 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
     }
     let mut claimed: BTreeSet<PathBuf> = BTreeSet::new();
     let before = d.sections.len();
-    if let Some(run) = super::runs::training_run(dir, &files, &names) {
-        claimed.extend(run.files.iter().cloned());
-        d.sections.push(run);
+    match super::runs::training_run(dir, &files, &names) {
+        Some(Ok(run)) => {
+            claimed.extend(run.files.iter().cloned());
+            d.sections.push(run);
+        }
+        Some(Err((path, reason))) => {
+            // Its record is named with the reason; its other files are not listed again.
+            claimed.extend(["config.json", "metrics.jsonl"].map(|n| dir.join(n)));
+            d.skipped.push(skip(&path, reason));
+        }
+        None => {}
     }
-    for export in super::runs::exports(dir, &files, &mut claimed) {
+    let mut unreadable = vec![];
+    for export in super::runs::exports(dir, &files, &mut claimed, &mut unreadable) {
         d.sections.push(export);
     }
+    d.skipped
+        .extend(unreadable.into_iter().map(|(p, reason)| skip(&p, reason)));
     for kind in Kind::ALL {
         let Some(stem) = kind.stem() else { continue };
         let json = dir.join(format!("{stem}.json"));
@@ -194,14 +206,17 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
     let command_line = string_at(v, &["command_line"]);
     // Its two models on the test scenes (`tables.json` beside the summary), scored on
     // DEMO/prepared.
-    let models = read_json(&dir.join("tables.json"))
-        .map(|t| {
-            let data = dir
-                .parent()
-                .map(|p| p.join("prepared").display().to_string());
-            super::runs::eval_models(dir, &t, data, "demo")
-        })
-        .unwrap_or_default();
+    let tables = dir.join("tables.json");
+    let models = if tables.is_file() {
+        let t: TablesRecord = depthsense_records::read_json(&tables)
+            .map_err(|e| format!("tables.json: {}", e.detail()))?;
+        let data = dir
+            .parent()
+            .map(|p| p.join("prepared").display().to_string());
+        super::runs::eval_models(dir, &t, data, "demo")
+    } else {
+        vec![]
+    };
     let mut f = Found {
         kind: Kind::Demo,
         dir: dir.to_path_buf(),
@@ -383,7 +398,9 @@ fn found(
                 .iter()
                 .find(|(k, _)| k == "data")
                 .map(|(_, d)| d.clone());
-            super::runs::eval_models(dir, v, data, "eval")
+            let t: TablesRecord =
+                depthsense_records::checked(v.clone(), json, None).map_err(|e| e.detail())?;
+            super::runs::eval_models(dir, &t, data, "eval")
         }
         Kind::Ablation | Kind::ReducedData | Kind::DataScale => {
             super::runs::experiment_models(kind, dir, v)

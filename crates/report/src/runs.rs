@@ -19,13 +19,15 @@ use std::path::{Path, PathBuf};
 
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{Align, MdTable};
+use depthsense_records::metrics_log::{self, BadLine, MetricsRecord, PdaValRecord, ValRecord};
+use depthsense_records::run_config::{Command, RunConfig, RunOptions, TrainRunConfig};
+use depthsense_records::sidecar::{sidecar_version, SidecarRecord, TensorShape};
+use depthsense_records::tables::{HeadlineMetrics, TablesRecord};
+use depthsense_records::{json_number, RecordError};
 use serde_json::Value;
 
 use super::found::{file_name, read_json, string_at, Found, ImageSource, ModelRow, Split};
 use super::Kind;
-
-/// The sidecar format `depthsense export` writes.
-const SIDECAR_FORMAT: &str = "depthsense-export-v1";
 
 /// The metrics of the comparison: (column title, decimals, higher is better). RMSE, MAE and
 /// AbsRel are errors (lower is better); δ1 is the share of pixels within 1.25× (higher).
@@ -36,17 +38,6 @@ const METRIC_COLUMNS: [(&str, usize, bool); 4] = [
     ("δ1", 3, true),
 ];
 
-/// The records of a `metrics.jsonl` (lines that are not JSON are left out).
-fn records(p: &Path) -> Vec<Value> {
-    std::fs::read_to_string(p)
-        .map(|t| {
-            t.lines()
-                .filter_map(|l| serde_json::from_str(l).ok())
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
 fn num(v: &Value, k: &str) -> Option<f64> {
     v.get(k).and_then(Value::as_f64)
 }
@@ -56,71 +47,55 @@ fn cell(x: Option<f64>, decimals: usize) -> String {
         .map_or("–".into(), |v| format!("{v:.decimals$}"))
 }
 
-/// The training options of a run's config.json: `train` (`depthsense train`) or `mer_train`
-/// (`depthsense mer train`).
-fn train_options(cfg: &Value) -> &Value {
-    cfg.get("train")
-        .or_else(|| cfg.get("mer_train"))
-        .unwrap_or(&Value::Null)
-}
-
 /// The invocation config.json records (`"command"`: the argv, program name first) as one
 /// shell line (words quoted where a shell would need it); `None` for a run written before the
 /// command was recorded.
-pub fn recorded_command(cfg: &Value) -> Option<String> {
-    match cfg.get("command")? {
-        Value::Array(words) => {
-            let words: Vec<String> = words
-                .iter()
-                .map(|w| w.as_str().map(shell_word))
-                .collect::<Option<_>>()?;
-            (!words.is_empty()).then(|| words.join(" "))
-        }
-        Value::String(line) => Some(line.clone()),
-        _ => None,
-    }
-}
-
-/// `w` as a shell reads it back: unchanged when plain, else in single quotes.
-fn shell_word(w: &str) -> String {
-    let plain = !w.is_empty()
-        && w.chars()
-            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,+@%".contains(c));
-    if plain {
-        w.to_string()
-    } else {
-        format!("'{}'", w.replace('\'', "'\\''"))
-    }
+pub fn recorded_command(cfg: &RunConfig) -> Option<String> {
+    cfg.command().and_then(Command::shell_line)
 }
 
 /// A run that stopped before its last epoch (interrupted, `--stop-after`, or still running):
 /// the mark shown beside it. Its epochs are the last `"kind":"epoch"` record of metrics.jsonl
 /// against the run's `epochs` in config.json (an `--extend`ed run: the new total).
-pub fn unfinished(cfg: &Value, records: &[Value]) -> Option<String> {
-    let total = train_options(cfg)["epochs"].as_u64()?;
+pub fn unfinished<V>(cfg: &RunConfig, records: &[MetricsRecord<V>]) -> Option<String> {
+    let total = cfg.options().epochs;
     let done = records
         .iter()
-        .filter(|r| r["kind"] == "epoch")
-        .filter_map(|r| r["epoch"].as_u64())
+        .filter_map(|r| match r {
+            MetricsRecord::Epoch(e) => Some(e.epoch),
+            _ => None,
+        })
         .max()
         .unwrap_or(0);
     (done < total).then(|| format!("unfinished (epoch {done} of {total}; continue with --resume)"))
 }
 
-/// The section of a training run in `dir` (`config.json` + `metrics.jsonl`), or `None` when
-/// `dir` is not one.
-pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Option<Found> {
+/// The section of a training run in `dir` (`config.json` + `metrics.jsonl`); `None` when `dir`
+/// is not one, `Err` (the file and the reason) when one of its records cannot be read: a
+/// missing or mistyped field is named, never shown as a value.
+pub fn training_run(
+    dir: &Path,
+    files: &[PathBuf],
+    names: &BTreeSet<&str>,
+) -> Option<Result<Found, (PathBuf, String)>> {
     if !names.contains("config.json") || !names.contains("metrics.jsonl") {
         return None;
     }
-    let cfg = read_json(&dir.join("config.json")).ok()?;
-    let recs = records(&dir.join("metrics.jsonl"));
-    let unfinished = unfinished(&cfg, &recs);
-    let vals: Vec<&Value> = recs
-        .iter()
-        .filter(|r| r["kind"] == "val" || (r["kind"] == "epoch" && r.get("val").is_some()))
-        .collect();
-    let pda = vals.iter().any(|r| r["val"].get("auc").is_some());
+    Some(read_training_run(dir, files, names).map_err(|e| (e.path.clone(), e.reason())))
+}
+
+fn read_training_run(
+    dir: &Path,
+    files: &[PathBuf],
+    names: &BTreeSet<&str>,
+) -> Result<Found, RecordError> {
+    let cfg = RunConfig::read(&dir.join("config.json"))?;
+    let log_path = dir.join("metrics.jsonl");
+    let text = std::fs::read_to_string(&log_path)
+        .map_err(|e| RecordError::new(&log_path, format!("cannot read: {e}")))?;
+    // A line that is not JSON is half a line of a run killed mid-write: left out.
+    let lines = metrics_log::json_lines(&text, &log_path, BadLine::Skip)?;
+    let pda = metrics_log::holds_pda(&lines);
     let mut f = Found {
         kind: Kind::Train,
         dir: dir.to_path_buf(),
@@ -136,19 +111,29 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
             .cloned()
             .collect(),
         command_line: recorded_command(&cfg),
-        inputs: ["data", "out"]
-            .iter()
-            .filter_map(|k| string_at(train_options(&cfg), &[k]).map(|v| (k.to_string(), v)))
-            .collect(),
+        inputs: vec![
+            ("data".into(), cfg.options().data.clone()),
+            ("out".into(), cfg.options().out.clone()),
+        ],
         doc: Doc::new(),
         images: vec![],
         grid: None,
         models: vec![],
     };
     f.doc = if pda {
-        pda_doc(&cfg, &vals, unfinished.as_deref())
+        let recs = metrics_log::typed::<PdaValRecord>(lines, &log_path)?;
+        pda_doc(&cfg, &recs, unfinished(&cfg, &recs).as_deref())
     } else {
-        let (doc, best) = depth_doc(dir, &cfg, &vals, unfinished);
+        let recs = metrics_log::typed::<ValRecord>(lines, &log_path)?;
+        let RunConfig::Train(train) = &cfg else {
+            return Err(RecordError {
+                path: dir.join("config.json"),
+                line: None,
+                field: Some("mer_train".into()),
+                problem: "a `mer train` run whose metrics.jsonl holds no PDA validation".into(),
+            });
+        };
+        let (doc, best) = depth_doc(dir, train, &recs, unfinished(&cfg, &recs));
         f.models.extend(best);
         doc
     };
@@ -159,50 +144,49 @@ pub fn training_run(dir: &Path, files: &[PathBuf], names: &BTreeSet<&str>) -> Op
             tile: false,
         });
     }
-    Some(f)
+    Ok(f)
+}
+
+/// The iteration cell of a validation row ("–": an epoch line written without it).
+fn iteration_cell(it: Option<u64>) -> String {
+    it.map_or("–".into(), |i| i.to_string())
 }
 
 /// A depth network's run: settings, every validation, and its best validation as a model row.
 fn depth_doc(
     dir: &Path,
-    cfg: &Value,
-    vals: &[&Value],
+    cfg: &TrainRunConfig,
+    recs: &[MetricsRecord<ValRecord>],
     unfinished: Option<String>,
 ) -> (Doc, Option<ModelRow>) {
-    let t = train_options(cfg);
-    let data = t["data"].as_str().map(str::to_string);
-    let m = &cfg["model"];
-    let fusion = match (m["fusion"].as_str(), m["attention"].as_bool()) {
-        (Some("late"), Some(true)) => "late fusion + attention",
-        (Some("late"), _) => "late fusion",
-        (Some("early"), _) => "early fusion",
-        _ => "RGB only",
-    };
+    let t = &cfg.train;
+    let m = &cfg.model;
     let mut doc = Doc::new();
     doc.paragraph(format!(
-        "`{}` ({fusion}), {} batch {}, lr {}, seed {}, on `{}` ({} training / {} \
+        "`{}` ({}), {} batch {}, lr {}, seed {}, on `{}` ({} training / {} \
          validation samples used).",
-        m["name"].as_str().unwrap_or("?"),
+        m.name,
+        m.fusion_words(),
         epochs_text(t, unfinished.as_deref()),
-        t["batch_size"],
-        t["lr"],
-        t["seed"],
-        t["data"].as_str().unwrap_or("?"),
-        cfg["partition"]["train_samples"],
-        cfg["partition"]["val_samples_used"],
+        t.batch_size,
+        json_number(t.lr),
+        t.seed,
+        t.data,
+        cfg.partition.train_samples,
+        cfg.partition.val_samples_used,
     ));
-    if let Some(init) = cfg.get("init_from") {
+    if let Some(init) = &cfg.init_from {
         doc.paragraph(format!(
             "Initialised from `{}` ({} tensors loaded, {} new).",
-            init["file"].as_str().unwrap_or("?"),
-            init["loaded"],
-            init["new"].as_array().map_or(0, Vec::len)
+            init.file,
+            init.loaded,
+            init.new.len()
         ));
     }
-    if let Some(segments) = cfg.get("schedule").and_then(Value::as_array) {
+    if !cfg.schedule.is_empty() {
         doc.paragraph(format!(
             "Extended (`train --extend`): {} learning-rate segments.",
-            segments.len()
+            cfg.schedule.len()
         ));
     }
     let mut t = right_aligned(&[
@@ -214,52 +198,53 @@ fn depth_doc(
         "δ1",
         "images",
     ]);
-    for r in vals {
-        let v = &r["val"];
+    let vals: Vec<(u64, Option<u64>, &ValRecord)> =
+        recs.iter().filter_map(MetricsRecord::validation).collect();
+    for (epoch, it, v) in &vals {
         t.row(&[
-            r["epoch"].to_string(),
-            r["iteration"].to_string(),
-            cell(num(v, "rmse"), 3),
-            cell(num(v, "mae"), 3),
-            cell(num(v, "abs_rel"), 3),
-            cell(num(v, "delta1"), 3),
-            v["n_images"].to_string(),
+            epoch.to_string(),
+            iteration_cell(*it),
+            cell(Some(v.rmse), 3),
+            cell(Some(v.mae), 3),
+            cell(Some(v.abs_rel), 3),
+            cell(Some(v.delta1), 3),
+            v.n_images.to_string(),
         ]);
     }
     doc.table(t);
-    let best = vals
+    let best = recs
         .iter()
-        .filter(|r| r["kind"] == "epoch")
-        .filter_map(|r| Some((num(&r["val"], "rmse")?, *r)))
-        .filter(|(x, _)| x.is_finite())
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, r)| ModelRow {
+        .filter(|r| matches!(r, MetricsRecord::Epoch(_)))
+        .filter_map(MetricsRecord::validation)
+        .filter(|(_, _, v)| v.rmse.is_finite())
+        .min_by(|a, b| a.2.rmse.total_cmp(&b.2.rmse))
+        .map(|(epoch, _, v)| ModelRow {
             name: dir
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default(),
             split: Split::Validation,
-            rows: format!("best epoch ({})", r["epoch"]),
+            rows: format!("best epoch ({epoch})"),
             dir: dir.to_path_buf(),
-            data: data.clone(),
+            data: Some(cfg.train.data.clone()),
             cap_m: None,
             seeds: Some(1),
             unfinished: unfinished.clone(),
-            images: r["val"]["n_images"].as_u64(),
-            rmse_m: num(&r["val"], "rmse"),
-            mae_m: num(&r["val"], "mae"),
-            abs_rel: num(&r["val"], "abs_rel"),
-            delta1: num(&r["val"], "delta1"),
+            images: Some(v.n_images),
+            rmse_m: Some(v.rmse),
+            mae_m: Some(v.mae),
+            abs_rel: Some(v.abs_rel),
+            delta1: Some(v.delta1),
         });
     (doc, best)
 }
 
 /// "10 epochs of", or for a run that stopped early its mark in bold: "**unfinished (epoch 3
 /// of 10; continue with --resume)**,".
-fn epochs_text(t: &Value, unfinished: Option<&str>) -> String {
+fn epochs_text(t: &RunOptions, unfinished: Option<&str>) -> String {
     match unfinished {
         Some(mark) => format!("**{mark}**,"),
-        None => format!("{} epochs of", t["epochs"]),
+        None => format!("{} epochs of", t.epochs),
     }
 }
 
@@ -270,15 +255,15 @@ fn right_aligned(titles: &[&str]) -> MdTable {
 }
 
 /// A PDA (MER) run: every validation's association metrics.
-fn pda_doc(cfg: &Value, vals: &[&Value], unfinished: Option<&str>) -> Doc {
-    let t = train_options(cfg);
+fn pda_doc(cfg: &RunConfig, recs: &[MetricsRecord<PdaValRecord>], unfinished: Option<&str>) -> Doc {
+    let t = cfg.options();
     let mut doc = Doc::new();
     doc.paragraph(format!(
         "PDA network (MER, SPEC §5), {} batch {}, lr {}, on `{}`.",
         epochs_text(t, unfinished),
-        t["batch_size"],
-        t["lr"],
-        t["data"].as_str().unwrap_or("?"),
+        t.batch_size,
+        json_number(t.lr),
+        t.data,
     ));
     let mut t = right_aligned(&[
         "epoch",
@@ -288,23 +273,29 @@ fn pda_doc(cfg: &Value, vals: &[&Value], unfinished: Option<&str>) -> Doc {
         "precision",
         "recall",
     ]);
-    for r in vals {
-        let v = &r["val"];
+    for (epoch, it, v) in recs.iter().filter_map(MetricsRecord::validation) {
         t.row(&[
-            r["epoch"].to_string(),
-            r["iteration"].to_string(),
-            cell(num(v, "loss"), 4),
-            cell(num(v, "auc"), 4),
-            cell(num(v, "precision"), 3),
-            cell(num(v, "recall"), 3),
+            epoch.to_string(),
+            iteration_cell(it),
+            cell(Some(v.loss), 4),
+            cell(Some(v.auc), 4),
+            cell(Some(v.precision), 3),
+            cell(Some(v.recall), 3),
         ]);
     }
     doc.table(t);
     doc
 }
 
-/// Exported models of `dir`: every `FILE.json` that is an export sidecar, with `FILE`.
-pub fn exports(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>) -> Vec<Found> {
+/// Exported models of `dir`: every `FILE.json` that is an export sidecar, with `FILE`. A
+/// sidecar that cannot be read (a field missing, a newer format) goes to `skipped` with its
+/// file and field.
+pub fn exports(
+    dir: &Path,
+    files: &[PathBuf],
+    claimed: &mut BTreeSet<PathBuf>,
+    skipped: &mut Vec<(PathBuf, String)>,
+) -> Vec<Found> {
     let mut out = vec![];
     for sidecar in files {
         let Some(model) = file_name(sidecar)
@@ -317,21 +308,26 @@ pub fn exports(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>) -
             continue;
         }
         let Ok(v) = read_json(sidecar) else { continue };
-        if v["format_version"] != SIDECAR_FORMAT {
+        // A sidecar of depthsense says so; any other JSON beside a file is not one.
+        let Some(_) = v["format_version"].as_str().and_then(sidecar_version) else {
             continue;
-        }
+        };
         claimed.insert(sidecar.clone());
         claimed.insert(model.clone());
+        let record: SidecarRecord = match depthsense_records::checked(v, sidecar, None) {
+            Ok(r) => r,
+            Err(e) => {
+                skipped.push((sidecar.clone(), e.reason()));
+                continue;
+            }
+        };
         out.push(Found {
             kind: Kind::Export,
             dir: dir.to_path_buf(),
             files: vec![model.clone(), sidecar.clone()],
             command_line: None,
-            inputs: vec![(
-                "checkpoint".into(),
-                v["checkpoint"].as_str().unwrap_or("?").into(),
-            )],
-            doc: export_doc(&model, &v),
+            inputs: vec![("checkpoint".into(), record.checkpoint.clone())],
+            doc: export_doc(&model, &record),
             images: vec![],
             grid: None,
             models: vec![],
@@ -340,67 +336,33 @@ pub fn exports(dir: &Path, files: &[PathBuf], claimed: &mut BTreeSet<PathBuf>) -
     out
 }
 
-fn export_doc(model: &Path, v: &Value) -> Doc {
-    let shape = |t: &Value| {
-        let dims: Vec<String> = t["shape"]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|d| d.as_str().map_or(d.to_string(), str::to_string))
-                    .collect()
-            })
-            .unwrap_or_default();
-        format!(
-            "`{}` [{}]",
-            t["name"].as_str().unwrap_or("?"),
-            dims.join(", ")
-        )
-    };
-    let inputs: Vec<String> = v["inputs"]
-        .as_array()
-        .map(|a| a.iter().map(shape).collect())
-        .unwrap_or_default();
+fn export_doc(model: &Path, v: &SidecarRecord) -> Doc {
+    let inputs: Vec<String> = v.inputs.iter().map(TensorShape::words).collect();
     let bytes = std::fs::metadata(model).map_or(0, |m| m.len());
     let mut doc = Doc::new();
     doc.paragraph(format!(
         "`{}`: {} ({}, batch {}), {:.1} MB, preset `{}`; inputs {}; output {} in metres. From \
          `{}` (SHA-256 {}…).",
         file_name(model).unwrap_or("?"),
-        v["format"].as_str().unwrap_or("?"),
-        v["precision"].as_str().unwrap_or("?"),
-        v["batch"].as_str().unwrap_or("?"),
+        v.format,
+        v.precision,
+        v.batch,
         bytes as f64 / 1e6,
-        v["preset"].as_str().unwrap_or("?"),
+        v.preset,
         inputs.join(", "),
-        shape(&v["output"]),
-        v["checkpoint"].as_str().unwrap_or("?"),
-        v["checkpoint_sha256"]
-            .as_str()
-            .map_or("?".into(), |h| h.chars().take(12).collect::<String>()),
+        v.output.words(),
+        v.checkpoint,
+        v.checkpoint_sha256.chars().take(12).collect::<String>(),
     ));
-    if let Some(r) = v.get("trained_radar") {
+    if let Some(r) = &v.trained_radar {
+        let on = |b: bool| if b { "on" } else { "off" };
         doc.paragraph(format!(
             "Trained on radar of {} sweep(s) per channel ({}), devkit filters {}, velocity \
              compensation {}: feed it radar gathered the same way.",
-            r["radar_sweeps"],
-            r["radar_channels"]
-                .as_array()
-                .map(|a| a
-                    .iter()
-                    .filter_map(Value::as_str)
-                    .collect::<Vec<_>>()
-                    .join(", "))
-                .unwrap_or_default(),
-            if r["radar_filters"] == true {
-                "on"
-            } else {
-                "off"
-            },
-            if r["radar_velocity_compensation"] == true {
-                "on"
-            } else {
-                "off"
-            },
+            r.radar_sweeps,
+            r.radar_channels.join(", "),
+            on(r.radar_filters),
+            on(r.radar_velocity_compensation),
         ));
     }
     doc
@@ -409,38 +371,32 @@ fn export_doc(model: &Path, v: &Value) -> Doc {
 /// Each model of an evaluation's `tables.json` (`eval`, or the demo's) as a test row of the
 /// comparison: its headline row (combined conditions, full image, largest cap). `data`: the
 /// prepared folder it was scored on, when known; `from`: what wrote it.
-pub fn eval_models(dir: &Path, v: &Value, data: Option<String>, from: &str) -> Vec<ModelRow> {
-    let Some(models) = v.get("models").and_then(Value::as_array) else {
-        return vec![];
-    };
-    models
+pub fn eval_models(
+    dir: &Path,
+    v: &TablesRecord,
+    data: Option<String>,
+    from: &str,
+) -> Vec<ModelRow> {
+    v.models
         .iter()
         .map(|m| {
-            let head = m["report"]["rows"].as_array().and_then(|rows| {
-                rows.iter()
-                    .filter(|r| r["condition"] == "combined" && r["region"] == "full")
-                    .max_by(|a, b| {
-                        num(a, "cap_m")
-                            .unwrap_or(0.0)
-                            .total_cmp(&num(b, "cap_m").unwrap_or(0.0))
-                    })
-            });
-            let metric = |k: &str| head.and_then(|r| num(&r["metrics"], k));
+            let head = m.headline();
+            let metric = |f: fn(&HeadlineMetrics) -> f64| head.map(|r| f(&r.metrics));
             ModelRow {
-                name: m["name"].as_str().unwrap_or("?").to_string(),
+                name: m.name.clone(),
                 split: Split::Test,
                 rows: from.to_string(),
                 dir: dir.to_path_buf(),
                 data: data.clone(),
-                cap_m: head.and_then(|r| num(r, "cap_m")),
+                cap_m: head.map(|r| r.cap_m),
                 // One checkpoint: one training seed.
                 seeds: Some(1),
                 unfinished: None,
-                images: head.and_then(|r| r["n_images"].as_u64()),
-                rmse_m: metric("rmse"),
-                mae_m: metric("mae"),
-                abs_rel: metric("abs_rel"),
-                delta1: metric("delta1"),
+                images: head.map(|r| r.n_images),
+                rmse_m: metric(|m| m.rmse),
+                mae_m: metric(|m| m.mae),
+                abs_rel: metric(|m| m.abs_rel),
+                delta1: metric(|m| m.delta1),
             }
         })
         .collect()
@@ -714,19 +670,48 @@ mod tests {
     use super::*;
     use serde_json::json;
 
+    const OPTIONS: &str = r#""data": "p", "out": "r", "batch_size": 4, "lr": 0.002, "seed": 7"#;
+
+    /// A config.json of `train` (`"train"`) or `mer train` (`"mer_train"`) with `epochs` and
+    /// the `command` given.
+    fn config(key: &str, epochs: u64, command: Option<Value>) -> RunConfig {
+        let mut v: Value = serde_json::from_str(&format!(
+            r#"{{"{key}": {{{OPTIONS}, "epochs": {epochs}}},
+                "model": {{"name": "tiny", "fusion": "late", "attention": true}},
+                "partition": {{"train_samples": 1, "val_samples_used": 1}}}}"#
+        ))
+        .unwrap();
+        if let Some(c) = command {
+            v["command"] = c;
+        }
+        RunConfig::from_value(v, Path::new("config.json")).unwrap()
+    }
+
     /// config.json's argv as one line a shell reads back to the same words.
     #[test]
     fn the_recorded_command_is_one_shell_line() {
-        let cfg =
-            json!({"command": ["depthsense", "train", "--set", "a=1", "--out", "it's here", ""]});
+        let cfg = config(
+            "train",
+            1,
+            Some(json!([
+                "depthsense",
+                "train",
+                "--set",
+                "a=1",
+                "--out",
+                "it's here",
+                ""
+            ])),
+        );
         assert_eq!(
             recorded_command(&cfg).as_deref(),
             Some("depthsense train --set a=1 --out 'it'\\''s here' ''")
         );
-        assert_eq!(recorded_command(&json!({"command": []})), None);
-        assert_eq!(recorded_command(&json!({"train": {}})), None);
+        assert_eq!(recorded_command(&config("train", 1, Some(json!([])))), None);
+        assert_eq!(recorded_command(&config("train", 1, None)), None);
         assert_eq!(
-            recorded_command(&json!({"command": "depthsense mer train"})).as_deref(),
+            recorded_command(&config("mer_train", 1, Some(json!("depthsense mer train"))))
+                .as_deref(),
             Some("depthsense mer train")
         );
     }
@@ -734,24 +719,26 @@ mod tests {
     /// Unfinished: the last epoch record before the run's epochs (`mer train`'s config too).
     #[test]
     fn a_run_short_of_its_epochs_is_unfinished() {
-        let recs = [
+        let recs: Vec<MetricsRecord<ValRecord>> = [
             json!({"kind": "epoch", "epoch": 2}),
-            json!({"kind": "iter", "epoch": 2}),
-        ];
+            json!({"kind": "iter", "epoch": 2, "iteration": 9, "loss": 1.0}),
+        ]
+        .into_iter()
+        .map(|v| serde_json::from_value(v).unwrap())
+        .collect();
         let mark = "unfinished (epoch 2 of 5; continue with --resume)";
         assert_eq!(
-            unfinished(&json!({"train": {"epochs": 5}}), &recs).as_deref(),
+            unfinished(&config("train", 5, None), &recs).as_deref(),
             Some(mark)
         );
         assert_eq!(
-            unfinished(&json!({"mer_train": {"epochs": 5}}), &recs).as_deref(),
+            unfinished(&config("mer_train", 5, None), &recs).as_deref(),
             Some(mark)
         );
-        assert_eq!(unfinished(&json!({"train": {"epochs": 2}}), &recs), None);
+        assert_eq!(unfinished(&config("train", 2, None), &recs), None);
         assert_eq!(
-            unfinished(&json!({"train": {"epochs": 2}}), &[]).as_deref(),
+            unfinished::<ValRecord>(&config("train", 2, None), &[]).as_deref(),
             Some("unfinished (epoch 0 of 2; continue with --resume)")
         );
-        assert_eq!(unfinished(&json!({}), &recs), None, "epochs unknown");
     }
 }

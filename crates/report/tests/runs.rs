@@ -425,3 +425,60 @@ fn the_demo_models_are_compared() {
         "{val}"
     );
 }
+
+/// Run folders written before records were typed (no `format_version`, the literals above)
+/// render as before; a record that lacks a field the report shows is skipped with its file and
+/// the field, and no value is shown as "null".
+#[test]
+fn an_incomplete_record_is_skipped_with_its_file_and_field() {
+    let tmp = tempfile::tempdir().unwrap();
+    let runs = tmp.path().join("runs");
+    run_folder(&runs.join("old"), 3, 3, None);
+    run_folder(&runs.join("broken"), 3, 3, None);
+    let cfg = runs.join("broken/config.json");
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&cfg).unwrap()).unwrap();
+    v["train"].as_object_mut().unwrap().remove("batch_size");
+    write(&cfg, v.to_string().as_bytes());
+    let log = runs.join("old-log");
+    run_folder(&log, 3, 3, None);
+    let mut text = std::fs::read_to_string(log.join("metrics.jsonl")).unwrap();
+    text = text.replacen("\"rmse\":", "\"rmse_m\":", 1);
+    write(&log.join("metrics.jsonl"), text.as_bytes());
+
+    let (s, html) = page(&runs, &tmp.path().join("page"));
+    let trains: Vec<_> = s
+        .sections
+        .iter()
+        .filter(|x| x.kind == Kind::Train)
+        .collect();
+    assert_eq!(trains.len(), 1, "only the readable run");
+    let md = trains[0].doc.to_markdown();
+    assert!(
+        md.contains("`tiny` (late fusion), 3 epochs of batch 4, lr 0.002, seed 7, on `runs/prepared` (64 training / 16 validation samples used)."),
+        "{md}"
+    );
+    assert!(
+        md.contains("| 3 | 24 | 9.000 | 4.500 | 0.300 | 0.500 | 4 |"),
+        "{md}"
+    );
+    let reasons: Vec<(String, String)> = s
+        .skipped
+        .iter()
+        .map(|k| (k.path.display().to_string(), k.reason.clone()))
+        .collect();
+    assert!(
+        reasons.contains(&(
+            cfg.display().to_string(),
+            "field \"train.batch_size\": missing".into()
+        )),
+        "{reasons:?}"
+    );
+    assert!(
+        reasons.contains(&(
+            log.join("metrics.jsonl").display().to_string(),
+            "line 1: field \"val.rmse\": missing".into()
+        )),
+        "{reasons:?}"
+    );
+    assert!(!html.contains("null") && !md.contains("null"));
+}

@@ -1,10 +1,13 @@
-//! `tables.md`, `tables.csv` and `tables.json`: what `eval` writes (SPEC §10 items 1–3).
+//! `tables.md`, `tables.csv` and `tables.json`: what `eval` writes (SPEC §10 items 1–3);
+//! tables.json is a `depthsense_records::tables::TablesRecord`.
 
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_dataset::DataError;
 use depthsense_metrics::{tables, Report};
+use depthsense_records::tables::TablesRecord;
+use depthsense_records::to_json_pretty;
 
 /// The files [`write_tables`] writes.
 pub const TABLE_FILES: [&str; 3] = ["tables.md", "tables.csv", "tables.json"];
@@ -32,12 +35,19 @@ pub fn write_tables_with_command(
     doc.command(command_line);
     let md = doc.to_markdown();
     let csv = tables::csv_report(models);
-    let json = serde_json::json!({
-        "models": models.iter().map(|(n, r)| serde_json::json!({"name": n, "report": r})).collect::<Vec<_>>(),
-        "tables": tables::all_tables(models),
-        "command_line": command_line,
-        depthsense_metrics::doc::DOCUMENT_KEY: doc,
-    });
+    let json_path = dir.join("tables.json");
+    let record = TablesRecord::new(
+        models,
+        serde_json::to_value(tables::all_tables(models))
+            .map_err(|e| DataError::Other(e.to_string()))?,
+        command_line,
+        &doc,
+        &json_path,
+    )
+    .map_err(|e| DataError::Parse {
+        path: e.path.clone(),
+        reason: e.reason(),
+    })?;
     let w = |name: &str, bytes: &[u8]| {
         let p = dir.join(name);
         write_atomic(&p, bytes).map_err(|e| DataError::io(&p, e))
@@ -46,7 +56,7 @@ pub fn write_tables_with_command(
     w("tables.csv", csv.as_bytes())?;
     w(
         "tables.json",
-        serde_json::to_string_pretty(&json)
+        to_json_pretty(&record)
             .map_err(|e| DataError::Other(e.to_string()))?
             .as_bytes(),
     )

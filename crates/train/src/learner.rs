@@ -28,6 +28,7 @@ use std::time::{Duration, Instant};
 use depthsense_base::interrupt::{self, StopSignal};
 use depthsense_base::lock::OutputLock;
 use depthsense_progress::Progress;
+use depthsense_records::metrics_log::{MetricsRecord, ValLine};
 use serde::Serialize;
 
 use crate::optim_state;
@@ -142,7 +143,7 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
     if learner.iteration() == 0 {
         progress.set_message("validating the initial network");
         let v = learner.validation(0)?;
-        learner.log(&serde_json::json!({"kind": "val", "epoch": 0, "iteration": 0, "val": v}))?;
+        learner.log(&MetricsRecord::Val(ValLine::new(0, 0, &v)).to_value()?)?;
         progress.println(format!("validation before training: {v}"));
         val.push(v);
     }
@@ -420,7 +421,7 @@ mod tests {
             calls(t),
             [
                 "validate 0",
-                r#"{"epoch":0,"iteration":0,"kind":"val","val":100}"#,
+                r#"{"epoch":0,"format_version":2,"iteration":0,"kind":"val","val":100}"#,
                 "epoch 0 from 0",
                 "flush 10",
                 "flush 10",

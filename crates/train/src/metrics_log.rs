@@ -1,58 +1,35 @@
-//! RUN/metrics.jsonl, the training log (`train` and `mer train` write the same format):
+//! RUN/metrics.jsonl, the training log (`train` and `mer train` write the same format; its
+//! records are `depthsense_records::metrics_log`'s, shared with the report):
 //! `{"kind":"iter",…}` per iteration, `{"kind":"epoch",…}` per epoch with its validation
-//! record. One writer ([`append_jsonl`]), one line parser and one reader ([`read_log`]; a line
-//! that is not JSON fails or is skipped, [`BadLine`]), the resume cut ([`truncate_metrics`]) and
-//! the curves drawn from it ([`write_curves`]).
+//! record. One writer ([`append_jsonl`], [`append_record`]), one reader ([`read_log`]; a line
+//! that is not JSON fails or is skipped, [`BadLine`]; a line that lacks a field is an error
+//! naming the file, the line and the field), the resume cut ([`truncate_metrics`]) and the
+//! curves drawn from it ([`write_curves`]).
 
 use std::io::Write;
 use std::path::Path;
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_metrics::Report;
-use serde::{Deserialize, Serialize};
+use depthsense_records::metrics_log::{json_lines, typed, MetricsRecord};
+use depthsense_records::RecordError;
+use serde::Serialize;
 
 use depthsense_infer::NetError;
 
-/// One validation result.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ValRecord {
-    pub epoch: u64,
-    pub iteration: u64,
-    pub rmse: f64,
-    pub mae: f64,
-    pub abs_rel: f64,
-    pub delta1: f64,
-    pub n_images: u64,
-    pub n_pixels: u64,
-}
+pub use depthsense_records::metrics_log::{
+    BadLine, EpochRecord, IterRecord, ValLine, ValRecord, METRICS_VERSION,
+};
 
-/// The progress line of a validation: `RMSE 9.412 m, MAE 4.120 m, AbsRel 0.213, δ1 0.712 on
-/// 16 images`.
-impl std::fmt::Display for ValRecord {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "RMSE {:.3} m, MAE {:.3} m, AbsRel {:.3}, δ1 {:.3} on {} images",
-            self.rmse, self.mae, self.abs_rel, self.delta1, self.n_images
-        )
+fn record_error(e: RecordError) -> NetError {
+    NetError::Parse {
+        path: e.path.clone(),
+        reason: e.reason(),
     }
 }
 
-impl ValRecord {
-    pub(crate) fn from_report(epoch: u64, iteration: u64, r: &Report) -> Self {
-        let row = r.headline().cloned();
-        let m = row.as_ref().map(|r| r.metrics).unwrap_or_default();
-        Self {
-            epoch,
-            iteration,
-            rmse: m.rmse,
-            mae: m.mae,
-            abs_rel: m.abs_rel,
-            delta1: m.delta1,
-            n_images: row.as_ref().map_or(0, |r| r.n_images),
-            n_pixels: row.as_ref().map_or(0, |r| r.n_pixels),
-        }
-    }
+/// Append one typed record (a JSON line, keys sorted).
+pub fn append_record<V: Serialize>(path: &Path, record: &MetricsRecord<V>) -> Result<(), NetError> {
+    append_jsonl(path, &record.to_value()?)
 }
 
 /// Append one record (a JSON line).
@@ -85,17 +62,6 @@ pub fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), NetError> {
 /// (global iteration, loss) pairs of a run.
 pub type LossCurve = Vec<(u64, f64)>;
 
-/// What to do with a line of metrics.jsonl that is not JSON.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BadLine {
-    /// An error naming the file (`train`, `--resume`, the curves, the demo: a run this process
-    /// wrote must read back whole).
-    Fail,
-    /// Skipped (an experiment asking whether a run it finds on disk ended: a run killed
-    /// mid-write may end in half a line).
-    Skip,
-}
-
 /// The end of an epoch as metrics.jsonl records it (`{"kind":"epoch",…}`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EpochEnd {
@@ -113,43 +79,39 @@ pub struct MetricsLog {
     pub epoch_ends: Vec<EpochEnd>,
 }
 
-/// Every line of metrics.jsonl with its JSON (the one line parser of the log).
+/// Every line of metrics.jsonl with its JSON (the resume cut's line parser).
 fn records(text: &str) -> impl Iterator<Item = (&str, serde_json::Result<serde_json::Value>)> {
     text.lines()
         .map(|l| (l, serde_json::from_str::<serde_json::Value>(l)))
 }
 
-/// Read metrics.jsonl: the one reader of the log.
+/// Read metrics.jsonl: the one reader of the log. A validation that is not a depth network's
+/// (`mer train`'s PDA records) is not in `val`.
 pub fn read_log(path: &Path, bad: BadLine) -> Result<MetricsLog, NetError> {
     let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
+    let lines = json_lines(&text, path, bad).map_err(record_error)?;
+    let records = match typed::<serde_json::Value>(lines.clone(), path) {
+        Ok(r) => r,
+        // A run killed mid-write, read leniently: the lines that read.
+        Err(_) if bad == BadLine::Skip => lines
+            .into_iter()
+            .filter_map(|(n, v)| typed(vec![(n, v)], path).ok()?.pop())
+            .collect(),
+        Err(e) => return Err(record_error(e)),
+    };
     let mut log = MetricsLog::default();
-    for (_, v) in records(&text) {
-        let v = match (v, bad) {
-            (Ok(v), _) => v,
-            (Err(_), BadLine::Skip) => continue,
-            (Err(e), BadLine::Fail) => {
-                return Err(NetError::Parse {
-                    path: path.to_path_buf(),
-                    reason: e.to_string(),
-                })
+    for r in records {
+        if let Some((_, _, v)) = r.validation() {
+            if let Ok(v) = serde_json::from_value::<ValRecord>(v.clone()) {
+                log.val.push(v);
             }
-        };
-        match v.get("kind").and_then(|k| k.as_str()) {
-            Some("iter") => log.losses.push((
-                v["iteration"].as_u64().unwrap_or(0),
-                v["loss"].as_f64().unwrap_or(f64::NAN),
-            )),
-            Some(kind @ ("epoch" | "val")) => {
-                if let Ok(r) = serde_json::from_value::<ValRecord>(v["val"].clone()) {
-                    log.val.push(r);
-                }
-                if kind == "epoch" {
-                    log.epoch_ends.push(EpochEnd {
-                        epoch: v.get("epoch").and_then(|e| e.as_u64()),
-                        seconds: v.get("seconds").and_then(|s| s.as_f64()),
-                    });
-                }
-            }
+        }
+        match r {
+            MetricsRecord::Iter(i) => log.losses.push((i.iteration, i.loss)),
+            MetricsRecord::Epoch(e) => log.epoch_ends.push(EpochEnd {
+                epoch: Some(e.epoch),
+                seconds: e.seconds,
+            }),
             _ => {}
         }
     }
@@ -190,11 +152,11 @@ mod tests {
     use super::*;
 
     const LOG: &str = concat!(
-        r#"{"kind":"iter","iteration":1,"loss":2.5}"#,
+        r#"{"kind":"iter","epoch":0,"iteration":1,"loss":2.5}"#,
         "\n",
         r#"{"kind":"epoch","epoch":1,"seconds":3.0,"val":{"epoch":1,"iteration":1,"rmse":4.0,"mae":1.0,"abs_rel":0.5,"delta1":0.25,"n_images":2,"n_pixels":9}}"#,
         "\n",
-        r#"{"kind":"iter","iteration":2,"loss":1.5}"#,
+        r#"{"kind":"iter","epoch":1,"iteration":2,"loss":1.5}"#,
         "\n",
         r#"{"kind":"epoch","epoch":2,"seconds":2.0}"#,
         "\n",
@@ -247,5 +209,19 @@ mod tests {
             "the epoch line carries no top-level iteration"
         );
         assert_eq!(std::fs::read_to_string(&p).unwrap().lines().count(), 1);
+    }
+
+    /// `train`'s options and network convert into config.json's record (the fields the report
+    /// shows are there, under the names it reads).
+    #[test]
+    fn the_options_convert_into_the_config_record() {
+        use depthsense_records::run_config::{ModelSummary, RunOptions};
+        let o = crate::trainer::TrainOptions::default();
+        let p = Path::new("config.json");
+        let t: RunOptions = depthsense_records::convert(&o, p).unwrap();
+        assert_eq!((t.epochs, t.batch_size, t.lr), (40, 8, 1e-3));
+        assert_eq!(t.rest["momentum"], serde_json::json!(0.9));
+        let m: ModelSummary = depthsense_records::convert(&o.model, p).unwrap();
+        assert_eq!(m.fusion_words(), "late fusion + attention");
     }
 }

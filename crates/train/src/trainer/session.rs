@@ -27,7 +27,7 @@ use super::{
 };
 use crate::distributed::Dist;
 use crate::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
-use crate::metrics_log::logged_loss_sum;
+use crate::metrics_log::{append_record, logged_loss_sum, EpochRecord, IterRecord};
 use crate::optim::Optimizer;
 use crate::optim_state;
 use crate::schedule::{seed_step, warmup_poly_lr};
@@ -36,6 +36,9 @@ use depthsense_dataset::outputs::{
     BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
 };
 use depthsense_infer::NetError;
+use depthsense_records::metrics_log::MetricsRecord;
+use depthsense_records::run_config::{Command, LrSegment, TrainRunConfig, RUN_CONFIG_VERSION};
+use depthsense_records::{convert, to_json_pretty, RecordError};
 
 /// A training run in progress.
 pub struct Trainer<'o> {
@@ -235,30 +238,46 @@ impl<'o> Trainer<'o> {
 
     fn write_config(&self) -> Result<(), NetError> {
         let part = &self.part;
-        let mut config_json = serde_json::json!({
-            "train": self.opts,
-            "model": self.cfg,
-            "device": depthsense_model::device::describe(self.device),
-            "partition": {
-                "method": part.method,
-                "train_samples": part.train.len(),
-                "val_samples": part.val.len(),
-                "val_samples_used": self.val_entries.len(),
-                "val_scenes": part.val_scenes,
-            },
-        });
-        if !self.state.schedule.is_empty() {
-            // An extended run (`--extend`): every learning-rate segment, the last one current.
-            config_json["schedule"] = serde_json::json!(self.state.schedule);
-        }
-        if let Some(init) = &self.state.init_from {
-            config_json["init_from"] = init.clone();
-        }
-        if !self.opts.command.is_empty() {
-            config_json["command"] = serde_json::json!(self.opts.command);
-        }
         let path = self.path(CONFIG_FILE);
-        let text = serde_json::to_string_pretty(&config_json)?;
+        let record = |e: RecordError| NetError::Parse {
+            path: e.path.clone(),
+            reason: e.reason(),
+        };
+        let config = TrainRunConfig {
+            format_version: RUN_CONFIG_VERSION,
+            train: convert(self.opts, &path).map_err(record)?,
+            model: convert(&self.cfg, &path).map_err(record)?,
+            device: Some(depthsense_model::device::describe(self.device)),
+            partition: convert(
+                &serde_json::json!({
+                    "method": part.method,
+                    "train_samples": part.train.len(),
+                    "val_samples": part.val.len(),
+                    "val_samples_used": self.val_entries.len(),
+                    "val_scenes": part.val_scenes,
+                }),
+                &path,
+            )
+            .map_err(record)?,
+            // An extended run (`--extend`): every learning-rate segment, the last one current.
+            schedule: self
+                .state
+                .schedule
+                .iter()
+                .map(|s| LrSegment {
+                    start_iteration: s.start_iteration,
+                    end_iteration: s.end_iteration,
+                    lr: s.lr,
+                    warmup: s.warmup,
+                })
+                .collect(),
+            init_from: match &self.state.init_from {
+                Some(init) => Some(convert(init, &path).map_err(record)?),
+                None => None,
+            },
+            command: Command::of_words(&self.opts.command),
+        };
+        let text = to_json_pretty(&config)?;
         write_atomic(&path, text.as_bytes()).map_err(|e| NetError::io(&path, e))
     }
 
@@ -409,10 +428,9 @@ impl<'o> Trainer<'o> {
             self.acc.n += 1;
             self.losses.push((p.iteration, lv));
             if self.is_main() {
-                append_jsonl(
+                append_record::<ValRecord>(
                     &self.path(METRICS_FILE),
-                    &serde_json::json!({"kind": "iter", "epoch": epoch, "iteration": p.iteration,
-                                        "loss": lv, "lr": p.lr}),
+                    &MetricsRecord::Iter(IterRecord::new(epoch, p.iteration, lv, p.lr)),
                 )?;
             }
             progress.set_message(format!(
@@ -470,15 +488,17 @@ impl<'o> Trainer<'o> {
             return Ok(v);
         }
         let it = self.state.iteration;
-        append_jsonl(
+        append_record(
             &self.path(METRICS_FILE),
-            &serde_json::json!({"kind": "epoch", "epoch": epoch + 1, "iteration": it,
-                                "train_loss": epoch_loss / epoch_n.max(1) as f64,
-                                "lr": self.lr_at(it),
-                                "images_per_s": self.images as f64 / self.train_secs.max(1e-9),
-                                "epoch_images_per_s": epoch_rate,
-                                "train_seconds": self.train_secs, "val_seconds": self.val_secs,
-                                "seconds": self.started.elapsed().as_secs_f64(), "val": v}),
+            &MetricsRecord::Epoch(EpochRecord {
+                lr: Some(self.lr_at(it)),
+                images_per_s: Some(self.images as f64 / self.train_secs.max(1e-9)),
+                epoch_images_per_s: Some(epoch_rate),
+                train_seconds: Some(self.train_secs),
+                val_seconds: Some(self.val_secs),
+                seconds: Some(self.started.elapsed().as_secs_f64()),
+                ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
+            }),
         )?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
         Ok(v)
