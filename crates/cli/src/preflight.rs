@@ -111,7 +111,8 @@ pub fn check_combinations(names: &[&str], leaf: &ArgMatches) -> anyhow::Result<(
         anyhow::bail!(
             "--image needs --calibration FILE.json (the camera intrinsics and every radar \
              file's transform into the camera); write one for a nuScenes sample with \
-             `depthsense calibration --dataroot DATAROOT --sample TOKEN --out FILE.json` \
+             `depthsense calibration --dataroot DATAROOT --version VERSION --token SAMPLE_TOKEN \
+             --out FILE.json` \
              (docs/guide/deploy.md, \"Raw files\")"
         );
     }

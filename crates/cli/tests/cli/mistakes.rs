@@ -198,7 +198,7 @@ const MISTAKES: &[(&str, &[&str], &[&str])] = &[
     (
         "predict --checkpoint run/best.safetensors --image frame.jpg --out pr",
         &["--image needs --calibration FILE.json"],
-        &["depthsense calibration --dataroot"],
+        &["depthsense calibration --dataroot DATAROOT --version VERSION --token SAMPLE_TOKEN"],
     ),
 ];
 
