@@ -547,76 +547,8 @@ pub fn comparison(sections: &[Found]) -> Option<Found> {
         .copied()
         .collect();
     let mut doc = Doc::new();
-    doc.heading(1, "Test scenes");
-    if test.is_empty() {
-        doc.paragraph(
-            "No model was scored on test scenes: `depthsense eval --checkpoint RUN/best.safetensors` \
-             scores one; the validation rows below chose checkpoints and compare nothing.",
-        );
-    } else {
-        doc.paragraph(
-            "Every model scored on test scenes (scenes no choice was made on): the headline row \
-             of each evaluation and of the demo (combined conditions, full image, largest cap) \
-             and every arm of an experiment (mean over its seeds). **Bold**: the best value of \
-             each metric among the rows of one test set (same data, cap and images); lower is \
-             better for RMSE, MAE and AbsRel, higher for δ1.",
-        );
-        let marks = best_marks(&test);
-        let mut t = MdTable::new(&test_columns());
-        for (r, m) in test.iter().zip(&marks) {
-            let mut cells = vec![
-                r.name.clone(),
-                r.rows.clone(),
-                format!("`{}`", r.dir.display()),
-                r.data.as_ref().map_or("–".into(), |d| format!("`{d}`")),
-                r.cap_m.map_or("–".into(), |c| format!("{c}")),
-                r.seeds.map_or("–".into(), |n| n.to_string()),
-                r.images.map_or("–".into(), |n| n.to_string()),
-            ];
-            for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
-                let c = cell(r.metrics()[k], decimals);
-                cells.push(if m[k] { format!("**{c}**") } else { c });
-            }
-            t.row(&cells);
-        }
-        doc.table(t);
-        if let Some(text) = one_seed_caveat(&test) {
-            doc.paragraph(text);
-        }
-    }
-    if !val.is_empty() {
-        doc.heading(1, "Validation (checkpoint selection)");
-        doc.paragraph(
-            "The best validation of each training run: it chose the run's `best.safetensors` \
-             and is no comparison of methods (evaluate the checkpoint on the test scenes for \
-             that). An unfinished run stopped before its last epoch.",
-        );
-        let mut cols = vec![
-            ("model", Align::Left),
-            ("folder", Align::Left),
-            ("epoch", Align::Left),
-            ("run", Align::Left),
-            ("images", Align::Right),
-        ];
-        cols.extend(METRIC_COLUMNS.iter().map(|(t, ..)| (*t, Align::Right)));
-        let mut t = MdTable::new(&cols);
-        for r in val {
-            let mut cells = vec![
-                r.name.clone(),
-                format!("`{}`", r.dir.display()),
-                r.rows.clone(),
-                r.unfinished
-                    .as_ref()
-                    .map_or("finished".into(), |u| format!("**{u}**")),
-                r.images.map_or("–".into(), |n| n.to_string()),
-            ];
-            for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
-                cells.push(cell(r.metrics()[k], decimals));
-            }
-            t.row(&cells);
-        }
-        doc.table(t);
-    }
+    test_rows_doc(&mut doc, &test);
+    validation_rows_doc(&mut doc, &val);
     Some(Found {
         kind: Kind::Models,
         dir: PathBuf::new(),
@@ -628,6 +560,85 @@ pub fn comparison(sections: &[Found]) -> Option<Found> {
         grid: None,
         models: vec![],
     })
+}
+
+/// "Test scenes": the rows grouped by test set, the best of each metric in bold.
+fn test_rows_doc(doc: &mut Doc, test: &[&ModelRow]) {
+    doc.heading(1, "Test scenes");
+    if test.is_empty() {
+        doc.paragraph(
+            "No model was scored on test scenes: `depthsense eval --checkpoint RUN/best.safetensors` \
+             scores one; the validation rows below chose checkpoints and compare nothing.",
+        );
+        return;
+    }
+    doc.paragraph(
+        "Every model scored on test scenes (scenes no choice was made on): the headline row \
+         of each evaluation and of the demo (combined conditions, full image, largest cap) \
+         and every arm of an experiment (mean over its seeds). **Bold**: the best value of \
+         each metric among the rows of one test set (same data, cap and images); lower is \
+         better for RMSE, MAE and AbsRel, higher for δ1.",
+    );
+    let marks = best_marks(test);
+    let mut t = MdTable::new(&test_columns());
+    for (r, m) in test.iter().zip(&marks) {
+        let mut cells = vec![
+            r.name.clone(),
+            r.rows.clone(),
+            format!("`{}`", r.dir.display()),
+            r.data.as_ref().map_or("–".into(), |d| format!("`{d}`")),
+            r.cap_m.map_or("–".into(), |c| format!("{c}")),
+            r.seeds.map_or("–".into(), |n| n.to_string()),
+            r.images.map_or("–".into(), |n| n.to_string()),
+        ];
+        for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
+            let c = cell(r.metrics()[k], decimals);
+            cells.push(if m[k] { format!("**{c}**") } else { c });
+        }
+        t.row(&cells);
+    }
+    doc.table(t);
+    if let Some(text) = one_seed_caveat(test) {
+        doc.paragraph(text);
+    }
+}
+
+/// "Validation (checkpoint selection)": each training run's best epoch, unfinished runs marked.
+fn validation_rows_doc(doc: &mut Doc, val: &[&ModelRow]) {
+    if val.is_empty() {
+        return;
+    }
+    doc.heading(1, "Validation (checkpoint selection)");
+    doc.paragraph(
+        "The best validation of each training run: it chose the run's `best.safetensors` \
+         and is no comparison of methods (evaluate the checkpoint on the test scenes for \
+         that). An unfinished run stopped before its last epoch.",
+    );
+    let mut cols = vec![
+        ("model", Align::Left),
+        ("folder", Align::Left),
+        ("epoch", Align::Left),
+        ("run", Align::Left),
+        ("images", Align::Right),
+    ];
+    cols.extend(METRIC_COLUMNS.iter().map(|(t, ..)| (*t, Align::Right)));
+    let mut t = MdTable::new(&cols);
+    for r in val {
+        let mut cells = vec![
+            r.name.clone(),
+            format!("`{}`", r.dir.display()),
+            r.rows.clone(),
+            r.unfinished
+                .as_ref()
+                .map_or("finished".into(), |u| format!("**{u}**")),
+            r.images.map_or("–".into(), |n| n.to_string()),
+        ];
+        for (k, &(_, decimals, _)) in METRIC_COLUMNS.iter().enumerate() {
+            cells.push(cell(r.metrics()[k], decimals));
+        }
+        t.row(&cells);
+    }
+    doc.table(t);
 }
 
 fn test_columns() -> Vec<(&'static str, Align)> {

@@ -528,27 +528,7 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             b'N' => st.leaf(Value::None)?,
             0x88 => st.leaf(Value::Bool(true))?,
             0x89 => st.leaf(Value::Bool(false))?,
-            b'q' | b'r' | 0x94 => {
-                let i = match op {
-                    b'q' => r.u8()? as u32,
-                    b'r' => r.u32()?,
-                    _ => memo.len() as u32,
-                };
-                let name = match op {
-                    b'q' => "BINPUT",
-                    b'r' => "LONG_BINPUT",
-                    _ => "MEMOIZE",
-                };
-                let v = st.copy_top(name)?;
-                memo.insert(i, v);
-            }
-            b'h' | b'j' => {
-                let i = if op == b'h' { r.u8()? as u32 } else { r.u32()? };
-                let (v, m) = memo.get(&i).ok_or(format!("BINGET {i}: not in memo"))?;
-                let m = *m;
-                st.charge(m)?;
-                st.push(v.clone(), m)?;
-            }
+            b'q' | b'r' | 0x94 | b'h' | b'j' => memo_op(op, &mut r, &mut st, &mut memo)?,
             b'X' | 0x8c | 0x8d | b'U' | b'T' | b'B' | b'C' => st.leaf(r.string_op(op)?)?,
             b'c' => {
                 let m = r.line()?;
@@ -557,31 +537,8 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             }
             0x93 => st.stack_global()?,
             b'Q' => st.persistent_id()?,
-            b'J' => st.leaf(Value::Int(r.u32()? as i32 as i64))?,
-            b'K' => st.leaf(Value::Int(r.u8()? as i64))?,
-            b'M' => {
-                let b = r.take(2)?;
-                st.leaf(Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64))?;
-            }
-            0x8a => st.leaf(r.long1()?)?,
-            b'G' => {
-                let b = r.take(8)?;
-                st.leaf(Value::Float(f64::from_be_bytes(
-                    b.try_into().map_err(|_| "short read")?,
-                )))?;
-            }
-            0x85..=0x87 => {
-                let (items, m) = st.pop_n((op - 0x84) as usize)?;
-                st.push(Value::Tuple(items), m)?;
-            }
-            b't' => {
-                let (items, m) = st.pop_mark()?;
-                st.push(Value::Tuple(items), m)?;
-            }
-            b'l' | 0x91 => {
-                let (items, m) = st.pop_mark()?;
-                st.push(Value::List(items), m)?;
-            }
+            b'J' | b'K' | b'M' | 0x8a | b'G' => st.leaf(number_op(op, &mut r)?)?,
+            0x85..=0x87 | b't' | b'l' | 0x91 => sequence_op(op, &mut st)?,
             b'd' => st.dict()?,
             b'R' | 0x81 => {
                 let (args, ma) = st.pop()?;
@@ -609,6 +566,62 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             }
         }
     }
+}
+
+/// The memo opcodes: BINPUT, LONG_BINPUT and MEMOIZE store the top of the stack, BINGET and
+/// LONG_BINGET push a stored value again.
+fn memo_op(
+    op: u8,
+    r: &mut Reader<'_>,
+    st: &mut Machine,
+    memo: &mut HashMap<u32, (Value, Meta)>,
+) -> Result<(), String> {
+    if op == b'h' || op == b'j' {
+        let i = if op == b'h' { r.u8()? as u32 } else { r.u32()? };
+        let (v, m) = memo.get(&i).ok_or(format!("BINGET {i}: not in memo"))?;
+        let m = *m;
+        st.charge(m)?;
+        return st.push(v.clone(), m);
+    }
+    let (i, name) = match op {
+        b'q' => (r.u8()? as u32, "BINPUT"),
+        b'r' => (r.u32()?, "LONG_BINPUT"),
+        _ => (memo.len() as u32, "MEMOIZE"),
+    };
+    let v = st.copy_top(name)?;
+    memo.insert(i, v);
+    Ok(())
+}
+
+/// The number opcodes: BININT, BININT1, BININT2, LONG1 and BINFLOAT.
+fn number_op(op: u8, r: &mut Reader<'_>) -> Result<Value, String> {
+    Ok(match op {
+        b'J' => Value::Int(r.u32()? as i32 as i64),
+        b'K' => Value::Int(r.u8()? as i64),
+        b'M' => {
+            let b = r.take(2)?;
+            Value::Int(u16::from_le_bytes([b[0], b[1]]) as i64)
+        }
+        0x8a => r.long1()?,
+        _ => {
+            let b = r.take(8)?;
+            Value::Float(f64::from_be_bytes(b.try_into().map_err(|_| "short read")?))
+        }
+    })
+}
+
+/// The opcodes that build a tuple or a list from the stack: TUPLE1–3, TUPLE and LIST (to the
+/// mark).
+fn sequence_op(op: u8, st: &mut Machine) -> Result<(), String> {
+    let (items, m) = match op {
+        0x85..=0x87 => st.pop_n((op - 0x84) as usize)?,
+        _ => st.pop_mark()?,
+    };
+    let v = match op {
+        b'l' | 0x91 => Value::List(items),
+        _ => Value::Tuple(items),
+    };
+    st.push(v, m)
 }
 
 /// Walks a parsed `torch.save` object and returns every tensor with a dotted name: a state

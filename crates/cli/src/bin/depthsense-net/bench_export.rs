@@ -71,24 +71,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let params = report::model_report(&vs, &net, height, width).total_params;
 
     let work = tempfile::tempdir().context("temporary folder")?;
-    let ckpt = work.path().join("random.safetensors");
-    checkpoint::save(&ckpt, &vs, &cfg, &serde_json::Value::Null)?;
-    let onnx = work.path().join("model.onnx");
     eprintln!("exporting {} ({params} parameters) to ONNX …", cfg.name);
-    let t = Instant::now();
-    export(&ExportOptions {
-        checkpoint: ckpt,
-        config: None,
-        set: vec![],
-        format: ExportFormat::Onnx,
-        out: onnx.clone(),
-        batch: Batch::Dynamic,
-        precision: ExportPrecision::Fp32,
-        force: true,
-        python: a.python.clone(),
-    })?;
-    let export_s = t.elapsed().as_secs_f64();
-    let onnx_bytes = std::fs::metadata(&onnx)?.len();
+    let (onnx, export_s, onnx_bytes) = export_random(&vs, &cfg, work.path(), &a)?;
 
     let (image, radar) = inputs(&cfg, a.batch);
     let mean = Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]);
@@ -110,23 +94,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 
     eprintln!("timing onnxruntime …");
     let (image_v, radar_v) = (values(&image)?, values(&radar)?);
-    let mut graph_inputs = vec![GraphInput {
-        name: "image",
-        values: &image_v,
-        shape: vec![a.batch, 3, height as usize, width as usize],
-    }];
-    if cfg.fusion != Fusion::None {
-        graph_inputs.push(GraphInput {
-            name: "radar",
-            values: &radar_v,
-            shape: vec![
-                a.batch,
-                cfg.radar_channels as usize,
-                height as usize,
-                width as usize,
-            ],
-        });
-    }
+    let graph_inputs = graph_inputs(&cfg, a.batch, &image_v, &radar_v);
     let ort = time_onnxruntime(
         a.python.as_deref(),
         &onnx,
@@ -173,4 +141,55 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .with_context(|| p.display().to_string())?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The network in `vs` saved as a checkpoint in `work` and exported to ONNX there: the graph's
+/// path, the export's seconds and its size in bytes.
+fn export_random(
+    vs: &nn::VarStore,
+    cfg: &depthsense_config::ModelConfig,
+    work: &std::path::Path,
+    a: &Args,
+) -> anyhow::Result<(std::path::PathBuf, f64, u64)> {
+    let ckpt = work.join("random.safetensors");
+    checkpoint::save(&ckpt, vs, cfg, &serde_json::Value::Null)?;
+    let onnx = work.join("model.onnx");
+    let t = Instant::now();
+    export(&ExportOptions {
+        checkpoint: ckpt,
+        config: None,
+        set: vec![],
+        format: ExportFormat::Onnx,
+        out: onnx.clone(),
+        batch: Batch::Dynamic,
+        precision: ExportPrecision::Fp32,
+        force: true,
+        python: a.python.clone(),
+    })?;
+    let export_s = t.elapsed().as_secs_f64();
+    let bytes = std::fs::metadata(&onnx)?.len();
+    Ok((onnx, export_s, bytes))
+}
+
+/// The exported graph's inputs: the image, and the radar unless the model is RGB-only.
+fn graph_inputs<'v>(
+    cfg: &depthsense_config::ModelConfig,
+    batch: usize,
+    image: &'v [f32],
+    radar: &'v [f32],
+) -> Vec<GraphInput<'v>> {
+    let (h, w) = (cfg.out_height as usize, cfg.out_width as usize);
+    let mut inputs = vec![GraphInput {
+        name: "image",
+        values: image,
+        shape: vec![batch, 3, h, w],
+    }];
+    if cfg.fusion != Fusion::None {
+        inputs.push(GraphInput {
+            name: "radar",
+            values: radar,
+            shape: vec![batch, cfg.radar_channels as usize, h, w],
+        });
+    }
+    inputs
 }
