@@ -153,17 +153,7 @@ impl<'o> Trainer<'o> {
         // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
         let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
         let ((vs, net, mut state, optim), optim_matches) =
-            if continues && run.join(LAST_CKPT).exists() {
-                resume(opts, &run, &cfg, device, main, bpe, &hooks)?
-            } else if opts.extend {
-                return Err(NetError::Config(format!(
-                    "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, \
-                 without --extend",
-                    run.display()
-                )));
-            } else {
-                (fresh(opts, &run, &cfg, device, main, &hooks)?, true)
-            };
+            network(opts, &cfg, device, main, bpe, &hooks)?;
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
         }
@@ -178,14 +168,7 @@ impl<'o> Trainer<'o> {
             ))));
         }
         if let Some(d) = dist.as_mut() {
-            if part.train.len() < opts.batch_size {
-                return Err(NetError::Config(format!(
-                    "{} training samples: fewer than one global batch of {}",
-                    part.train.len(),
-                    opts.batch_size
-                )));
-            }
-            d.attach(&vs)?;
+            attach(d, &vs, part.train.len(), opts.batch_size)?;
         }
         let load = train_load_options(opts, &cfg)?;
         let trainer = Trainer {
@@ -913,6 +896,41 @@ fn model_config_for_data(
         None => RadarInput::for_channels(cfg.radar_channels)?,
     };
     Ok(cfg)
+}
+
+/// The network, its state and optimiser: RUN/last.safetensors continued (`--resume`,
+/// `--extend`), or a fresh one; and whether the optimiser state on disk matched.
+fn network(
+    opts: &TrainOptions,
+    cfg: &ModelConfig,
+    device: Device,
+    main: bool,
+    bpe: u64,
+    hooks: &TrainHooks,
+) -> Result<(Built, bool), NetError> {
+    let run = &opts.out;
+    if (opts.resume || opts.extend) && run.join(LAST_CKPT).exists() {
+        return resume(opts, run, cfg, device, main, bpe, hooks);
+    }
+    if opts.extend {
+        return Err(NetError::Config(format!(
+            "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, without \
+             --extend",
+            run.display()
+        )));
+    }
+    Ok((fresh(opts, run, cfg, device, main, hooks)?, true))
+}
+
+/// This rank's network joins the job (its parameters broadcast from rank 0), once the global
+/// batch is known to fit the training samples.
+fn attach(d: &mut Dist, vs: &VarStore, train_samples: usize, batch: usize) -> Result<(), NetError> {
+    if train_samples < batch {
+        return Err(NetError::Config(format!(
+            "{train_samples} training samples: fewer than one global batch of {batch}"
+        )));
+    }
+    d.attach(vs)
 }
 
 /// (width, height) of the prepared maps: the index says (`frame_size`); an index written
