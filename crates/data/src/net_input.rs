@@ -18,8 +18,7 @@ use depthsense_nuscenes::depth_png::{decode_png, encode_png, DepthMap};
 use depthsense_nuscenes::geometry::{Camera, Rigid};
 use depthsense_prep::calibration::{Calibration, RadarEntry, RadarSettings};
 use depthsense_prep::layout::{
-    FRAME_H, FRAME_W, IMAGE_FILE, INDEX_FILE, LIDAR_SPARSE_FILE, META_FILE, RADAR_HEIGHT_FILE,
-    RADAR_RAW_FILE,
+    FRAME_H, FRAME_W, IMAGE_FILE, LIDAR_SPARSE_FILE, RADAR_HEIGHT_FILE, RADAR_RAW_FILE,
 };
 use depthsense_prep::maps::image_to_frame;
 use depthsense_prep::pipeline::{add_sweep, velocity_dt_s, RadarSweep};
@@ -112,25 +111,7 @@ pub fn net_inputs(input: &PredictInput, radar: Option<RadarInput>) -> Result<Net
 
 /// Read a prepared sample directory.
 pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, DataError> {
-    if !dir.join(META_FILE).exists() {
-        let d = dir.display();
-        return Err(DataError::Other(if dir.join(INDEX_FILE).exists() {
-            format!(
-                "{d} is a prepared folder, not one sample: pass --sample {d}/<sample token> \
-                 for one of its samples, or --data {d} for a split of them"
-            )
-        } else if dir.is_dir() {
-            format!(
-                "{d}: not a prepared sample folder (no {META_FILE}); --sample takes one \
-                 PREPARED/<sample token> folder written by `depthsense prepare`"
-            )
-        } else {
-            format!(
-                "{d}: no such folder; --sample takes one PREPARED/<sample token> folder \
-                 written by `depthsense prepare`"
-            )
-        }));
-    }
+    depthsense_dataset::check_sample_dir(dir)?;
     let gt_path = dir.join(LIDAR_SPARSE_FILE);
     let meta = depthsense_dataset::read_meta(dir)?;
     let settings: BTreeMap<String, serde_json::Value> =

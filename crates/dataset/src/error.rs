@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+use depthsense_prep::layout::META_FILE;
+
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
     #[error("{}: {source}", .path.display())]
@@ -28,8 +30,17 @@ pub enum DataError {
     /// `--data` is not a prepared folder (no `index.json`); what it is instead says what to do.
     #[error("{}", no_index_text(.root, .found))]
     NoIndex { root: String, found: NotPrepared },
-    #[error("{0}")]
-    Other(String),
+    /// `--sample` (or the Python module's `read_sample`) is not one prepared sample's folder
+    /// (no `meta.json`); what it is instead says what to pass.
+    #[error("{}", not_a_sample_text(.dir, .found))]
+    NotASample { dir: String, found: SampleFolder },
+    /// A file whose bytes cannot be encoded before it is written (a JSON record, a PNG).
+    #[error("{}: cannot encode: {source}", .path.display())]
+    Encode {
+        path: PathBuf,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// Prepared samples that cannot be read, every one with its reason (the loader reads on
     /// past them, so that `eval` and `predict` name them all at once), and how to rebuild them.
     #[error("{}", unreadable_text(.root, .samples))]
@@ -52,6 +63,31 @@ pub enum NotPrepared {
     Dataroot(Vec<String>),
     /// Anything else.
     Other,
+}
+
+/// What a folder passed as one sample (without `meta.json`) is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SampleFolder {
+    /// A prepared folder (it holds `index.json`): its samples are its sub-folders.
+    Prepared,
+    /// Some other folder.
+    Other,
+    /// No such folder.
+    Missing,
+}
+
+fn not_a_sample_text(d: &str, found: &SampleFolder) -> String {
+    let takes = "--sample takes one PREPARED/<sample token> folder written by `depthsense prepare`";
+    match found {
+        SampleFolder::Prepared => format!(
+            "{d} is a prepared folder, not one sample: pass --sample {d}/<sample token> \
+             for one of its samples, or --data {d} for a split of them"
+        ),
+        SampleFolder::Other => {
+            format!("{d}: not a prepared sample folder (no {META_FILE}); {takes}")
+        }
+        SampleFolder::Missing => format!("{d}: no such folder; {takes}"),
+    }
 }
 
 fn no_index_text(root: &str, found: &NotPrepared) -> String {
@@ -102,6 +138,14 @@ impl DataError {
             }
         }
         root.map(|root| DataError::Unreadable { root, samples })
+    }
+
+    /// `path`'s bytes cannot be encoded (`source` says why).
+    pub fn encode(path: &Path, source: impl std::error::Error + Send + Sync + 'static) -> Self {
+        Self::Encode {
+            path: path.to_path_buf(),
+            source: Box::new(source),
+        }
     }
 
     pub fn io(path: &Path, source: std::io::Error) -> Self {

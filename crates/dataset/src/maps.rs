@@ -4,9 +4,28 @@
 use std::path::Path;
 
 use depthsense_nuscenes::depth_png::{decode_png, DepthMap};
-use depthsense_prep::layout::{LOWHEIGHT_MASK_FILE, META_FILE};
+use depthsense_prep::layout::{INDEX_FILE, LOWHEIGHT_MASK_FILE, META_FILE};
 
-use crate::error::DataError;
+use crate::error::{DataError, SampleFolder};
+
+/// `dir` is one prepared sample's folder (it holds `meta.json`); if not, an error that says
+/// what it is instead (a prepared folder, another folder, nothing) and what to pass.
+pub fn check_sample_dir(dir: &Path) -> Result<(), DataError> {
+    if dir.join(META_FILE).exists() {
+        return Ok(());
+    }
+    let found = if dir.join(INDEX_FILE).exists() {
+        SampleFolder::Prepared
+    } else if dir.is_dir() {
+        SampleFolder::Other
+    } else {
+        SampleFolder::Missing
+    };
+    Err(DataError::NotASample {
+        dir: dir.display().to_string(),
+        found,
+    })
+}
 
 /// A sample directory's `meta.json`.
 pub fn read_meta(dir: &Path) -> Result<depthsense_prep::layout::SampleMeta, DataError> {
@@ -78,4 +97,72 @@ fn decode_rgb_luma(path: &Path) -> Result<Vec<bool>, DataError> {
         reason: e.to_string(),
     })?;
     Ok(img.to_luma8().pixels().map(|p| p.0[0] > 127).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A folder passed as one sample that is not one says what it is and what to pass, in the
+    /// words `predict --sample` has always used.
+    #[test]
+    fn a_folder_that_is_not_one_sample_says_what_it_is() {
+        let d = tempfile::tempdir().unwrap();
+        let prepared = d.path().join("toy");
+        std::fs::create_dir(&prepared).unwrap();
+        std::fs::write(prepared.join(INDEX_FILE), "{}").unwrap();
+        let p = prepared.display();
+        assert_eq!(
+            check_sample_dir(&prepared).unwrap_err().to_string(),
+            format!(
+                "{p} is a prepared folder, not one sample: pass --sample {p}/<sample token> \
+                 for one of its samples, or --data {p} for a split of them"
+            )
+        );
+        let other = d.path().join("other");
+        std::fs::create_dir(&other).unwrap();
+        assert_eq!(
+            check_sample_dir(&other).unwrap_err().to_string(),
+            format!(
+                "{}: not a prepared sample folder (no meta.json); --sample takes one \
+                 PREPARED/<sample token> folder written by `depthsense prepare`",
+                other.display()
+            )
+        );
+        let missing = d.path().join("missing");
+        let e = check_sample_dir(&missing).unwrap_err();
+        assert!(matches!(
+            e,
+            DataError::NotASample {
+                found: SampleFolder::Missing,
+                ..
+            }
+        ));
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "{}: no such folder; --sample takes one PREPARED/<sample token> folder \
+                 written by `depthsense prepare`",
+                missing.display()
+            )
+        );
+        let sample = d.path().join("tok");
+        std::fs::create_dir(&sample).unwrap();
+        std::fs::write(sample.join(META_FILE), "{}").unwrap();
+        assert!(check_sample_dir(&sample).is_ok());
+    }
+
+    /// A record that cannot be encoded names its file, the encoder's reason kept as the cause.
+    #[test]
+    fn an_encode_error_names_the_file() {
+        use std::error::Error;
+        let json = serde_json::from_str::<serde_json::Value>("{").unwrap_err();
+        let why = json.to_string();
+        let e = DataError::encode(Path::new("e/tables.json"), json);
+        assert_eq!(
+            e.to_string(),
+            format!("e/tables.json: cannot encode: {why}")
+        );
+        assert_eq!(e.source().map(|s| s.to_string()), Some(why));
+    }
 }

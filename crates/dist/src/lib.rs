@@ -35,8 +35,18 @@ pub enum DistError {
     Rendezvous(String),
     #[error("{0}")]
     Collective(String),
-    #[error("distributed: {0}")]
-    Other(String),
+    /// `Backend::Nccl` asked of a build without the feature `nccl`.
+    #[error("distributed: the NCCL backend is not compiled in: build with `--features nccl`")]
+    NcclNotBuilt,
+    /// A name handed to the C++ shim (a host, the store's key prefix) holds a NUL byte.
+    #[error("distributed: {what} {value:?} contains a NUL byte")]
+    NulByte { what: &'static str, value: String },
+    /// The result of a collective cannot be copied back to the host.
+    #[error("distributed: reading a reduced tensor back: {0}")]
+    ReadBack(#[source] tch::TchError),
+    /// SyncBatchNorm given an input without a channel dimension.
+    #[error("distributed: sync batch norm needs [B, C, …] input, got {shape:?}")]
+    BatchNormShape { shape: Vec<i64> },
     /// A local job (`--nproc`): the launcher or its workers.
     #[error(transparent)]
     Launch(#[from] launch::LaunchError),
@@ -152,9 +162,7 @@ impl ProcessGroup {
         timeout: Duration,
     ) -> Result<Self, DistError> {
         if backend == Backend::Nccl && !has_nccl() {
-            return Err(DistError::Other(
-                "the NCCL backend is not compiled in: build with `--features nccl`".into(),
-            ));
+            return Err(DistError::NcclNotBuilt);
         }
         let host = CString::new(env.master_addr.clone()).map_err(|_| DistError::Env {
             var: "MASTER_ADDR".into(),
@@ -165,8 +173,11 @@ impl ProcessGroup {
         // MASTER_ADDR:MASTER_PORT and outlives worker restarts: every rank is a client, and the
         // keys carry the restart count.
         let is_server = env.rank == 0 && !env.agent_store;
-        let ns = CString::new(format!("depthsense/{}/", env.restart_count))
-            .map_err(|e| DistError::Other(e.to_string()))?;
+        let ns = format!("depthsense/{}/", env.restart_count);
+        let ns = CString::new(ns.clone()).map_err(|_| DistError::NulByte {
+            what: "store key prefix",
+            value: ns,
+        })?;
         // SAFETY: valid C strings; the shim copies them.
         let raw = unsafe {
             ffi::dsd_init(
@@ -312,7 +323,7 @@ impl ProcessGroup {
     ) -> Result<Vec<f64>, DistError> {
         let t = Tensor::from_slice(v).to_device(self.comm_device(device));
         self.all_reduce(std::slice::from_ref(&t), op)?;
-        Vec::<f64>::try_from(t.to_device(Device::Cpu)).map_err(|e| DistError::Other(e.to_string()))
+        Vec::<f64>::try_from(t.to_device(Device::Cpu)).map_err(DistError::ReadBack)
     }
 
     /// The device collectives of this group run on for tensors that live on `device`.
@@ -339,7 +350,10 @@ pub struct StoreHost {
 
 impl StoreHost {
     pub fn new(host: &str, port: u16, timeout: Duration) -> Result<Self, DistError> {
-        let h = CString::new(host).map_err(|e| DistError::Other(e.to_string()))?;
+        let h = CString::new(host).map_err(|_| DistError::NulByte {
+            what: "store host",
+            value: host.to_string(),
+        })?;
         let ms = timeout.as_millis().clamp(1, i64::MAX as u128) as i64;
         // SAFETY: valid C string, copied by the shim.
         let raw = unsafe { ffi::dsd_store_host(h.as_ptr(), port as c_int, ms) };
@@ -514,4 +528,29 @@ pub fn broadcast_flat(
         }
     });
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The typed variants read as the strings they replaced did.
+    #[test]
+    fn typed_variants_name_what_went_wrong() {
+        assert_eq!(
+            DistError::NcclNotBuilt.to_string(),
+            "distributed: the NCCL backend is not compiled in: build with `--features nccl`"
+        );
+        assert_eq!(
+            DistError::BatchNormShape { shape: vec![4] }.to_string(),
+            "distributed: sync batch norm needs [B, C, …] input, got [4]"
+        );
+        let e = StoreHost::new("local\0host", 1, Duration::from_secs(1))
+            .err()
+            .map(|e| e.to_string());
+        assert_eq!(
+            e.as_deref(),
+            Some("distributed: store host \"local\\0host\" contains a NUL byte")
+        );
+    }
 }

@@ -43,9 +43,7 @@ fn all_reduce_on_comm_device(pg: &ProcessGroup, t: &Tensor) -> Result<Tensor, Di
 pub fn batch_norm(pg: &ProcessGroup, x: &Tensor, bn: &BnState) -> Result<Tensor, DistError> {
     let size = x.size();
     if size.len() < 2 {
-        return Err(DistError::Other(format!(
-            "sync batch norm needs [B, C, …] input, got {size:?}"
-        )));
+        return Err(DistError::BatchNormShape { shape: size });
     }
     let c = size[1];
     let dims: Vec<i64> = (0..size.len() as i64).filter(|&d| d != 1).collect();

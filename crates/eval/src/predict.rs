@@ -55,10 +55,11 @@ pub fn predict(
         .to_kind(Kind::Float)
         .contiguous();
     if pred.numel() != (w * h) as usize {
-        return Err(NetError::Other(format!(
-            "prediction has shape {:?}, expected [1, 1, {h}, {w}]",
-            pred.size()
-        )));
+        return Err(NetError::OutputShape {
+            what: "prediction",
+            got: pred.size(),
+            want: vec![1, 1, h as i64, w as i64],
+        });
     }
     Ok(DepthMap {
         width: w,

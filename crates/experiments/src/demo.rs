@@ -317,8 +317,10 @@ fn synthesise(
     scfg.seed = opts.seed;
     scfg.jobs = opts.jobs;
     let pb = stage_bar(mp, "synth");
-    let synth = depthsense_synth::generate(&world, &scfg, &pb)
-        .map_err(|e| NetError::Other(format!("synth: {e}")))?;
+    let synth = depthsense_synth::generate(&world, &scfg, &pb).map_err(|e| NetError::Stage {
+        stage: "synth",
+        source: Box::new(e),
+    })?;
     pb.finish_with_message(format!("{} keyframes", synth.keyframes));
     Ok((world, scfg))
 }
@@ -347,8 +349,10 @@ fn prepare_world(
         ..depthsense_prep::PrepareOptions::default()
     };
     let pb = stage_bar(mp, "prepare");
-    let ps = depthsense_prep::prepare(&popts, &pb)
-        .map_err(|e| NetError::Other(format!("prepare: {e}")))?;
+    let ps = depthsense_prep::prepare(&popts, &pb).map_err(|e| NetError::Stage {
+        stage: "prepare",
+        source: Box::new(e),
+    })?;
     if !ps.failed.is_empty() {
         return Err(NetError::Data(format!(
             "prepare failed for {} sample(s), first: {} ({})",
@@ -608,8 +612,10 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), NetError> {
         command_line: opts.command_line.clone(),
         ..depthsense_report::ReportOptions::default()
     };
-    let (_, page) =
-        depthsense_report::render(&ropts).map_err(|e| NetError::Other(format!("report: {e}")))?;
+    let (_, page) = depthsense_report::render(&ropts).map_err(|e| NetError::Stage {
+        stage: "report",
+        source: Box::new(e),
+    })?;
     let p = report_dir.join("report.html");
     write_atomic(&p, page.as_bytes()).map_err(|e| NetError::io(&p, e))
 }
@@ -666,10 +672,7 @@ fn write_pictures(
 /// colour bar in metres (the panels written by [`write_pictures`]).
 fn write_picture_row(dir: &Path) -> Result<(), NetError> {
     let read = |name: &str| -> Result<image::RgbImage, NetError> {
-        let p = dir.join(name);
-        image::open(&p)
-            .map(|i| i.to_rgb8())
-            .map_err(|e| NetError::Other(format!("{}: {e}", p.display())))
+        Ok(depthsense_dataset::decode_rgb(&dir.join(name))?)
     };
     let panels = [
         ("image", read("image.png")?),

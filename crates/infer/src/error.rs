@@ -85,6 +85,42 @@ pub enum NetError {
     /// An experiment's training run ended before its last iteration (interrupted or stopped).
     #[error("{}: training stopped at iteration {done} of {total}", .run.display())]
     TrainingStopped { run: PathBuf, done: u64, total: u64 },
+    /// One stage of a pipeline of commands (the demo's `synth`, `prepare`, `report`), its own
+    /// error kept whole.
+    #[error("{stage}: {source}")]
+    Stage {
+        stage: &'static str,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// The network's decoded output has not the shape its input asks for (a bug, not a bad
+    /// input).
+    #[error("{what} has shape {got:?}, expected {want:?}")]
+    OutputShape {
+        what: &'static str,
+        got: Vec<i64>,
+        want: Vec<i64>,
+    },
+    /// Depths decoded at the valid ground-truth pixels, not one per pixel.
+    #[error("decoded {got} depths at {want} ground-truth pixels")]
+    DecodedAtGroundTruth { got: usize, want: i64 },
+    /// A sample's ground truth has not the batch's pixel count.
+    #[error("sample {sample}: ground truth of {got} pixels, expected {want}")]
+    GroundTruthSize {
+        sample: String,
+        got: usize,
+        want: usize,
+    },
+    /// A worker thread (`thread` names it) panicked; its work is lost.
+    #[error("the {thread} thread panicked")]
+    ThreadPanicked { thread: &'static str },
+    /// Data-parallel training: gradients averaged before the network's gradient buckets were
+    /// attached (a bug of the caller).
+    #[error("distributed: gradients synchronised before attach")]
+    GradientsNotAttached,
+    /// Test support only: `crates/train/src/learner.rs`'s checkpointer tests fail a save with
+    /// it. Never built outside tests (`cli/tests/cli/errors.rs` checks).
+    #[doc(hidden)]
     #[error("{0}")]
     Other(String),
 }
@@ -142,5 +178,58 @@ mod tests {
             depthsense_dist::launch::LaunchError::NoWorkers,
         ));
         assert_eq!(e.to_string(), "configuration: --nproc must be at least 1");
+    }
+
+    /// The variants that replaced `Other(String)` read as the strings did.
+    #[test]
+    fn checks_and_stages_read_as_before() {
+        let e = NetError::OutputShape {
+            what: "decoded prediction",
+            got: vec![2, 1, 4],
+            want: vec![2, 1, 4, 8],
+        };
+        assert_eq!(
+            e.to_string(),
+            "decoded prediction has shape [2, 1, 4], expected [2, 1, 4, 8]"
+        );
+        let e = NetError::DecodedAtGroundTruth { got: 5, want: 6 };
+        assert_eq!(e.to_string(), "decoded 5 depths at 6 ground-truth pixels");
+        let e = NetError::GroundTruthSize {
+            sample: "tok".into(),
+            got: 3,
+            want: 32,
+        };
+        assert_eq!(
+            e.to_string(),
+            "sample tok: ground truth of 3 pixels, expected 32"
+        );
+        let e = NetError::ThreadPanicked {
+            thread: "MER writer",
+        };
+        assert_eq!(e.to_string(), "the MER writer thread panicked");
+        assert_eq!(
+            NetError::GradientsNotAttached.to_string(),
+            "distributed: gradients synchronised before attach"
+        );
+    }
+
+    /// A stage's error is its cause, kept whole: the message holds it once, and the chain
+    /// reaches the stage's own error.
+    #[test]
+    fn a_stage_keeps_its_error_as_the_cause() {
+        use std::error::Error;
+        let inner = depthsense_prep::error::PrepError::BenchNoKeyframes;
+        let e = NetError::Stage {
+            stage: "prepare",
+            source: Box::new(inner),
+        };
+        assert_eq!(
+            e.to_string(),
+            "prepare: the bench world needs at least one keyframe"
+        );
+        let cause = e.source().unwrap();
+        assert!(cause
+            .downcast_ref::<depthsense_prep::error::PrepError>()
+            .is_some());
     }
 }

@@ -234,13 +234,13 @@ fn predict_batch(
         .to_kind(Kind::Float)
         .contiguous();
     if pred.numel() != batch.size * hw {
-        return Err(NetError::Other(format!(
-            "decoded prediction has shape {:?}, expected [{}, 1, {}, {}]",
-            pred.size(),
-            batch.size,
-            batch.height,
-            batch.width
-        )));
+        return Err(NetError::OutputShape {
+            what: "decoded prediction",
+            got: pred.size(),
+            want: [batch.size, 1, batch.height, batch.width]
+                .map(|d| d as i64)
+                .to_vec(),
+        });
     }
     Ok(Vec::<f32>::try_from(pred.view([-1]))?)
 }
@@ -257,11 +257,11 @@ fn predict_at_ground_truth(
     let mut gt: Vec<f32> = Vec::with_capacity(batch.size * hw);
     for s in &batch.samples {
         if s.sparse_m.len() != hw {
-            return Err(NetError::Other(format!(
-                "sample {}: ground truth of {} pixels, expected {hw}",
-                s.token,
-                s.sparse_m.len()
-            )));
+            return Err(NetError::GroundTruthSize {
+                sample: s.token.clone(),
+                got: s.sparse_m.len(),
+                want: hw,
+            });
         }
         gt.extend(
             s.sparse_m
@@ -277,11 +277,10 @@ fn predict_at_ground_truth(
     });
     let depth = Vec::<f32>::try_from(depth.to_device(Device::Cpu).to_kind(Kind::Float))?;
     if depth.len() as i64 != at.count {
-        return Err(NetError::Other(format!(
-            "decoded {} depths at {} ground-truth pixels",
-            depth.len(),
-            at.count
-        )));
+        return Err(NetError::DecodedAtGroundTruth {
+            got: depth.len(),
+            want: at.count,
+        });
     }
     let mut pred = vec![0f32; batch.size * hw];
     let valid = gt

@@ -376,9 +376,11 @@ fn run_pipeline(
             }
         }
         drop(write_tx);
-        let written = writer
-            .join()
-            .unwrap_or_else(|_| Err(NetError::Other("the MER writer thread panicked".into())));
+        let written = writer.join().unwrap_or_else(|_| {
+            Err(NetError::ThreadPanicked {
+                thread: "MER writer",
+            })
+        });
         result.and(written).map(|()| network_seconds)
     })
 }

@@ -47,8 +47,6 @@ pub enum NuError {
         version: String,
         found: Vec<String>,
     },
-    #[error("{0}")]
-    Other(String),
 }
 
 fn version_not_found(dataroot: &str, version: &str, found: &[String]) -> String {

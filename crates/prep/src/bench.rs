@@ -339,9 +339,7 @@ pub fn build_fixture_world(
     radar_sweeps_between: usize,
 ) -> Result<PathBuf, PrepError> {
     if samples == 0 {
-        return Err(PrepError::Other(
-            "the bench world needs at least one keyframe".into(),
-        ));
+        return Err(PrepError::BenchNoKeyframes);
     }
     let nu = NuScenes::load(fixture, "v1.0-mini")?;
     let [cam, lidar, radar] = fixture_keyframes(&nu, fixture)?;
@@ -395,15 +393,17 @@ fn fixture_keyframes<'a>(
     fixture: &Path,
 ) -> Result<[&'a depthsense_nuscenes::tables::SampleData; 3], PrepError> {
     let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
-    let need = |ch: &str| {
-        nu.keyframe(st, ch).ok_or_else(|| {
-            PrepError::Other(format!(
-                "{}: fixture has no {ch} keyframe",
-                fixture.display()
-            ))
+    let need = |ch: &str, missing: &'static str| {
+        nu.keyframe(st, ch).ok_or_else(|| PrepError::NotKf0Fixture {
+            path: fixture.display().to_string(),
+            missing,
         })
     };
-    Ok([need("CAM_FRONT")?, need("LIDAR_TOP")?, need("RADAR_FRONT")?])
+    Ok([
+        need("CAM_FRONT", "CAM_FRONT keyframe")?,
+        need("LIDAR_TOP", "LIDAR_TOP keyframe")?,
+        need("RADAR_FRONT", "RADAR_FRONT keyframe")?,
+    ])
 }
 
 /// The calibrations of the fixture's keyframes, in their order.
@@ -599,7 +599,7 @@ fn write_json_tables(v: &Path, tables: [(&str, serde_json::Value); 7]) -> Result
         let p = v.join(format!("{name}.json"));
         std::fs::write(
             &p,
-            serde_json::to_vec(&val).map_err(|e| PrepError::Other(e.to_string()))?,
+            serde_json::to_vec(&val).map_err(|e| PrepError::encode(p.display(), e))?,
         )
         .map_err(|e| PrepError::io(&p, e))?;
     }
@@ -649,22 +649,26 @@ fn projection_keyframe<'a>(
     fixture: &Path,
 ) -> Result<ProjectionKeyframe<'a>, PrepError> {
     let st = Token::parse("ca9a282c9e77460f8360f564131a8af5");
-    let miss = || {
-        PrepError::Other(format!(
-            "{}: not the nuscenes-kf0 fixture",
-            fixture.display()
-        ))
+    let miss = |missing: &'static str| PrepError::NotKf0Fixture {
+        path: fixture.display().to_string(),
+        missing,
     };
-    let cam_sd = nu.keyframe(st, "CAM_FRONT").ok_or_else(miss)?;
-    let lidar_sd = nu.keyframe(st, "LIDAR_TOP").ok_or_else(miss)?;
-    let radar_sd = nu.keyframe(st, "RADAR_FRONT").ok_or_else(miss)?;
+    let need = |ch: &str, missing| nu.keyframe(st, ch).ok_or_else(|| miss(missing));
+    let cam_sd = need("CAM_FRONT", "CAM_FRONT keyframe")?;
+    let lidar_sd = need("LIDAR_TOP", "LIDAR_TOP keyframe")?;
+    let radar_sd = need("RADAR_FRONT", "RADAR_FRONT keyframe")?;
     let cs = nu.get_calibrated_sensor(
         cam_sd.calibrated_sensor_token,
         "sample_data",
         cam_sd.token,
         "calibrated_sensor_token",
     )?;
-    let cam = Camera::from_intrinsic(&cs.camera_intrinsic.ok_or_else(miss)?, 1600, 900);
+    let cam = Camera::from_intrinsic(
+        &cs.camera_intrinsic
+            .ok_or_else(|| miss("CAM_FRONT camera intrinsic"))?,
+        1600,
+        900,
+    );
     Ok(ProjectionKeyframe {
         cam_sd,
         lidar_sd,
@@ -815,9 +819,10 @@ fn bench_prepare(
     let secs = t.elapsed().as_secs_f64();
     let cpu_s = process_cpu_s().unwrap_or(0.0) - cpu0;
     if let Some((t, r)) = s.failed.first() {
-        return Err(PrepError::Other(format!(
-            "bench prepare failed on {t}: {r}"
-        )));
+        return Err(PrepError::BenchPrepareFailed {
+            sample: t.to_string(),
+            reason: r.to_string(),
+        });
     }
     eprintln!("prepare K={k}: {:.1} keyframes/s", s.prepared as f64 / secs);
     let n = s.prepared.max(1) as f64;

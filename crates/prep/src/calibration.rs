@@ -260,6 +260,6 @@ pub fn file_of(calibration: &Path, e: &RadarEntry) -> PathBuf {
 
 /// Writes `c` as pretty JSON, atomically.
 pub fn write(path: &Path, c: &Calibration) -> Result<(), PrepError> {
-    let bytes = serde_json::to_vec_pretty(c).map_err(|e| PrepError::Other(e.to_string()))?;
+    let bytes = serde_json::to_vec_pretty(c).map_err(|e| PrepError::encode(path.display(), e))?;
     depthsense_base::fsutil::write_atomic(path, &bytes).map_err(|e| PrepError::io(path, e))
 }

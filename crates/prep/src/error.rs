@@ -46,8 +46,36 @@ pub enum PrepError {
     },
     #[error("{0}")]
     Shard(String),
-    #[error("{0}")]
-    Other(String),
+    /// A file that cannot be encoded before it is written (a sample's PNG or `meta.json`, an
+    /// index, a calibration JSON, a bench table); `path` names it.
+    #[error("{path}: cannot encode: {source}")]
+    Encode {
+        path: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// A 16-bit depth PNG that cannot be read (`inspect`).
+    #[error(transparent)]
+    DepthPng(#[from] depthsense_nuscenes::depth_png::DepthPngError),
+    /// A `radar_points.bin` that cannot be read (`inspect`).
+    #[error(transparent)]
+    RadarPoints(#[from] crate::radar_points::RadarPointsError),
+    /// The worker threads of `prepare --jobs` cannot be started.
+    #[error("thread pool: {0}")]
+    ThreadPool(#[source] rayon::ThreadPoolBuildError),
+    /// The validation split is drawn from a version's scene table, not from a shipped list.
+    #[error("split \"val\" is chosen per scene table: use splits::assign_splits")]
+    ValPerSceneTable,
+    /// `bench prepare` asked for a world of no keyframes.
+    #[error("the bench world needs at least one keyframe")]
+    BenchNoKeyframes,
+    /// The bench's fixture folder is not the nuscenes-kf0 fixture: `missing` says what it
+    /// lacks (a channel's keyframe, the camera's intrinsic).
+    #[error("{path}: not the nuscenes-kf0 fixture (no {missing})")]
+    NotKf0Fixture { path: String, missing: &'static str },
+    /// A sample of the bench's world failed to prepare.
+    #[error("bench prepare failed on {sample}: {reason}")]
+    BenchPrepareFailed { sample: String, reason: String },
 }
 
 impl PrepError {
@@ -56,11 +84,78 @@ impl PrepError {
         PrepError::Nu(NuError::io(path, e))
     }
 
+    /// A file's bytes cannot be encoded; `path` names the file.
+    pub(crate) fn encode(
+        path: impl std::fmt::Display,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        PrepError::Encode {
+            path: path.to_string(),
+            source: Box::new(source),
+        }
+    }
+
     /// A failed write of the output folder's shared files (index, locks).
     pub(crate) fn output(path: &Path, e: std::io::Error) -> Self {
         PrepError::Output {
             path: path.display().to_string(),
             reason: e.to_string(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each typed variant names the file, split or fixture at fault, with the words the
+    /// strings it replaced used.
+    #[test]
+    fn typed_variants_name_what_went_wrong() {
+        let png = depthsense_nuscenes::depth_png::DepthPngError::Size {
+            width: 2,
+            height: 1,
+            got: 1,
+            want: 2,
+        };
+        assert_eq!(
+            PrepError::encode("tok/lidar_sparse.png", png).to_string(),
+            "tok/lidar_sparse.png: cannot encode: depth map has 1 values but 2x1 needs 2"
+        );
+        assert_eq!(
+            crate::split_scene_tokens("val").unwrap_err().to_string(),
+            "split \"val\" is chosen per scene table: use splits::assign_splits"
+        );
+        assert_eq!(
+            PrepError::BenchNoKeyframes.to_string(),
+            "the bench world needs at least one keyframe"
+        );
+        let e = PrepError::NotKf0Fixture {
+            path: "fx".into(),
+            missing: "LIDAR_TOP keyframe",
+        };
+        assert_eq!(
+            e.to_string(),
+            "fx: not the nuscenes-kf0 fixture (no LIDAR_TOP keyframe)"
+        );
+        let e = PrepError::BenchPrepareFailed {
+            sample: "s1".into(),
+            reason: "no lidar".into(),
+        };
+        assert_eq!(e.to_string(), "bench prepare failed on s1: no lidar");
+    }
+
+    /// A bad depth PNG given to `inspect` is the reader's own error, its cause kept.
+    #[test]
+    fn inspect_keeps_the_readers_error() {
+        let e: PrepError = depthsense_nuscenes::depth_png::DepthPngError::Format {
+            path: "a.png".into(),
+            found: "Rgb8".into(),
+        }
+        .into();
+        assert_eq!(
+            e.to_string(),
+            "a.png: expected a 16-bit single-channel PNG, found Rgb8"
+        );
     }
 }

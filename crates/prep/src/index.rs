@@ -209,7 +209,8 @@ pub fn merge_entries(index: &mut PreparedIndex, entries: impl IntoIterator<Item 
 
 /// Write an index atomically.
 pub fn write_index_file(path: &Path, index: &PreparedIndex) -> Result<(), PrepError> {
-    let bytes = serde_json::to_vec_pretty(index).map_err(|e| PrepError::Other(e.to_string()))?;
+    let bytes =
+        serde_json::to_vec_pretty(index).map_err(|e| PrepError::encode(path.display(), e))?;
     write_atomic(path, &bytes).map_err(|e| PrepError::output(path, e))
 }
 

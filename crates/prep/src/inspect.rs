@@ -72,8 +72,7 @@ fn inspect_image(name: String, bytes: &[u8]) -> Result<Value, PrepError> {
         reason: e.to_string(),
     })?;
     if img.color() == image::ColorType::L16 {
-        let map = depthsense_nuscenes::depth_png::decode_png(bytes, &name)
-            .map_err(|e| PrepError::Other(e.to_string()))?;
+        let map = depthsense_nuscenes::depth_png::decode_png(bytes, &name)?;
         return Ok(depth_summary(name, &map));
     }
     Ok(
@@ -101,8 +100,7 @@ fn depth_summary(name: String, map: &depthsense_nuscenes::depth_png::DepthMap) -
 
 /// `radar_points.bin`: the returns behind a sample's radar maps, per channel and sweep.
 fn inspect_radar_points(path: &Path, name: String, bytes: &[u8]) -> Result<Value, PrepError> {
-    let p = crate::radar_points::RadarPoints::decode(bytes, path)
-        .map_err(|e| PrepError::Other(e.to_string()))?;
+    let p = crate::radar_points::RadarPoints::decode(bytes, path)?;
     let groups: Vec<Value> = p
         .groups
         .iter()

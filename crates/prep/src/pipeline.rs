@@ -872,7 +872,7 @@ fn assemble(
     })
 }
 
-fn encode_rgb_png(rgb: &[u8], w: u32, h: u32, gray: bool) -> Result<Vec<u8>, PrepError> {
+fn encode_rgb_png(rgb: &[u8], w: u32, h: u32, gray: bool) -> Result<Vec<u8>, image::ImageError> {
     use image::ImageEncoder;
     let mut out = Vec::with_capacity(rgb.len() / 2);
     let enc = image::codecs::png::PngEncoder::new_with_quality(
@@ -885,8 +885,7 @@ fn encode_rgb_png(rgb: &[u8], w: u32, h: u32, gray: bool) -> Result<Vec<u8>, Pre
     } else {
         image::ExtendedColorType::Rgb8
     };
-    enc.write_image(rgb, w, h, ct)
-        .map_err(|e| PrepError::Other(format!("PNG encode: {e}")))?;
+    enc.write_image(rgb, w, h, ct)?;
     Ok(out)
 }
 
@@ -925,24 +924,30 @@ fn write_sample(out: &Path, maps: &SampleMaps, times: &Mutex<StageTimes>) -> Res
 fn encode_sample(maps: &SampleMaps) -> Result<Vec<(&'static str, Vec<u8>)>, PrepError> {
     let fw = layout::FRAME_W;
     let fh = layout::FRAME_H;
-    let depth = |m: &DepthMap| encode_png_fast(m).map_err(|e| PrepError::Other(e.to_string()));
+    // A file that cannot be encoded is named as it would be written: <sample token>/<file>.
+    let token = &maps.meta.sample_token;
+    let depth = |file: &'static str, m: &DepthMap| {
+        let bytes =
+            encode_png_fast(m).map_err(|e| PrepError::encode(format!("{token}/{file}"), e))?;
+        Ok::<_, PrepError>((file, bytes))
+    };
+    let mask = |file: &'static str, m: &[u8], gray: bool| {
+        let bytes = encode_rgb_png(m, fw, fh, gray)
+            .map_err(|e| PrepError::encode(format!("{token}/{file}"), e))?;
+        Ok::<_, PrepError>((file, bytes))
+    };
     Ok(vec![
-        (
-            layout::IMAGE_FILE,
-            encode_rgb_png(&maps.image_rgb, fw, fh, false)?,
-        ),
-        (layout::LIDAR_SPARSE_FILE, depth(&maps.lidar_sparse)?),
-        (layout::LIDAR_DENSE_FILE, depth(&maps.lidar_dense)?),
-        (
-            layout::LOWHEIGHT_MASK_FILE,
-            encode_rgb_png(&maps.lowheight_mask, fw, fh, true)?,
-        ),
-        (layout::RADAR_RAW_FILE, depth(&maps.radar_raw)?),
-        (layout::RADAR_HEIGHT_FILE, depth(&maps.radar_height)?),
+        mask(layout::IMAGE_FILE, &maps.image_rgb, false)?,
+        depth(layout::LIDAR_SPARSE_FILE, &maps.lidar_sparse)?,
+        depth(layout::LIDAR_DENSE_FILE, &maps.lidar_dense)?,
+        mask(layout::LOWHEIGHT_MASK_FILE, &maps.lowheight_mask, true)?,
+        depth(layout::RADAR_RAW_FILE, &maps.radar_raw)?,
+        depth(layout::RADAR_HEIGHT_FILE, &maps.radar_height)?,
         (RADAR_POINTS_FILE, maps.radar_points.encode()),
         (
             layout::META_FILE,
-            serde_json::to_vec_pretty(&maps.meta).map_err(|e| PrepError::Other(e.to_string()))?,
+            serde_json::to_vec_pretty(&maps.meta)
+                .map_err(|e| PrepError::encode(format!("{token}/{}", layout::META_FILE), e))?,
         ),
     ])
 }
@@ -1236,7 +1241,7 @@ fn prepare_all(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(job.opts.jobs)
         .build()
-        .map_err(|e| PrepError::Other(format!("thread pool: {e}")))?;
+        .map_err(PrepError::ThreadPool)?;
     Ok(pool.install(|| {
         todo.par_iter()
             .map(|s| {

@@ -63,9 +63,7 @@ pub fn split_scene_tokens(name: &str) -> Result<Option<HashSet<String>>, PrepErr
         return Ok(None);
     }
     if name == "val" {
-        return Err(PrepError::Other(
-            "split \"val\" is chosen per scene table: use splits::assign_splits".into(),
-        ));
+        return Err(PrepError::ValPerSceneTable);
     }
     let text = split_text(name).ok_or_else(|| PrepError::UnknownSplit(name.to_string()))?;
     Ok(Some(

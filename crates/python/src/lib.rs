@@ -326,15 +326,9 @@ fn read_radar_points<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py,
 #[pyfunction]
 fn read_sample<'py>(py: Python<'py>, sample: PathBuf) -> PyResult<Bound<'py, PyDict>> {
     let dir = sample.as_path();
+    // The same advice as `predict --sample`.
+    depthsense_dataset::check_sample_dir(dir).map_err(py_err)?;
     let meta_path = dir.join(layout::META_FILE);
-    if !meta_path.exists() {
-        // The same advice as `predict --sample`.
-        return Err(py_err(
-            net_input::input_from_prepared(dir)
-                .err()
-                .unwrap_or_else(|| DataError::Other(format!("{}: no meta.json", dir.display()))),
-        ));
-    }
     let d = PyDict::new(py);
     let rgb = depthsense_dataset::decode_rgb(&dir.join(layout::IMAGE_FILE)).map_err(py_err)?;
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);

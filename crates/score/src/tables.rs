@@ -39,7 +39,7 @@ pub fn write_tables_with_command(
     let record = TablesRecord::new(
         models,
         serde_json::to_value(tables::all_tables(models))
-            .map_err(|e| DataError::Other(e.to_string()))?,
+            .map_err(|e| DataError::encode(&json_path, e))?,
         command_line,
         &doc,
         &json_path,
@@ -57,7 +57,7 @@ pub fn write_tables_with_command(
     w(
         "tables.json",
         to_json_pretty(&record)
-            .map_err(|e| DataError::Other(e.to_string()))?
+            .map_err(|e| DataError::encode(&json_path, e))?
             .as_bytes(),
     )
 }

@@ -248,9 +248,7 @@ impl Dist {
     /// Average the gradients over the ranks (after backward).
     pub(crate) fn sync_grads(&mut self) -> Result<(), NetError> {
         let Some(g) = &self.grads else {
-            return Err(NetError::Other(
-                "distributed: gradients synchronised before attach".into(),
-            ));
+            return Err(NetError::GradientsNotAttached);
         };
         let s = g.all_reduce(&self.pg)?;
         self.stats.steps += 1;
