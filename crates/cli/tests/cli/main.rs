@@ -2,6 +2,7 @@
 //! crate, and linking dominates the test build; issue 35):
 //! - `docs`: the docs that stay true (commands parse, result numbers, links, the CLI reference,
 //!   ARCHITECTURE's layer table);
+//! - `errors`: no catch-all `…Error::Other(String)` built outside tests (issue 43 item 3);
 //! - `front`: the torch-free `depthsense` front and its hand-over to `depthsense-net`;
 //! - `interruptions`, `run_folders`, `train_nproc`, `bench_export`: the binary under signals,
 //!   in run folders, with `--nproc` and `bench export`;
@@ -15,6 +16,7 @@
 mod bench_export;
 mod common;
 mod docs;
+mod errors;
 mod finetune;
 mod front;
 mod interruptions;
