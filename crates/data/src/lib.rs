@@ -771,7 +771,7 @@ impl Loader {
                     }
                 }
             })
-            .map_err(|e| DataError::Config(format!("cannot start loader thread: {e}")))?;
+            .map_err(|e| DataError::thread_start("loader thread", e))?;
         Ok(Loader {
             rx: Some(rx),
             handle: Some(handle),
@@ -819,7 +819,7 @@ fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, DataError> {
         .num_threads(jobs)
         .thread_name(|i| format!("loader-{i}"))
         .build()
-        .map_err(|e| DataError::Config(format!("cannot start loader threads: {e}")))
+        .map_err(|e| DataError::thread_start("loader threads", e))
 }
 
 impl Iterator for Loader {
@@ -869,8 +869,8 @@ pub fn write_toy_dataset(
             maps.add_radar(&mut rng);
             maps.write(&dir)?;
             let meta = toy_meta(&token, s, k, cond, w, h);
-            let meta_bytes =
-                serde_json::to_vec_pretty(&meta).map_err(|e| DataError::Data(e.to_string()))?;
+            let meta_bytes = serde_json::to_vec_pretty(&meta)
+                .map_err(|e| DataError::encode(&dir.join(META_FILE), e))?;
             let p = dir.join(META_FILE);
             write_atomic(&p, &meta_bytes).map_err(|e| DataError::io(&p, e))?;
             index.samples.push(IndexEntry {
@@ -884,7 +884,7 @@ pub fn write_toy_dataset(
         }
     }
     let p = root.join(INDEX_FILE);
-    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| DataError::Data(e.to_string()))?;
+    let bytes = serde_json::to_vec_pretty(&index).map_err(|e| DataError::encode(&p, e))?;
     write_atomic(&p, &bytes).map_err(|e| DataError::io(&p, e))
 }
 
@@ -961,24 +961,29 @@ impl ToyMaps {
     fn write(&self, dir: &Path) -> Result<(), DataError> {
         use depthsense_base::fsutil::write_atomic;
         use depthsense_nuscenes::depth_png::encode_png;
-        let enc = |m: &DepthMap| encode_png(m).map_err(|e| DataError::Data(e.to_string()));
         let write = |name: &str, bytes: &[u8]| {
             let p = dir.join(name);
             write_atomic(&p, bytes).map_err(|e| DataError::io(&p, e))
         };
-        write(LIDAR_DENSE_FILE, &enc(&self.dense)?)?;
-        write(LIDAR_SPARSE_FILE, &enc(&self.sparse)?)?;
-        write(RADAR_RAW_FILE, &enc(&self.raw)?)?;
-        write(RADAR_HEIGHT_FILE, &enc(&self.height)?)?;
+        let depth = |name: &str, m: &DepthMap| {
+            write(
+                name,
+                &encode_png(m).map_err(|e| DataError::encode(&dir.join(name), e))?,
+            )
+        };
+        depth(LIDAR_DENSE_FILE, &self.dense)?;
+        depth(LIDAR_SPARSE_FILE, &self.sparse)?;
+        depth(RADAR_RAW_FILE, &self.raw)?;
+        depth(RADAR_HEIGHT_FILE, &self.height)?;
         let mut buf = std::io::Cursor::new(Vec::new());
         self.img
             .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| DataError::Data(e.to_string()))?;
+            .map_err(|e| DataError::encode(&dir.join(IMAGE_FILE), e))?;
         write(IMAGE_FILE, buf.get_ref())?;
         let mut buf = std::io::Cursor::new(Vec::new());
         self.low
             .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| DataError::Data(e.to_string()))?;
+            .map_err(|e| DataError::encode(&dir.join(LOWHEIGHT_MASK_FILE), e))?;
         write(LOWHEIGHT_MASK_FILE, buf.get_ref())
     }
 }

@@ -34,6 +34,13 @@ pub enum DataError {
     /// (no `meta.json`); what it is instead says what to pass.
     #[error("{}", not_a_sample_text(.dir, .found))]
     NotASample { dir: String, found: SampleFolder },
+    /// A worker thread (`what`: the loader's) that the system would not start.
+    #[error("cannot start {what}: {source}")]
+    ThreadStart {
+        what: &'static str,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// A file whose bytes cannot be encoded before it is written (a JSON record, a PNG).
     #[error("{}: cannot encode: {source}", .path.display())]
     Encode {
@@ -138,6 +145,17 @@ impl DataError {
             }
         }
         root.map(|root| DataError::Unreadable { root, samples })
+    }
+
+    /// `what` (threads) cannot be started (`source` says why).
+    pub fn thread_start(
+        what: &'static str,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        Self::ThreadStart {
+            what,
+            source: Box::new(source),
+        }
     }
 
     /// `path`'s bytes cannot be encoded (`source` says why).

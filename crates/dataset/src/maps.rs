@@ -164,5 +164,12 @@ mod tests {
             format!("e/tables.json: cannot encode: {why}")
         );
         assert_eq!(e.source().map(|s| s.to_string()), Some(why));
+        let io = std::io::Error::other("Resource temporarily unavailable");
+        let e = DataError::thread_start("loader threads", io);
+        assert_eq!(
+            e.to_string(),
+            "cannot start loader threads: Resource temporarily unavailable"
+        );
+        assert!(e.source().is_some());
     }
 }
