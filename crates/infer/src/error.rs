@@ -118,11 +118,6 @@ pub enum NetError {
     /// attached (a bug of the caller).
     #[error("distributed: gradients synchronised before attach")]
     GradientsNotAttached,
-    /// Test support only: `crates/train/src/learner.rs`'s checkpointer tests fail a save with
-    /// it. Never built outside tests (`cli/tests/cli/errors.rs` checks).
-    #[doc(hidden)]
-    #[error("{0}")]
-    Other(String),
 }
 
 impl NetError {

@@ -515,7 +515,10 @@ mod tests {
         assert!(!prev.exists());
         // killed after the optimiser state of iteration 2, before its checkpoint
         let killed = c.save_last(write("optim 2"), |_: &Path| {
-            Err(NetError::Other("killed".into()))
+            Err(NetError::io(
+                Path::new("killed"),
+                std::io::Error::other("killed"),
+            ))
         });
         assert!(killed.is_err());
         let read = |p: &Path| std::fs::read_to_string(p).unwrap();
@@ -527,7 +530,10 @@ mod tests {
         let mut resumed = Checkpointer::new(d.path(), false);
         resumed
             .save_last(write("optim 3"), |_: &Path| {
-                Err(NetError::Other("killed".into()))
+                Err(NetError::io(
+                    Path::new("killed"),
+                    std::io::Error::other("killed"),
+                ))
             })
             .unwrap_err();
         assert_eq!(
