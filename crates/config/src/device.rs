@@ -69,3 +69,22 @@ mod tests {
         }
     }
 }
+
+/// `--device`, one flag for every command that runs a network (flattened into their
+/// arguments, and into [`crate::training::HardwareOptions`]): the same words, default and help
+/// everywhere, refused while the command line is parsed ([`crate::cli::parse_device`]).
+/// RUN/config.json records it as `"device"`.
+#[derive(clap::Args, Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct DeviceArg {
+    /// Device: auto (CUDA when available), cpu, cuda or cuda:N.
+    #[arg(long = "device", id = "device", value_name = "DEVICE", default_value = "auto",
+          value_parser = crate::cli::parse_device)]
+    #[serde(rename = "device")]
+    pub name: String,
+}
+
+impl Default for DeviceArg {
+    fn default() -> Self {
+        crate::training::defaults()
+    }
+}

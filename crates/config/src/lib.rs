@@ -8,7 +8,11 @@
 //!   sets;
 //! - [`cli`]: the value parsers and help texts the command line builds from them;
 //! - [`device`]: the words of `--device`; [`flags`]: those of the other network flags
-//!   (precision, export format); [`variant`]: the ablation's network variants.
+//!   (precision, export format); [`variant`]: the ablation's network variants;
+//! - [`training`]: the option groups of training (schedule, data loading, validation,
+//!   checkpoints, device and precision, data-parallel), each defined once with its flags,
+//!   ranges ([`ranges`]), help heading ([`heading`]) and defaults; the command line flattens
+//!   them and the trainer holds them; [`words_parser`]: the value parser of every enum flag.
 //!
 //! The depthsense binary parses every command without libtorch, so these live here rather than
 //! in `depthsense-model`, which builds the network from a [`ModelConfig`].
@@ -16,11 +20,15 @@
 pub mod cli;
 pub mod device;
 pub mod flags;
+pub mod heading;
 mod model_config;
 pub mod options;
 pub mod pda;
 pub mod presets;
+pub mod ranges;
+pub mod training;
 pub mod variant;
+pub mod words_parser;
 
 pub use model_config::{
     is_one, one, AttentionGate, DecoderKind, Fusion, HeadKind, ModelConfig, RadarBranchKind,

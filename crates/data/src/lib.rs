@@ -41,11 +41,7 @@ use depthsense_dataset::maps::{
 
 use depthsense_dataset::DataError;
 
-/// serde `skip_serializing_if` for optional settings that are off at their default (0, false,
-/// empty): the JSON of runs that do not use them stays as it was before they existed.
-pub fn is_default<T: Default + PartialEq>(v: &T) -> bool {
-    *v == T::default()
-}
+pub use depthsense_config::training::{is_default, TargetKind};
 
 /// ImageNet mean (SPEC §6).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -53,23 +49,6 @@ pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
 pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 
 use depthsense_config::RadarInput;
-
-/// Which lidar map is the training target.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum TargetKind {
-    /// ±K accumulated sweeps (SPEC §4 dense target; falls back to sparse when absent).
-    #[default]
-    Dense,
-    /// The keyframe sweep only.
-    Sparse,
-}
-
-impl depthsense_base::words::Words for TargetKind {
-    const WHAT: &'static str = "target";
-    const WORDS: &'static [(&'static str, Self)] =
-        &[("dense", Self::Dense), ("sparse", Self::Sparse)];
-}
 
 /// How samples are read and augmented.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -1,5 +1,7 @@
 //! Train the tiny preset on a generated toy dataset and print the validation curve.
 //! `cargo run -p depthsense-experiments --example toy_train -- EPOCHS LR [late|none]`
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{HardwareOptions, LoadingOptions, ScheduleOptions};
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_train::trainer::{train, TrainOptions};
 
@@ -25,12 +27,21 @@ fn main() {
         data,
         out: tmp.path().join("run"),
         model,
-        epochs,
-        batch_size: 4,
-        lr,
-        seed: 5,
-        device: "cpu".into(),
-        jobs: 2,
+        schedule: ScheduleOptions {
+            epochs,
+            batch_size: 4,
+            lr,
+            seed: 5,
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 2,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     };
     let s = train(&o, &depthsense_progress::Progress::hidden()).unwrap();

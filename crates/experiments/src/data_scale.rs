@@ -23,7 +23,6 @@ use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::EvalConfig;
 use depthsense_progress::Board;
-use depthsense_train::trainer::TrainOptions;
 use serde::{Deserialize, Serialize};
 
 use super::ablation::{verdict, Verdict};
@@ -281,14 +280,12 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
     let mut runs = vec![];
     for (n, arm, seed, model) in plan {
         overall.set_message(format!("n{n} {} seed{seed}", arm.label));
-        let t = TrainOptions {
-            train_subset: Some(n),
-            epoch_iterations: Some(per_epoch),
-            radar_oracle: arm.radar_oracle,
-            ..opts
-                .run
-                .train_options(run_dir(&opts.out, n, arm, seed), &model, seed)
-        };
+        let mut t = opts
+            .run
+            .train_options(run_dir(&opts.out, n, arm, seed), &model, seed);
+        t.loading.train_subset = Some(n);
+        t.schedule.epoch_iterations = Some(per_epoch);
+        t.loading.radar_oracle = arm.radar_oracle;
         let (rec, _) = train_and_test(&arm.label, &t, &opts.eval, &ds, &part.test, device, mp)?;
         runs.push(rec);
         overall.inc(1);
@@ -312,7 +309,7 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
 
 /// The training-set size of a run (its `train_subset`).
 fn size_of(r: &RunRecord) -> usize {
-    r.train_options.train_subset.unwrap_or(0)
+    r.train_options.loading.train_subset.unwrap_or(0)
 }
 
 /// (seed, arm RMSE, baseline RMSE) of the seeds both ran at size `n`.

@@ -12,6 +12,10 @@
 //! OUT/report/samples/<token>/{image,radar,gt,pred_rgb,pred_fusion,err_rgb,err_fusion}.png
 //! ```
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -396,17 +400,33 @@ fn train_both(
             data: prepared.to_path_buf(),
             out: out.join(name),
             model: cfg,
-            epochs: plan.epochs,
-            epoch_iterations: plan.epoch_iterations,
-            batch_size: plan.batch_size,
-            lr: plan.lr,
-            seed: opts.seed,
-            device: opts.device.clone(),
-            jobs: opts.jobs,
-            max_batches_per_epoch: plan.max_batches_per_epoch,
-            max_val_samples: plan.max_val_samples,
-            val_every_scene: plan.val_every_scene,
-            force: opts.force,
+            schedule: ScheduleOptions {
+                epochs: plan.epochs,
+                epoch_iterations: plan.epoch_iterations,
+                batch_size: plan.batch_size,
+                lr: plan.lr,
+                seed: opts.seed,
+                max_batches_per_epoch: plan.max_batches_per_epoch,
+                ..Default::default()
+            },
+            loading: LoadingOptions {
+                jobs: opts.jobs,
+                ..Default::default()
+            },
+            validation: ValidationOptions {
+                max_val_samples: plan.max_val_samples,
+                val_every_scene: plan.val_every_scene,
+            },
+            checkpointing: CheckpointOptions {
+                force: opts.force,
+                ..Default::default()
+            },
+            hardware: HardwareOptions {
+                device: DeviceArg {
+                    name: opts.device.clone(),
+                },
+                ..Default::default()
+            },
             ..TrainOptions::default()
         };
         let pb = stage_bar(mp, &format!("train {name}"));

@@ -10,6 +10,10 @@ use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_checkpoint as checkpoint;
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use depthsense_config::ModelConfig;
 use depthsense_data::LoadOptions;
 use depthsense_dataset::outputs::{BEST_CKPT, CONFIG_FILE, METRICS_FILE};
@@ -69,17 +73,17 @@ impl Default for RunSettings {
             data: t.data,
             preset: "paper".into(),
             set: vec![],
-            epochs: t.epochs,
-            batch_size: t.batch_size,
-            lr: t.lr,
-            device: t.device,
-            jobs: t.jobs,
-            max_val_samples: t.max_val_samples,
-            max_batches_per_epoch: t.max_batches_per_epoch,
-            val_every_scene: t.val_every_scene,
-            train_radar_drop: t.train_radar_drop,
-            warmup_iters: t.warmup_iters,
-            epoch_iterations: t.epoch_iterations,
+            epochs: t.schedule.epochs,
+            batch_size: t.schedule.batch_size,
+            lr: t.schedule.lr,
+            device: t.hardware.device.name,
+            jobs: t.loading.jobs,
+            max_val_samples: t.validation.max_val_samples,
+            max_batches_per_epoch: t.schedule.max_batches_per_epoch,
+            val_every_scene: t.validation.val_every_scene,
+            train_radar_drop: t.loading.train_radar_drop,
+            warmup_iters: t.schedule.warmup_iters,
+            epoch_iterations: t.schedule.epoch_iterations,
         }
     }
 }
@@ -88,26 +92,44 @@ impl RunSettings {
     /// The training options of one run stored in `run_dir`: `model` with `seed`, continuing
     /// from the run's last checkpoint when it has one (exact resume).
     pub fn train_options(&self, run_dir: PathBuf, model: &ModelConfig, seed: u64) -> TrainOptions {
+        let t = TrainOptions::default();
+        let resume = run_dir
+            .join(depthsense_dataset::outputs::LAST_CKPT)
+            .exists();
         TrainOptions {
             data: self.data.clone(),
-            resume: run_dir
-                .join(depthsense_dataset::outputs::LAST_CKPT)
-                .exists(),
             out: run_dir,
             model: model.clone(),
-            epochs: self.epochs,
-            batch_size: self.batch_size,
-            lr: self.lr,
-            seed,
-            device: self.device.clone(),
-            jobs: self.jobs,
-            max_val_samples: self.max_val_samples,
-            max_batches_per_epoch: self.max_batches_per_epoch,
-            val_every_scene: self.val_every_scene,
-            train_radar_drop: self.train_radar_drop,
-            warmup_iters: self.warmup_iters,
-            epoch_iterations: self.epoch_iterations,
-            ..TrainOptions::default()
+            schedule: ScheduleOptions {
+                epochs: self.epochs,
+                batch_size: self.batch_size,
+                lr: self.lr,
+                seed,
+                max_batches_per_epoch: self.max_batches_per_epoch,
+                warmup_iters: self.warmup_iters,
+                epoch_iterations: self.epoch_iterations,
+                ..t.schedule
+            },
+            loading: LoadingOptions {
+                jobs: self.jobs,
+                train_radar_drop: self.train_radar_drop,
+                ..t.loading
+            },
+            validation: ValidationOptions {
+                max_val_samples: self.max_val_samples,
+                val_every_scene: self.val_every_scene,
+            },
+            checkpointing: CheckpointOptions {
+                resume,
+                ..t.checkpointing
+            },
+            hardware: HardwareOptions {
+                device: DeviceArg {
+                    name: self.device.clone(),
+                },
+                ..t.hardware
+            },
+            ..t
         }
     }
 }
@@ -405,7 +427,7 @@ pub fn train_and_test(
     mp: &Board,
 ) -> Result<(RunRecord, RunStatus), NetError> {
     let run = topts.out.clone();
-    let seed = topts.seed;
+    let seed = topts.schedule.seed;
     let eval_path = run.join(RUN_EVAL_FILE);
     if let Some(rec) = finished_record(topts, eval)? {
         return Ok((rec, RunStatus::Skipped));
@@ -485,7 +507,7 @@ fn train_or_reuse(
 ) -> Result<(RunStatus, f64, Option<f64>), NetError> {
     let run = &topts.out;
     let cfg_path = run.join(CONFIG_FILE);
-    let (finished, earlier_secs) = training_finished(run, topts.epochs);
+    let (finished, earlier_secs) = training_finished(run, topts.schedule.epochs);
     let t = Instant::now();
     let reuse = || {
         let best = checkpoint::read_config(&run.join(BEST_CKPT))
@@ -496,11 +518,11 @@ fn train_or_reuse(
     Ok(if finished {
         reuse()
     } else {
-        let resumed = topts.resume;
+        let resumed = topts.checkpointing.resume;
         // A run of this experiment (its config matched above) that stopped before its first
         // checkpoint starts over in its own folder.
         let mut topts = topts.clone();
-        topts.force = !topts.resume && cfg_path.exists();
+        topts.checkpointing.force = !topts.checkpointing.resume && cfg_path.exists();
         let s = train(&topts, pb)?;
         if s.already_finished.is_some() {
             return Ok(reuse());
@@ -543,7 +565,7 @@ fn test_best(
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
         no_radar: radar.is_none(),
-        radar_oracle: topts.radar_oracle,
+        radar_oracle: topts.loading.radar_oracle,
         ..LoadOptions::default()
     };
     pb.set_length(test.len() as u64);
@@ -555,8 +577,8 @@ fn test_best(
         test,
         &load,
         eval,
-        topts.batch_size,
-        topts.jobs,
+        topts.schedule.batch_size,
+        topts.loading.jobs,
         device,
         pb,
     )

@@ -60,17 +60,7 @@ pub fn bench_train(
 ) -> Result<serde_json::Value, NetError> {
     let device = depthsense_model::device::parse_device(&opts.device)?;
     depthsense_model::device::autotune_fixed_size(device);
-    let tmp;
-    let root = match &opts.data {
-        Some(p) => p.clone(),
-        None => {
-            tmp = tempfile::tempdir().map_err(|e| NetError::io(&std::env::temp_dir(), e))?;
-            progress.set_message("writing a toy 800x350 dataset");
-            let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
-            depthsense_data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
-            tmp.path().to_path_buf()
-        }
-    };
+    let (root, _tmp) = bench_data(opts, progress)?;
     let ds = Dataset::open(&root)?;
     let entries = ds.split("all");
     let mut cfg = ModelConfig::preset(&opts.preset)?.with_options(&opts.set)?;
@@ -82,10 +72,9 @@ pub fn bench_train(
         seed: 1,
         ..LoadOptions::default()
     };
-    let jobs = if opts.jobs == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        opts.jobs
+    let jobs = match opts.jobs {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
     };
 
     // Full batches only (when there are enough samples): an epoch's last, smaller batch is a
@@ -130,6 +119,22 @@ pub fn bench_train(
         "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
         "torch_threads": tch::get_num_threads(),
     }))
+}
+
+/// The prepared folder the benchmark reads: `--data`, or a toy 800×350 world written to a
+/// temporary folder (removed when the returned guard drops).
+fn bench_data(
+    opts: &BenchTrainOptions,
+    progress: &depthsense_progress::Progress,
+) -> Result<(PathBuf, Option<tempfile::TempDir>), NetError> {
+    if let Some(p) = &opts.data {
+        return Ok((p.clone(), None));
+    }
+    let tmp = tempfile::tempdir().map_err(|e| NetError::io(&std::env::temp_dir(), e))?;
+    progress.set_message("writing a toy 800x350 dataset");
+    let n = (opts.batch_size * opts.loader_batches.max(2)).clamp(8, 64);
+    depthsense_data::write_toy_dataset(tmp.path(), 2, n.div_ceil(2), 800, 350, 1)?;
+    Ok((tmp.path().to_path_buf(), Some(tmp)))
 }
 
 /// Images through the loader alone: (images, images per second).

@@ -13,9 +13,11 @@
 use std::path::{Path, PathBuf};
 
 use depthsense_checkpoint as checkpoint;
+use depthsense_config::training::{
+    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
-use depthsense_data::TargetKind;
 use depthsense_dataset::Partition;
 use depthsense_metrics::EvalConfig;
 use serde::{Deserialize, Serialize};
@@ -30,7 +32,9 @@ pub use session::{removing_new_folder_on_failure, train, train_distributed, Open
 use crate::metrics_log::{append_jsonl, truncate_metrics, write_curves, ValRecord};
 use depthsense_infer::upload::upload_batch;
 
-/// Everything a training run is made of. Defaults are the paper's (SPEC §8).
+/// Everything a training run is made of. Defaults are the paper's (SPEC §8), written once, in
+/// the option groups' flags ([`depthsense_config::training`]); RUN/config.json's `"train"`
+/// holds the groups' fields flat, as it always did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainOptions {
     pub data: PathBuf,
@@ -40,97 +44,35 @@ pub struct TrainOptions {
     #[serde(skip)]
     pub command: Vec<String>,
     pub model: ModelConfig,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub lr: f64,
-    /// Power of the polynomial decay (0.9).
-    pub lr_power: f64,
-    pub momentum: f64,
-    pub weight_decay: f64,
-    pub seed: u64,
-    /// auto | cpu | cuda | cuda:N
-    pub device: String,
-    /// bf16 autocast of the forward pass (CUDA only).
-    pub amp: bool,
+    #[serde(flatten)]
+    pub schedule: ScheduleOptions,
+    #[serde(flatten)]
+    pub loading: LoadingOptions,
+    #[serde(flatten)]
+    pub validation: ValidationOptions,
+    #[serde(flatten)]
+    pub checkpointing: CheckpointOptions,
+    #[serde(flatten)]
+    pub hardware: HardwareOptions,
     /// torchvision ResNet state dict for the RGB encoder (ImageNet initialisation).
     pub backbone_weights: Option<PathBuf>,
-    /// Continue from RUN/last.safetensors.
-    pub resume: bool,
-    /// Loader threads (0 = all cores) and batches decoded ahead.
-    pub jobs: usize,
-    pub prefetch: usize,
     /// Radar map(s) feeding the radar channels (None = derive from the model config).
     pub radar_input: Option<RadarInput>,
-    pub target: TargetKind,
-    /// SPEC §8 augmentation.
-    pub augment: bool,
-    /// Without train/test split lists, every N-th scene (sorted by name) is held out.
-    pub val_every_scene: usize,
-    /// Use at most this many validation samples (evenly spaced), None = all.
-    pub max_val_samples: Option<usize>,
-    /// Use at most this many batches per epoch, None = all (quick runs).
-    pub max_batches_per_epoch: Option<usize>,
-    /// Save RUN/last.safetensors every N iterations as well as at each epoch end (0 = never).
-    pub checkpoint_every: u64,
-    /// Stop (after checkpointing) when this global iteration is reached — an interruption
-    /// that `--resume` continues from exactly.
-    pub stop_after: Option<u64>,
     /// Validation metric settings (caps, protocol, aggregation).
     pub eval: EvalConfig,
     /// Training scenes withheld per condition (SPEC §10.5; rule in
     /// `experiments::reduced_data`). Absent from the JSON when empty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub exclude: Vec<depthsense_data::exclusion::Exclusion>,
-    /// Read the training losses to the host every N iterations (one synchronisation per N on
-    /// CUDA; always before a checkpoint, a stop and the epoch end). 0 = automatic: 1 on the CPU
-    /// and in data-parallel jobs, [`CUDA_LOSS_READ_EVERY`] on CUDA. Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub loss_read_every: u64,
-    /// Training-time radar dropout: each training sample loses a fraction U(0, p) of its
-    /// radar returns ([`depthsense_data::LoadOptions::train_radar_drop`]). 0 = off (the paper).
-    /// Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub train_radar_drop: f64,
-    /// The oracle radar (issue 34; [`depthsense_data::radar_oracle`]): every radar return's
-    /// depth replaced by the lidar target's, in training, validation and the experiments'
-    /// test runs. An upper bound, not a model. Absent from the JSON when false.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub radar_oracle: bool,
-    /// Linear learning-rate warmup over the first N iterations before the poly decay (0 = none,
-    /// the paper). Absent from the JSON when 0.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub warmup_iters: u64,
-    /// Start over in a folder that holds a run (its run files are removed first); without it
-    /// such a folder is refused unless `resume` ([`crate::outputs`]). Absent from the JSON
-    /// when false.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub force: bool,
     /// `--init-from`: the weights a fresh network starts from (fine-tuning): a depthsense
     /// checkpoint, an `export --format pytorch` file or the authors' `.pth` (with the
     /// `released` config). Tensors of the network that the file lacks keep their
     /// initialisation; the report names them. Absent from the JSON when not given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init_from: Option<PathBuf>,
-    /// `--extend`: continue the run in `out` from its last checkpoint to `epochs` epochs with a
-    /// new learning-rate schedule from there (`lr`, poly decay to 0 at the new end), recorded
-    /// in RUN/config.json. Absent from the JSON when false.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub extend: bool,
-    /// Train on the first N training samples only, in a fixed order of the samples (a hash of
-    /// their tokens), so that the subsets of growing N are nested and every seed and variant
-    /// sees the same ones (`experiment data-scale`). Validation and test are unchanged.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub train_subset: Option<usize>,
-    /// Each epoch is this many iterations, drawn from consecutive passes over the training
-    /// samples (each pass a fresh shuffle), whatever their number: so runs on 100 or 3,000
-    /// images take the same iterations and validate as often (`experiment data-scale`). None:
-    /// an epoch is one pass.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub epoch_iterations: Option<u64>,
 }
 
-/// Iterations between loss reads on CUDA by default ([`TrainOptions::loss_read_every`] = 0).
-pub const CUDA_LOSS_READ_EVERY: u64 = 25;
+pub use depthsense_config::training::CUDA_LOSS_READ_EVERY;
 
 impl Default for TrainOptions {
     fn default() -> Self {
@@ -139,38 +81,16 @@ impl Default for TrainOptions {
             out: PathBuf::from("runs/train"),
             command: Vec::new(),
             model: ModelConfig::paper(),
-            epochs: 40,
-            batch_size: 8,
-            lr: 1e-3,
-            lr_power: 0.9,
-            momentum: 0.9,
-            weight_decay: 1e-4,
-            seed: 0,
-            device: "auto".into(),
-            amp: false,
+            schedule: ScheduleOptions::default(),
+            loading: LoadingOptions::default(),
+            validation: ValidationOptions::default(),
+            checkpointing: CheckpointOptions::default(),
+            hardware: HardwareOptions::default(),
             backbone_weights: None,
-            resume: false,
-            jobs: 0,
-            prefetch: 4,
             radar_input: None,
-            target: TargetKind::Dense,
-            augment: true,
-            val_every_scene: 5,
-            max_val_samples: None,
-            max_batches_per_epoch: None,
-            checkpoint_every: 0,
-            stop_after: None,
             eval: EvalConfig::default(),
             exclude: Vec::new(),
-            loss_read_every: 0,
-            train_radar_drop: 0.0,
-            radar_oracle: false,
-            warmup_iters: 0,
-            force: false,
             init_from: None,
-            extend: false,
-            train_subset: None,
-            epoch_iterations: None,
         }
     }
 }

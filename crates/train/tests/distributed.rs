@@ -1,6 +1,10 @@
 //! Data-parallel training with Gloo over loopback, every rank its own process: this test
 //! binary re-runs itself as the workers (`DS_TEST_OPTS` set), as torchrun would start them.
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -40,15 +44,27 @@ fn opts(data: &Path, out: &Path) -> TrainOptions {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
         model,
-        epochs: 2,
-        batch_size: 4,
-        lr: 3e-3,
-        seed: 5,
-        device: "cpu".into(),
-        augment: false,
-        jobs: 1,
-        prefetch: 2,
-        max_val_samples: Some(2),
+        schedule: ScheduleOptions {
+            epochs: 2,
+            batch_size: 4,
+            lr: 3e-3,
+            seed: 5,
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            augment: false,
+            jobs: 1,
+            prefetch: 2,
+            ..Default::default()
+        },
+        validation: ValidationOptions {
+            max_val_samples: Some(2),
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     }
 }
@@ -187,10 +203,10 @@ fn two_ranks_with_sync_bn_equal_one_process_with_the_global_batch_and_resume_acr
     toy(&data);
     // 4 epochs: one process × batch 4, 12 iterations
     // 4 epochs at lr 1e-3 (see assert_same_weights)
-    let opts = |data: &Path, out: &Path| TrainOptions {
-        epochs: 4,
-        lr: 1e-3,
-        ..opts(data, out)
+    let opts = |data: &Path, out: &Path| {
+        let mut o = opts(data, out);
+        (o.schedule.epochs, o.schedule.lr) = (4, 1e-3);
+        o
     };
     let reference = {
         let _g = torch_rng();
@@ -214,12 +230,12 @@ fn two_ranks_with_sync_bn_equal_one_process_with_the_global_batch_and_resume_acr
     {
         let _g = torch_rng();
         let mut o = opts(&data, &resumed);
-        o.stop_after = Some(5);
+        o.checkpointing.stop_after = Some(5);
         let s = train(&o, &Progress::hidden()).unwrap();
         assert!(s.interrupted);
     }
     let mut o = opts(&data, &resumed);
-    o.resume = true;
+    o.checkpointing.resume = true;
     run_ranks(2, &o, &sync);
     assert_close(
         &losses(&resumed),
@@ -240,7 +256,7 @@ fn without_sync_bn_the_replicas_stay_identical_and_a_two_rank_run_resumes_on_one
     toy(&data);
     let run = tmp.path().join("run");
     let mut o = opts(&data, &run);
-    o.stop_after = Some(4);
+    o.checkpointing.stop_after = Some(4);
     let d = DistOptions {
         check_replicas: true,
         ..DistOptions::default()
@@ -252,7 +268,7 @@ fn without_sync_bn_the_replicas_stay_identical_and_a_two_rank_run_resumes_on_one
     // resume the two-rank checkpoint in one process
     let _g = torch_rng();
     let mut o = opts(&data, &run);
-    o.resume = true;
+    o.checkpointing.resume = true;
     let s = train(&o, &Progress::hidden()).unwrap();
     assert_eq!(s.iterations_done, 6);
     assert_eq!(s.losses.iter().map(|l| l.0).collect::<Vec<_>>(), [5, 6]);
@@ -268,7 +284,7 @@ fn a_killed_rank_makes_the_others_fail_naming_it() {
     toy(&data);
     let run = tmp.path().join("run");
     let mut o = opts(&data, &run);
-    o.epochs = 200;
+    o.schedule.epochs = 200;
     let timeout = 30;
     let mut ranks = spawn(2, &o, &DistOptions::default(), timeout);
     // kill rank 1 once training is under way
@@ -312,7 +328,7 @@ fn dropout_is_drawn_per_sample_so_one_and_two_ranks_agree() {
     let run = |world: usize, name: &str| {
         let mut o = opts(&data, &tmp.path().join(name));
         o.model.dropout = 0.5;
-        o.stop_after = Some(3);
+        o.checkpointing.stop_after = Some(3);
         run_ranks(world, &o, &d);
         losses(&tmp.path().join(name))
     };

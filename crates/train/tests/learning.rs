@@ -2,6 +2,8 @@
 //! attention module and its head dropout leaves the label marginal (one depth everywhere)
 //! within its first epoch, and the radar input a model was trained on travels with it.
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{HardwareOptions, LoadingOptions, ScheduleOptions};
 use std::path::Path;
 
 use depthsense_checkpoint as checkpoint;
@@ -54,18 +56,27 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
         data: data.clone(),
         out: tmp.path().join("run"),
         model,
-        epochs: 1,
-        batch_size: 4,
-        lr: 3e-3,
-        seed: 0,
-        device: "cpu".into(),
-        jobs: 2,
-        prefetch: 2,
+        schedule: ScheduleOptions {
+            epochs: 1,
+            batch_size: 4,
+            lr: 3e-3,
+            seed: 0,
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 2,
+            prefetch: 2,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     };
     train(&opts, &Progress::hidden()).unwrap();
     let loaded = checkpoint::load(&opts.out.join(LAST_CKPT), tch::Device::Cpu).unwrap();
-    let part = partition(&ds, opts.val_every_scene).unwrap();
+    let part = partition(&ds, opts.validation.val_every_scene).unwrap();
     let radar = loaded.config.radar_input_for(None).unwrap();
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),
@@ -117,13 +128,22 @@ fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
         data: data.clone(),
         out: tmp.path().join("run"),
         model,
-        epochs: 1,
-        batch_size: 2,
-        seed: 1,
-        device: "cpu".into(),
-        jobs: 1,
         radar_input: Some(RadarInput::Raw),
-        max_batches_per_epoch: Some(1),
+        schedule: ScheduleOptions {
+            epochs: 1,
+            batch_size: 2,
+            seed: 1,
+            max_batches_per_epoch: Some(1),
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 1,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     };
     train(&opts, &Progress::hidden()).unwrap();

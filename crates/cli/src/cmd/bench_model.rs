@@ -13,7 +13,7 @@ pub struct Args {
           help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Batch size of the forward (inference) benchmark; 0 skips it.
     #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
     pub batch_forward: i64,

@@ -25,7 +25,7 @@ pub struct Args {
     #[arg(long, help_heading = h::TIMING, default_value_t = 8)]
     pub loader_batches: usize,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Data-loader threads (0 = all cores).
     #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     pub jobs: usize,

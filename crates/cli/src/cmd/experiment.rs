@@ -3,6 +3,8 @@
 //! `reduced-data` (SPEC §10.5), `perturb` (SPEC §10.7), `failure` (SPEC §10.8), `cost`
 //! (SPEC §10.9).
 
+use depthsense_config::ranges;
+use depthsense_config::training::{LoadingOptions, ScheduleOptions, ValidationOptions};
 use std::path::PathBuf;
 
 use crate::cmd::heading as h;
@@ -90,10 +92,17 @@ pub struct CostArgs {
     #[arg(long, help_heading = h::TIMING, default_value_t = 3)]
     pub repeats: usize,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
 }
 
-/// The training settings every run of `ablation` and `reduced-data` shares.
+/// The paper's schedule: the defaults of `train`'s flags ([`ScheduleOptions`]), which the
+/// experiments' flags share.
+fn schedule() -> ScheduleOptions {
+    ScheduleOptions::default()
+}
+
+/// The training settings every run of `ablation` and `reduced-data` shares; their defaults are
+/// `train`'s ([`depthsense_config::training`]).
 #[derive(clap::Args)]
 pub struct RunArgs {
     /// Prepared data directory (output of `depthsense prepare`, holds index.json); it must
@@ -107,39 +116,39 @@ pub struct RunArgs {
           help = crate::cmd::SET_HELP)]
     pub set: Vec<String>,
     /// Epochs of each run (paper: 40).
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 40)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = schedule().epochs, value_parser = ranges::count, allow_negative_numbers = true)]
     pub epochs: usize,
     /// Batch size of training and evaluation (paper: 8).
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 8)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = schedule().batch_size, value_parser = ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
     /// Initial learning rate (paper: 1e-3).
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-3)]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = schedule().lr, value_parser = ranges::positive, allow_negative_numbers = true)]
     pub lr: f64,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Data-loader threads (0 = all cores). Runs are trained one after another.
-    #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
+    #[arg(long, help_heading = h::DEVICE, default_value_t = LoadingOptions::default().jobs, value_parser = ranges::non_negative_usize, allow_negative_numbers = true)]
     pub jobs: usize,
     /// Validate (checkpoint selection) on at most this many validation samples.
-    #[arg(long, help_heading = h::VALIDATION)]
+    #[arg(long, help_heading = h::VALIDATION, value_parser = ranges::count, allow_negative_numbers = true)]
     pub max_val_samples: Option<usize>,
     /// Train on at most this many batches per epoch (quick runs).
-    #[arg(long, help_heading = h::SCHEDULE)]
+    #[arg(long, help_heading = h::SCHEDULE, value_parser = ranges::count, allow_negative_numbers = true)]
     pub max_batches_per_epoch: Option<usize>,
     /// Only for data without split lists: the trainer's scene partition period (see
     /// `depthsense train --help`).
-    #[arg(long, help_heading = h::VALIDATION, default_value_t = 5)]
+    #[arg(long, help_heading = h::VALIDATION, default_value_t = ValidationOptions::default().val_every_scene, value_parser = ranges::count, allow_negative_numbers = true)]
     pub val_every_scene: usize,
     /// Training-time radar dropout: each training sample loses a fraction U(0, P) of its radar
     /// returns (0 = off, the paper). See `depthsense train --help`.
-    #[arg(long, help_heading = h::DATA, default_value_t = 0.0)]
+    #[arg(long, help_heading = h::DATA, default_value_t = LoadingOptions::default().train_radar_drop, value_parser = ranges::probability, allow_negative_numbers = true)]
     pub train_radar_drop: f64,
     /// Linear learning-rate warmup over the first N iterations (0 = none, the paper).
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 0, value_name = "N")]
+    #[arg(long, help_heading = h::SCHEDULE, default_value_t = schedule().warmup_iters, value_name = "N", value_parser = ranges::non_negative_u64, allow_negative_numbers = true)]
     pub warmup: u64,
     /// An epoch (one validation) is N iterations whatever the training-set size, cycling
     /// through the training set (the demo: 35); default: one pass. `data-scale` sets it itself.
-    #[arg(long, help_heading = h::SCHEDULE, value_name = "N")]
+    #[arg(long, help_heading = h::SCHEDULE, value_name = "N", value_parser = ranges::count_u64, allow_negative_numbers = true)]
     pub epoch_iterations: Option<u64>,
 }
 

@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long, help_heading = h::OUTPUT)]
     pub out: PathBuf,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Replace the results of an earlier `explain` in --out (its explain.json, explain.md,
     /// grid.png and overlays of the same names); without it they are refused.
     #[arg(long, help_heading = h::OUTPUT)]

@@ -58,7 +58,7 @@ pub struct TrainArgs {
     #[arg(long, help_heading = h::SCHEDULE, default_value_t = 0)]
     pub seed: u64,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Continue from OUT/last.safetensors (same options required): at the iteration it was
     /// written, inside an epoch after --stop-after.
     #[arg(long, help_heading = h::OUTPUT)]
@@ -93,7 +93,7 @@ pub struct ApplyArgs {
     #[arg(long, help_heading = h::DATA)]
     pub data: PathBuf,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// Threads reading and encoding maps (0 = all cores).
     #[arg(long, help_heading = h::DEVICE, default_value_t = 0)]
     pub jobs: usize,

@@ -8,40 +8,7 @@
 pub const SET_HELP: &str = "Override one model-config option, KEY=VALUE, repeatable, applied in \
      order; every key and its values: `depthsense model-info --keys`";
 
-/// The help headings of the commands with many flags (`help_heading`), one word for one group
-/// everywhere.
-pub mod heading {
-    /// What is read: prepared data, a dataroot, the samples and how they are loaded.
-    pub const DATA: &str = "Data";
-    /// The network: its configuration, weights and overrides.
-    pub const MODEL: &str = "Model";
-    /// The learning-rate schedule, the epochs and the batches of training.
-    pub const SCHEDULE: &str = "Schedule";
-    /// Validation during training.
-    pub const VALIDATION: &str = "Validation";
-    /// How depth is scored.
-    pub const SCORING: &str = "Scoring";
-    /// How the radar is gathered.
-    pub const RADAR: &str = "Radar";
-    /// Sensor failure at test time.
-    pub const FAILURE: &str = "Sensor failure";
-    /// How a network runs over prepared samples (`inference_args`).
-    pub const INFERENCE: &str = "Inference";
-    /// What is written and where; an output folder's existing content.
-    pub const OUTPUT: &str = "Output";
-    /// The device, arithmetic and threads.
-    pub const DEVICE: &str = "Device";
-    /// Data-parallel training.
-    pub const DISTRIBUTED: &str = "Data-parallel";
-    /// The inputs of one prediction.
-    pub const INPUT: &str = "Input";
-    /// The world generated.
-    pub const WORLD: &str = "World";
-    /// What a benchmark times.
-    pub const TIMING: &str = "Timing";
-    /// The experiment's grid: variants, seeds, scenarios.
-    pub const EXPERIMENT: &str = "Experiment";
-}
+pub use depthsense_config::heading;
 
 pub mod bench;
 pub mod bench_data;
@@ -51,7 +18,6 @@ pub mod bench_synth;
 pub mod bench_train;
 pub mod calibration;
 pub mod demo;
-pub mod device_arg;
 pub mod eval;
 pub mod experiment;
 pub mod explain;
@@ -67,9 +33,9 @@ pub mod predict;
 pub mod prepare;
 pub mod progress;
 pub mod radar_args;
-pub mod ranges;
+pub use depthsense_config::ranges;
 pub mod report;
 pub mod scoring_args;
 pub mod synth;
 pub mod train;
-pub mod words;
+pub use depthsense_config::words_parser as words;

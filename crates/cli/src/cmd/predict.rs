@@ -69,7 +69,7 @@ pub struct Args {
     #[arg(long, help_heading = h::OUTPUT, default_value_t = 80.0)]
     pub max_depth: f32,
     #[command(flatten, next_help_heading = h::DEVICE)]
-    pub device: crate::cmd::device_arg::DeviceArg,
+    pub device: depthsense_config::device::DeviceArg,
     /// PDA checkpoint (`depthsense mer train`) that computes the MER maps of the input, for
     /// a model trained with `--radar-input mer` (SPEC §5). Needed for --token and --image;
     /// a prepared sample uses the maps `mer apply` wrote unless this is given.

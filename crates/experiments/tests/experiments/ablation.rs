@@ -17,7 +17,7 @@ use depthsense_experiments::ablation::{
 };
 use depthsense_experiments::Stat;
 use depthsense_progress::Progress;
-use depthsense_train::trainer::{train, TrainOptions};
+use depthsense_train::trainer::train;
 use depthsense_viz::plot::{bar_chart_png, colorize_depth, picture_row_png};
 
 fn opts(data: &Path, out: &Path) -> AblationOptions {
@@ -300,9 +300,10 @@ fn ablation_runs_reports_and_resumes() {
     o2.seeds = vec![0];
     let model = variant_models(&o2).unwrap().remove(0).1;
     let partial = train(
-        &TrainOptions {
-            stop_after: Some(1),
-            ..o2.run.train_options(out2.join("runs/rgb/seed0"), &model, 0)
+        &{
+            let mut t = o2.run.train_options(out2.join("runs/rgb/seed0"), &model, 0);
+            t.checkpointing.stop_after = Some(1);
+            t
         },
         &Progress::hidden(),
     )

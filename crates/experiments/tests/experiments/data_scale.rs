@@ -42,7 +42,7 @@ fn data_scale_trains_matched_iterations_and_writes_json_and_plot() {
     assert_eq!(png.width(), 1040, "two panels of 520 px");
     assert_eq!(r.runs.len(), 5, "2 sizes × 2 arms + 1 arm at the largest");
     for rec in &r.runs {
-        let n = rec.train_options.train_subset.unwrap();
+        let n = rec.train_options.loading.train_subset.unwrap();
         let cfg: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(rec.run_dir.join(CONFIG_FILE)).unwrap())
                 .unwrap();

@@ -3,6 +3,10 @@
 //! or corrupt lidar_dense.png, and training / predicting with the 7-channel radar input — on
 //! a toy prepared dataset (128x64 frames) and the test-only PDA preset.
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use std::path::Path;
 
 use depthsense_config::pda::{MerWindow, PdaConfig};
@@ -385,12 +389,24 @@ fn train_apply_twice_and_the_seven_channel_input() {
             .with_options(&["width=8", "decoder-channels=16", "head-channels=16"])
             .unwrap(),
         radar_input: Some(RadarInput::Mer),
-        epochs: 1,
-        batch_size: 2,
-        max_batches_per_epoch: Some(1),
-        max_val_samples: Some(1),
-        device: "cpu".into(),
-        jobs: 2,
+        schedule: ScheduleOptions {
+            epochs: 1,
+            batch_size: 2,
+            max_batches_per_epoch: Some(1),
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 2,
+            ..Default::default()
+        },
+        validation: ValidationOptions {
+            max_val_samples: Some(1),
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     };
     let err = train(&topts, &Progress::hidden()).unwrap_err().to_string();

@@ -3,6 +3,8 @@
 //! its grid, resumably.
 
 use crate::common;
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::HardwareOptions;
 
 use std::collections::BTreeSet;
 
@@ -82,8 +84,11 @@ fn exclude_withholds_exactly_the_documented_scenes() {
         model: depthsense_config::ModelConfig::tiny()
             .with_options(&small_model())
             .unwrap(),
-        device: "cpu".into(),
         exclude: ex,
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     };
     let _t = Trainer::open(&opts).unwrap();

@@ -1,6 +1,8 @@
 //! Loader, training (resume, non-finite loss, config mismatch), evaluation and prediction on
 //! a small generated prepared dataset (128x64 frames, the `tiny` preset).
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{HardwareOptions, LoadingOptions, ScheduleOptions};
 use std::path::Path;
 
 use depthsense_checkpoint as checkpoint;
@@ -36,13 +38,22 @@ fn opts(data: &Path, out: &Path, fusion: Fusion) -> TrainOptions {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
         model,
-        epochs: 10,
-        batch_size: 4,
-        lr: 3e-3,
-        seed: 5,
-        device: "cpu".into(),
-        jobs: 2,
-        prefetch: 2,
+        schedule: ScheduleOptions {
+            epochs: 10,
+            batch_size: 4,
+            lr: 3e-3,
+            seed: 5,
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 2,
+            prefetch: 2,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
         ..TrainOptions::default()
     }
 }
@@ -383,12 +394,12 @@ fn train_resume_mismatch_eval_predict() {
     // Interrupted mid-epoch at iteration 18, then resumed.
     let b_dir = tmp.path().join("b");
     let mut o = opts(&data, &b_dir, Fusion::Late);
-    o.stop_after = Some(18);
+    o.checkpointing.stop_after = Some(18);
     let part1 = train(&o, &pb).unwrap();
     assert!(part1.interrupted);
     assert_eq!(part1.iterations_done, 18);
-    o.stop_after = None;
-    o.resume = true;
+    o.checkpointing.stop_after = None;
+    o.checkpointing.resume = true;
     let part2 = train(&o, &pb).unwrap();
     assert_eq!(part2.iterations_done, 40);
     let mut joined = part1.losses.clone();
@@ -411,11 +422,11 @@ fn train_resume_mismatch_eval_predict() {
     // Interrupted inside the first epoch (no validation yet), then resumed.
     let c_dir = tmp.path().join("c");
     let mut o = opts(&data, &c_dir, Fusion::Late);
-    o.epochs = 1;
-    o.stop_after = Some(2);
+    o.schedule.epochs = 1;
+    o.checkpointing.stop_after = Some(2);
     assert!(train(&o, &pb).unwrap().interrupted);
-    o.stop_after = None;
-    o.resume = true;
+    o.checkpointing.stop_after = None;
+    o.checkpointing.resume = true;
     let c = train(&o, &pb).unwrap();
     assert_eq!(c.losses.len(), 2);
     assert_eq!(c.iterations_done, 4);
@@ -423,7 +434,7 @@ fn train_resume_mismatch_eval_predict() {
 
     // Resuming into another configuration: error naming the tensors with both shapes.
     let mut other = opts(&data, &b_dir, Fusion::Late);
-    other.resume = true;
+    other.checkpointing.resume = true;
     other.model.head = HeadKind::L1;
     let err = train(&other, &pb).expect_err("mismatch must fail");
     let msg = err.to_string();
@@ -512,10 +523,10 @@ fn non_finite_loss_stops_and_keeps_the_last_good_checkpoint() {
     toy(&data, 5, 4);
     let run = tmp.path().join("run");
     let mut o = opts(&data, &run, Fusion::None);
-    o.epochs = 50;
-    o.lr = 1e30; // diverges within a few steps: a real non-finite loss
-    o.checkpoint_every = 1;
-    o.max_val_samples = Some(1);
+    o.schedule.epochs = 50;
+    o.schedule.lr = 1e30; // diverges within a few steps: a real non-finite loss
+    o.checkpointing.checkpoint_every = 1;
+    o.validation.max_val_samples = Some(1);
     let err = train(&o, &Progress::hidden()).expect_err("must stop");
     let msg = err.to_string();
     let NetError::NonFiniteLoss { iteration, .. } = err else {
@@ -550,11 +561,11 @@ fn deferred_loss_read_reports_the_first_non_finite_iteration() {
     let run_with = |every: u64, checkpoint_every: u64| {
         let run = tmp.path().join(format!("run{every}-{checkpoint_every}"));
         let mut o = opts(&data, &run, Fusion::None);
-        o.epochs = 50;
-        o.lr = 1e30; // diverges within a few steps
-        o.max_val_samples = Some(1);
-        o.loss_read_every = every;
-        o.checkpoint_every = checkpoint_every;
+        o.schedule.epochs = 50;
+        o.schedule.lr = 1e30; // diverges within a few steps
+        o.validation.max_val_samples = Some(1);
+        o.hardware.loss_read_every = every;
+        o.checkpointing.checkpoint_every = checkpoint_every;
         let err = train(&o, &Progress::hidden()).expect_err("must stop");
         let NetError::NonFiniteLoss { iteration, .. } = err else {
             panic!("expected a non-finite-loss error, got {err}");
@@ -597,9 +608,9 @@ fn deferred_loss_read_trains_identically() {
     let run_with = |every: u64| {
         let run = tmp.path().join(format!("run{every}"));
         let mut o = opts(&data, &run, Fusion::Late);
-        o.epochs = 2;
-        o.max_val_samples = Some(2);
-        o.loss_read_every = every;
+        o.schedule.epochs = 2;
+        o.validation.max_val_samples = Some(2);
+        o.hardware.loss_read_every = every;
         let s = train(&o, &Progress::hidden()).unwrap();
         let l = checkpoint::load(&run.join(LAST_CKPT), tch::Device::Cpu).unwrap();
         let mut w: Vec<(String, Vec<f32>)> =

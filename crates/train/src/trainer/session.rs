@@ -57,14 +57,8 @@ pub struct Trainer<'o> {
     /// Batches per epoch and total iterations.
     bpe: u64,
     total: u64,
-    started: Instant,
-    images: usize,
-    /// Seconds in training steps (loader waits included) and in validation, this invocation.
-    train_secs: f64,
-    val_secs: f64,
-    /// `images` and `train_secs` when the current epoch began (this invocation): the epoch's
-    /// own rate, without the first epoch's warm-up (cuDNN autotuning, first allocations).
-    epoch_mark: (usize, f64),
+    /// This invocation's clock and image count.
+    timing: Timing,
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
     /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
@@ -75,10 +69,36 @@ pub struct Trainer<'o> {
     losses: Vec<(u64, f64)>,
     /// The current epoch's losses (pending and read).
     acc: EpochLosses,
-    /// When the previous step ended (a step's time includes waiting for its batch).
-    step_ended: Instant,
     /// Whether this invocation wrote RUN/best.safetensors.
     best_written: bool,
+}
+
+/// This invocation's clock: where its time went and how many images it trained on.
+struct Timing {
+    started: Instant,
+    images: usize,
+    /// Seconds in training steps (loader waits included) and in validation, this invocation.
+    train_secs: f64,
+    val_secs: f64,
+    /// `images` and `train_secs` when the current epoch began (this invocation): the epoch's
+    /// own rate, without the first epoch's warm-up (cuDNN autotuning, first allocations).
+    epoch_mark: (usize, f64),
+    /// When the previous step ended (a step's time includes waiting for its batch).
+    step_ended: Instant,
+}
+
+impl Timing {
+    /// The clock of an invocation that started at `started`.
+    fn new(started: Instant) -> Self {
+        Self {
+            started,
+            images: 0,
+            train_secs: 0.0,
+            val_secs: 0.0,
+            epoch_mark: (0, 0.0),
+            step_ended: Instant::now(),
+        }
+    }
 }
 
 /// One optimiser step whose loss has not been read yet.
@@ -127,29 +147,22 @@ impl<'o> Trainer<'o> {
     }
 
     /// [`Trainer::open`] for one rank of a data-parallel job (`None`: a single process);
-    /// `opts.batch_size` is the global batch (see [`crate::distributed`]).
+    /// `opts.schedule.batch_size` is the global batch (see [`crate::distributed`]).
     pub fn open_with_dist(
         opts: &'o TrainOptions,
         mut dist: Option<Dist>,
     ) -> Result<Opened<'o>, NetError> {
         let started = Instant::now();
         let main = check_options(opts, dist.as_ref())?;
-        // One writer per run folder, and a finished run is never replaced silently
-        // (crate::outputs): refused unless --resume or --force.
-        let continues = opts.resume || opts.extend;
-        let lock = if main {
-            Some(lock_run_folder(&opts.out, "train", continues, opts.force)?)
-        } else {
-            None
-        };
-        let device = depthsense_model::device::parse_device(&opts.device)?;
+        let lock = main.then(|| take_run_folder(opts)).transpose()?;
+        let device = depthsense_model::device::parse_device(&opts.hardware.device.name)?;
         depthsense_model::device::autotune_fixed_size(device);
         let (ds, part) = open_partition(opts)?;
-        let val_entries = subsample(&part.val, opts.max_val_samples);
+        let val_entries = subsample(&part.val, opts.validation.max_val_samples);
         let run = opts.out.clone();
         std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
-        let bpe = batches_per_epoch(opts, part.train.len());
+        let bpe = opts.schedule.iterations_per_epoch(part.train.len());
         // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
         let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
         let ((vs, net, mut state, optim), optim_matches) =
@@ -157,7 +170,10 @@ impl<'o> Trainer<'o> {
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
         }
-        if opts.resume && !opts.extend && state.iteration >= plan_of(opts, bpe).total_iterations() {
+        if opts.checkpointing.resume
+            && !opts.checkpointing.extend
+            && state.iteration >= plan_of(opts, bpe).total_iterations()
+        {
             return Ok(Opened::Finished(Box::new(finished_summary(
                 opts,
                 &state,
@@ -168,7 +184,7 @@ impl<'o> Trainer<'o> {
             ))));
         }
         if let Some(d) = dist.as_mut() {
-            attach(d, &vs, part.train.len(), opts.batch_size)?;
+            attach(d, &vs, part.train.len(), opts.schedule.batch_size)?;
         }
         let load = train_load_options(opts, &cfg)?;
         let trainer = Trainer {
@@ -186,17 +202,12 @@ impl<'o> Trainer<'o> {
             run: run.clone(),
             bpe,
             total: plan_of(opts, bpe).total_iterations(),
-            started,
-            images: 0,
-            train_secs: 0.0,
-            val_secs: 0.0,
-            epoch_mark: (0, 0.0),
+            timing: Timing::new(started),
             dist,
             _lock: lock,
             ckpt: Checkpointer::new(&run, optim_matches),
             losses: vec![],
             acc: EpochLosses::default(),
-            step_ended: Instant::now(),
             best_written: false,
         };
         if main {
@@ -276,8 +287,8 @@ impl<'o> Trainer<'o> {
             shard,
             &self.load,
             &self.opts.eval,
-            self.opts.batch_size,
-            self.opts.jobs,
+            self.opts.schedule.batch_size,
+            self.opts.loading.jobs,
             self.device,
             &Progress::hidden(),
         )?;
@@ -292,13 +303,13 @@ impl<'o> Trainer<'o> {
     fn validate_timed(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         let t = Instant::now();
         let v = self.validate(epoch);
-        self.val_secs += t.elapsed().as_secs_f64();
+        self.timing.val_secs += t.elapsed().as_secs_f64();
         v
     }
 
     /// Iterations between two reads of the losses (see [`TrainOptions::loss_read_every`]).
     fn loss_read_every(&self) -> usize {
-        match self.opts.loss_read_every {
+        match self.opts.hardware.loss_read_every {
             _ if self.dist.is_some() => 1,
             0 if self.device.is_cuda() => super::CUDA_LOSS_READ_EVERY as usize,
             0 => 1,
@@ -331,12 +342,18 @@ impl<'o> Trainer<'o> {
             .rev()
             .find(|s| s.start_iteration <= it)
         {
-            None => warmup_poly_lr(o.lr, it, self.total, o.lr_power, o.warmup_iters),
+            None => warmup_poly_lr(
+                o.schedule.lr,
+                it,
+                self.total,
+                o.schedule.lr_power,
+                o.schedule.warmup_iters,
+            ),
             Some(s) => warmup_poly_lr(
                 s.lr,
                 it - s.start_iteration,
                 s.end_iteration - s.start_iteration,
-                o.lr_power,
+                o.schedule.lr_power,
                 s.warmup,
             ),
         }
@@ -350,10 +367,10 @@ impl<'o> Trainer<'o> {
         let it = self.state.iteration;
         let lr = self.lr_at(it);
         // Dropout draws depend only on (seed, iteration): exact resume.
-        seed_step(opts.seed, it);
-        let precision = step_precision(opts.amp);
+        seed_step(opts.schedule.seed, it);
+        let precision = step_precision(opts.hardware.amp);
         if let Some(d) = &self.dist {
-            d.before_forward(opts.seed, it, batch.size)?;
+            d.before_forward(opts.schedule.seed, it, batch.size)?;
         }
         let loss = forward_loss(&self.net, &bt, precision);
         let value = if self.loss_read_every() == 1 {
@@ -419,7 +436,7 @@ impl<'o> Trainer<'o> {
             progress.set_message(format!(
                 "epoch {}/{} loss {lv:.4} lr {:.2e} {:.1} img/s",
                 epoch + 1,
-                self.opts.epochs,
+                self.opts.schedule.epochs,
                 p.lr,
                 p.images as f64 / p.seconds.max(1e-9)
             ));
@@ -455,10 +472,10 @@ impl<'o> Trainer<'o> {
     /// Epoch end: validate, checkpoint (best when improved), log, plot.
     fn close_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         let (epoch_loss, epoch_n) = (self.acc.sum, self.acc.n);
-        let (mark_images, mark_secs) = self.epoch_mark;
-        let epoch_rate =
-            (self.images - mark_images) as f64 / (self.train_secs - mark_secs).max(1e-9);
-        self.epoch_mark = (self.images, self.train_secs);
+        let (mark_images, mark_secs) = self.timing.epoch_mark;
+        let epoch_rate = (self.timing.images - mark_images) as f64
+            / (self.timing.train_secs - mark_secs).max(1e-9);
+        self.timing.epoch_mark = (self.timing.images, self.timing.train_secs);
         let v = self.validate_timed(epoch + 1)?;
         self.state.epoch = epoch + 1;
         self.state.val_rmse = Some(v.rmse);
@@ -475,11 +492,11 @@ impl<'o> Trainer<'o> {
             &self.path(METRICS_FILE),
             &MetricsRecord::Epoch(EpochRecord {
                 lr: Some(self.lr_at(it)),
-                images_per_s: Some(self.images as f64 / self.train_secs.max(1e-9)),
+                images_per_s: Some(self.timing.images as f64 / self.timing.train_secs.max(1e-9)),
                 epoch_images_per_s: Some(epoch_rate),
-                train_seconds: Some(self.train_secs),
-                val_seconds: Some(self.val_secs),
-                seconds: Some(self.started.elapsed().as_secs_f64()),
+                train_seconds: Some(self.timing.train_secs),
+                val_seconds: Some(self.timing.val_secs),
+                seconds: Some(self.timing.started.elapsed().as_secs_f64()),
                 ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
             }),
         )?;
@@ -529,22 +546,28 @@ impl<'o> Trainer<'o> {
     fn epoch_loader(&mut self, epoch: u64, skip: u64) -> Result<Loader, NetError> {
         let opts = self.opts;
         // An epoch of `epoch_iterations` draws its samples from the stream of passes itself.
-        let (entries, shuffle) = match opts.epoch_iterations {
+        let (entries, shuffle) = match opts.schedule.epoch_iterations {
             Some(block) => (
-                block_entries(&self.part.train, opts.seed, epoch, block, opts.batch_size),
+                block_entries(
+                    &self.part.train,
+                    opts.schedule.seed,
+                    epoch,
+                    block,
+                    opts.schedule.batch_size,
+                ),
                 false,
             ),
             None => (self.part.train.clone(), true),
         };
         let plan = EpochPlan {
-            drop_last: entries.len() / opts.batch_size > 0,
+            drop_last: entries.len() / opts.schedule.batch_size > 0,
             entries,
-            batch_size: opts.batch_size,
+            batch_size: opts.schedule.batch_size,
             epoch,
             shuffle,
             skip_batches: skip as usize,
-            jobs: opts.jobs,
-            prefetch: opts.prefetch,
+            jobs: opts.loading.jobs,
+            prefetch: opts.loading.prefetch,
         };
         let (rank, world) = self.rank_world();
         let loader = Loader::start_shard(&self.ds, &self.load, &plan, rank, world)?;
@@ -554,7 +577,7 @@ impl<'o> Trainer<'o> {
             (self.acc.sum, self.acc.n) =
                 logged_loss_sum(&path, epoch * self.bpe, self.state.iteration);
         }
-        self.step_ended = Instant::now();
+        self.timing.step_ended = Instant::now();
         Ok(loader)
     }
 
@@ -606,11 +629,11 @@ impl<'o> Trainer<'o> {
             self.part.train.len(),
             self.val_entries.len(),
             o.data.display(),
-            o.epochs,
+            o.schedule.epochs,
             self.bpe,
             self.total,
-            o.batch_size,
-            o.lr,
+            o.schedule.batch_size,
+            o.schedule.lr,
             depthsense_model::device::describe(self.device),
             self.run.display()
         )
@@ -620,10 +643,10 @@ impl<'o> Trainer<'o> {
         summary.iterations_done = self.state.iteration;
         summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
         summary.best = self.best();
-        summary.train_images_per_s = self.images as f64 / self.train_secs.max(1e-9);
-        summary.train_seconds = self.train_secs;
-        summary.val_seconds = self.val_secs;
-        summary.seconds = self.started.elapsed().as_secs_f64();
+        summary.train_images_per_s = self.timing.images as f64 / self.timing.train_secs.max(1e-9);
+        summary.train_seconds = self.timing.train_secs;
+        summary.val_seconds = self.timing.val_secs;
+        summary.seconds = self.timing.started.elapsed().as_secs_f64();
         let metrics = self.path(METRICS_FILE);
         if self.is_main() && metrics.exists() {
             write_curves(&metrics, &self.path(CURVES_FILE))?;
@@ -674,11 +697,11 @@ impl Learner for Trainer<'_> {
 
     fn step(&mut self, batch: Batch, epoch: u64, progress: &Progress) -> Result<u64, NetError> {
         let mut p = self.sgd_step(&batch, epoch)?;
-        p.seconds = self.step_ended.elapsed().as_secs_f64();
-        self.step_ended = Instant::now();
+        p.seconds = self.timing.step_ended.elapsed().as_secs_f64();
+        self.timing.step_ended = Instant::now();
         let it = p.iteration;
-        self.train_secs += p.seconds;
-        self.images += batch.size * self.rank_world().1;
+        self.timing.train_secs += p.seconds;
+        self.timing.images += batch.size * self.rank_world().1;
         self.acc.pending.push(p);
         if self.acc.pending.len() >= self.loss_read_every() {
             self.read_losses(epoch, progress)?;
@@ -712,9 +735,9 @@ impl Learner for Trainer<'_> {
 fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
     Plan {
         iterations_per_epoch,
-        epochs: opts.epochs as u64,
-        checkpoint_every: opts.checkpoint_every,
-        stop_after: opts.stop_after,
+        epochs: opts.schedule.epochs as u64,
+        checkpoint_every: opts.checkpointing.checkpoint_every,
+        stop_after: opts.checkpointing.stop_after,
     }
 }
 
@@ -750,43 +773,39 @@ fn finished_summary(
         val_samples_used,
         already_finished: Some(super::FinishedRun {
             run: opts.out.clone(),
-            epochs: opts.epochs,
+            epochs: opts.schedule.epochs,
             iteration: state.iteration,
         }),
     }
 }
 
-/// Iterations per epoch: full batches of the training samples (at least one), at most
-/// `--max-batches-per-epoch`.
-fn batches_per_epoch(opts: &TrainOptions, train_samples: usize) -> u64 {
-    if let Some(n) = opts.epoch_iterations {
-        return n.max(1);
-    }
-    let full_batches = train_samples / opts.batch_size;
-    let natural = if full_batches > 0 { full_batches } else { 1 };
-    opts.max_batches_per_epoch
-        .map_or(natural, |m| m.min(natural).max(1)) as u64
+/// Takes the run folder for this process (rank 0, or the only one): one writer per run folder,
+/// and a finished run is never replaced silently (crate::outputs): refused unless --resume,
+/// --extend or --force.
+fn take_run_folder(opts: &TrainOptions) -> Result<OutputLock, NetError> {
+    let c = &opts.checkpointing;
+    lock_run_folder(&opts.out, "train", c.resume || c.extend, c.force)
 }
 
 /// The options every rank checks before touching the run folder; returns whether this is the
 /// main process (rank 0, or a single process).
 fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, NetError> {
-    if opts.batch_size == 0 || opts.epochs == 0 {
+    if opts.schedule.batch_size == 0 || opts.schedule.epochs == 0 {
         return Err(NetError::Config(
             "batch size and epochs must be at least 1".into(),
         ));
     }
-    if !(0.0..=1.0).contains(&opts.train_radar_drop) {
+    if !(0.0..=1.0).contains(&opts.loading.train_radar_drop) {
         return Err(NetError::Config(format!(
             "train radar drop {} is not a fraction in [0, 1]",
-            opts.train_radar_drop
+            opts.loading.train_radar_drop
         )));
     }
     let (main, world) = dist.map_or((true, 1), |d| (d.is_main(), d.world_size()));
-    if !opts.batch_size.is_multiple_of(world) {
+    if !opts.schedule.batch_size.is_multiple_of(world) {
         return Err(NetError::Config(format!(
             "the global batch size {} is not a multiple of the {world} ranks",
-            opts.batch_size
+            opts.schedule.batch_size
         )));
     }
     Ok(main)
@@ -796,9 +815,9 @@ fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, NetEr
 /// training and the validation partition must hold samples.
 fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), NetError> {
     let ds = Dataset::open(&opts.data)?;
-    let mut part = partition(&ds, opts.val_every_scene)?;
+    let mut part = partition(&ds, opts.validation.val_every_scene)?;
     depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
-    if let Some(n) = opts.train_subset {
+    if let Some(n) = opts.loading.train_subset {
         if n > part.train.len() {
             return Err(NetError::Config(format!(
                 "--train-subset {n}: {} holds only {} training samples",
@@ -856,15 +875,15 @@ fn train_load_options(opts: &TrainOptions, cfg: &ModelConfig) -> Result<LoadOpti
     let radar = cfg.radar_input_for(opts.radar_input)?;
     Ok(LoadOptions {
         radar: radar.unwrap_or_default(),
-        target: opts.target,
-        augment: opts.augment,
+        target: opts.loading.target,
+        augment: opts.loading.augment,
         eval_maps: false,
         no_radar: radar.is_none(),
         radar_drop: 0.0,
-        seed: opts.seed,
+        seed: opts.schedule.seed,
         failure: Default::default(),
-        train_radar_drop: opts.train_radar_drop,
-        radar_oracle: opts.radar_oracle,
+        train_radar_drop: opts.loading.train_radar_drop,
+        radar_oracle: opts.loading.radar_oracle,
     })
 }
 
@@ -909,10 +928,10 @@ fn network(
     hooks: &TrainHooks,
 ) -> Result<(Built, bool), NetError> {
     let run = &opts.out;
-    if (opts.resume || opts.extend) && run.join(LAST_CKPT).exists() {
+    if (opts.checkpointing.resume || opts.checkpointing.extend) && run.join(LAST_CKPT).exists() {
         return resume(opts, run, cfg, device, main, bpe, hooks);
     }
-    if opts.extend {
+    if opts.checkpointing.extend {
         return Err(NetError::Config(format!(
             "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, without \
              --extend",
@@ -963,13 +982,13 @@ fn fresh(
     hooks: &TrainHooks,
 ) -> Result<Built, NetError> {
     let last = run.join(LAST_CKPT);
-    if opts.resume && main {
+    if opts.checkpointing.resume && main {
         eprintln!(
             "note: --resume given but {} does not exist: starting from scratch",
             last.display()
         );
     }
-    tch::manual_seed(opts.seed as i64);
+    tch::manual_seed(opts.schedule.seed as i64);
     let mut vs = VarStore::new(device);
     let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     if let Some(w) = &opts.backbone_weights {
@@ -977,45 +996,49 @@ fn fresh(
         eprintln!("backbone weights from {}:\n{report}", w.display());
     }
     let init_from = match &opts.init_from {
-        Some(p) => {
-            let r = depthsense_checkpoint::weights::init_from(&mut vs, p)?;
-            if main {
-                eprintln!(
-                    "initialised from {} (tensors it lacks are new, \"left random\"):\n{r}",
-                    p.display()
-                );
-            }
-            Some(serde_json::json!({
-                "file": p.display().to_string(),
-                "loaded": r.loaded.len(),
-                "partly_loaded": r.partial.iter().map(|(k, _)| k).collect::<Vec<_>>(),
-                "new": r.left_random,
-                "unused_file_tensors": r.unused.len() + r.skipped.len(),
-            }))
-        }
+        Some(p) => Some(init_from(&mut vs, p, main)?),
         None => None,
     };
     if main {
         let _ = std::fs::remove_file(run.join(METRICS_FILE));
     }
-    let optim = Sgd::new(&vs, opts.momentum, opts.weight_decay);
+    let optim = Sgd::new(&vs, opts.schedule.momentum, opts.schedule.weight_decay);
     let state = State {
         kind: "depthsense-train".into(),
         iteration: 0,
         epoch: 0,
-        seed: opts.seed,
+        seed: opts.schedule.seed,
         best_val_rmse: None,
         best_iteration: None,
         best_epoch: None,
-        batch_size: opts.batch_size,
-        epochs: opts.epochs,
-        lr: opts.lr,
+        batch_size: opts.schedule.batch_size,
+        epochs: opts.schedule.epochs,
+        lr: opts.schedule.lr,
         val_rmse: None,
         schedule: vec![],
         init_from,
         data_settings: Default::default(),
     };
     Ok((vs, net, state, optim))
+}
+
+/// `--init-from`: the fresh network in `vs` starts from the weights of `file`; what was
+/// loaded is said (by the main process) and returned as config.json's `"init_from"`.
+fn init_from(vs: &mut VarStore, file: &Path, main: bool) -> Result<serde_json::Value, NetError> {
+    let r = depthsense_checkpoint::weights::init_from(vs, file)?;
+    if main {
+        eprintln!(
+            "initialised from {} (tensors it lacks are new, \"left random\"):\n{r}",
+            file.display()
+        );
+    }
+    Ok(serde_json::json!({
+        "file": file.display().to_string(),
+        "loaded": r.loaded.len(),
+        "partly_loaded": r.partial.iter().map(|(k, _)| k).collect::<Vec<_>>(),
+        "new": r.left_random,
+        "unused_file_tensors": r.unused.len() + r.skipped.len(),
+    }))
 }
 
 /// The network, state and optimiser of RUN/last.safetensors, checked against `opts`; and
@@ -1054,13 +1077,26 @@ fn resume(
             path: last.to_path_buf(),
             reason: format!("train_state: {e}"),
         })?;
-    if opts.extend {
+    if opts.checkpointing.extend {
         extend_schedule(opts, &last, &mut state, bpe)?;
     }
-    if state.batch_size != opts.batch_size
-        || state.epochs != opts.epochs
-        || state.lr != opts.lr
-        || state.seed != opts.seed
+    check_same_schedule(&state, opts, &last)?;
+    let mut optim = Sgd::new(&vs, opts.schedule.momentum, opts.schedule.weight_decay);
+    let matches =
+        optim_state::load_matching(&last_optim, &last, state.iteration, |p| optim.load(p))?;
+    if main {
+        truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
+    }
+    Ok(((vs, net, state, optim), matches))
+}
+
+/// An exact resume continues the same computation: the checkpoint's batch size, epochs,
+/// learning rate and seed must be the options' (`--extend` has updated epochs and lr first).
+fn check_same_schedule(state: &State, opts: &TrainOptions, last: &Path) -> Result<(), NetError> {
+    if state.batch_size != opts.schedule.batch_size
+        || state.epochs != opts.schedule.epochs
+        || state.lr != opts.schedule.lr
+        || state.seed != opts.schedule.seed
     {
         return Err(NetError::Config(format!(
             "--resume: {} was trained with batch {} epochs {} lr {} seed {}; \
@@ -1070,23 +1106,17 @@ fn resume(
             state.epochs,
             state.lr,
             state.seed,
-            opts.batch_size,
-            opts.epochs,
-            opts.lr,
-            opts.seed
+            opts.schedule.batch_size,
+            opts.schedule.epochs,
+            opts.schedule.lr,
+            opts.schedule.seed
         )));
     }
-    let mut optim = Sgd::new(&vs, opts.momentum, opts.weight_decay);
-    let matches =
-        optim_state::load_matching(&last_optim, &last, state.iteration, |p| optim.load(p))?;
-    if main {
-        truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
-    }
-    Ok(((vs, net, state, optim), matches))
+    Ok(())
 }
 
 /// `--extend`: a new learning-rate segment from the checkpoint's iteration to the end of
-/// `opts.epochs` (poly decay from `opts.lr` to 0); the run's first segment is written out when
+/// `opts.schedule.epochs` (poly decay from `opts.schedule.lr` to 0); the run's first segment is written out when
 /// this is its first extension. Batch size and seed must stay.
 fn extend_schedule(
     opts: &TrainOptions,
@@ -1094,7 +1124,7 @@ fn extend_schedule(
     state: &mut State,
     bpe: u64,
 ) -> Result<(), NetError> {
-    if opts.epochs <= state.epochs {
+    if opts.schedule.epochs <= state.epochs {
         return Err(NetError::Config(format!(
             "--extend: {} has {} epochs; give more with --epochs (e.g. --epochs {})",
             last.display(),
@@ -1102,15 +1132,15 @@ fn extend_schedule(
             2 * state.epochs
         )));
     }
-    if state.batch_size != opts.batch_size || state.seed != opts.seed {
+    if state.batch_size != opts.schedule.batch_size || state.seed != opts.schedule.seed {
         return Err(NetError::Config(format!(
             "--extend: {} was trained with batch {} seed {}; an extension keeps them (got \
              batch {} seed {})",
             last.display(),
             state.batch_size,
             state.seed,
-            opts.batch_size,
-            opts.seed
+            opts.schedule.batch_size,
+            opts.schedule.seed
         )));
     }
     if state.schedule.is_empty() {
@@ -1118,17 +1148,17 @@ fn extend_schedule(
             start_iteration: 0,
             end_iteration: bpe * state.epochs as u64,
             lr: state.lr,
-            warmup: opts.warmup_iters,
+            warmup: opts.schedule.warmup_iters,
         });
     }
     state.schedule.push(super::Segment {
         start_iteration: state.iteration,
-        end_iteration: bpe * opts.epochs as u64,
-        lr: opts.lr,
+        end_iteration: bpe * opts.schedule.epochs as u64,
+        lr: opts.schedule.lr,
         warmup: 0,
     });
-    state.epochs = opts.epochs;
-    state.lr = opts.lr;
+    state.epochs = opts.schedule.epochs;
+    state.lr = opts.schedule.lr;
     Ok(())
 }
 

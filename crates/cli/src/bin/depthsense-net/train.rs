@@ -4,6 +4,7 @@ use depthsense_cli::cmd::progress::progress_bar;
 /// This process's arguments without `--nproc N` (what each worker runs).
 use depthsense_cli::cmd::train::Args;
 use depthsense_cli::stop::invocation;
+use depthsense_config::training::DistributedOptions;
 use depthsense_config::RadarInput;
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_dist::DistEnv;
@@ -30,18 +31,12 @@ fn worker_args() -> Vec<OsString> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let timeout = Duration::from_secs(a.dist_timeout.max(1));
-    if let Some(n) = a.nproc {
-        return launch_workers(&a, n, timeout);
+    if let Some(n) = a.distributed.nproc {
+        return launch_workers(&a, n);
     }
-    let dist = DistArgs {
-        sync_bn: a.sync_bn,
-        bucket_mb: a.bucket_mb,
-        check_replicas: a.check_replicas,
-        timeout,
-    };
+    let dist = a.distributed.clone();
     let out = a.out.clone();
-    let cuda = match a.device.name.as_str() {
+    let cuda = match a.hardware.device.name.as_str() {
         "cpu" => false,
         d if d.starts_with("cuda") => true,
         _ => tch::Cuda::is_available(),
@@ -78,9 +73,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 
 /// `--nproc N`: refuse a used run folder before any worker starts, then run N local workers
 /// (each this command without `--nproc`) and wait for them.
-fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitCode> {
+fn launch_workers(a: &Args, n: usize) -> anyhow::Result<ExitCode> {
     // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
-    if !a.resume && !a.extend && !a.force {
+    let c = &a.checkpointing;
+    if !c.resume && !c.extend && !c.force {
         depthsense_dataset::outputs::claim_run_folder(&a.out, "train", false, false)?;
     }
     // Another writer fails us here, at once (taken and released: rank 0 holds it next).
@@ -95,8 +91,8 @@ fn launch_workers(a: &Args, n: usize, timeout: Duration) -> anyhow::Result<ExitC
     let stopped = depthsense_dist::launch::launch_local(
         n,
         &worker_args(),
-        a.master_port,
-        timeout + Duration::from_secs(30),
+        a.distributed.master_port,
+        a.distributed.timeout() + Duration::from_secs(30),
     )?;
     // Rank 0 printed where it stopped and how to continue.
     Ok(stopped.map_or(ExitCode::SUCCESS, |sig| ExitCode::from(sig.exit_code())))
@@ -127,52 +123,31 @@ fn model_config(a: &Args) -> anyhow::Result<ModelConfig> {
     Ok(model.with_options(&a.set)?)
 }
 
-/// The trainer's options from the command line and the resolved `model`.
+/// The trainer's options from the command line and the resolved `model`: the option groups
+/// move over as they were parsed.
 fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
     Ok(TrainOptions {
         data: a.data,
-        out: a.out.clone(),
+        out: a.out,
         command: depthsense_cli::stop::invocation(),
         model,
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        lr_power: a.lr_power,
-        momentum: a.momentum,
-        weight_decay: a.weight_decay,
-        seed: a.seed,
-        device: a.device.name,
-        amp: a.amp,
+        schedule: a.schedule,
+        loading: a.loading,
+        validation: a.validation,
+        checkpointing: a.checkpointing,
+        hardware: a.hardware,
         backbone_weights: a.backbone_weights,
-        resume: a.resume,
-        force: a.force,
         init_from: a.init_from,
-        extend: a.extend,
-        train_subset: a.train_subset,
-        epoch_iterations: a.epoch_iterations,
-        jobs: a.jobs,
-        prefetch: a.prefetch,
         radar_input: a
             .radar_input
             .as_deref()
             .map(str::parse::<RadarInput>)
             .transpose()?,
-        target: a.target,
-        augment: !a.no_augment,
-        val_every_scene: a.val_every_scene,
         exclude: a
             .exclude
             .iter()
             .map(|x| x.parse::<depthsense_data::exclusion::Exclusion>())
             .collect::<Result<Vec<_>, _>>()?,
-        max_val_samples: a.max_val_samples,
-        max_batches_per_epoch: a.max_batches_per_epoch,
-        checkpoint_every: a.checkpoint_every,
-        loss_read_every: a.loss_read_every,
-        train_radar_drop: a.train_radar_drop,
-        radar_oracle: a.radar_oracle,
-        warmup_iters: a.warmup,
-        stop_after: a.stop_after,
         eval: EvalConfig {
             protocol: a.scoring.protocol,
             aggregate: a.scoring.aggregate,
@@ -181,20 +156,11 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
     })
 }
 
-/// The data-parallel options of the command line.
-struct DistArgs {
-    sync_bn: bool,
-    bucket_mb: f64,
-    check_replicas: bool,
-    /// Rendezvous and collective timeout.
-    timeout: Duration,
-}
-
 /// Train in this process: alone, or as one rank of the job the environment describes.
 /// `None` on ranks other than 0 (they print nothing).
 fn train_this_process(
     mut opts: TrainOptions,
-    d: &DistArgs,
+    d: &DistributedOptions,
 ) -> anyhow::Result<Option<(TrainSummary, Progress)>> {
     let env = match DistEnv::from_env()? {
         None => {
@@ -206,15 +172,16 @@ fn train_this_process(
         }
         Some(env) => env,
     };
-    opts.device = distributed::device_for_local_rank(&opts.device, env.local_rank);
-    let device = depthsense_model::device::parse_device(&opts.device)?;
+    let device_name = &mut opts.hardware.device.name;
+    *device_name = distributed::device_for_local_rank(device_name, env.local_rank);
+    let device = depthsense_model::device::parse_device(device_name)?;
     let dopts = DistOptions {
         sync_bn: d.sync_bn,
-        bucket_bytes: (d.bucket_mb.max(0.001) * 1024.0 * 1024.0) as usize,
+        bucket_bytes: d.bucket_bytes(),
         check_replicas: d.check_replicas,
     };
     let who = format!("rank {} of {}", env.rank, env.world_size);
-    let dist = Dist::from_env(dopts, device, d.timeout)
+    let dist = Dist::from_env(dopts, device, d.timeout())
         .map_err(|e| anyhow::anyhow!("{who}: {e}"))?
         .ok_or_else(|| anyhow::anyhow!("{who}: the distributed environment vanished"))?;
     let pb = if env.rank == 0 {

@@ -61,36 +61,35 @@ impl<T: Words + Send + Sync> TypedValueParser for WordParser<T> {
 
 #[cfg(test)]
 mod tests {
+    use crate::flags::{ExportFormat, Precision};
     use clap::Parser;
-    use depthsense_metrics::Protocol;
 
     #[derive(Parser)]
     struct Probe {
-        #[arg(long, default_value = "mask", value_parser = super::words::<Protocol>())]
-        protocol: Protocol,
-        #[arg(long, value_delimiter = ',', value_parser = super::words::<depthsense_config::flags::Precision>())]
-        precision: Vec<depthsense_config::flags::Precision>,
+        #[arg(long, default_value = "onnx", value_parser = super::words::<ExportFormat>())]
+        format: ExportFormat,
+        #[arg(long, value_delimiter = ',', value_parser = super::words::<Precision>())]
+        precision: Vec<Precision>,
     }
 
     #[test]
     fn words_parse_case_blind_with_aliases_and_refusals_list_the_names() {
-        use depthsense_config::flags::Precision;
-        let p = Probe::try_parse_from(["x", "--protocol", "RadarNet", "--precision", "half,bf16"])
+        let p = Probe::try_parse_from(["x", "--format", "TorchScript", "--precision", "half,bf16"])
             .unwrap();
-        assert_eq!(p.protocol, Protocol::Radarnet);
+        assert_eq!(p.format, ExportFormat::TorchScript);
         assert_eq!(p.precision, [Precision::Fp16, Precision::Bf16]);
         assert_eq!(
-            Probe::try_parse_from(["x"]).unwrap().protocol,
-            Protocol::Mask
+            Probe::try_parse_from(["x"]).unwrap().format,
+            ExportFormat::Onnx
         );
-        let e = Probe::try_parse_from(["x", "--protocol", "masked"])
+        let e = Probe::try_parse_from(["x", "--format", "onyx"])
             .err()
             .unwrap()
             .to_string();
         assert!(
-            e.contains("'masked'")
-                && e.contains("--protocol")
-                && e.contains("mask, clamp, radarnet"),
+            e.contains("'onyx'")
+                && e.contains("--format")
+                && e.contains("onnx, torchscript, pytorch"),
             "{e}"
         );
         let e = Probe::try_parse_from(["x", "--precision", "fp8"])
