@@ -87,6 +87,28 @@ impl Dataset {
         })
     }
 
+    /// (width, height) of every sample's maps: the index says it (`frame_size`); an index
+    /// written before it did is answered from the first sample's image header (its pixels are
+    /// not decoded).
+    pub fn frame_size(&self) -> Result<(u32, u32), DataError> {
+        if let Some([w, h]) = self.index.frame_size {
+            return Ok((w, h));
+        }
+        let first = self.index.samples.first().ok_or_else(|| {
+            DataError::Data(format!(
+                "{} lists no samples",
+                self.root.join(INDEX_FILE).display()
+            ))
+        })?;
+        let image = self
+            .sample_dir(first)
+            .join(depthsense_prep::layout::IMAGE_FILE);
+        image::image_dimensions(&image).map_err(|e| DataError::Parse {
+            path: image.clone(),
+            reason: e.to_string(),
+        })
+    }
+
     pub fn sample_dir(&self, e: &IndexEntry) -> PathBuf {
         self.root.join(&e.dir)
     }
@@ -310,5 +332,51 @@ pub fn subsample(entries: &[IndexEntry], max: Option<usize>) -> Vec<IndexEntry> 
             .map(|i| entries[i * entries.len() / m].clone())
             .collect(),
         _ => entries.to_vec(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use depthsense_prep::layout::{IndexEntry, IMAGE_FILE};
+
+    /// A prepared folder of one sample whose image is `w`×`h`; `frame_size` in the index.
+    fn folder(w: u32, h: u32, in_index: bool) -> (tempfile::TempDir, Dataset) {
+        let d = tempfile::tempdir().unwrap();
+        let entry = IndexEntry {
+            sample_token: "s0".into(),
+            scene_token: "t0".into(),
+            scene_name: "scene-0".into(),
+            splits: vec!["train".into()],
+            conditions: vec![],
+            dir: "s0".into(),
+        };
+        std::fs::create_dir_all(d.path().join("s0")).unwrap();
+        image::RgbImage::new(w, h)
+            .save(d.path().join("s0").join(IMAGE_FILE))
+            .unwrap();
+        let index = PreparedIndex {
+            samples: vec![entry],
+            frame_size: in_index.then_some([w, h]),
+            ..PreparedIndex::default()
+        };
+        let json = serde_json::to_vec(&index).unwrap();
+        std::fs::write(d.path().join(INDEX_FILE), json).unwrap();
+        let ds = Dataset::open(d.path()).unwrap();
+        (d, ds)
+    }
+
+    #[test]
+    fn the_frame_size_comes_from_the_index_or_an_image_header() {
+        let (d, ds) = folder(96, 40, true);
+        // The sample's files are gone: the index alone says the size.
+        std::fs::remove_dir_all(d.path().join("s0")).unwrap();
+        assert_eq!(ds.frame_size().unwrap(), (96, 40));
+        // An index written before `frame_size`: the first image's header says it.
+        let (d, ds) = folder(64, 24, false);
+        assert_eq!(ds.frame_size().unwrap(), (64, 24));
+        std::fs::remove_dir_all(d.path().join("s0")).unwrap();
+        let e = ds.frame_size().unwrap_err().to_string();
+        assert!(e.contains(IMAGE_FILE), "{e}");
     }
 }

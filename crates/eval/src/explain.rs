@@ -261,33 +261,10 @@ pub fn run_explain(
             let maps = explain_image(
                 net, &img, &radar, &gt_t, distances, band, layers, with_radar,
             )?;
-            for (heat, d, layer, ch, target) in maps {
-                let (frac, chance, nb, ng) = heat_fraction(&heat, &gt.depth_m, d, band);
-                let ov = overlay(&input.image, &heat, &gt.depth_m, d, band);
-                let name = format!(
-                    "{}_{}m_{}_{}.png",
-                    input.name,
-                    d,
-                    layer,
-                    if with_radar { "radar" } else { "noradar" }
-                );
-                let p = out.join(&name);
-                write_atomic(&p, &depthsense_viz::plot::encode_rgb(&ov)?)
-                    .map_err(|e| NetError::io(&p, e))?;
+            for map in maps {
+                let (ov, record) = record_map(out, &input, &gt.depth_m, band, with_radar, map)?;
                 row_tiles.push(ov);
-                records.push(CamRecord {
-                    sample: input.name.clone(),
-                    distance_m: d,
-                    layer,
-                    radar: with_radar,
-                    channels: ch,
-                    band_pixels: nb,
-                    gt_pixels: ng,
-                    heat_in_band: frac,
-                    chance,
-                    target,
-                    overlay: PathBuf::from(name),
-                });
+                records.push(record);
             }
         }
         tiles.push(row_tiles);
@@ -301,6 +278,43 @@ pub fn run_explain(
     };
     write_results(out, &r, &tiles)?;
     Ok(r)
+}
+
+/// One map of a sample: its overlay written to `out` (`<sample>_<d>m_<layer>_<radar>.png`)
+/// and returned with its record (heat inside the band of ±`band` around the distance, chance).
+fn record_map(
+    out: &Path,
+    input: &PredictInput,
+    gt_m: &[f32],
+    band: f64,
+    with_radar: bool,
+    (heat, d, layer, ch, target): CamMap,
+) -> Result<(image::RgbImage, CamRecord), NetError> {
+    let (frac, chance, nb, ng) = heat_fraction(&heat, gt_m, d, band);
+    let ov = overlay(&input.image, &heat, gt_m, d, band);
+    let name = format!(
+        "{}_{}m_{}_{}.png",
+        input.name,
+        d,
+        layer,
+        if with_radar { "radar" } else { "noradar" }
+    );
+    let p = out.join(&name);
+    write_atomic(&p, &depthsense_viz::plot::encode_rgb(&ov)?).map_err(|e| NetError::io(&p, e))?;
+    let record = CamRecord {
+        sample: input.name.clone(),
+        distance_m: d,
+        layer,
+        radar: with_radar,
+        channels: ch,
+        band_pixels: nb,
+        gt_pixels: ng,
+        heat_in_band: frac,
+        chance,
+        target,
+        overlay: PathBuf::from(name),
+    };
+    Ok((ov, record))
 }
 
 /// One sample as the network sees it: image [1,3,H,W], radar [1,1,H,W] (raw or height map;

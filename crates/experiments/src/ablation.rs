@@ -219,12 +219,45 @@ pub fn verdict(
     let rel = 100.0 * diff / b.mean;
     let pairs: Vec<(f64, f64)> = values.iter().map(|&(_, a, c)| (a, c)).collect();
     let paired = paired_test(&pairs);
-    let (label, unit, prec) = match metric {
+    let (label, unit, prec) = metric_words(metric);
+    let test_txt = paired_text(paired.as_ref(), unit, prec);
+    let text = format!(
+        "{variant} vs {baseline}: {label} {} % (mean {:.prec$}{unit} vs {:.prec$}{unit}, n = {} / {}); {test_txt}",
+        signed(rel, 1),
+        v.mean,
+        b.mean,
+        v.n,
+        b.n
+    );
+    Verdict {
+        variant: variant.into(),
+        baseline: baseline.into(),
+        metric: metric.into(),
+        mean: v.mean,
+        baseline_mean: b.mean,
+        difference: diff,
+        relative_pct: rel,
+        paired_seeds: values.iter().map(|x| x.0).collect(),
+        paired,
+        n: v.n,
+        baseline_n: b.n,
+        text,
+    }
+}
+
+/// A metric's (name shown, unit suffix, decimals) in a verdict's sentence.
+fn metric_words(metric: &str) -> (&'static str, &'static str, usize) {
+    match metric {
         "rmse" => ("RMSE", " m", 3),
         "abs_rel" => ("AbsRel", "", 4),
         _ => ("δ1", "", 3),
-    };
-    let test_txt = match &paired {
+    }
+}
+
+/// The paired test's part of a verdict's sentence: the mean difference ± its standard error
+/// (`unit`, `prec` decimals), t and the decision, or why there is no verdict.
+fn paired_text(paired: Option<&PairedTest>, unit: &str, prec: usize) -> String {
+    match paired {
         Some(p) => match (p.standard_error, p.t, p.t_critical, p.significant) {
             (Some(se), Some(t), Some(c), Some(sig)) => format!(
                 "paired over {} seeds: difference {} ± {se:.prec$}{unit} (standard error), t = {}, |t| {} {c:.3} = t₀.₉₇₅ with {} df → {}",
@@ -249,28 +282,6 @@ pub fn verdict(
             ),
         },
         None => "no seed shared with the baseline: no verdict".to_string(),
-    };
-    let text = format!(
-        "{variant} vs {baseline}: {label} {} % (mean {:.prec$}{unit} vs {:.prec$}{unit}, n = {} / {}); {test_txt}",
-        signed(rel, 1),
-        v.mean,
-        b.mean,
-        v.n,
-        b.n
-    );
-    Verdict {
-        variant: variant.into(),
-        baseline: baseline.into(),
-        metric: metric.into(),
-        mean: v.mean,
-        baseline_mean: b.mean,
-        difference: diff,
-        relative_pct: rel,
-        paired_seeds: values.iter().map(|x| x.0).collect(),
-        paired,
-        n: v.n,
-        baseline_n: b.n,
-        text,
     }
 }
 
@@ -330,15 +341,8 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Ve
     out
 }
 
-/// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
-/// `mp` hosts one progress bar per run (pass a hidden one in tests).
-pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, NetError> {
-    let t0 = Instant::now();
-    check_options(opts)?;
-    let models = variant_models(opts)?;
-    let device = depthsense_model::device::parse_device(&opts.run.device)?;
-    let ds = Dataset::open(&opts.run.data)?;
-    let part = partition(&ds, opts.run.val_every_scene)?;
+/// A partition with test samples: the ablation reports on the test scenes only.
+fn require_test(opts: &AblationOptions, part: &Partition) -> Result<(), NetError> {
     if part.test.is_empty() {
         return Err(NetError::Data(format!(
             "{}: no test samples ({}): the ablation reports on the test scenes and never on \
@@ -348,6 +352,19 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
             part.method
         )));
     }
+    Ok(())
+}
+
+/// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
+/// `mp` hosts one progress bar per run (pass a hidden one in tests).
+pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, NetError> {
+    let t0 = Instant::now();
+    check_options(opts)?;
+    let models = variant_models(opts)?;
+    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let ds = Dataset::open(&opts.run.data)?;
+    let part = partition(&ds, opts.run.val_every_scene)?;
+    require_test(opts, &part)?;
     // One writer per experiment folder (each run's folder has its own lock too).
     let _writing =
         depthsense_base::lock::OutputLock::exclusive(&opts.out, "depthsense experiment ablation")?;
@@ -456,65 +473,75 @@ fn csv(r: &AblationResult) -> String {
     );
     for run in &r.runs {
         for x in &run.rows {
-            let f6 = |v: f64| format!("{v:.6}");
-            let f2 = |v: f64| format!("{v:.2}");
-            s.push_str(&csv_row(&[
-                "run".to_string(),
-                csv_field(&run.variant),
-                run.seed.to_string(),
-                csv_field(&x.condition),
-                csv_field(&x.region),
-                x.cap_m.to_string(),
-                "1".into(),
-                x.n_images.to_string(),
-                f6(x.delta1),
-                String::new(),
-                f6(x.rmse),
-                String::new(),
-                f6(x.abs_rel),
-                String::new(),
-                f6(x.mae),
-                String::new(),
-                f2(run.train_seconds),
-                f2(run.eval_seconds),
-                f2(run.wall_seconds),
-            ]));
+            s.push_str(&run_csv_row(run, x));
         }
     }
     for x in &r.summary {
-        let st = |s: &Option<Stat>| {
-            (
-                csv_num(s.map(|s| s.mean), 6),
-                csv_num(s.and_then(|s| s.std), 6),
-            )
-        };
-        let (d, ds) = st(&x.delta1);
-        let (rm, rs) = st(&x.rmse);
-        let (a, as_) = st(&x.abs_rel);
-        let (m, ms) = st(&x.mae);
-        s.push_str(&csv_row(&[
-            "mean".to_string(),
-            csv_field(&x.variant),
-            String::new(),
-            csv_field(&x.condition),
-            csv_field(&x.region),
-            csv_num(Some(x.cap_m), 0),
-            x.n.to_string(),
-            String::new(),
-            d,
-            ds,
-            rm,
-            rs,
-            a,
-            as_,
-            m,
-            ms,
-            String::new(),
-            String::new(),
-            String::new(),
-        ]));
+        s.push_str(&mean_csv_row(x));
     }
     s
+}
+
+/// The CSV line of one run's row `x` (kind `run`; metres, seconds).
+fn run_csv_row(run: &RunRecord, x: &RowValues) -> String {
+    let f6 = |v: f64| format!("{v:.6}");
+    let f2 = |v: f64| format!("{v:.2}");
+    csv_row(&[
+        "run".to_string(),
+        csv_field(&run.variant),
+        run.seed.to_string(),
+        csv_field(&x.condition),
+        csv_field(&x.region),
+        x.cap_m.to_string(),
+        "1".into(),
+        x.n_images.to_string(),
+        f6(x.delta1),
+        String::new(),
+        f6(x.rmse),
+        String::new(),
+        f6(x.abs_rel),
+        String::new(),
+        f6(x.mae),
+        String::new(),
+        f2(run.train_seconds),
+        f2(run.eval_seconds),
+        f2(run.wall_seconds),
+    ])
+}
+
+/// The CSV line of a summary row (kind `mean`: mean and std over seeds; metres).
+fn mean_csv_row(x: &SummaryRow) -> String {
+    let st = |s: &Option<Stat>| {
+        (
+            csv_num(s.map(|s| s.mean), 6),
+            csv_num(s.and_then(|s| s.std), 6),
+        )
+    };
+    let (d, ds) = st(&x.delta1);
+    let (rm, rs) = st(&x.rmse);
+    let (a, as_) = st(&x.abs_rel);
+    let (m, ms) = st(&x.mae);
+    csv_row(&[
+        "mean".to_string(),
+        csv_field(&x.variant),
+        String::new(),
+        csv_field(&x.condition),
+        csv_field(&x.region),
+        csv_num(Some(x.cap_m), 0),
+        x.n.to_string(),
+        String::new(),
+        d,
+        ds,
+        rm,
+        rs,
+        a,
+        as_,
+        m,
+        ms,
+        String::new(),
+        String::new(),
+        String::new(),
+    ])
 }
 
 /// The paper's MER table (SPEC §5 / §10): every variant, full image and low-height, combined

@@ -254,18 +254,7 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
     }
     let base = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
     let (iterations, per_epoch) = schedule(opts);
-    let mut plan: Vec<(usize, &Arm, u64, ModelConfig)> = vec![];
-    let largest = opts.sizes.iter().max().copied().unwrap_or(0);
-    for &seed in &opts.seeds {
-        for &n in &opts.sizes {
-            for arm in &opts.arms {
-                plan.push((n, arm, seed, arm.model(&base)?));
-            }
-        }
-        for arm in &opts.at_largest {
-            plan.push((largest, arm, seed, arm.model(&base)?));
-        }
-    }
+    let plan = plan_runs(opts, &base)?;
     let _writing = depthsense_base::lock::OutputLock::exclusive(
         &opts.out,
         "depthsense experiment data-scale",
@@ -307,6 +296,27 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
     Ok(result)
 }
 
+/// Every run to train, seed after seed: (training-set size N, arm, seed, network) for each size
+/// × arm, then the extra arms at the largest size.
+fn plan_runs<'a>(
+    opts: &'a DataScaleOptions,
+    base: &ModelConfig,
+) -> Result<Vec<(usize, &'a Arm, u64, ModelConfig)>, NetError> {
+    let mut plan: Vec<(usize, &Arm, u64, ModelConfig)> = vec![];
+    let largest = opts.sizes.iter().max().copied().unwrap_or(0);
+    for &seed in &opts.seeds {
+        for &n in &opts.sizes {
+            for arm in &opts.arms {
+                plan.push((n, arm, seed, arm.model(base)?));
+            }
+        }
+        for arm in &opts.at_largest {
+            plan.push((largest, arm, seed, arm.model(base)?));
+        }
+    }
+    Ok(plan)
+}
+
 /// The training-set size of a run (its `train_subset`).
 fn size_of(r: &RunRecord) -> usize {
     r.train_options.loading.train_subset.unwrap_or(0)
@@ -327,74 +337,106 @@ fn pairs(runs: &[RunRecord], n: usize, arm: &str, baseline: &str) -> Vec<(u64, f
 }
 
 fn summarise(opts: &DataScaleOptions, iterations: u64, runs: &[RunRecord]) -> Vec<ScaleRow> {
-    let baseline = opts.arms[0].label.as_str();
     let mut sizes = opts.sizes.clone();
     sizes.sort_unstable();
     sizes.dedup();
     let mut out = vec![];
     for &n in &sizes {
         for arm in opts.arms.iter().chain(&opts.at_largest) {
-            let heads: Vec<_> = runs
-                .iter()
-                .filter(|r| size_of(r) == n && r.variant == arm.label)
-                .filter_map(|r| r.headline())
-                .collect();
-            if heads.is_empty() {
-                continue;
+            if let Some(row) = scale_row(opts, iterations, runs, n, arm) {
+                out.push(row);
             }
-            let stat = |f: fn(&super::runner::RowValues) -> f64| {
-                Stat::of(&heads.iter().map(|h| f(h)).collect::<Vec<_>>())
-            };
-            let p = pairs(runs, n, &arm.label, baseline);
-            let is_base = arm.label == baseline;
-            let rmse = stat(|h| h.rmse);
-            let base_rmse = Stat::of(
-                &pairs(runs, n, baseline, baseline)
-                    .iter()
-                    .map(|x| x.2)
-                    .collect::<Vec<_>>(),
-            );
-            let vs_baseline = match (is_base, rmse, base_rmse) {
-                (false, Some(a), Some(b)) => {
-                    Some(verdict(&arm.label, baseline, "rmse", &a, &b, &p))
-                }
-                _ => None,
-            };
-            let margin_m = (!is_base)
-                .then(|| Stat::of(&p.iter().map(|x| x.2 - x.1).collect::<Vec<_>>()))
-                .flatten();
-            let margin_pct = (!is_base)
-                .then(|| {
-                    Stat::of(
-                        &p.iter()
-                            .map(|x| 100.0 * (x.2 - x.1) / x.2)
-                            .collect::<Vec<_>>(),
-                    )
-                })
-                .flatten();
-            let margin_t = vs_baseline
-                .as_ref()
-                .and_then(|v| v.paired.as_ref())
-                .and_then(|p| p.t)
-                .map(|t| -t);
-            out.push(ScaleRow {
-                train_samples: n,
-                arm: arm.label.clone(),
-                passes: iterations as f64 * opts.run.batch_size as f64 / n as f64,
-                rmse,
-                mae: stat(|h| h.mae),
-                abs_rel: stat(|h| h.abs_rel),
-                delta1: stat(|h| h.delta1),
-                margin_se_m: margin_m.as_ref().and_then(standard_error),
-                margin_se_pct: margin_pct.as_ref().and_then(standard_error),
-                margin_m,
-                margin_pct,
-                margin_t,
-                vs_baseline,
-            });
         }
     }
     out
+}
+
+/// The (N, arm) cell of the table: the arm's test metrics over its seeds at size `n` and its
+/// margin over the baseline (the first arm); `None` when no run of the cell was tested.
+fn scale_row(
+    opts: &DataScaleOptions,
+    iterations: u64,
+    runs: &[RunRecord],
+    n: usize,
+    arm: &Arm,
+) -> Option<ScaleRow> {
+    let baseline = opts.arms[0].label.as_str();
+    let heads: Vec<_> = runs
+        .iter()
+        .filter(|r| size_of(r) == n && r.variant == arm.label)
+        .filter_map(|r| r.headline())
+        .collect();
+    if heads.is_empty() {
+        return None;
+    }
+    let stat = |f: fn(&super::runner::RowValues) -> f64| {
+        Stat::of(&heads.iter().map(|h| f(h)).collect::<Vec<_>>())
+    };
+    let p = pairs(runs, n, &arm.label, baseline);
+    let is_base = arm.label == baseline;
+    let rmse = stat(|h| h.rmse);
+    let vs_baseline = baseline_verdict(runs, n, &arm.label, baseline, rmse, &p);
+    let (margin_m, margin_pct) = margins(&p, is_base);
+    let margin_t = vs_baseline
+        .as_ref()
+        .and_then(|v| v.paired.as_ref())
+        .and_then(|p| p.t)
+        .map(|t| -t);
+    Some(ScaleRow {
+        train_samples: n,
+        arm: arm.label.clone(),
+        passes: iterations as f64 * opts.run.batch_size as f64 / n as f64,
+        rmse,
+        mae: stat(|h| h.mae),
+        abs_rel: stat(|h| h.abs_rel),
+        delta1: stat(|h| h.delta1),
+        margin_se_m: margin_m.as_ref().and_then(standard_error),
+        margin_se_pct: margin_pct.as_ref().and_then(standard_error),
+        margin_m,
+        margin_pct,
+        margin_t,
+        vs_baseline,
+    })
+}
+
+/// The paired test of an arm's test RMSE (`rmse`, m) against the baseline's at size `n` over
+/// the seeds of `p`; `None` for the baseline itself or a cell without an RMSE.
+fn baseline_verdict(
+    runs: &[RunRecord],
+    n: usize,
+    arm: &str,
+    baseline: &str,
+    rmse: Option<Stat>,
+    p: &[(u64, f64, f64)],
+) -> Option<Verdict> {
+    let base_rmse = Stat::of(
+        &pairs(runs, n, baseline, baseline)
+            .iter()
+            .map(|x| x.2)
+            .collect::<Vec<_>>(),
+    );
+    match (arm == baseline, rmse, base_rmse) {
+        (false, Some(a), Some(b)) => Some(verdict(arm, baseline, "rmse", &a, &b, p)),
+        _ => None,
+    }
+}
+
+/// Radar's margin per seed of `p` (seed, arm RMSE, baseline RMSE): (baseline − arm in m, the
+/// same in % of the baseline); both `None` for the baseline itself.
+fn margins(p: &[(u64, f64, f64)], is_base: bool) -> (Option<Stat>, Option<Stat>) {
+    let margin_m = (!is_base)
+        .then(|| Stat::of(&p.iter().map(|x| x.2 - x.1).collect::<Vec<_>>()))
+        .flatten();
+    let margin_pct = (!is_base)
+        .then(|| {
+            Stat::of(
+                &p.iter()
+                    .map(|x| 100.0 * (x.2 - x.1) / x.2)
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .flatten();
+    (margin_m, margin_pct)
 }
 
 /// Standard error of a seed mean (None below 2 seeds).
@@ -524,7 +566,30 @@ fn document(r: &DataScaleResult) -> Doc {
     let o = &r.options;
     let mut doc = Doc::new();
     doc.heading(1, "Radar's margin against training-set size");
+    doc.paragraph(setup_text(r));
+    doc.table(margin_table(r));
+    if let Some(tr) = &r.trend {
+        doc.paragraph(format!("**Trend.** {tr}."));
+    }
     doc.paragraph(format!(
+        "Machine: {}; the runs took {:.1} s of training and test in all, this invocation {:.1} s.",
+        r.machine.line(),
+        r.runs
+            .iter()
+            .map(|x| x.wall_seconds)
+            .filter(|x| x.is_finite())
+            .sum::<f64>(),
+        r.total_seconds
+    ))
+    .command(o.command_line.as_deref());
+    doc
+}
+
+/// The setup paragraph of the data-scale document: the network, the schedule, the data and
+/// the seeds every run shares, and what the margin means.
+fn setup_text(r: &DataScaleResult) -> String {
+    let o = &r.options;
+    format!(
         "Every run trains `{}`{} for the same **{} iterations** of batch {} ({} images seen), \
          validated every {} iterations on the same {} validation samples, its best checkpoint \
          tested on the same **test** scenes ({} samples: {}). The t of the margin is the paired \
@@ -551,7 +616,11 @@ fn document(r: &DataScaleResult) -> Doc {
         o.seeds,
         o.eval.main_cap(),
         o.arms[0].label
-    ));
+    )
+}
+
+/// The margin table: one row per (N, arm) cell (RMSE and margin in m, ± a standard error).
+fn margin_table(r: &DataScaleResult) -> MdTable {
     let mut t = MdTable::new(&[
         ("N", Align::Right),
         ("passes", Align::Right),
@@ -588,22 +657,7 @@ fn document(r: &DataScaleResult) -> Doc {
             },
         ]);
     }
-    doc.table(t);
-    if let Some(tr) = &r.trend {
-        doc.paragraph(format!("**Trend.** {tr}."));
-    }
-    doc.paragraph(format!(
-        "Machine: {}; the runs took {:.1} s of training and test in all, this invocation {:.1} s.",
-        r.machine.line(),
-        r.runs
-            .iter()
-            .map(|x| x.wall_seconds)
-            .filter(|x| x.is_finite())
-            .sum::<f64>(),
-        r.total_seconds
-    ))
-    .command(o.command_line.as_deref());
-    doc
+    t
 }
 
 fn csv(r: &DataScaleResult) -> String {

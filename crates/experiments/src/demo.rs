@@ -12,19 +12,19 @@
 //! OUT/report/samples/<token>/{image,radar,gt,pred_rgb,pred_fusion,err_rgb,err_fusion}.png
 //! ```
 
-use depthsense_config::device::DeviceArg;
-use depthsense_config::training::{
-    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
-};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_base::lock::OutputLock;
 use depthsense_checkpoint as checkpoint;
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use depthsense_config::{Fusion, ModelConfig};
 use depthsense_data::LoadOptions;
-use depthsense_dataset::{partition, Dataset};
+use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{Align, MdTable};
 use depthsense_metrics::Report;
@@ -208,19 +208,7 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError>
     // One demo per folder at a time, and an earlier one is replaced only when asked.
     let _writing = OutputLock::exclusive(out, "depthsense demo")?;
     clear_earlier_demo(opts)?;
-    mp.println(format!(
-        "demo: a world of {} scenes × {} keyframes, `{}` RGB-only and radar fusion, {} epochs{} \
-         of batch {} on {} → {}",
-        plan.scenes,
-        plan.keyframes_per_scene,
-        plan.preset,
-        plan.epochs,
-        plan.epoch_iterations
-            .map_or(String::new(), |n| format!(" × {n} iterations")),
-        plan.batch_size,
-        depthsense_model::device::describe(device),
-        out.display()
-    ));
+    mp.println(announcement(&plan, device, out));
     let mut stages: Vec<(String, f64)> = vec![];
     let t = Instant::now();
     let (world, scfg) = synthesise(opts, &plan, mp)?;
@@ -232,16 +220,8 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError>
 
     // 4. Evaluate both on the test scenes (never used for selection); pictures.
     let t = Instant::now();
-    let ds = Dataset::open(&prepared)?;
-    let part = partition(&ds, plan.val_every_scene)?;
+    let (ds, part) = held_out(&prepared, &plan)?;
     let test = part.test.clone();
-    if test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test scenes ({})",
-            prepared.display(),
-            part.method
-        )));
-    }
     let report_dir = out.join("report");
     std::fs::create_dir_all(&report_dir).map_err(|e| NetError::io(&report_dir, e))?;
     let reports = evaluate_both(opts, &plan, &ds, &test, &runs, &report_dir, device, mp)?;
@@ -250,18 +230,11 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError>
     write_run_curves(&runs, &report_dir)?;
     stages.push(("eval".into(), t.elapsed().as_secs_f64()));
 
-    let rmse = |name: &str| {
-        reports
-            .iter()
-            .find(|(n, _)| n == name)
-            .and_then(|(_, r)| r.headline().map(|h| h.metrics.rmse))
-            .unwrap_or(f64::NAN)
-    };
     let summary = DemoSummary {
         report_dir: report_dir.clone(),
         stage_seconds: stages,
-        rgb_rmse: rmse("rgb"),
-        fusion_rmse: rmse("fusion"),
+        rgb_rmse: headline_rmse(&reports, "rgb"),
+        fusion_rmse: headline_rmse(&reports, "fusion"),
         rgb_initial_rmse: runs[0].2,
         fusion_initial_rmse: runs[1].2,
         total_seconds: t0.elapsed().as_secs_f64(),
@@ -277,6 +250,46 @@ pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError>
     write_readme(&report_dir, &summary, &plan, &models, &test, opts)?;
     write_page(&report_dir, opts)?;
     Ok(summary)
+}
+
+/// The line the demo starts with: the world, both networks, the schedule and the device.
+fn announcement(plan: &DemoPlan, device: Device, out: &Path) -> String {
+    format!(
+        "demo: a world of {} scenes × {} keyframes, `{}` RGB-only and radar fusion, {} epochs{} \
+         of batch {} on {} → {}",
+        plan.scenes,
+        plan.keyframes_per_scene,
+        plan.preset,
+        plan.epochs,
+        plan.epoch_iterations
+            .map_or(String::new(), |n| format!(" × {n} iterations")),
+        plan.batch_size,
+        depthsense_model::device::describe(device),
+        out.display()
+    )
+}
+
+/// The prepared folder and its partition, which must hold test scenes to report on.
+fn held_out(prepared: &Path, plan: &DemoPlan) -> Result<(Dataset, Partition), NetError> {
+    let ds = Dataset::open(prepared)?;
+    let part = partition(&ds, plan.val_every_scene)?;
+    if part.test.is_empty() {
+        return Err(NetError::Data(format!(
+            "{}: no test scenes ({})",
+            prepared.display(),
+            part.method
+        )));
+    }
+    Ok((ds, part))
+}
+
+/// The headline test RMSE (m) of the model `name` among `reports`; NaN when it has none.
+fn headline_rmse(reports: &[(String, Report)], name: &str) -> f64 {
+    reports
+        .iter()
+        .find(|(n, _)| n == name)
+        .and_then(|(_, r)| r.headline().map(|h| h.metrics.rmse))
+        .unwrap_or(f64::NAN)
 }
 
 /// An earlier demo in `out` is refused unless `--force`; with it, its report folder goes.
@@ -396,39 +409,7 @@ fn train_both(
         cfg.fusion = fusion;
         cfg.attention = plan.attention && fusion == Fusion::Late;
         cfg.input_downscale = plan.input_downscale;
-        let topts = TrainOptions {
-            data: prepared.to_path_buf(),
-            out: out.join(name),
-            model: cfg,
-            schedule: ScheduleOptions {
-                epochs: plan.epochs,
-                epoch_iterations: plan.epoch_iterations,
-                batch_size: plan.batch_size,
-                lr: plan.lr,
-                seed: opts.seed,
-                max_batches_per_epoch: plan.max_batches_per_epoch,
-                ..Default::default()
-            },
-            loading: LoadingOptions {
-                jobs: opts.jobs,
-                ..Default::default()
-            },
-            validation: ValidationOptions {
-                max_val_samples: plan.max_val_samples,
-                val_every_scene: plan.val_every_scene,
-            },
-            checkpointing: CheckpointOptions {
-                force: opts.force,
-                ..Default::default()
-            },
-            hardware: HardwareOptions {
-                device: DeviceArg {
-                    name: opts.device.clone(),
-                },
-                ..Default::default()
-            },
-            ..TrainOptions::default()
-        };
+        let topts = run_options(opts, plan, prepared, name, cfg);
         let pb = stage_bar(mp, &format!("train {name}"));
         let s = train(&topts, &pb)?;
         pb.finish_with_message(format!("best val RMSE {:.2} m", s.best_val_rmse));
@@ -443,6 +424,50 @@ fn train_both(
         stages.push((format!("train {name}"), t.elapsed().as_secs_f64()));
     }
     Ok(runs)
+}
+
+/// The training options of the demo's run `name` (`OUT/<name>`) of network `cfg` on the
+/// prepared folder: the plan's schedule and validation, the demo's seed, jobs and device.
+fn run_options(
+    opts: &DemoOptions,
+    plan: &DemoPlan,
+    prepared: &Path,
+    name: &str,
+    cfg: ModelConfig,
+) -> TrainOptions {
+    TrainOptions {
+        data: prepared.to_path_buf(),
+        out: opts.out.join(name),
+        model: cfg,
+        schedule: ScheduleOptions {
+            epochs: plan.epochs,
+            epoch_iterations: plan.epoch_iterations,
+            batch_size: plan.batch_size,
+            lr: plan.lr,
+            seed: opts.seed,
+            max_batches_per_epoch: plan.max_batches_per_epoch,
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: opts.jobs,
+            ..Default::default()
+        },
+        validation: ValidationOptions {
+            max_val_samples: plan.max_val_samples,
+            val_every_scene: plan.val_every_scene,
+        },
+        checkpointing: CheckpointOptions {
+            force: opts.force,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg {
+                name: opts.device.clone(),
+            },
+            ..Default::default()
+        },
+        ..TrainOptions::default()
+    }
 }
 
 /// Both runs' best checkpoints on the test scenes, writing the sample pictures on the way.
@@ -466,12 +491,7 @@ fn evaluate_both(
     pb.set_length(2 * test.len() as u64);
     for (name, dir, ..) in runs {
         let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
-        let radar = loaded.config.radar_input_for(None)?;
-        let load = LoadOptions {
-            radar: radar.unwrap_or_default(),
-            no_radar: radar.is_none(),
-            ..LoadOptions::default()
-        };
+        let load = load_options(&loaded.config)?;
         let rep = evaluate_net(
             &loaded.net,
             ds,
@@ -508,6 +528,17 @@ fn evaluate_both(
         write_picture_row(&report_dir.join("samples").join(token))?;
     }
     Ok(reports)
+}
+
+/// What a network of `cfg` is fed on the test scenes: the radar input it was built for, or
+/// none.
+fn load_options(cfg: &ModelConfig) -> Result<LoadOptions, NetError> {
+    let radar = cfg.radar_input_for(None)?;
+    Ok(LoadOptions {
+        radar: radar.unwrap_or_default(),
+        no_radar: radar.is_none(),
+        ..LoadOptions::default()
+    })
 }
 
 /// Each run's curves.png copied into the report, and both runs on one picture: training loss
@@ -719,18 +750,52 @@ pub fn one_seed_difference(rgb_rmse: f64, fusion_rmse: f64) -> String {
 /// Upper end of the colour map of every depth picture (metres).
 const PICTURE_MAX_M: f32 = 80.0;
 
+/// OUT/report/README.md and summary.json (the summary, the plan, the command line and the
+/// README's document).
 fn write_readme(
     dir: &Path,
     s: &DemoSummary,
     plan: &DemoPlan,
     models: &[(&str, &Report)],
-    test: &[depthsense_prep::layout::IndexEntry],
+    test: &[IndexEntry],
     opts: &DemoOptions,
 ) -> Result<(), NetError> {
-    let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
-    scenes.dedup();
     let mut doc = Doc::new();
     doc.heading(1, "depthsense demo report");
+    readme_setup(&mut doc, s, plan, test);
+    doc.table(headline_table(s))
+        .paragraph(one_seed_difference(s.rgb_rmse, s.fusion_rmse));
+    doc.table(stage_table(s))
+        .paragraph("The same stages as separate commands (same settings):")
+        .code(s.commands.join("\n"));
+    doc.blocks
+        .extend(depthsense_metrics::tables::report_doc(models).blocks);
+    doc.paragraph(
+        "Pictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
+         and the single panels (image, radar overlay, GT, prediction and |error| per model); \
+         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.",
+    );
+    let p = dir.join("README.md");
+    write_atomic(&p, doc.to_markdown().as_bytes()).map_err(|e| NetError::io(&p, e))?;
+    let p = dir.join("summary.json");
+    write_atomic(
+        &p,
+        serde_json::to_string_pretty(&serde_json::json!({
+            "summary": s,
+            "plan": plan,
+            "command_line": opts.command_line,
+            depthsense_metrics::doc::DOCUMENT_KEY: doc,
+        }))?
+        .as_bytes(),
+    )
+    .map_err(|e| NetError::io(&p, e))
+}
+
+/// The README's setup paragraphs: device and schedule, the training set, and the split into
+/// validation and test scenes.
+fn readme_setup(doc: &mut Doc, s: &DemoSummary, plan: &DemoPlan, test: &[IndexEntry]) {
+    let mut scenes: Vec<String> = test.iter().map(|e| e.scene_name.clone()).collect();
+    scenes.dedup();
     doc.paragraph(format!(
         "Device `{}`, preset `{}`, {} epochs, batch {}, lr {} (synthetic world: {} scenes × {} keyframes{}).",
         s.device,
@@ -758,6 +823,10 @@ fn write_readme(
         test.len(),
         scenes.join(", ")
     ));
+}
+
+/// Both models' initial validation RMSE and test RMSE (m) of the epoch chosen on validation.
+fn headline_table(s: &DemoSummary) -> MdTable {
     let mut headline = MdTable::new(&[
         ("model", Align::Left),
         ("initial RMSE (m, val)", Align::Right),
@@ -771,37 +840,17 @@ fn write_readme(
             m3(s.fusion_initial_rmse),
             m3(s.fusion_rmse),
         ]);
-    doc.table(headline)
-        .paragraph(one_seed_difference(s.rgb_rmse, s.fusion_rmse));
+    headline
+}
+
+/// The seconds of every stage of the demo, and the total.
+fn stage_table(s: &DemoSummary) -> MdTable {
     let mut stages = MdTable::new(&[("stage", Align::Left), ("seconds", Align::Right)]);
     for (n, t) in &s.stage_seconds {
         stages.row(&[n.clone(), format!("{t:.1}")]);
     }
     stages.row(&["total".into(), format!("{:.1}", s.total_seconds)]);
-    doc.table(stages)
-        .paragraph("The same stages as separate commands (same settings):")
-        .code(s.commands.join("\n"));
-    doc.blocks
-        .extend(depthsense_metrics::tables::report_doc(models).blocks);
-    doc.paragraph(
-        "Pictures: `samples/<token>/row.png` (image, radar, GT, both predictions, one colour bar in metres) \
-         and the single panels (image, radar overlay, GT, prediction and |error| per model); \
-         curves: `curves_rgb.png`, `curves_fusion.png`, `val_rmse.png`.",
-    );
-    let p = dir.join("README.md");
-    write_atomic(&p, doc.to_markdown().as_bytes()).map_err(|e| NetError::io(&p, e))?;
-    let p = dir.join("summary.json");
-    write_atomic(
-        &p,
-        serde_json::to_string_pretty(&serde_json::json!({
-            "summary": s,
-            "plan": plan,
-            "command_line": opts.command_line,
-            depthsense_metrics::doc::DOCUMENT_KEY: doc,
-        }))?
-        .as_bytes(),
-    )
-    .map_err(|e| NetError::io(&p, e))
+    stages
 }
 
 #[cfg(test)]

@@ -109,6 +109,17 @@ fn unit(axis: PerturbAxis) -> &'static str {
     }
 }
 
+/// The evaluation `base` with its radar perturbed by `p`.
+fn perturbed(base: &EvalOptions, p: Perturbation) -> EvalOptions {
+    EvalOptions {
+        failure: RadarFailure {
+            perturb: Some(p),
+            ..base.failure.clone()
+        },
+        ..base.clone()
+    }
+}
+
 /// Evaluate `base` unperturbed (magnitude 0, through the same re-rasterisation) and under
 /// every perturbation of `opts`; writes OUT/perturb.{md,csv,json,png}.
 pub fn run_perturb(
@@ -136,13 +147,7 @@ pub fn run_perturb(
     let eval_one = |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, NetError> {
         let pb = run_bar(mp, label);
         let t = std::time::Instant::now();
-        let o = EvalOptions {
-            failure: RadarFailure {
-                perturb: Some(p),
-                ..base.failure.clone()
-            },
-            ..base.clone()
-        };
+        let o = perturbed(base, p);
         let report = depthsense_eval::evaluate::run_eval_loaded(&o, &loaded, &pb)?;
         pb.finish_and_clear();
         total.inc(1);

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use depthsense_config::ModelConfig;
-use depthsense_dataset::{partition, Dataset};
+use depthsense_dataset::{partition, Dataset, Partition};
 use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
@@ -123,6 +123,18 @@ fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64)
     }
 }
 
+/// A partition with test samples: reduced-data reports on the test scenes.
+fn require_test(opts: &ReducedDataOptions, part: &Partition) -> Result<(), NetError> {
+    if part.test.is_empty() {
+        return Err(NetError::Data(format!(
+            "{}: no test samples ({}): reduced-data reports on the test scenes",
+            opts.run.data.display(),
+            part.method
+        )));
+    }
+    Ok(())
+}
+
 /// Train every cell × seed, test on the test scenes, write the tables and the chart.
 pub fn run_reduced_data(
     opts: &ReducedDataOptions,
@@ -134,13 +146,7 @@ pub fn run_reduced_data(
     let device = depthsense_model::device::parse_device(&opts.run.device)?;
     let ds = Dataset::open(&opts.run.data)?;
     let part = partition(&ds, opts.run.val_every_scene)?;
-    if part.test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test samples ({}): reduced-data reports on the test scenes",
-            opts.run.data.display(),
-            part.method
-        )));
-    }
+    require_test(opts, &part)?;
     // One writer per experiment folder (each run's folder has its own lock too).
     let _writing = depthsense_base::lock::OutputLock::exclusive(
         &opts.out,

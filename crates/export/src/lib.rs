@@ -169,64 +169,96 @@ pub fn export_many(
         })
         .collect::<Result<Vec<_>, _>>()?;
     let work = tempfile::tempdir().map_err(|e| ExportError::io(&std::env::temp_dir(), e))?;
-    let weights = work.path().join("weights.safetensors");
-    loaded
-        .vs
-        .save(&weights)
+    let (weights, config) = stage_network(&loaded.vs, &loaded.config, work.path())?;
+    let tmps = reserve_temps(&per_target)?;
+    if let Err(e) = python::convert(opts, work.path(), &weights, &config, &tmps) {
+        remove_temps(&tmps);
+        return Err(name_targets(e, targets));
+    }
+    let mut done = vec![];
+    for ((o, info), (_, tmp)) in per_target.into_iter().zip(infos).zip(&tmps) {
+        done.push(finish_target(o, info, tmp, &tmps)?);
+    }
+    Ok(done)
+}
+
+/// Writes the network's variables (`weights.safetensors`) and config (`config.json`) into
+/// `work`, the folder the Python exporter reads; returns (weights, config) paths.
+fn stage_network(
+    vs: &tch::nn::VarStore,
+    cfg: &depthsense_config::ModelConfig,
+    work: &Path,
+) -> Result<(PathBuf, PathBuf), ExportError> {
+    let weights = work.join("weights.safetensors");
+    vs.save(&weights)
         .map_err(|e| ExportError::Options(format!("{}: {e}", weights.display())))?;
-    let config = work.path().join("config.json");
-    let cfg_json = serde_json::to_string_pretty(&loaded.config)
-        .map_err(|e| ExportError::Options(e.to_string()))?;
+    let config = work.join("config.json");
+    let cfg_json =
+        serde_json::to_string_pretty(cfg).map_err(|e| ExportError::Options(e.to_string()))?;
     std::fs::write(&config, cfg_json).map_err(|e| ExportError::io(&config, e))?;
-    // The temporary files go where the results go: an unwritable folder fails here, naming it.
+    Ok((weights, config))
+}
+
+/// An empty temporary sibling of every target, in order. The temporary files go where the
+/// results go: an unwritable folder fails here, naming it (and the siblings made are removed).
+fn reserve_temps(per_target: &[ExportOptions]) -> Result<Vec<(Format, PathBuf)>, ExportError> {
     let mut tmps: Vec<(Format, PathBuf)> = vec![];
-    let remove_all = |tmps: &[(Format, PathBuf)]| {
-        for (_, t) in tmps {
-            let _ = std::fs::remove_file(t);
-        }
-    };
-    for o in &per_target {
+    for o in per_target {
         let tmp = temp_sibling(&o.out);
         if let Err(e) = std::fs::write(&tmp, b"") {
-            remove_all(&tmps);
+            remove_temps(&tmps);
             return Err(ExportError::io(&o.out, e));
         }
         tmps.push((o.format, tmp));
     }
-    if let Err(e) = python::convert(opts, work.path(), &weights, &config, &tmps) {
-        remove_all(&tmps);
-        // name the files asked for, not their temporary siblings
-        return Err(match e {
-            ExportError::Python { python, detail, .. } => ExportError::Python {
-                python,
-                out: targets
-                    .iter()
-                    .map(|(_, p)| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                detail,
-            },
-            e => e,
-        });
+    Ok(tmps)
+}
+
+/// Removes every temporary sibling of `tmps`, ignoring those already gone.
+fn remove_temps(tmps: &[(Format, PathBuf)]) {
+    for (_, t) in tmps {
+        let _ = std::fs::remove_file(t);
     }
-    let mut done = vec![];
-    for ((o, info), (_, tmp)) in per_target.into_iter().zip(infos).zip(&tmps) {
-        depthsense_base::fsutil::sync_and_rename(tmp, &o.out).map_err(|e| {
-            remove_all(&tmps);
-            ExportError::io(&o.out, e)
-        })?;
-        let sidecar = sidecar_path(&o.out);
-        let text = info
-            .to_json(&sidecar)
-            .map_err(|e| ExportError::Options(e.to_string()))?;
-        write_atomic(&sidecar, text.as_bytes()).map_err(|e| ExportError::io(&sidecar, e))?;
-        done.push(Exported {
-            out: o.out,
-            sidecar,
-            info,
-        });
+}
+
+/// A failed conversion's error naming the files asked for, not their temporary siblings.
+fn name_targets(e: ExportError, targets: &[(Format, PathBuf)]) -> ExportError {
+    match e {
+        ExportError::Python { python, detail, .. } => ExportError::Python {
+            python,
+            out: targets
+                .iter()
+                .map(|(_, p)| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            detail,
+        },
+        e => e,
     }
-    Ok(done)
+}
+
+/// Moves one converted temporary file `tmp` onto its target and writes its sidecar last; a
+/// failed rename removes every temporary sibling of `tmps`.
+fn finish_target(
+    o: ExportOptions,
+    info: Sidecar,
+    tmp: &Path,
+    tmps: &[(Format, PathBuf)],
+) -> Result<Exported, ExportError> {
+    depthsense_base::fsutil::sync_and_rename(tmp, &o.out).map_err(|e| {
+        remove_temps(tmps);
+        ExportError::io(&o.out, e)
+    })?;
+    let sidecar = sidecar_path(&o.out);
+    let text = info
+        .to_json(&sidecar)
+        .map_err(|e| ExportError::Options(e.to_string()))?;
+    write_atomic(&sidecar, text.as_bytes()).map_err(|e| ExportError::io(&sidecar, e))?;
+    Ok(Exported {
+        out: o.out,
+        sidecar,
+        info,
+    })
 }
 
 /// A target that may be written: not there (or `--force`), a precision its format takes.

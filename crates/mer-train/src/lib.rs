@@ -534,26 +534,9 @@ impl<'o> Run<'o> {
         Ok(v)
     }
 
-    /// Records `v` as the best validation when its AUC beats the best so far.
-    fn note_best(&mut self, v: &MerValRecord) -> bool {
-        let improved = v.auc > self.state.best_auc.unwrap_or(f64::NEG_INFINITY);
-        if improved {
-            self.state.best_auc = Some(v.auc);
-            self.state.best_iteration = Some(self.state.iteration);
-        }
-        improved
-    }
-
-    fn close_epoch(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
-        self.state.iteration = (epoch + 1) * self.bpe;
+    /// Epoch `epoch`'s (0-based) record in RUN/metrics.jsonl, validated as `v`, and the curves.
+    fn write_epoch_record(&mut self, epoch: u64, v: &MerValRecord) -> Result<(), NetError> {
         let loss = self.epoch_loss.0 / self.epoch_loss.1.max(1) as f64;
-        let v = self.validate_at(epoch + 1)?;
-        self.state.epoch = epoch + 1;
-        let improved = self.note_best(&v);
-        self.write_last()?;
-        if improved || !self.path(BEST_CKPT).exists() {
-            self.save(BEST_CKPT)?;
-        }
         append_record(
             &self.path(METRICS_FILE),
             &MetricsRecord::Epoch(EpochRecord::new(
@@ -563,8 +546,7 @@ impl<'o> Run<'o> {
                 v.clone(),
             )),
         )?;
-        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
-        Ok(v)
+        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 }
 
@@ -661,14 +643,33 @@ impl Learner for Run<'_> {
         }
     }
 
-    /// The validation before training is a candidate for RUN/best.safetensors like every
-    /// epoch's.
     fn validation(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
+        if epoch > 0 {
+            self.state.iteration = epoch * self.bpe;
+        }
         let v = self.validate_at(epoch)?;
-        if self.state.iteration == 0 && self.note_best(&v) {
-            self.save(BEST_CKPT)?;
+        if epoch > 0 {
+            self.state.epoch = epoch;
         }
         Ok(v)
+    }
+
+    /// Higher AUC is better.
+    fn score(v: &MerValRecord) -> f64 {
+        -v.auc
+    }
+
+    fn best_score(&self) -> Option<f64> {
+        self.state.best_auc.map(|auc| -auc)
+    }
+
+    fn note_best(&mut self, v: &MerValRecord) {
+        self.state.best_auc = Some(v.auc);
+        self.state.best_iteration = Some(self.state.iteration);
+    }
+
+    fn save_best(&mut self) -> Result<(), NetError> {
+        self.save(BEST_CKPT)
     }
 
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
@@ -700,8 +701,8 @@ impl Learner for Run<'_> {
         self.write_last()
     }
 
-    fn end_epoch(&mut self, epoch: u64) -> Result<MerValRecord, NetError> {
-        self.close_epoch(epoch)
+    fn log_epoch(&mut self, epoch: u64, v: &MerValRecord) -> Result<(), NetError> {
+        self.write_epoch_record(epoch, v)
     }
 }
 

@@ -226,6 +226,19 @@ fn prepare_record(
     write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
 }
 
+/// The `mer.json` of maps written by the PDA checkpoint of `opts` (its path and FNV-1a 64) of
+/// config `cfg`.
+fn mer_record(opts: &MerApplyOptions, cfg: &PdaConfig) -> Result<MerRecord, NetError> {
+    Ok(MerRecord {
+        checkpoint: opts.checkpoint.display().to_string(),
+        checkpoint_fnv64: file_fnv64(&opts.checkpoint)?,
+        pda: cfg.clone(),
+        thresholds: THRESHOLDS.to_vec(),
+        depth_file: MER_DEPTH_FILE.into(),
+        conf_file: MER_CONF_FILE.into(),
+    })
+}
+
 /// Run `mer apply` (see the module docs).
 pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySummary, NetError> {
     let started = Instant::now();
@@ -235,15 +248,7 @@ pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySumm
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let ds = Dataset::open(&opts.data)?;
     let loaded = depthsense_checkpoint::pda::load(&opts.checkpoint, device)?;
-    let cfg = loaded.config.clone();
-    let record = MerRecord {
-        checkpoint: opts.checkpoint.display().to_string(),
-        checkpoint_fnv64: file_fnv64(&opts.checkpoint)?,
-        pda: cfg.clone(),
-        thresholds: THRESHOLDS.to_vec(),
-        depth_file: MER_DEPTH_FILE.into(),
-        conf_file: MER_CONF_FILE.into(),
-    };
+    let record = mer_record(opts, &loaded.config)?;
     prepare_record(&ds, opts, &record)?;
     let todo: Vec<&IndexEntry> = ds
         .index
@@ -321,39 +326,12 @@ fn run_pipeline(
     progress: &Progress,
 ) -> Result<f64, NetError> {
     use std::sync::mpsc::sync_channel;
-    type Loaded<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, NetError>);
-    type Predicted<'a> = (&'a [&'a IndexEntry], Vec<PdaInput>, Vec<Vec<f32>>);
     let cfg = net.config();
     std::thread::scope(|s| {
-        let (load_tx, load_rx) = sync_channel::<Loaded>(1);
-        let (write_tx, write_rx) = sync_channel::<Predicted>(1);
-        s.spawn(move || {
-            for chunk in todo.chunks(opts.batch_size.max(1)) {
-                let inputs = pool.install(|| {
-                    chunk
-                        .par_iter()
-                        .map(|e| load_input(&ds.sample_dir(e), cfg, false))
-                        .collect::<Result<Vec<_>, _>>()
-                });
-                let failed = inputs.is_err();
-                if load_tx.send((chunk, inputs)).is_err() || failed {
-                    break;
-                }
-            }
-        });
-        let writer = s.spawn(move || -> Result<(), NetError> {
-            for (chunk, inputs, probs) in write_rx {
-                pool.install(|| {
-                    chunk
-                        .par_iter()
-                        .zip(&inputs)
-                        .zip(&probs)
-                        .try_for_each(|((e, i), p)| write_sample(&ds.sample_dir(e), i, p, cfg))
-                })?;
-                progress.inc(chunk.len() as u64);
-            }
-            Ok(())
-        });
+        let (load_tx, load_rx) = sync_channel::<LoadedBatch>(1);
+        let (write_tx, write_rx) = sync_channel::<PredictedBatch>(1);
+        s.spawn(move || load_batches(ds, todo, cfg, opts.batch_size, pool, load_tx));
+        let writer = s.spawn(move || write_batches(ds, cfg, pool, progress, write_rx));
         let mut network_seconds = 0.0;
         let mut result = Ok(());
         for (chunk, inputs) in load_rx {
@@ -383,6 +361,58 @@ fn run_pipeline(
         });
         result.and(written).map(|()| network_seconds)
     })
+}
+
+/// A batch of samples and their inputs as read (or the first error reading them).
+type LoadedBatch<'a> = (&'a [&'a IndexEntry], Result<Vec<PdaInput>, NetError>);
+/// A batch of samples, their inputs and the network's association probabilities.
+type PredictedBatch<'a> = (&'a [&'a IndexEntry], Vec<PdaInput>, Vec<Vec<f32>>);
+
+/// The loader stage of [`run_pipeline`]: reads `todo` in batches of `batch_size` (on `pool`)
+/// and sends each to the network; stops after the first batch that failed or when the network
+/// stage is gone.
+fn load_batches<'a>(
+    ds: &Dataset,
+    todo: &'a [&'a IndexEntry],
+    cfg: &PdaConfig,
+    batch_size: usize,
+    pool: &rayon::ThreadPool,
+    load_tx: std::sync::mpsc::SyncSender<LoadedBatch<'a>>,
+) {
+    for chunk in todo.chunks(batch_size.max(1)) {
+        let inputs = pool.install(|| {
+            chunk
+                .par_iter()
+                .map(|e| load_input(&ds.sample_dir(e), cfg, false))
+                .collect::<Result<Vec<_>, _>>()
+        });
+        let failed = inputs.is_err();
+        if load_tx.send((chunk, inputs)).is_err() || failed {
+            break;
+        }
+    }
+}
+
+/// The writer stage of [`run_pipeline`]: writes the MER maps of every predicted batch (on
+/// `pool`), counting its samples on `progress`; the first error stops it.
+fn write_batches(
+    ds: &Dataset,
+    cfg: &PdaConfig,
+    pool: &rayon::ThreadPool,
+    progress: &Progress,
+    write_rx: std::sync::mpsc::Receiver<PredictedBatch>,
+) -> Result<(), NetError> {
+    for (chunk, inputs, probs) in write_rx {
+        pool.install(|| {
+            chunk
+                .par_iter()
+                .zip(&inputs)
+                .zip(&probs)
+                .try_for_each(|((e, i), p)| write_sample(&ds.sample_dir(e), i, p, cfg))
+        })?;
+        progress.inc(chunk.len() as u64);
+    }
+    Ok(())
 }
 
 /// `--preview N`: for N samples, the image with raw radar, height-extended radar and MER at

@@ -1109,26 +1109,10 @@ pub fn prepare_timed(
         (vec![], 0)
     };
     if !indexed {
-        // A folder from before settings lived in the index: compare with a finished sample.
-        if let Some(s) = existing.first() {
-            check_settings(
-                &opts.out.join(s.token.to_string()).join(layout::META_FILE),
-                opts,
-            )?;
-        }
+        check_unindexed_settings(opts, &existing)?;
     }
     progress.set_length(todo.len() as u64);
-    progress.println(format!(
-        "{} keyframes to prepare ({} already done) from {} ({}, split {}{}) into {}",
-        todo.len(),
-        existing.len(),
-        opts.dataroot.display(),
-        opts.version,
-        opts.split,
-        opts.shard
-            .map_or(String::new(), |sh| format!(", shard {sh}")),
-        opts.out.display()
-    ));
+    progress.println(plan_line(opts, todo.len(), existing.len()));
     let times = Mutex::new(StageTimes::default());
     let job = Job {
         nu: &nu,
@@ -1145,6 +1129,34 @@ pub fn prepare_timed(
     write_index(&nu, opts, &samples, &ok, &assignment, shard_info)?;
     let t = times.into_inner().unwrap_or_default();
     Ok((summary, t))
+}
+
+/// A folder from before settings lived in the index: its settings are compared with those of
+/// a finished sample (the first of `existing`, when there is one).
+fn check_unindexed_settings(opts: &PrepareOptions, existing: &[&Sample]) -> Result<(), PrepError> {
+    if let Some(s) = existing.first() {
+        check_settings(
+            &opts.out.join(s.token.to_string()).join(layout::META_FILE),
+            opts,
+        )?;
+    }
+    Ok(())
+}
+
+/// The line `prepare` starts with: how many keyframes it prepares (`todo`) and found done
+/// (`done`), from where and into where.
+fn plan_line(opts: &PrepareOptions, todo: usize, done: usize) -> String {
+    format!(
+        "{} keyframes to prepare ({} already done) from {} ({}, split {}{}) into {}",
+        todo,
+        done,
+        opts.dataroot.display(),
+        opts.version,
+        opts.split,
+        opts.shard
+            .map_or(String::new(), |sh| format!(", shard {sh}")),
+        opts.out.display()
+    )
 }
 
 /// `--verify`: re-reads every sample of `existing` (on all cores); each broken one is removed

@@ -471,44 +471,8 @@ fn score<'py>(
             gts.len()
         )));
     }
-    let masks: Vec<Vec<bool>> = match lowheight {
-        None => vec![vec![]; preds.len()],
-        Some(m) => maps_arg(m, "lowheight")?
-            .into_iter()
-            .map(|(v, _, _)| v.into_iter().map(|x| x > 0.5).collect())
-            .collect(),
-    };
-    if masks.len() != preds.len() {
-        return Err(PyValueError::new_err(format!(
-            "{} low-height masks for {} images",
-            masks.len(),
-            preds.len()
-        )));
-    }
-    let conds: Vec<Vec<Condition>> = match conditions {
-        None => vec![vec![Condition::Day]; preds.len()],
-        Some(c) => {
-            let lists: Vec<Vec<String>> = match c.extract::<Vec<String>>() {
-                Ok(one) if preds.len() == 1 => vec![one],
-                _ => c.extract().map_err(|_| {
-                    PyValueError::new_err(
-                        "conditions: a list of \"day\" / \"night\" / \"rain\" per image",
-                    )
-                })?,
-            };
-            lists
-                .iter()
-                .map(|l| parse_conditions(l))
-                .collect::<PyResult<_>>()?
-        }
-    };
-    if conds.len() != preds.len() {
-        return Err(PyValueError::new_err(format!(
-            "{} condition lists for {} images",
-            conds.len(),
-            preds.len()
-        )));
-    }
+    let masks = masks_arg(lowheight, preds.len())?;
+    let conds = conditions_arg(conditions, preds.len())?;
     let mut ev =
         Evaluator::new(eval_config(protocol, aggregate, caps, clip)?).map_err(value_err)?;
     for (i, ((p, g), (m, c))) in preds
@@ -526,6 +490,59 @@ fn score<'py>(
         depthsense_score::score_image(&mut ev, &g.0, m, c, &p.0).map_err(py_err)?;
     }
     report_dict(py, &ev.finish())
+}
+
+/// `score`'s low-height masks: one per image of the `n` (a value > 0.5 is low height), or
+/// empty masks when none are given.
+fn masks_arg(lowheight: Option<&Bound<'_, PyAny>>, n: usize) -> PyResult<Vec<Vec<bool>>> {
+    let masks: Vec<Vec<bool>> = match lowheight {
+        None => vec![vec![]; n],
+        Some(m) => maps_arg(m, "lowheight")?
+            .into_iter()
+            .map(|(v, _, _)| v.into_iter().map(|x| x > 0.5).collect())
+            .collect(),
+    };
+    if masks.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "{} low-height masks for {} images",
+            masks.len(),
+            n
+        )));
+    }
+    Ok(masks)
+}
+
+/// `score`'s scene conditions: one list per image of the `n` (one list alone for a single
+/// image), day when none are given.
+fn conditions_arg(
+    conditions: Option<&Bound<'_, PyAny>>,
+    n: usize,
+) -> PyResult<Vec<Vec<Condition>>> {
+    let conds: Vec<Vec<Condition>> = match conditions {
+        None => vec![vec![Condition::Day]; n],
+        Some(c) => {
+            let lists: Vec<Vec<String>> = match c.extract::<Vec<String>>() {
+                Ok(one) if n == 1 => vec![one],
+                _ => c.extract().map_err(|_| {
+                    PyValueError::new_err(
+                        "conditions: a list of \"day\" / \"night\" / \"rain\" per image",
+                    )
+                })?,
+            };
+            lists
+                .iter()
+                .map(|l| parse_conditions(l))
+                .collect::<PyResult<_>>()?
+        }
+    };
+    if conds.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "{} condition lists for {} images",
+            conds.len(),
+            n
+        )));
+    }
+    Ok(conds)
 }
 
 /// Scores one prediction ([350, 800] metres) against a prepared sample exactly as `depthsense

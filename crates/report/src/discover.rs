@@ -102,38 +102,8 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
     }
     let mut claimed: BTreeSet<PathBuf> = BTreeSet::new();
     let before = d.sections.len();
-    match super::runs::training_run(dir, &files, &names) {
-        Some(Ok(run)) => {
-            claimed.extend(run.files.iter().cloned());
-            d.sections.push(run);
-        }
-        Some(Err((path, reason))) => {
-            // Its record is named with the reason; its other files are not listed again.
-            claimed.extend(["config.json", "metrics.jsonl"].map(|n| dir.join(n)));
-            d.skipped.push(skip(&path, reason));
-        }
-        None => {}
-    }
-    let mut unreadable = vec![];
-    for export in super::runs::exports(dir, &files, &mut claimed, &mut unreadable) {
-        d.sections.push(export);
-    }
-    d.skipped
-        .extend(unreadable.into_iter().map(|(p, reason)| skip(&p, reason)));
-    for kind in Kind::ALL {
-        let Some(stem) = kind.stem() else { continue };
-        let json = dir.join(format!("{stem}.json"));
-        if names.contains(format!("{stem}.json").as_str()) {
-            match read_json(&json).and_then(|v| found(kind, dir, &json, &v, &names)) {
-                Ok(f) => {
-                    claimed.extend(f.files.iter().cloned());
-                    claimed.extend(f.images.iter().map(|i| i.path.clone()));
-                    d.sections.push(f);
-                }
-                Err(reason) => d.skipped.push(skip(&json, reason)),
-            }
-        }
-    }
+    runs_and_exports(dir, &files, &names, &mut claimed, d);
+    named_outputs(dir, &names, &mut claimed, d);
     probe_mer(dir, &files, &mut claimed, d);
     if is_root || d.sections.len() > before {
         for f in files.iter().filter(|f| !claimed.contains(*f)) {
@@ -150,6 +120,59 @@ fn visit(dir: &Path, is_root: bool, d: &mut Discovery) -> Vec<PathBuf> {
         return vec![];
     }
     dirs
+}
+
+/// The training run (`config.json` + `metrics.jsonl`) and the exported models of `dir`: their
+/// sections, or the records that cannot be read with the reason; their files are `claimed`.
+fn runs_and_exports(
+    dir: &Path,
+    files: &[PathBuf],
+    names: &BTreeSet<&str>,
+    claimed: &mut BTreeSet<PathBuf>,
+    d: &mut Discovery,
+) {
+    match super::runs::training_run(dir, files, names) {
+        Some(Ok(run)) => {
+            claimed.extend(run.files.iter().cloned());
+            d.sections.push(run);
+        }
+        Some(Err((path, reason))) => {
+            // Its record is named with the reason; its other files are not listed again.
+            claimed.extend(["config.json", "metrics.jsonl"].map(|n| dir.join(n)));
+            d.skipped.push(skip(&path, reason));
+        }
+        None => {}
+    }
+    let mut unreadable = vec![];
+    for export in super::runs::exports(dir, files, claimed, &mut unreadable) {
+        d.sections.push(export);
+    }
+    d.skipped
+        .extend(unreadable.into_iter().map(|(p, reason)| skip(&p, reason)));
+}
+
+/// The `<stem>.json` outputs of `dir`, one kind after another: their sections (their files
+/// and images `claimed`), or the JSON that cannot be read with the reason.
+fn named_outputs(
+    dir: &Path,
+    names: &BTreeSet<&str>,
+    claimed: &mut BTreeSet<PathBuf>,
+    d: &mut Discovery,
+) {
+    for kind in Kind::ALL {
+        let Some(stem) = kind.stem() else { continue };
+        let json = dir.join(format!("{stem}.json"));
+        if names.contains(format!("{stem}.json").as_str()) {
+            match read_json(&json).and_then(|v| found(kind, dir, &json, &v, names)) {
+                Ok(f) => {
+                    claimed.extend(f.files.iter().cloned());
+                    claimed.extend(f.images.iter().map(|i| i.path.clone()));
+                    d.sections.push(f);
+                }
+                Err(reason) => d.skipped.push(skip(&json, reason)),
+            }
+        }
+    }
 }
 
 /// Files and subfolders of `dir` (sorted; hidden names left out).
@@ -204,34 +227,43 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         ),
     };
     let command_line = string_at(v, &["command_line"]);
-    // Its two models on the test scenes (`tables.json` beside the summary), scored on
-    // DEMO/prepared.
-    let tables = dir.join("tables.json");
-    let models = if tables.is_file() {
-        let t: TablesRecord = depthsense_records::read_json(&tables)
-            .map_err(|e| format!("tables.json: {}", e.detail()))?;
-        let data = dir
-            .parent()
-            .map(|p| p.join("prepared").display().to_string());
-        super::runs::eval_models(dir, &t, data, "demo")
-    } else {
-        vec![]
-    };
-    let mut f = Found {
+    let models = demo_models(dir)?;
+    Ok(Found {
         kind: Kind::Demo,
         dir: dir.to_path_buf(),
         files: files.to_vec(),
         inputs: inputs(v, command_line.as_deref()),
         command_line,
         doc,
-        images: vec![],
+        images: demo_images(dir, dirs),
         grid: None,
         models,
-    };
+    })
+}
+
+/// The demo's two models on the test scenes (`tables.json` beside the summary), scored on
+/// DEMO/prepared; none when there is no `tables.json`.
+fn demo_models(dir: &Path) -> Result<Vec<ModelRow>, String> {
+    let tables = dir.join("tables.json");
+    if !tables.is_file() {
+        return Ok(vec![]);
+    }
+    let t: TablesRecord = depthsense_records::read_json(&tables)
+        .map_err(|e| format!("tables.json: {}", e.detail()))?;
+    let data = dir
+        .parent()
+        .map(|p| p.join("prepared").display().to_string());
+    Ok(super::runs::eval_models(dir, &t, data, "demo"))
+}
+
+/// The demo's pictures present: the validation plot and curves, then the picture row of every
+/// sample under `samples/` (one colour bar in metres each).
+fn demo_images(dir: &Path, dirs: &[PathBuf]) -> Vec<ImageSource> {
+    let mut images = vec![];
     for name in ["val_rmse.png", "curves_rgb.png", "curves_fusion.png"] {
         let p = dir.join(name);
         if p.is_file() {
-            f.images.push(ImageSource {
+            images.push(ImageSource {
                 caption: name.to_string(),
                 path: p,
                 tile: false,
@@ -245,7 +277,7 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
         for r in rows {
             let p = r.join("row.png");
             if p.is_file() {
-                f.images.push(ImageSource {
+                images.push(ImageSource {
                     caption: format!(
                         "sample {}: image, radar, lidar GT, RGB only, fusion (m)",
                         file_name(&r).unwrap_or("?")
@@ -256,7 +288,7 @@ fn demo(dir: &Path, v: &Value, files: &[PathBuf], dirs: &[PathBuf]) -> Result<Fo
             }
         }
     }
-    Ok(f)
+    images
 }
 
 /// JSON files of `dir` not claimed yet that hold a MER report (`mer report --json`).
@@ -379,34 +411,8 @@ fn found(
             f.files.push(dir.join(name));
         }
     }
-    f.doc = if let Some(doc) = document(v) {
-        doc
-    } else if names.contains(format!("{stem}.md").as_str()) {
-        Doc::from_markdown(
-            std::fs::read_to_string(dir.join(format!("{stem}.md")))
-                .map_err(|e| format!("{stem}.md: cannot read: {e}"))?,
-        )
-    } else {
-        let mut d = Doc::new();
-        d.paragraph(format!("(no `{stem}.md` beside `{stem}.json`)"));
-        d
-    };
-    f.models = match kind {
-        Kind::Eval => {
-            let data = f
-                .inputs
-                .iter()
-                .find(|(k, _)| k == "data")
-                .map(|(_, d)| d.clone());
-            let t: TablesRecord =
-                depthsense_records::checked(v.clone(), json, None).map_err(|e| e.detail())?;
-            super::runs::eval_models(dir, &t, data, "eval")
-        }
-        Kind::Ablation | Kind::ReducedData | Kind::DataScale => {
-            super::runs::experiment_models(kind, dir, v)
-        }
-        _ => vec![],
-    };
+    f.doc = output_doc(dir, stem, v, names)?;
+    f.models = output_models(kind, dir, json, v, &f.inputs)?;
     if kind == Kind::Explain {
         explain_images(&mut f, v, names);
     } else if names.contains(format!("{stem}.png").as_str()) {
@@ -418,6 +424,49 @@ fn found(
         });
     }
     Ok(f)
+}
+
+/// The document of a `<stem>.json` output: the one it holds, else its `<stem>.md` beside it,
+/// else a paragraph saying there is none.
+fn output_doc(dir: &Path, stem: &str, v: &Value, names: &BTreeSet<&str>) -> Result<Doc, String> {
+    Ok(if let Some(doc) = document(v) {
+        doc
+    } else if names.contains(format!("{stem}.md").as_str()) {
+        Doc::from_markdown(
+            std::fs::read_to_string(dir.join(format!("{stem}.md")))
+                .map_err(|e| format!("{stem}.md: cannot read: {e}"))?,
+        )
+    } else {
+        let mut d = Doc::new();
+        d.paragraph(format!("(no `{stem}.md` beside `{stem}.json`)"));
+        d
+    })
+}
+
+/// The comparison's rows of a `<stem>.json` output: an evaluation's tables (on the `data` of
+/// its `inputs`) or an experiment's arms; none for the other kinds.
+fn output_models(
+    kind: Kind,
+    dir: &Path,
+    json: &Path,
+    v: &Value,
+    inputs: &[(String, String)],
+) -> Result<Vec<ModelRow>, String> {
+    Ok(match kind {
+        Kind::Eval => {
+            let data = inputs
+                .iter()
+                .find(|(k, _)| k == "data")
+                .map(|(_, d)| d.clone());
+            let t: TablesRecord =
+                depthsense_records::checked(v.clone(), json, None).map_err(|e| e.detail())?;
+            super::runs::eval_models(dir, &t, data, "eval")
+        }
+        Kind::Ablation | Kind::ReducedData | Kind::DataScale => {
+            super::runs::experiment_models(kind, dir, v)
+        }
+        _ => vec![],
+    })
 }
 
 /// Explain: a grid of its overlays (rows: sample × radar state; columns: distance × layer);

@@ -99,17 +99,7 @@ fn read_training_run(
     let mut f = Found {
         kind: Kind::Train,
         dir: dir.to_path_buf(),
-        files: files
-            .iter()
-            .filter(|p| {
-                let n = file_name(p).unwrap_or_default();
-                n == "config.json"
-                    || n == "metrics.jsonl"
-                    || n == "curves.png"
-                    || n.ends_with(".safetensors")
-            })
-            .cloned()
-            .collect(),
+        files: run_files(files),
         command_line: recorded_command(&cfg),
         inputs: vec![
             ("data".into(), cfg.options().data.clone()),
@@ -147,6 +137,22 @@ fn read_training_run(
     Ok(f)
 }
 
+/// The files of `files` a training run's section lists: its records, its curves and its
+/// checkpoints.
+fn run_files(files: &[PathBuf]) -> Vec<PathBuf> {
+    files
+        .iter()
+        .filter(|p| {
+            let n = file_name(p).unwrap_or_default();
+            n == "config.json"
+                || n == "metrics.jsonl"
+                || n == "curves.png"
+                || n.ends_with(".safetensors")
+        })
+        .cloned()
+        .collect()
+}
+
 /// The iteration cell of a validation row ("–": an epoch line written without it).
 fn iteration_cell(it: Option<u64>) -> String {
     it.map_or("–".into(), |i| i.to_string())
@@ -159,15 +165,24 @@ fn depth_doc(
     recs: &[MetricsRecord<ValRecord>],
     unfinished: Option<String>,
 ) -> (Doc, Option<ModelRow>) {
+    let mut doc = Doc::new();
+    depth_settings(&mut doc, cfg, unfinished.as_deref());
+    doc.table(validation_table(recs));
+    let best = best_validation(dir, cfg, recs, unfinished);
+    (doc, best)
+}
+
+/// The paragraphs of a depth network's run: the network, schedule and data, and where it was
+/// initialised from or extended.
+fn depth_settings(doc: &mut Doc, cfg: &TrainRunConfig, unfinished: Option<&str>) {
     let t = &cfg.train;
     let m = &cfg.model;
-    let mut doc = Doc::new();
     doc.paragraph(format!(
         "`{}` ({}), {} batch {}, lr {}, seed {}, on `{}` ({} training / {} \
          validation samples used).",
         m.name,
         m.fusion_words(),
-        epochs_text(t, unfinished.as_deref()),
+        epochs_text(t, unfinished),
         t.batch_size,
         json_number(t.lr),
         t.seed,
@@ -189,6 +204,10 @@ fn depth_doc(
             cfg.schedule.len()
         ));
     }
+}
+
+/// One row per validation of a depth network's run (metres, δ1 a share).
+fn validation_table(recs: &[MetricsRecord<ValRecord>]) -> MdTable {
     let mut t = right_aligned(&[
         "epoch",
         "iteration",
@@ -211,9 +230,18 @@ fn depth_doc(
             v.n_images.to_string(),
         ]);
     }
-    doc.table(t);
-    let best = recs
-        .iter()
+    t
+}
+
+/// The comparison's row of a depth network's run: its epoch-end validation of lowest RMSE
+/// (metres); `None` when no epoch ended with a finite one.
+fn best_validation(
+    dir: &Path,
+    cfg: &TrainRunConfig,
+    recs: &[MetricsRecord<ValRecord>],
+    unfinished: Option<String>,
+) -> Option<ModelRow> {
+    recs.iter()
         .filter(|r| matches!(r, MetricsRecord::Epoch(_)))
         .filter_map(MetricsRecord::validation)
         .filter(|(_, _, v)| v.rmse.is_finite())
@@ -235,8 +263,7 @@ fn depth_doc(
             mae_m: Some(v.mae),
             abs_rel: Some(v.abs_rel),
             delta1: Some(v.delta1),
-        });
-    (doc, best)
+        })
 }
 
 /// "10 epochs of", or for a run that stopped early its mark in bold: "**unfinished (epoch 3
@@ -408,22 +435,7 @@ pub fn eval_models(
 /// largest cap.
 pub fn experiment_models(kind: Kind, dir: &Path, v: &Value) -> Vec<ModelRow> {
     let data = string_at(v, &["options", "data"]);
-    // Every run of an experiment is tested on the same scenes: their image count, when one.
-    let images: BTreeSet<u64> = v["runs"]
-        .as_array()
-        .into_iter()
-        .flatten()
-        .filter_map(|r| {
-            r["rows"].as_array()?.iter().find_map(|x| {
-                (x["condition"] == "combined" && x["region"] == "full")
-                    .then(|| x["n_images"].as_u64())
-                    .flatten()
-            })
-        })
-        .collect();
-    let images = (images.len() == 1)
-        .then(|| images.into_iter().next())
-        .flatten();
+    let images = shared_test_images(v);
     let mean = |r: &Value, k: &str| num(&r[k], "mean");
     let row = |name: String, r: &Value, cap_m: Option<f64>| ModelRow {
         name,
@@ -441,32 +453,16 @@ pub fn experiment_models(kind: Kind, dir: &Path, v: &Value) -> Vec<ModelRow> {
         delta1: mean(r, "delta1"),
     };
     match kind {
-        Kind::Ablation | Kind::ReducedData => {
-            // Each variant's (cell's) combined / full-image row at its largest cap.
-            let mut best: Vec<(String, &Value)> = vec![];
-            for r in v["summary"].as_array().into_iter().flatten() {
-                if r["condition"] != "combined" || r["region"] != "full" {
-                    continue;
-                }
-                let Some(variant) = r["variant"].as_str() else {
-                    continue;
+        Kind::Ablation | Kind::ReducedData => largest_cap_rows(v)
+            .into_iter()
+            .map(|(variant, r)| {
+                let name = match kind {
+                    Kind::ReducedData => format!("trained on {variant}"),
+                    _ => variant,
                 };
-                match best.iter_mut().find(|(n, _)| n == variant) {
-                    Some((_, b)) if num(r, "cap_m") > num(b, "cap_m") => *b = r,
-                    Some(_) => {}
-                    None => best.push((variant.to_string(), r)),
-                }
-            }
-            best.into_iter()
-                .map(|(variant, r)| {
-                    let name = match kind {
-                        Kind::ReducedData => format!("trained on {variant}"),
-                        _ => variant,
-                    };
-                    row(name, r, num(r, "cap_m"))
-                })
-                .collect()
-        }
+                row(name, r, num(r, "cap_m"))
+            })
+            .collect(),
         Kind::DataScale => {
             let cap = v["options"]["eval"]["caps_m"]
                 .as_array()
@@ -487,6 +483,46 @@ pub fn experiment_models(kind: Kind, dir: &Path, v: &Value) -> Vec<ModelRow> {
         }
         _ => vec![],
     }
+}
+
+/// The test image count every run of an experiment shares (each is tested on the same
+/// scenes): its combined / full-image rows' `n_images`, `None` unless exactly one count.
+fn shared_test_images(v: &Value) -> Option<u64> {
+    let images: BTreeSet<u64> = v["runs"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|r| {
+            r["rows"].as_array()?.iter().find_map(|x| {
+                (x["condition"] == "combined" && x["region"] == "full")
+                    .then(|| x["n_images"].as_u64())
+                    .flatten()
+            })
+        })
+        .collect();
+    (images.len() == 1)
+        .then(|| images.into_iter().next())
+        .flatten()
+}
+
+/// Each variant's (cell's) combined / full-image summary row at its largest cap (metres), in
+/// the order the variants first appear.
+fn largest_cap_rows(v: &Value) -> Vec<(String, &Value)> {
+    let mut best: Vec<(String, &Value)> = vec![];
+    for r in v["summary"].as_array().into_iter().flatten() {
+        if r["condition"] != "combined" || r["region"] != "full" {
+            continue;
+        }
+        let Some(variant) = r["variant"].as_str() else {
+            continue;
+        };
+        match best.iter_mut().find(|(n, _)| n == variant) {
+            Some((_, b)) if num(r, "cap_m") > num(b, "cap_m") => *b = r,
+            Some(_) => {}
+            None => best.push((variant.to_string(), r)),
+        }
+    }
+    best
 }
 
 /// For each row, which of its metrics ([`METRIC_COLUMNS`]) is the best among the rows of its

@@ -161,18 +161,38 @@ pub struct PredictionsSummary {
     pub missing: Vec<String>,
 }
 
+/// `--predictions` must be a folder.
+fn check_folder(dir: &Path) -> Result<(), DataError> {
+    if !dir.is_dir() {
+        return Err(DataError::Data(format!(
+            "{}: no such folder; --predictions takes a folder of <sample token>.png (16-bit, \
+             depth×256) or .npy (float32 metres) files, as `depthsense predict --data` writes",
+            dir.display()
+        )));
+    }
+    Ok(())
+}
+
+/// A prediction `(w, h)` (pixels) read from `path` must be in the frame of its ground truth.
+fn check_frame(path: &Path, (w, h): (usize, usize), gt: &GroundTruth) -> Result<(), DataError> {
+    if (w, h) != (gt.width, gt.height) {
+        return Err(DataError::Data(format!(
+            "{}: prediction is {w}x{h} but the ground truth of the training frame is {}x{} \
+             (SPEC §3: predictions must be in the 800x350 frame `prepare` writes)",
+            path.display(),
+            gt.width,
+            gt.height
+        )));
+    }
+    Ok(())
+}
+
 /// Score prediction files with exactly the `eval --checkpoint` protocol ([`score_image`]).
 pub fn run_eval_predictions(
     opts: &PredictionsOptions,
     progress: &Progress,
 ) -> Result<(Report, PredictionsSummary), DataError> {
-    if !opts.dir.is_dir() {
-        return Err(DataError::Data(format!(
-            "{}: no such folder; --predictions takes a folder of <sample token>.png (16-bit, \
-             depth×256) or .npy (float32 metres) files, as `depthsense predict --data` writes",
-            opts.dir.display()
-        )));
-    }
+    check_folder(&opts.dir)?;
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(
         &select_split(&ds, &opts.split, opts.val_every_scene)?,
@@ -200,15 +220,7 @@ pub fn run_eval_predictions(
         };
         let gt = load_ground_truth(&ds, e)?;
         let (pred, w, h) = read_prediction(&path, fmt)?;
-        if (w, h) != (gt.width, gt.height) {
-            return Err(DataError::Data(format!(
-                "{}: prediction is {w}x{h} but the ground truth of the training frame is {}x{} \
-                 (SPEC §3: predictions must be in the 800x350 frame `prepare` writes)",
-                path.display(),
-                gt.width,
-                gt.height
-            )));
-        }
+        check_frame(&path, (w, h), &gt)?;
         score_image(&mut ev, &gt.sparse_m, &gt.lowheight, &e.conditions, &pred)?;
         sum.scored += 1;
         match fmt {

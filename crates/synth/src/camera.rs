@@ -155,6 +155,26 @@ pub fn render(world: &World, t: f64, salt: u64) -> CamFrame {
     render_scaled(world, t, salt, 1)
 }
 
+/// The lights of the frame at time `t` (s) seen from the camera at `o`: the weather's, the
+/// ego's headlight (3.8 m ahead, 0.7 m up) and the street lamps within 160 m.
+fn lights_at<'a>(world: &World, t: f64, light: &'a Light, o: DVec3) -> Lights<'a> {
+    let (ego_p, ego_q) = world.ego_pose(t);
+    let fwd = ego_q * DVec3::X;
+    Lights {
+        light,
+        night: world.weather == Weather::Night,
+        rain: world.weather == Weather::Rain,
+        headlight: ego_p + fwd * 3.8 + DVec3::new(0.0, 0.0, 0.7),
+        fwd,
+        lamps: world
+            .lamps
+            .iter()
+            .copied()
+            .filter(|l| (l.truncate() - o.truncate()).length() < 160.0)
+            .collect(),
+    }
+}
+
 /// [`render`] with one ray per `scale` × `scale` pixels (`synth --camera-scale`): each ray's
 /// colour and depth fill its cell, so the image is still IMG_W × IMG_H and the 2×2 average of
 /// the training frame (SPEC §3) is, at scale 2, the coarse render itself. Scale 1 is [`render`]
@@ -185,21 +205,7 @@ pub fn render_scaled(world: &World, t: f64, salt: u64, scale: u32) -> CamFrame {
     let boxes = screen_boxes(&view, &prims);
     prim_pass(&view, &prims, &boxes, &mut raster);
     // Shading.
-    let (ego_p, ego_q) = world.ego_pose(t);
-    let fwd = ego_q * DVec3::X;
-    let lights = Lights {
-        light: &light,
-        night: world.weather == Weather::Night,
-        rain: world.weather == Weather::Rain,
-        headlight: ego_p + fwd * 3.8 + DVec3::new(0.0, 0.0, 0.7),
-        fwd,
-        lamps: world
-            .lamps
-            .iter()
-            .copied()
-            .filter(|l| (l.truncate() - o.truncate()).length() < 160.0)
-            .collect(),
-    };
+    let lights = lights_at(world, t, &light, o);
     let (mut lin, depth) = shade_pixels(world, &view, &prims, &raster, &lights);
 
     // Rain: wet-road reflections (mirror about the horizon row) and streaks.

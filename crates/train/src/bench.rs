@@ -72,10 +72,7 @@ pub fn bench_train(
         seed: 1,
         ..LoadOptions::default()
     };
-    let jobs = match opts.jobs {
-        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
-        n => n,
-    };
+    let jobs = loader_threads(opts.jobs);
 
     // Full batches only (when there are enough samples): an epoch's last, smaller batch is a
     // new input shape, and cuDNN autotunes every convolution for it once — 10.8 s of one
@@ -91,14 +88,10 @@ pub fn bench_train(
         jobs,
         prefetch: 4,
     };
-    // Loader alone.
     progress.set_message("loader");
     let (images, loader_ips) = time_loader(opts, &ds, &load, &plan)?;
-    let first =
-        depthsense_data::load_sample(&ds, &entries[0], &load, &mut depthsense_data::Rng::new(0))?;
-    cfg.out_height = first.height as i64;
-    cfg.out_width = first.width as i64;
-
+    let (width, height) = ds.frame_size()?;
+    (cfg.out_height, cfg.out_width) = (height.into(), width.into());
     // Training steps, with the loader running in the background as in `train`.
     progress.set_message("training steps");
     let (timed_images, timed_secs, step_secs) =
@@ -108,7 +101,7 @@ pub fn bench_train(
         "device": depthsense_model::device::describe(device),
         "preset": opts.preset,
         "batch_size": opts.batch_size,
-        "frame": [first.width, first.height],
+        "frame": [width, height],
         "amp": opts.amp && device.is_cuda(),
         "amp_dtype": "bf16",
         "train_images_per_s": timed_images as f64 / timed_secs.max(1e-9),
@@ -119,6 +112,14 @@ pub fn bench_train(
         "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
         "torch_threads": tch::get_num_threads(),
     }))
+}
+
+/// `--jobs`: 0 is every core.
+fn loader_threads(jobs: usize) -> usize {
+    match jobs {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
+    }
 }
 
 /// The prepared folder the benchmark reads: `--data`, or a toy 800×350 world written to a

@@ -8,7 +8,9 @@
 //! - [`fit`] owns the loop: the progress bar, the validation of the initial network on a fresh
 //!   run (`{"kind":"val","epoch":0,…}` in RUN/metrics.jsonl), the epochs still to run — a
 //!   resumed run starts inside its epoch, at the batch after the last one done — the checkpoint
-//!   cadence ([`Plan`]: every N iterations, at `--stop-after`) and the epoch ends;
+//!   cadence ([`Plan`]: every N iterations, at `--stop-after`), the epoch ends (validation,
+//!   RUN/last.safetensors, then RUN/best.safetensors when it improved) and the rule for the best
+//!   checkpoint ([`improves`]: the lowest [`Learner::score`], the initial network included);
 //! - a stop signal (SIGINT / SIGTERM, [`depthsense_base::interrupt`]) ends the loop after the
 //!   current step with a checkpoint that `--resume` continues from exactly ([`Fitted::signal`];
 //!   at an epoch's last step the epoch is closed first, its validation included);
@@ -20,7 +22,7 @@
 //! The learning rate and the step's dropout seed come from [`crate::schedule`], the optimiser
 //! is a [`crate::optim::Optimizer`]. What differs between the two networks stays with them: the
 //! batch, the loss, when a loss is read, the validation record (depth metrics vs. association
-//! AUC), the best-checkpoint rule.
+//! AUC) and its score (RMSE vs. −AUC), what a checkpoint holds, the epoch record.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -71,8 +73,20 @@ pub trait Learner {
     fn iteration(&self) -> u64;
     /// The run's length, checkpoint cadence and stop.
     fn plan(&self) -> Plan;
-    /// The current network on the validation samples, its record tagged with `epoch`.
+    /// The current network on the validation samples, its record tagged with `epoch`: 0 before
+    /// training, else the epoch just ended (1-based), which the learner's state then records.
     fn validation(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
+    /// A validation as the best-checkpoint rule ([`improves`]) sees it: lower is better (a
+    /// depth network's RMSE; the PDA network's −AUC).
+    fn score(v: &Self::Val) -> f64;
+    /// The score of RUN/best.safetensors (kept in the learner's checkpointed state), `None`
+    /// before the run's first validation.
+    fn best_score(&self) -> Option<f64>;
+    /// Records `v` as the best validation (its score, iteration and epoch) in the state that the
+    /// next checkpoints carry.
+    fn note_best(&mut self, v: &Self::Val);
+    /// Writes RUN/best.safetensors (the process that writes RUN/ only).
+    fn save_best(&mut self) -> Result<(), NetError>;
     /// Appends `record` to RUN/metrics.jsonl (only in the process that writes RUN/).
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError>;
     /// The batches of epoch `epoch` (0-based) after its first `skip` (done before a resume),
@@ -91,11 +105,11 @@ pub trait Learner {
     /// Reads (and checks, and logs) the losses not read yet; [`fit`] calls it before anything
     /// is written and at an epoch's end.
     fn flush(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError>;
-    /// Writes RUN/last.safetensors and its optimiser state inside epoch `epoch`.
+    /// Writes RUN/last.safetensors and its optimiser state, `epoch` epochs done.
     fn save_last(&mut self, epoch: u64) -> Result<(), NetError>;
-    /// Closes epoch `epoch` (0-based) after its last step: validation, checkpoints, the epoch
-    /// record.
-    fn end_epoch(&mut self, epoch: u64) -> Result<Self::Val, NetError>;
+    /// Writes epoch `epoch`'s (0-based) record, validated as `v` and checkpointed, to
+    /// RUN/metrics.jsonl, and redraws RUN/curves.png.
+    fn log_epoch(&mut self, epoch: u64, v: &Self::Val) -> Result<(), NetError>;
     /// The stop signal this run is asked to stop for, asked after every step. A data-parallel
     /// learner makes its ranks agree (all stop at the same iteration, or none).
     fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
@@ -143,6 +157,12 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
     if learner.iteration() == 0 {
         progress.set_message("validating the initial network");
         let v = learner.validation(0)?;
+        // The network before training is a candidate for RUN/best.safetensors like every
+        // epoch's: a fine-tuning that only makes it worse keeps its start.
+        if improves(L::score(&v), learner.best_score()) {
+            learner.note_best(&v);
+            learner.save_best()?;
+        }
         learner.log(&MetricsRecord::Val(ValLine::new(0, 0, &v)).to_value()?)?;
         progress.println(format!("validation before training: {v}"));
         val.push(v);
@@ -161,7 +181,7 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
             EpochStop::End => {}
         }
         progress.set_message(format!("epoch {}/{epochs}: validating", epoch + 1));
-        let v = learner.end_epoch(epoch)?;
+        let v = close_epoch(learner, epoch)?;
         progress.println(format!(
             "validation after epoch {}/{epochs} (iteration {}): {v}",
             epoch + 1,
@@ -177,6 +197,34 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         interrupted: false,
         signal: None,
     })
+}
+
+/// The rule for RUN/best.safetensors, the same for every learner: a run's first validation is
+/// the best so far; a later one replaces it when its score is lower (a NaN never beats a number,
+/// a number always beats a NaN).
+pub fn improves(score: f64, best: Option<f64>) -> bool {
+    match best {
+        None => true,
+        Some(b) if b.is_nan() => !score.is_nan(),
+        Some(b) => score < b,
+    }
+}
+
+/// Closes epoch `epoch` (0-based) after its last step: validation, the best rule, the
+/// checkpoints (RUN/last.safetensors always, RUN/best.safetensors when it improved, both with
+/// the state that says so) and the epoch's record.
+fn close_epoch<L: Learner>(learner: &mut L, epoch: u64) -> Result<L::Val, NetError> {
+    let v = learner.validation(epoch + 1)?;
+    let improved = improves(L::score(&v), learner.best_score());
+    if improved {
+        learner.note_best(&v);
+    }
+    learner.save_last(epoch + 1)?;
+    if improved {
+        learner.save_best()?;
+    }
+    learner.log_epoch(epoch, &v)?;
+    Ok(v)
 }
 
 /// The steps of one epoch from where the run stands, to its end, to `stop_after` or to a stop
@@ -337,6 +385,9 @@ mod tests {
         calls: RefCell<Vec<String>>,
         /// A SIGTERM arrives during this iteration's step.
         signal_at: Option<u64>,
+        /// The validation after epoch N is `vals[N]` (default 100 + N).
+        vals: Vec<u64>,
+        best: Option<f64>,
     }
 
     impl Toy {
@@ -356,7 +407,24 @@ mod tests {
         }
         fn validation(&mut self, epoch: u64) -> Result<u64, NetError> {
             self.call(format!("validate {epoch}"));
-            Ok(100 + epoch)
+            Ok(self
+                .vals
+                .get(epoch as usize)
+                .copied()
+                .unwrap_or(100 + epoch))
+        }
+        fn score(v: &u64) -> f64 {
+            *v as f64
+        }
+        fn best_score(&self) -> Option<f64> {
+            self.best
+        }
+        fn note_best(&mut self, v: &u64) {
+            self.best = Some(*v as f64);
+        }
+        fn save_best(&mut self) -> Result<(), NetError> {
+            self.call(format!("best {:?} at {}", self.best, self.iteration));
+            Ok(())
         }
         fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
             self.call(record.to_string());
@@ -382,9 +450,9 @@ mod tests {
             self.call(format!("save {epoch} at {}", self.iteration));
             Ok(())
         }
-        fn end_epoch(&mut self, epoch: u64) -> Result<u64, NetError> {
-            self.call(format!("end {epoch}"));
-            Ok(101 + epoch)
+        fn log_epoch(&mut self, epoch: u64, v: &u64) -> Result<(), NetError> {
+            self.call(format!("end {epoch}: {v}"));
+            Ok(())
         }
         fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
             let signalled = self.signal_at.is_some_and(|at| self.iteration >= at);
@@ -403,6 +471,8 @@ mod tests {
             },
             calls: RefCell::new(vec![]),
             signal_at: None,
+            vals: vec![],
+            best: None,
         }
     }
 
@@ -421,15 +491,20 @@ mod tests {
             calls(t),
             [
                 "validate 0",
+                "best Some(100.0) at 0",
                 r#"{"epoch":0,"format_version":2,"iteration":0,"kind":"val","val":100}"#,
                 "epoch 0 from 0",
                 "flush 10",
                 "flush 10",
-                "end 0",
+                "validate 1",
+                "save 1 at 10",
+                "end 0: 101",
                 "epoch 1 from 0",
                 "flush 20",
                 "flush 20",
-                "end 1"
+                "validate 2",
+                "save 2 at 20",
+                "end 1: 102"
             ]
         );
     }
@@ -449,7 +524,10 @@ mod tests {
                 "save 1 at 16",
                 "flush 20",
                 "flush 20",
-                "end 1",
+                "validate 2",
+                "save 2 at 20",
+                "best Some(102.0) at 20",
+                "end 1: 102",
                 "epoch 2 from 0",
                 "flush 24",
                 "save 2 at 24",
@@ -468,7 +546,7 @@ mod tests {
         assert_eq!(f.signal, Some(StopSignal::Terminate));
         assert_eq!(t.iteration, 13);
         assert!(calls(t).ends_with(&[
-            "end 0".to_string(),
+            "end 0: 101".to_string(),
             "epoch 1 from 0".into(),
             "flush 13".into(),
             "save 1 at 13".into()
@@ -485,7 +563,12 @@ mod tests {
             (Some(StopSignal::Terminate), vec![100, 101])
         );
         assert_eq!(t.iteration, 10);
-        assert!(calls(t).ends_with(&["flush 10".to_string(), "flush 10".into(), "end 0".into()]));
+        assert!(calls(t).ends_with(&[
+            "flush 10".to_string(),
+            "validate 1".into(),
+            "save 1 at 10".into(),
+            "end 0: 101".into()
+        ]));
     }
 
     #[test]
@@ -494,7 +577,28 @@ mod tests {
         let f = fit(&mut t, &Progress::hidden()).unwrap();
         assert_eq!(f.val, [100, 101]);
         assert!(f.interrupted);
-        assert!(calls(t).ends_with(&["flush 10".to_string(), "flush 10".into(), "end 0".into()]));
+        assert!(calls(t).ends_with(&[
+            "flush 10".to_string(),
+            "validate 1".into(),
+            "save 1 at 10".into(),
+            "end 0: 101".into()
+        ]));
+    }
+
+    #[test]
+    fn the_best_checkpoint_is_the_lowest_score_the_initial_network_included() {
+        let mut t = toy(0, 3, 0, None);
+        t.vals = vec![5, 3, 4, 3];
+        let f = fit(&mut t, &Progress::hidden()).unwrap();
+        assert_eq!(f.val, [5, 3, 4, 3]);
+        let bests: Vec<_> = calls(t)
+            .into_iter()
+            .filter(|c| c.starts_with("best"))
+            .collect();
+        // A tie keeps the earlier checkpoint.
+        assert_eq!(bests, ["best Some(5.0) at 0", "best Some(3.0) at 10"]);
+        assert!(improves(1.0, Some(f64::NAN)) && !improves(f64::NAN, Some(1.0)));
+        assert!(improves(f64::NAN, None) && !improves(2.0, Some(2.0)));
     }
 
     #[test]

@@ -290,6 +290,15 @@ struct Machine {
 }
 
 impl Machine {
+    /// An empty machine for a pickle of `len` bytes: its copy budget is 16 bytes per input
+    /// byte and 1 MiB.
+    fn new(len: usize) -> Self {
+        Self {
+            items: Vec::new(),
+            marks: Vec::new(),
+            copy_budget: (len as u64).saturating_mul(16) + (1 << 20),
+        }
+    }
     fn push(&mut self, v: Value, m: Meta) -> Result<(), String> {
         if m.depth > MAX_PICKLE_DEPTH {
             return Err(format!(
@@ -369,6 +378,18 @@ impl Machine {
             )),
             _ => Ok(()),
         }
+    }
+    /// REDUCE and NEWOBJ: a callable and its arguments → the value [`reduce`] makes of them.
+    fn reduce_top(&mut self) -> Result<(), String> {
+        let (args, ma) = self.pop()?;
+        let (callable, mc) = self.pop()?;
+        let m = Meta::around([&ma, &mc]);
+        self.push(reduce(callable, args)?, m)
+    }
+    /// DUP: the top value again, charged to the copy budget.
+    fn dup(&mut self) -> Result<(), String> {
+        let (v, m) = self.copy_top("DUP")?;
+        self.push(v, m)
     }
     /// STACK_GLOBAL: module and name strings → a global.
     fn stack_global(&mut self) -> Result<(), String> {
@@ -505,11 +526,7 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
         b: bytes,
         pos: start,
     };
-    let mut st = Machine {
-        items: Vec::new(),
-        marks: Vec::new(),
-        copy_budget: (bytes.len() as u64).saturating_mul(16) + (1 << 20),
-    };
+    let mut st = Machine::new(bytes.len());
     let mut memo: HashMap<u32, (Value, Meta)> = HashMap::new();
     loop {
         let op = r.u8()?;
@@ -530,22 +547,13 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             0x89 => st.leaf(Value::Bool(false))?,
             b'q' | b'r' | 0x94 | b'h' | b'j' => memo_op(op, &mut r, &mut st, &mut memo)?,
             b'X' | 0x8c | 0x8d | b'U' | b'T' | b'B' | b'C' => st.leaf(r.string_op(op)?)?,
-            b'c' => {
-                let m = r.line()?;
-                let n = r.line()?;
-                st.leaf(Value::Global(m, n))?;
-            }
+            b'c' => st.leaf(global_op(&mut r)?)?,
             0x93 => st.stack_global()?,
             b'Q' => st.persistent_id()?,
             b'J' | b'K' | b'M' | 0x8a | b'G' => st.leaf(number_op(op, &mut r)?)?,
             0x85..=0x87 | b't' | b'l' | 0x91 => sequence_op(op, &mut st)?,
             b'd' => st.dict()?,
-            b'R' | 0x81 => {
-                let (args, ma) = st.pop()?;
-                let (callable, mc) = st.pop()?;
-                let m = Meta::around([&ma, &mc]);
-                st.push(reduce(callable, args)?, m)?;
-            }
+            b'R' | 0x81 => st.reduce_top()?,
             b'b' => st.build()?,
             b's' => st.set_item()?,
             b'u' => st.set_items()?,
@@ -554,10 +562,7 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             b'0' => {
                 st.pop()?;
             }
-            b'2' => {
-                let (v, m) = st.copy_top("DUP")?;
-                st.push(v, m)?;
-            }
+            b'2' => st.dup()?,
             other => {
                 return Err(format!(
                     "unsupported pickle opcode 0x{other:02x} at byte {}",
@@ -566,6 +571,13 @@ fn run_machine(bytes: &[u8], start: usize) -> Result<(Value, usize), String> {
             }
         }
     }
+}
+
+/// GLOBAL: module and name, each on a line of its own → a global.
+fn global_op(r: &mut Reader<'_>) -> Result<Value, String> {
+    let m = r.line()?;
+    let n = r.line()?;
+    Ok(Value::Global(m, n))
 }
 
 /// The memo opcodes: BINPUT, LONG_BINPUT and MEMOIZE store the top of the stack, BINGET and

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use depthsense_prep::{prepare, PrepareOptions, Shard};
+use depthsense_prep::{prepare, PrepareOptions, PrepareSummary, Shard};
 use depthsense_progress::Progress;
 
 use crate::cmd::heading as h;
@@ -77,6 +77,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let s = prepare(&opts, &pb)?;
     pb.finish_and_clear();
     let secs = t.elapsed().as_secs_f64();
+    print_summary(&opts, &s, secs);
+    if !s.failed.is_empty() && !opts.keep_going {
+        eprintln!("(use --keep-going to exit 0 despite failed samples)");
+        return Ok(ExitCode::FAILURE);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// What `prepare` did: the failed samples, the verified ones, the counts and seconds, and for
+/// a shard where its index went.
+fn print_summary(opts: &PrepareOptions, s: &PrepareSummary, secs: f64) {
     for (token, reason) in &s.failed {
         eprintln!("failed {token}: {reason}");
     }
@@ -115,9 +126,4 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             opts.out.display()
         );
     }
-    if !s.failed.is_empty() && !opts.keep_going {
-        eprintln!("(use --keep-going to exit 0 despite failed samples)");
-        return Ok(ExitCode::FAILURE);
-    }
-    Ok(ExitCode::SUCCESS)
 }

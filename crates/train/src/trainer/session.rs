@@ -161,7 +161,7 @@ impl<'o> Trainer<'o> {
         let val_entries = subsample(&part.val, opts.validation.max_val_samples);
         let run = opts.out.clone();
         std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
-        let cfg = model_config_for_data(opts, &ds, &part.train[0])?;
+        let cfg = model_config_for_data(opts, &ds)?;
         let bpe = opts.schedule.iterations_per_epoch(part.train.len());
         // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
         let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
@@ -170,18 +170,10 @@ impl<'o> Trainer<'o> {
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
         }
-        if opts.checkpointing.resume
-            && !opts.checkpointing.extend
-            && state.iteration >= plan_of(opts, bpe).total_iterations()
-        {
-            return Ok(Opened::Finished(Box::new(finished_summary(
-                opts,
-                &state,
-                part,
-                val_entries.len(),
-                bpe,
-                started,
-            ))));
+        if resumes_a_finished_run(opts, &state, bpe) {
+            let n_val = val_entries.len();
+            let summary = finished_summary(opts, &state, part, n_val, bpe, started);
+            return Ok(Opened::Finished(Box::new(summary)));
         }
         if let Some(d) = dist.as_mut() {
             attach(d, &vs, part.train.len(), opts.schedule.batch_size)?;
@@ -469,65 +461,31 @@ impl<'o> Trainer<'o> {
         )
     }
 
-    /// Epoch end: validate, checkpoint (best when improved), log, plot.
-    fn close_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
+    /// Epoch `epoch`'s (0-based) record in RUN/metrics.jsonl, validated as `v`, and the curves.
+    fn write_epoch_record(&mut self, epoch: u64, v: &ValRecord) -> Result<(), NetError> {
         let (epoch_loss, epoch_n) = (self.acc.sum, self.acc.n);
-        let (mark_images, mark_secs) = self.timing.epoch_mark;
-        let epoch_rate = (self.timing.images - mark_images) as f64
-            / (self.timing.train_secs - mark_secs).max(1e-9);
-        self.timing.epoch_mark = (self.timing.images, self.timing.train_secs);
-        let v = self.validate_timed(epoch + 1)?;
-        self.state.epoch = epoch + 1;
-        self.state.val_rmse = Some(v.rmse);
-        let improved = self.note_best(&v);
-        self.checkpoint()?;
-        if improved {
-            self.save_best()?;
-        }
+        let t = &mut self.timing;
+        let (mark_images, mark_secs) = t.epoch_mark;
+        let epoch_rate = (t.images - mark_images) as f64 / (t.train_secs - mark_secs).max(1e-9);
+        t.epoch_mark = (t.images, t.train_secs);
         if !self.is_main() {
-            return Ok(v);
+            return Ok(());
         }
         let it = self.state.iteration;
+        let t = &self.timing;
         append_record(
             &self.path(METRICS_FILE),
             &MetricsRecord::Epoch(EpochRecord {
                 lr: Some(self.lr_at(it)),
-                images_per_s: Some(self.timing.images as f64 / self.timing.train_secs.max(1e-9)),
+                images_per_s: Some(t.images as f64 / t.train_secs.max(1e-9)),
                 epoch_images_per_s: Some(epoch_rate),
-                train_seconds: Some(self.timing.train_secs),
-                val_seconds: Some(self.timing.val_secs),
-                seconds: Some(self.timing.started.elapsed().as_secs_f64()),
+                train_seconds: Some(t.train_secs),
+                val_seconds: Some(t.val_secs),
+                seconds: Some(t.started.elapsed().as_secs_f64()),
                 ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
             }),
         )?;
-        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))?;
-        Ok(v)
-    }
-
-    /// Records `v` as the best validation when it beats the best so far; true when it does.
-    fn note_best(&mut self, v: &ValRecord) -> bool {
-        let improved = v.rmse < self.state.best_val_rmse.unwrap_or(f64::INFINITY);
-        if improved {
-            self.state.best_val_rmse = Some(v.rmse);
-            self.state.best_iteration = Some(self.state.iteration);
-            self.state.best_epoch = Some(self.state.epoch);
-            self.best_written = true;
-        }
-        improved
-    }
-
-    /// Writes RUN/best.safetensors (the process that writes RUN/ only).
-    fn save_best(&self) -> Result<(), NetError> {
-        if !self.is_main() {
-            return Ok(());
-        }
-        save_ckpt(
-            &self.path(BEST_CKPT),
-            &self.vs,
-            &self.cfg,
-            &self.state,
-            self.opts,
-        )
+        write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 
     /// What RUN/best.safetensors holds now.
@@ -670,14 +628,41 @@ impl Learner for Trainer<'_> {
         plan_of(self.opts, self.bpe)
     }
 
-    /// The validation before training is a candidate for RUN/best.safetensors like every
-    /// epoch's: fine-tuning (`--init-from`) that makes the network worse keeps its start.
     fn validation(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
         let v = self.validate_timed(epoch)?;
-        if self.state.iteration == 0 && self.note_best(&v) {
-            self.save_best()?;
+        if epoch > 0 {
+            self.state.epoch = epoch;
+            self.state.val_rmse = Some(v.rmse);
         }
         Ok(v)
+    }
+
+    fn score(v: &ValRecord) -> f64 {
+        v.rmse
+    }
+
+    fn best_score(&self) -> Option<f64> {
+        self.state.best_val_rmse
+    }
+
+    fn note_best(&mut self, v: &ValRecord) {
+        self.state.best_val_rmse = Some(v.rmse);
+        self.state.best_iteration = Some(self.state.iteration);
+        self.state.best_epoch = Some(self.state.epoch);
+        self.best_written = true;
+    }
+
+    fn save_best(&mut self) -> Result<(), NetError> {
+        if !self.is_main() {
+            return Ok(());
+        }
+        save_ckpt(
+            &self.path(BEST_CKPT),
+            &self.vs,
+            &self.cfg,
+            &self.state,
+            self.opts,
+        )
     }
 
     fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
@@ -718,8 +703,8 @@ impl Learner for Trainer<'_> {
         self.checkpoint()
     }
 
-    fn end_epoch(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
-        self.close_epoch(epoch)
+    fn log_epoch(&mut self, epoch: u64, v: &ValRecord) -> Result<(), NetError> {
+        self.write_epoch_record(epoch, v)
     }
 
     fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
@@ -739,6 +724,12 @@ fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
         checkpoint_every: opts.checkpointing.checkpoint_every,
         stop_after: opts.checkpointing.stop_after,
     }
+}
+
+/// `--resume` (not `--extend`) of a run whose checkpoint has done all its iterations.
+fn resumes_a_finished_run(opts: &TrainOptions, state: &State, bpe: u64) -> bool {
+    let c = &opts.checkpointing;
+    c.resume && !c.extend && state.iteration >= plan_of(opts, bpe).total_iterations()
 }
 
 /// The summary of a run that `--resume` found finished: nothing trained, nothing written.
@@ -898,15 +889,11 @@ fn fusion_words(cfg: &ModelConfig) -> &'static str {
 }
 
 /// The requested model config with the output resolution of the data's frames.
-fn model_config_for_data(
-    opts: &TrainOptions,
-    ds: &Dataset,
-    first: &IndexEntry,
-) -> Result<ModelConfig, NetError> {
-    let (width, height) = frame_size(ds, first)?;
+fn model_config_for_data(opts: &TrainOptions, ds: &Dataset) -> Result<ModelConfig, NetError> {
+    let (width, height) = ds.frame_size()?;
     let mut cfg = opts.model.clone();
-    cfg.out_height = height;
-    cfg.out_width = width;
+    cfg.out_height = height.into();
+    cfg.out_width = width.into();
     // The radar input is part of the model (SPEC §5): `--radar-input` when given, else the
     // config's, adjusted to a 2-channel config.
     cfg.radar_input = match opts.radar_input {
@@ -950,24 +937,6 @@ fn attach(d: &mut Dist, vs: &VarStore, train_samples: usize, batch: usize) -> Re
         )));
     }
     d.attach(vs)
-}
-
-/// (width, height) of the prepared maps: the index says (`frame_size`); an index written
-/// before it did is probed with its first sample.
-fn frame_size(ds: &Dataset, first: &IndexEntry) -> Result<(i64, i64), NetError> {
-    if let Some([w, h]) = ds.index.frame_size {
-        return Ok((w.into(), h.into()));
-    }
-    let probe = depthsense_data::load_sample(
-        ds,
-        first,
-        &LoadOptions {
-            no_radar: true,
-            ..LoadOptions::default()
-        },
-        &mut depthsense_data::Rng::new(0),
-    )?;
-    Ok((probe.width as i64, probe.height as i64))
 }
 
 type Built = (VarStore, DepthNet, State, Sgd);
@@ -1202,24 +1171,6 @@ pub fn removing_new_folder_on_failure<T>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_network_is_sized_from_the_index_without_reading_a_sample() {
-        let d = tempfile::tempdir().unwrap();
-        depthsense_data::write_toy_dataset(d.path(), 1, 1, 96, 40, 1).unwrap();
-        let ds = Dataset::open(d.path()).unwrap();
-        let first = ds.index.samples[0].clone();
-        // The sample's files are gone: only the index can say the size.
-        std::fs::remove_dir_all(d.path().join(&first.dir)).unwrap();
-        assert_eq!(frame_size(&ds, &first).unwrap(), (96, 40));
-        // An index written before `frame_size` existed: the first sample is read.
-        let mut old = ds;
-        old.index.frame_size = None;
-        assert!(
-            frame_size(&old, &first).is_err(),
-            "no index size: the sample is read"
-        );
-    }
 
     fn entries(n: usize) -> Vec<IndexEntry> {
         (0..n)

@@ -75,22 +75,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (onnx, export_s, onnx_bytes) = export_random(&vs, &cfg, work.path(), &a)?;
 
     let (image, radar) = inputs(&cfg, a.batch);
-    let mean = Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]);
-    let std = Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]);
-    let normalised = (&image - &mean) / &std;
     let _guard = tch::no_grad_guard();
-    let forward = || net.decode_to(&net.forward_t(&normalised, &radar, false), height, width);
-    eprintln!("timing depthsense …");
-    let ours = time_it(
-        Device::Cpu,
-        a.warmup_runs,
-        a.repeats,
-        a.batch as i64,
-        || {
-            let _ = forward();
-        },
-    );
-    let ours_depth = values(&forward().to_kind(Kind::Float))?;
+    let (ours, ours_depth) = time_depthsense(&net, &image, &radar, (height, width), &a)?;
 
     eprintln!("timing onnxruntime …");
     let (image_v, radar_v) = (values(&image)?, values(&radar)?);
@@ -104,18 +90,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         a.warmup_runs,
         a.repeats,
     )?;
-    anyhow::ensure!(
-        ort.depth_m.len() == ours_depth.len(),
-        "onnxruntime returned {} depth values, depthsense {}",
-        ort.depth_m.len(),
-        ours_depth.len()
-    );
-    let diffs: Vec<f64> = ort
-        .depth_m
-        .iter()
-        .zip(&ours_depth)
-        .map(|(x, y)| (x - y).abs() as f64)
-        .collect();
+    let diffs = abs_diffs_m(&ort.depth_m, &ours_depth)?;
     let res = Results {
         config: cfg.name.clone(),
         params,
@@ -134,13 +109,61 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_abs_diff_m: diffs.iter().copied().fold(0.0, f64::max),
         frac_within_1mm: diffs.iter().filter(|d| **d <= 1e-3).count() as f64 / diffs.len() as f64,
     };
-    let text = serde_json::to_string_pretty(&res)?;
+    print_results(&res, a.out.as_deref())?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The results as JSON on stdout, and into `out` (atomically) when given.
+fn print_results(res: &Results, out: Option<&std::path::Path>) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(res)?;
     println!("{text}");
-    if let Some(p) = &a.out {
+    if let Some(p) = out {
         depthsense_base::fsutil::write_atomic(p, format!("{text}\n").as_bytes())
             .with_context(|| p.display().to_string())?;
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(())
+}
+
+/// depthsense's latency on `image` and `radar` (normalised here, forward and decode to the
+/// `(height, width)` frame, without gradients) and its depth map (m) of the same inputs.
+fn time_depthsense(
+    net: &DepthNet,
+    image: &Tensor,
+    radar: &Tensor,
+    (height, width): (i64, i64),
+    a: &Args,
+) -> anyhow::Result<(Timing, Vec<f32>)> {
+    let mean = Tensor::from_slice(&IMAGENET_MEAN).view([1, 3, 1, 1]);
+    let std = Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]);
+    let normalised = (image - &mean) / &std;
+    let forward = || net.decode_to(&net.forward_t(&normalised, radar, false), height, width);
+    eprintln!("timing depthsense …");
+    let ours = time_it(
+        Device::Cpu,
+        a.warmup_runs,
+        a.repeats,
+        a.batch as i64,
+        || {
+            let _ = forward();
+        },
+    );
+    let ours_depth = values(&forward().to_kind(Kind::Float))?;
+    Ok((ours, ours_depth))
+}
+
+/// |Δ| (m) of the two depth maps, value by value; an error when their sizes differ.
+fn abs_diffs_m(ort_depth_m: &[f32], ours_depth_m: &[f32]) -> anyhow::Result<Vec<f64>> {
+    anyhow::ensure!(
+        ort_depth_m.len() == ours_depth_m.len(),
+        "onnxruntime returned {} depth values, depthsense {}",
+        ort_depth_m.len(),
+        ours_depth_m.len()
+    );
+    Ok(ort_depth_m
+        .iter()
+        .zip(ours_depth_m)
+        .map(|(x, y)| (x - y).abs() as f64)
+        .collect())
 }
 
 /// The network in `vs` saved as a checkpoint in `work` and exported to ONNX there: the graph's

@@ -4,7 +4,7 @@ use depthsense_cli::cmd::mer::{ApplyArgs, Args, Command, TrainArgs};
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_config::pda::PdaConfig;
 use depthsense_mer::apply::{apply, MerApplyOptions};
-use depthsense_mer_train::{train_pda, MerTrainOptions};
+use depthsense_mer_train::{train_pda, MerTrainOptions, MerTrainSummary};
 use std::process::ExitCode;
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -16,7 +16,32 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
-    let opts = MerTrainOptions {
+    let opts = train_options(a)?;
+    depthsense_cli::stop::catch_stop_signals()?;
+    let pb = progress_bar("mer");
+    let s = train_pda(&opts, &pb)?;
+    pb.finish_and_clear();
+    print_summary(&opts, &s);
+    if let Some(sig) = s.signal {
+        return Ok(depthsense_cli::stop::interrupted(
+            sig,
+            s.iterations,
+            s.total_iterations,
+        ));
+    }
+    if s.interrupted {
+        eprintln!(
+            "stopped at iteration {} as asked; continue with --resume",
+            s.iterations
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The options of `mer train` from its flags (`--affinity` overrides the preset's affinity
+/// channels, checked).
+fn train_options(a: TrainArgs) -> anyhow::Result<MerTrainOptions> {
+    Ok(MerTrainOptions {
         data: a.data,
         out: a.out,
         pda: {
@@ -42,11 +67,11 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         stop_after: a.stop_after,
         command: depthsense_cli::stop::invocation(),
         ..MerTrainOptions::default()
-    };
-    depthsense_cli::stop::catch_stop_signals()?;
-    let pb = progress_bar("mer");
-    let s = train_pda(&opts, &pb)?;
-    pb.finish_and_clear();
+    })
+}
+
+/// Every validation of the run and its summary line (best AUC, iterations, seconds, folder).
+fn print_summary(opts: &MerTrainOptions, s: &MerTrainSummary) {
     for v in &s.val {
         eprintln!(
             "epoch {:>3}: val loss {:.4} precision {:.3} recall {:.3} AUC {:.3} ({} pairs, {} positive)",
@@ -67,20 +92,6 @@ fn run_train(a: TrainArgs) -> anyhow::Result<ExitCode> {
         s.seconds,
         s.run_dir.display()
     );
-    if let Some(sig) = s.signal {
-        return Ok(depthsense_cli::stop::interrupted(
-            sig,
-            s.iterations,
-            s.total_iterations,
-        ));
-    }
-    if s.interrupted {
-        eprintln!(
-            "stopped at iteration {} as asked; continue with --resume",
-            s.iterations
-        );
-    }
-    Ok(ExitCode::SUCCESS)
 }
 
 fn run_apply(a: ApplyArgs) -> anyhow::Result<ExitCode> {
