@@ -19,7 +19,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
-use depthsense_base::lock::OutputLock;
 use depthsense_config::pda::PdaConfig;
 use depthsense_data::{epoch_order, sample_rng};
 use depthsense_dataset::outputs::{
@@ -35,11 +34,10 @@ use depthsense_records::metrics_log::MetricsRecord;
 use depthsense_records::run_config::{Command, MerRunConfig, RUN_CONFIG_VERSION};
 use depthsense_records::{convert, to_json_pretty};
 use depthsense_train::adam::Adam;
-use depthsense_train::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
-use depthsense_train::metrics_log::{
-    append_jsonl, append_record, logged_loss_sum, truncate_metrics, EpochRecord, IterRecord,
-};
+use depthsense_train::learner::{fit, Batches, Checkpointer, Learner, Plan};
+use depthsense_train::metrics_log::{append_record, logged_loss_sum, EpochRecord, IterRecord};
 use depthsense_train::optim::Optimizer;
+use depthsense_train::run_folder::RunFolder;
 use depthsense_train::schedule::{poly_lr, seed_step};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -325,7 +323,7 @@ struct Run<'o> {
     pool: rayon::ThreadPool,
     bpe: u64,
     /// The run folder's lock, held while the run writes there.
-    _lock: OutputLock,
+    folder: RunFolder,
     /// RUN/last.safetensors with its optimiser state.
     ckpt: Checkpointer,
     /// The current epoch's loss: (sum, steps).
@@ -364,7 +362,7 @@ impl<'o> Run<'o> {
         let part = partition(&ds, opts.val_every_scene)?;
         part.require_train_and_val(&opts.data)?;
         // One writer per run folder; a run there is refused unless --resume or --force.
-        let lock = lock_run_folder(&opts.out, "mer train", opts.resume, opts.force)?;
+        let folder = RunFolder::take(&opts.out, "mer train", opts.resume, opts.force)?;
         let jobs = match opts.jobs {
             0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
             j => j,
@@ -374,6 +372,7 @@ impl<'o> Run<'o> {
             .build()
             .map_err(|e| NetError::Config(format!("cannot start loader threads: {e}")))?;
         let (vs, net, optim, state, optim_matches) = build(opts, device)?;
+        folder.restart_log(state.iteration)?;
         let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
         let run = Run {
             opts,
@@ -387,7 +386,7 @@ impl<'o> Run<'o> {
             state,
             pool,
             bpe,
-            _lock: lock,
+            folder,
             ckpt: Checkpointer::new(&opts.out, optim_matches),
             epoch_loss: (0.0, 0),
         };
@@ -571,7 +570,6 @@ fn build(
         tch::manual_seed(opts.seed as i64);
         let vs = VarStore::new(device);
         let net = PdaNet::new(&vs.root(), &opts.pda)?;
-        let _ = std::fs::remove_file(opts.out.join(METRICS_FILE));
         let optim = Adam::new(&vs, opts.weight_decay);
         return Ok((vs, net, optim, state, true));
     }
@@ -598,7 +596,6 @@ fn build(
         state.iteration,
         |p| optim.load(p),
     )?;
-    truncate_metrics(&opts.out.join(METRICS_FILE), state.iteration)?;
     Ok((l.vs, l.net, optim, state, matches))
 }
 
@@ -672,8 +669,8 @@ impl Learner for Run<'_> {
         self.save(BEST_CKPT)
     }
 
-    fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
-        append_jsonl(&self.path(METRICS_FILE), record)
+    fn run_folder(&self) -> Option<&RunFolder> {
+        Some(&self.folder)
     }
 
     fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Vec<usize>>, NetError> {

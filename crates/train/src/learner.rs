@@ -16,8 +16,8 @@
 //!   at an epoch's last step the epoch is closed first, its validation included);
 //! - [`Checkpointer`] writes RUN/last.safetensors with its optimiser state in the order that
 //!   leaves a resumable pair whenever the process is killed ([`crate::optim_state`]);
-//! - [`lock_run_folder`] takes the run folder for one writer and refuses to replace a run
-//!   silently ([`crate::outputs`]).
+//! - [`RunFolder`] is the run folder of the process that writes it: taken for one writer, a run
+//!   never replaced silently, RUN/metrics.jsonl written through it.
 //!
 //! The learning rate and the step's dropout seed come from [`crate::schedule`], the optimiser
 //! is a [`crate::optim::Optimizer`]. What differs between the two networks stays with them: the
@@ -28,13 +28,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use depthsense_base::interrupt::{self, StopSignal};
-use depthsense_base::lock::OutputLock;
 use depthsense_progress::Progress;
 use depthsense_records::metrics_log::{MetricsRecord, ValLine};
 use serde::Serialize;
 
 use crate::optim_state;
-use depthsense_dataset::outputs::{claim_run_folder, LAST_CKPT, LAST_OPTIM};
+use crate::run_folder::RunFolder;
+use depthsense_dataset::outputs::{LAST_CKPT, LAST_OPTIM};
 use depthsense_infer::NetError;
 
 /// How long a run is, when [`fit`] writes RUN/last.safetensors inside an epoch (it always does
@@ -87,8 +87,16 @@ pub trait Learner {
     fn note_best(&mut self, v: &Self::Val);
     /// Writes RUN/best.safetensors (the process that writes RUN/ only).
     fn save_best(&mut self) -> Result<(), NetError>;
+    /// The run folder, held by the process that writes RUN/ (`None`: a data-parallel rank
+    /// other than 0).
+    fn run_folder(&self) -> Option<&RunFolder>;
     /// Appends `record` to RUN/metrics.jsonl (only in the process that writes RUN/).
-    fn log(&self, record: &serde_json::Value) -> Result<(), NetError>;
+    fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
+        match self.run_folder() {
+            Some(folder) => folder.log(record),
+            None => Ok(()),
+        }
+    }
     /// The batches of epoch `epoch` (0-based) after its first `skip` (done before a resume),
     /// at most the epoch's remaining iterations. The epoch's running loss starts here (from
     /// RUN/metrics.jsonl's records of the skipped iterations).
@@ -358,20 +366,6 @@ impl Checkpointer {
     }
 }
 
-/// Takes run folder `out` for `depthsense {command}` alone ([`OutputLock`]) and refuses a
-/// folder that holds a run unless `resume` or `force` ([`claim_run_folder`]). The lock is held
-/// while the returned value lives.
-pub fn lock_run_folder(
-    out: &Path,
-    command: &str,
-    resume: bool,
-    force: bool,
-) -> Result<OutputLock, NetError> {
-    let lock = OutputLock::exclusive(out, &format!("depthsense {command}"))?;
-    claim_run_folder(out, command, resume, force)?;
-    Ok(lock)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -425,6 +419,9 @@ mod tests {
         fn save_best(&mut self) -> Result<(), NetError> {
             self.call(format!("best {:?} at {}", self.best, self.iteration));
             Ok(())
+        }
+        fn run_folder(&self) -> Option<&RunFolder> {
+            None
         }
         fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
             self.call(record.to_string());

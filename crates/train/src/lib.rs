@@ -20,6 +20,7 @@ pub mod learner;
 pub mod metrics_log;
 pub mod optim;
 pub mod optim_state;
+pub mod run_folder;
 pub mod schedule;
 pub mod sgd;
 pub mod step;

@@ -29,7 +29,7 @@ mod session;
 use depthsense_infer::run::validate_net;
 pub use session::{removing_new_folder_on_failure, train, train_distributed, Opened, Trainer};
 
-use crate::metrics_log::{append_jsonl, truncate_metrics, write_curves, ValRecord};
+use crate::metrics_log::{write_curves, ValRecord};
 use depthsense_infer::upload::upload_batch;
 
 /// Everything a training run is made of. Defaults are the paper's (SPEC §8), written once, in

@@ -9,7 +9,6 @@ use std::time::Instant;
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
 use depthsense_base::interrupt::StopSignal;
-use depthsense_base::lock::OutputLock;
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
@@ -22,14 +21,15 @@ use depthsense_progress::Progress;
 use tch::{nn::VarStore, Device, Kind};
 
 use super::{
-    all_finite, append_jsonl, save_ckpt, subsample, truncate_metrics, upload_batch, validate_net,
-    write_curves, State, TrainOptions, TrainSummary, ValRecord,
+    all_finite, save_ckpt, subsample, upload_batch, validate_net, write_curves, State,
+    TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
-use crate::learner::{fit, lock_run_folder, Batches, Checkpointer, Learner, Plan};
+use crate::learner::{fit, Batches, Checkpointer, Learner, Plan};
 use crate::metrics_log::{append_record, logged_loss_sum, EpochRecord, IterRecord};
 use crate::optim::Optimizer;
 use crate::optim_state;
+use crate::run_folder::RunFolder;
 use crate::schedule::{seed_step, warmup_poly_lr};
 use crate::sgd::Sgd;
 use depthsense_dataset::outputs::{
@@ -61,8 +61,8 @@ pub struct Trainer<'o> {
     timing: Timing,
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
-    /// The run folder's lock, held by the process that writes it (rank 0 or the only one).
-    _lock: Option<OutputLock>,
+    /// The run folder, held by the process that writes it (rank 0 or the only one).
+    folder: Option<RunFolder>,
     /// RUN/last.safetensors with its optimiser state.
     ckpt: Checkpointer,
     /// (iteration, loss) of every step of this invocation.
@@ -154,19 +154,21 @@ impl<'o> Trainer<'o> {
     ) -> Result<Opened<'o>, NetError> {
         let started = Instant::now();
         let main = check_options(opts, dist.as_ref())?;
-        let lock = main.then(|| take_run_folder(opts)).transpose()?;
+        let folder = main.then(|| take_run_folder(opts)).transpose()?;
         let device = depthsense_model::device::parse_device(&opts.hardware.device.name)?;
         depthsense_model::device::autotune_fixed_size(device);
         let (ds, part) = open_partition(opts)?;
         let val_entries = subsample(&part.val, opts.validation.max_val_samples);
         let run = opts.out.clone();
-        std::fs::create_dir_all(&run).map_err(|e| NetError::io(&run, e))?;
         let cfg = model_config_for_data(opts, &ds)?;
         let bpe = opts.schedule.iterations_per_epoch(part.train.len());
         // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
         let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
         let ((vs, net, mut state, optim), optim_matches) =
             network(opts, &cfg, device, main, bpe, &hooks)?;
+        if let Some(f) = &folder {
+            f.restart_log(state.iteration)?;
+        }
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
         }
@@ -196,7 +198,7 @@ impl<'o> Trainer<'o> {
             total: plan_of(opts, bpe).total_iterations(),
             timing: Timing::new(started),
             dist,
-            _lock: lock,
+            folder,
             ckpt: Checkpointer::new(&run, optim_matches),
             losses: vec![],
             acc: EpochLosses::default(),
@@ -665,11 +667,8 @@ impl Learner for Trainer<'_> {
         )
     }
 
-    fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
-        if self.is_main() {
-            append_jsonl(&self.path(METRICS_FILE), record)?;
-        }
-        Ok(())
+    fn run_folder(&self) -> Option<&RunFolder> {
+        self.folder.as_ref()
     }
 
     fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Batch>, NetError> {
@@ -773,9 +772,9 @@ fn finished_summary(
 /// Takes the run folder for this process (rank 0, or the only one): one writer per run folder,
 /// and a finished run is never replaced silently (crate::outputs): refused unless --resume,
 /// --extend or --force.
-fn take_run_folder(opts: &TrainOptions) -> Result<OutputLock, NetError> {
+fn take_run_folder(opts: &TrainOptions) -> Result<RunFolder, NetError> {
     let c = &opts.checkpointing;
-    lock_run_folder(&opts.out, "train", c.resume || c.extend, c.force)
+    RunFolder::take(&opts.out, "train", c.resume || c.extend, c.force)
 }
 
 /// The options every rank checks before touching the run folder; returns whether this is the
@@ -916,7 +915,7 @@ fn network(
 ) -> Result<(Built, bool), NetError> {
     let run = &opts.out;
     if (opts.checkpointing.resume || opts.checkpointing.extend) && run.join(LAST_CKPT).exists() {
-        return resume(opts, run, cfg, device, main, bpe, hooks);
+        return resume(opts, run, cfg, device, bpe, hooks);
     }
     if opts.checkpointing.extend {
         return Err(NetError::Config(format!(
@@ -968,9 +967,6 @@ fn fresh(
         Some(p) => Some(init_from(&mut vs, p, main)?),
         None => None,
     };
-    if main {
-        let _ = std::fs::remove_file(run.join(METRICS_FILE));
-    }
     let optim = Sgd::new(&vs, opts.schedule.momentum, opts.schedule.weight_decay);
     let state = State {
         kind: "depthsense-train".into(),
@@ -1018,7 +1014,6 @@ fn resume(
     run: &Path,
     cfg: &ModelConfig,
     device: Device,
-    main: bool,
     bpe: u64,
     hooks: &TrainHooks,
 ) -> Result<(Built, bool), NetError> {
@@ -1053,9 +1048,6 @@ fn resume(
     let mut optim = Sgd::new(&vs, opts.schedule.momentum, opts.schedule.weight_decay);
     let matches =
         optim_state::load_matching(&last_optim, &last, state.iteration, |p| optim.load(p))?;
-    if main {
-        truncate_metrics(&run.join(METRICS_FILE), state.iteration)?;
-    }
     Ok(((vs, net, state, optim), matches))
 }
 
