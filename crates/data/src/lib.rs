@@ -787,15 +787,18 @@ fn batch_groups(
     Ok(groups)
 }
 
+/// The threads of `--jobs N`: N, or every core for 0 (2 when the count is unknown).
+pub fn loader_threads(jobs: usize) -> usize {
+    match jobs {
+        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        n => n,
+    }
+}
+
 /// The decoding thread pool: `jobs` threads (0 = all cores).
 fn loader_pool(jobs: usize) -> Result<rayon::ThreadPool, DataError> {
-    let jobs = if jobs == 0 {
-        std::thread::available_parallelism().map_or(2, |n| n.get())
-    } else {
-        jobs
-    };
     rayon::ThreadPoolBuilder::new()
-        .num_threads(jobs)
+        .num_threads(loader_threads(jobs))
         .thread_name(|i| format!("loader-{i}"))
         .build()
         .map_err(|e| DataError::thread_start("loader threads", e))

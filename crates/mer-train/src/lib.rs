@@ -35,7 +35,7 @@ use depthsense_records::run_config::{Command, MerRunConfig, RUN_CONFIG_VERSION};
 use depthsense_records::{convert, to_json_pretty};
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, Batches, Checkpointer, Learner, Plan};
-use depthsense_train::metrics_log::{append_record, logged_loss_sum, EpochRecord, IterRecord};
+use depthsense_train::metrics_log::{logged_loss_sum, EpochRecord, IterRecord};
 use depthsense_train::optim::Optimizer;
 use depthsense_train::run_folder::RunFolder;
 use depthsense_train::schedule::{poly_lr, seed_step};
@@ -363,10 +363,7 @@ impl<'o> Run<'o> {
         part.require_train_and_val(&opts.data)?;
         // One writer per run folder; a run there is refused unless --resume or --force.
         let folder = RunFolder::take(&opts.out, "mer train", opts.resume, opts.force)?;
-        let jobs = match opts.jobs {
-            0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
-            j => j,
-        };
+        let jobs = depthsense_data::loader_threads(opts.jobs);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(jobs)
             .build()
@@ -495,10 +492,8 @@ impl<'o> Run<'o> {
         loss.backward();
         self.optim.step(lr);
         self.epoch_loss = (self.epoch_loss.0 + lv, self.epoch_loss.1 + 1);
-        append_record::<MerValRecord>(
-            &self.path(METRICS_FILE),
-            &MetricsRecord::Iter(IterRecord::new(epoch, it, lv, lr)),
-        )?;
+        self.folder
+            .append::<MerValRecord>(&MetricsRecord::Iter(IterRecord::new(epoch, it, lv, lr)))?;
         progress.set_message(format!(
             "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
             epoch + 1,
@@ -536,15 +531,13 @@ impl<'o> Run<'o> {
     /// Epoch `epoch`'s (0-based) record in RUN/metrics.jsonl, validated as `v`, and the curves.
     fn write_epoch_record(&mut self, epoch: u64, v: &MerValRecord) -> Result<(), NetError> {
         let loss = self.epoch_loss.0 / self.epoch_loss.1.max(1) as f64;
-        append_record(
-            &self.path(METRICS_FILE),
-            &MetricsRecord::Epoch(EpochRecord::new(
-                epoch + 1,
-                self.state.iteration,
-                loss,
-                v.clone(),
-            )),
-        )?;
+        let it = self.state.iteration;
+        self.folder.append(&MetricsRecord::Epoch(EpochRecord::new(
+            epoch + 1,
+            it,
+            loss,
+            v.clone(),
+        )))?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 }

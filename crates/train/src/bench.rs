@@ -72,7 +72,7 @@ pub fn bench_train(
         seed: 1,
         ..LoadOptions::default()
     };
-    let jobs = loader_threads(opts.jobs);
+    let jobs = depthsense_data::loader_threads(opts.jobs);
 
     // Full batches only (when there are enough samples): an epoch's last, smaller batch is a
     // new input shape, and cuDNN autotunes every convolution for it once — 10.8 s of one
@@ -112,14 +112,6 @@ pub fn bench_train(
         "cpu_threads": std::thread::available_parallelism().map_or(0, |n| n.get()),
         "torch_threads": tch::get_num_threads(),
     }))
-}
-
-/// `--jobs`: 0 is every core.
-fn loader_threads(jobs: usize) -> usize {
-    match jobs {
-        0 => std::thread::available_parallelism().map_or(2, |n| n.get()),
-        n => n,
-    }
 }
 
 /// The prepared folder the benchmark reads: `--data`, or a toy 800×350 world written to a

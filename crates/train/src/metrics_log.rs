@@ -1,7 +1,8 @@
 //! RUN/metrics.jsonl, the training log (`train` and `mer train` write the same format; its
 //! records are `depthsense_records::metrics_log`'s, shared with the report):
 //! `{"kind":"iter",…}` per iteration, `{"kind":"epoch",…}` per epoch with its validation
-//! record. One writer ([`append_jsonl`], [`append_record`]), one reader ([`read_log`]; a line
+//! record. One writer ([`append_jsonl`], which `crate::run_folder::RunFolder` writes through),
+//! one reader ([`read_log`]; a line
 //! that is not JSON fails or is skipped, [`BadLine`]; a line that lacks a field is an error
 //! naming the file, the line and the field), the resume cut ([`truncate_metrics`]) and the
 //! curves drawn from it ([`write_curves`]).
@@ -12,7 +13,6 @@ use std::path::Path;
 use depthsense_base::fsutil::write_atomic;
 use depthsense_records::metrics_log::{json_lines, typed, MetricsRecord};
 use depthsense_records::RecordError;
-use serde::Serialize;
 
 use depthsense_infer::NetError;
 
@@ -25,11 +25,6 @@ fn record_error(e: RecordError) -> NetError {
         path: e.path.clone(),
         reason: e.reason(),
     }
-}
-
-/// Append one typed record (a JSON line, keys sorted).
-pub fn append_record<V: Serialize>(path: &Path, record: &MetricsRecord<V>) -> Result<(), NetError> {
-    append_jsonl(path, &record.to_value()?)
 }
 
 /// Append one record (a JSON line).

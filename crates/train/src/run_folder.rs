@@ -1,7 +1,8 @@
 //! A training run's folder as the engine holds it ([`crate::learner::fit`] and the learners that
 //! it drives — `train`'s and `mer train`'s): taken for one writer ([`OutputLock`]), a folder that
 //! holds a run refused unless the run continues or is replaced ([`claim_run_folder`]), and its
-//! log, RUN/metrics.jsonl, written only through it. Only the process that writes RUN/ holds one
+//! log, RUN/metrics.jsonl, written only through it ([`RunFolder::log`],
+//! [`RunFolder::append`]). Only the process that writes RUN/ holds one
 //! (rank 0 of a data-parallel job, or the only process).
 
 use std::path::{Path, PathBuf};
@@ -9,6 +10,8 @@ use std::path::{Path, PathBuf};
 use depthsense_base::lock::OutputLock;
 use depthsense_dataset::outputs::{claim_run_folder, METRICS_FILE};
 use depthsense_infer::NetError;
+use depthsense_records::metrics_log::MetricsRecord;
+use serde::Serialize;
 
 use crate::metrics_log::{append_jsonl, truncate_metrics};
 
@@ -20,11 +23,11 @@ pub struct RunFolder {
 
 impl RunFolder {
     /// Takes `out` for `depthsense {command}` alone and refuses a folder that holds a run unless
-    /// `resume` (it continues) or `force` (its run files are removed first); creates it.
+    /// `resume` (it continues) or `force` (its run files are removed first); the lock creates
+    /// the folder.
     pub fn take(out: &Path, command: &str, resume: bool, force: bool) -> Result<Self, NetError> {
         let lock = OutputLock::exclusive(out, &format!("depthsense {command}"))?;
         claim_run_folder(out, command, resume, force)?;
-        std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
         Ok(Self {
             dir: out.to_path_buf(),
             _lock: lock,
@@ -39,6 +42,11 @@ impl RunFolder {
     /// Appends one record to RUN/metrics.jsonl.
     pub fn log(&self, record: &serde_json::Value) -> Result<(), NetError> {
         append_jsonl(&self.file(METRICS_FILE), record)
+    }
+
+    /// Appends one typed record (an iteration's, an epoch's) to RUN/metrics.jsonl.
+    pub fn append<V: Serialize>(&self, record: &MetricsRecord<V>) -> Result<(), NetError> {
+        self.log(&record.to_value()?)
     }
 
     /// RUN/metrics.jsonl for a run that starts at global iteration `iteration`: gone for a

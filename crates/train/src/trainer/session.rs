@@ -26,7 +26,7 @@ use super::{
 };
 use crate::distributed::Dist;
 use crate::learner::{fit, Batches, Checkpointer, Learner, Plan};
-use crate::metrics_log::{append_record, logged_loss_sum, EpochRecord, IterRecord};
+use crate::metrics_log::{logged_loss_sum, EpochRecord, IterRecord};
 use crate::optim::Optimizer;
 use crate::optim_state;
 use crate::run_folder::RunFolder;
@@ -421,11 +421,13 @@ impl<'o> Trainer<'o> {
             self.acc.sum += lv;
             self.acc.n += 1;
             self.losses.push((p.iteration, lv));
-            if self.is_main() {
-                append_record::<ValRecord>(
-                    &self.path(METRICS_FILE),
-                    &MetricsRecord::Iter(IterRecord::new(epoch, p.iteration, lv, p.lr)),
-                )?;
+            if let Some(f) = &self.folder {
+                f.append::<ValRecord>(&MetricsRecord::Iter(IterRecord::new(
+                    epoch,
+                    p.iteration,
+                    lv,
+                    p.lr,
+                )))?;
             }
             progress.set_message(format!(
                 "epoch {}/{} loss {lv:.4} lr {:.2e} {:.1} img/s",
@@ -470,23 +472,20 @@ impl<'o> Trainer<'o> {
         let (mark_images, mark_secs) = t.epoch_mark;
         let epoch_rate = (t.images - mark_images) as f64 / (t.train_secs - mark_secs).max(1e-9);
         t.epoch_mark = (t.images, t.train_secs);
-        if !self.is_main() {
+        let Some(folder) = &self.folder else {
             return Ok(());
-        }
+        };
         let it = self.state.iteration;
         let t = &self.timing;
-        append_record(
-            &self.path(METRICS_FILE),
-            &MetricsRecord::Epoch(EpochRecord {
-                lr: Some(self.lr_at(it)),
-                images_per_s: Some(t.images as f64 / t.train_secs.max(1e-9)),
-                epoch_images_per_s: Some(epoch_rate),
-                train_seconds: Some(t.train_secs),
-                val_seconds: Some(t.val_secs),
-                seconds: Some(t.started.elapsed().as_secs_f64()),
-                ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
-            }),
-        )?;
+        folder.append(&MetricsRecord::Epoch(EpochRecord {
+            lr: Some(self.lr_at(it)),
+            images_per_s: Some(t.images as f64 / t.train_secs.max(1e-9)),
+            epoch_images_per_s: Some(epoch_rate),
+            train_seconds: Some(t.train_secs),
+            val_seconds: Some(t.val_secs),
+            seconds: Some(t.started.elapsed().as_secs_f64()),
+            ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
+        }))?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 
