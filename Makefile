@@ -5,7 +5,8 @@
 #   make test   the whole test suite (Rust, the PyTorch references, the nuScenes devkit goldens);
 #               its last line lists every skipped test and why
 #   make test-browser  `depthsense report`'s page in headless Chromium (installs Debian's chromium)
-#   make gpu-bundle  .gpu/: stripped binary + small prepared world + scripts for scripts/gpu-check.sh
+#   make gpu-bundle  .gpu/: stripped binary (with NCCL) + small prepared world + scripts for
+#               scripts/gpu-check.sh and its science step (scripts/gpu-science.sh)
 #   make python the Python module `depthsense` (crates/python) built by maturin into .venv
 
 SHELL := /bin/bash
@@ -116,7 +117,12 @@ bench: build
 # Everything a GPU machine without Rust needs for scripts/gpu-check.sh (issue 9, ../shared/GPU.md):
 # the stripped release binary, a small prepared synthetic world and the scripts, in .gpu/
 # (git-ignored, < 64 MiB). On the GPU machine: `bash .gpu/gpu-check.sh`.
-gpu-bundle: build
+# The binary is built with NCCL (feature nccl: ProcessGroupNCCL against the CUDA and NCCL headers of
+# the torch wheel's nvidia-* packages plus libcu++ from nvidia-cuda-cccl, installed here): gpu-check
+# runs one NCCL rank against one process. The same binary runs on CPU-only machines.
+gpu-bundle: setup
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "nvidia-cuda-cccl==13.0.*"
+	$(CARGO) build --release -p depthsense-cli --features depthsense-cli/nccl
 	scripts/gpu-check.sh --make-bundle .gpu
 
 fmt:

@@ -1,37 +1,51 @@
 #!/usr/bin/env bash
-# Issue 9: every GPU measurement and CUDA check of depthsense in one run (≈ 9 min on one H200).
+# Issues 9 and 45: every GPU measurement and CUDA check of depthsense in one run (≤ 9.5 min on
+# one H200), the science first.
 #
 # On the CPU machine (Rust toolchain):   make gpu-bundle        # → .gpu/ (< 64 MiB, git-ignored)
 # On the GPU machine (Python 3.12 + torch 2.11.0+cu130, no Rust), from the repository root with
 # .gpu/ brought along:                   bash .gpu/gpu-check.sh [--out DIR]
-# Results go to $OUT (or --out DIR, default ./gpu-check-out): at most 7 files —
+# Results go to $OUT (or --out DIR, default ./gpu-check-out): at most 8 files —
+#   science.json      issue 45: rgb vs late-sam, `paper` at 800x350, two seeds, on a ≈ 3,000-image
+#                     world made here (scripts/gpu-science.sh: world, iterations, wall times, test
+#                     metrics, the margin and its paired statistics)
 #   env.json          machine, GPU, driver, torch, ldd check, bundle, every step's status/time
 #   bench_ours.json   `depthsense bench model` rows (released/paper × fp32/bf16/bf16+channels-last)
 #   bench_torch.json  scripts/torch_reference.py rows (same variants × ordinal released/efficient)
-#   train.json        `train` fp32 vs --amp on the bundled world (val RMSE), `bench train` loader
+#   train.json        `train` fp32 vs --amp (val RMSE), `bench train` loader, one NCCL rank vs
+#                     one process (losses, all-reduce line)
 #   demo.json         `depthsense demo --device cuda` summary (fusion margin) or how far it got
-#   summary.json      the table printed at the end: ratios ours/PyTorch, targets, checks
+#   summary.json      the table printed at the end: ratios ours/PyTorch, targets, checks (bf16 on
+#                     the trained checkpoint, deprecation lines, NCCL, onnxruntime CUDA)
 #   log.txt           every command and its output (tail-truncated)
 # Steps run most important first, each under `timeout`, within a total budget (--budget, default
-# 520 s): a step that no longer fits is recorded as skipped, and every JSON is written even then.
+# 570 s): a step that no longer fits is recorded as skipped, and every JSON is written even then.
+# Order: science (its own share, --science-budget) → bf16 on the trained checkpoint → NCCL →
+# onnxruntime's CUDA provider → the model benchmarks → train fp32/amp → bench train → demo.
+# The deprecation check reads the whole log at the end.
 #
 # Options:
 #   --out DIR          where the results go (default: $OUT, else ./gpu-check-out)
-#   --budget SECONDS   total time budget (default 520)
+#   --budget SECONDS   total time budget (default 570; the dry run: 450)
+#   --science-budget S the science step's share (default 360; the dry run: 150)
 #   --demo-epochs N    epochs of each demo model (default 4; 0 = the CUDA plan's own 30)
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
-#                      'released' to rerun part of the check within a slot; names: ours_<preset>_
-#                      <variant>, torch_<preset>, train_fp32, train_amp, bench_train, demo
+#                      'released' to rerun part of the check within a slot; names: science,
+#                      bf16_trained, nccl_single, nccl_rank, ort_cuda, ours_<preset>_<variant>,
+#                      torch_<preset>, train_fp32, train_amp, bench_train, demo
 #   --cpu-dry-run      prove the script on a CPU machine: tiny preset, small sizes, CPU device,
-#                      no CUDA-only checks (ldd/nvidia-smi recorded, not required)
+#                      no CUDA-only checks (ldd/nvidia-smi recorded, not required); the test
+#                      suite runs it (crates/cli/tests/gpu_check.rs)
 #   --make-bundle DIR  (CPU machine) build the bundle: stripped release binary, a small prepared
 #                      synthetic world, these scripts; prints its size. Used by `make gpu-bundle`.
+# The binary: $DEPTHSENSE_BIN, else beside this script, .gpu/, target/release.
 set -u -o pipefail
 
 HERE="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 REPO="$(cd "$HERE/.." && pwd)"
 DRY=0
-BUDGET=520
+BUDGET=""
+SCI_BUDGET=""
 DEMO_EPOCHS=4
 OUTDIR="${OUT:-}"
 MAKE_BUNDLE=""
@@ -41,10 +55,11 @@ while [ $# -gt 0 ]; do
     --cpu-dry-run) DRY=1 ;;
     --out) OUTDIR="$2"; shift ;;
     --budget) BUDGET="$2"; shift ;;
+    --science-budget) SCI_BUDGET="$2"; shift ;;
     --demo-epochs) DEMO_EPOCHS="$2"; shift ;;
     --make-bundle) MAKE_BUNDLE="$2"; shift ;;
     --only) ONLY="$2"; shift ;;
-    -h|--help) sed -n '2,30p' "${BASH_SOURCE[0]}"; exit 0 ;;
+    -h|--help) sed -n '2,42p' "${BASH_SOURCE[0]}"; exit 0 ;;
     *) echo "gpu-check: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -75,8 +90,10 @@ if [ -n "$MAKE_BUNDLE" ]; then
     [ -x "$SRC" ] || { echo "no release binary at $SRC (make build)" >&2; exit 2; }
     cp "$SRC" "$B/$bin.tmp" && strip "$B/$bin.tmp" && mv "$B/$bin.tmp" "$B/$bin"
   done
-  cp "$REPO/scripts/gpu-check.sh" "$REPO/scripts/torch_reference.py" "$REPO/python/depthsense_torch.py" "$B/"
-  chmod +x "$B/gpu-check.sh" "$B/depthsense" "$B/depthsense-net"
+  cp "$REPO/scripts/gpu-check.sh" "$REPO/scripts/gpu-science.sh" "$REPO/scripts/science_json.py" \
+    "$REPO/scripts/ort_latency.py" \
+    "$REPO/scripts/torch_reference.py" "$REPO/python/depthsense_torch.py" "$B/"
+  chmod +x "$B/gpu-check.sh" "$B/gpu-science.sh" "$B/depthsense" "$B/depthsense-net"
   # A small world: 10 scenes × 5 keyframes (val/test scenes held out by the loader's rule),
   # prepared like the demo (K = 2 lidar sweeps for the dense target).
   "$B/depthsense" synth --out "$WORLD_TMP" --force --scenes 10 --keyframes-per-scene 5 --seed 7 \
@@ -106,6 +123,7 @@ fi
 
 # ------------------------------------------------------------------------------------------
 # The run
+if [ "$DRY" = 1 ]; then : "${BUDGET:=450}" "${SCI_BUDGET:=150}"; else : "${BUDGET:=570}" "${SCI_BUDGET:=360}"; fi
 T0=$(date +%s)
 [ -n "$OUTDIR" ] || OUTDIR="$PWD/gpu-check-out"
 mkdir -p "$OUTDIR"
@@ -118,9 +136,14 @@ STEPS="$S/steps.tsv"
 
 log() { echo "[gpu-check +$(( $(date +%s) - T0 ))s] $*" | tee -a "$LOG" >&2; }
 
-BIN=""
+BIN="${DEPTHSENSE_BIN:-}"
 for c in "$HERE/depthsense" "$REPO/.gpu/depthsense" "$REPO/target/release/depthsense"; do
+  [ -z "$BIN" ] || break
   if [ -x "$c" ]; then BIN="$c"; break; fi
+done
+ORT_PY=""
+for c in "$HERE/ort_latency.py" "$REPO/scripts/ort_latency.py"; do
+  if [ -f "$c" ]; then ORT_PY="$c"; break; fi
 done
 REF=""
 for c in "$HERE/torch_reference.py" "$REPO/scripts/torch_reference.py"; do
@@ -215,6 +238,7 @@ if [ "$DRY" = 1 ]; then
   TRAIN_ARGS=(--config tiny --epochs 1 --batch-size 2 --max-batches-per-epoch 2 --max-val-samples 4 --set input-downscale=2 --jobs 1)
   BTRAIN_ARGS=(--config tiny --batch-size 2 --iterations 2 --warmup-runs 1 --loader-batches 2 --set input-downscale=2 --jobs 1)
   DEMO_ARGS=(--quick --device cpu --jobs 1)
+  NCCL_ARGS=(--config tiny --set dropout=0 --epochs 1 --batch-size 2 --max-batches-per-epoch 3 --max-val-samples 2 --set input-downscale=2 --jobs 1)
   CAP_OURS=120; CAP_TORCH=240; CAP_TRAIN=240; CAP_BTRAIN=180; CAP_DEMO=400
 else
   DEV=cuda; H=350; W=800; BF=3; BT=8; WU=3; REP=10
@@ -223,6 +247,7 @@ else
   TRAIN_ARGS=(--config tiny --epochs 8 --batch-size 8 --jobs 0)
   BTRAIN_ARGS=(--config paper --batch-size 8 --iterations 10 --warmup-runs 3 --loader-batches 12 --jobs 0)
   DEMO_ARGS=(--device cuda --jobs 0)
+  NCCL_ARGS=(--config paper --set dropout=0 --epochs 1 --batch-size 8 --max-batches-per-epoch 20 --max-val-samples 8 --jobs 0)
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
   # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
   CAP_OURS=75; CAP_TORCH=200; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
@@ -243,27 +268,80 @@ torchref() {  # torchref PRESET : every variant × both ordinal modes in one pro
     --repeats "$REP" $THR --out "$S/torch_${p}.json"
 }
 
-# 1–2. The model benchmarks, released first (the issue's targets), ours then PyTorch.
+# 1. Science (issue 45), first, with its own share of the budget: rgb vs late-sam at GPU scale.
+SCI_SH=""
+for c in "$HERE/gpu-science.sh" "$REPO/scripts/gpu-science.sh"; do
+  if [ -f "$c" ]; then SCI_SH="$c"; break; fi
+done
+SCI_OUT="$S/science"
+SCI_DRY=(); [ "$DRY" = 1 ] && SCI_DRY=(--cpu-dry-run)
+if [ -n "$SCI_SH" ]; then
+  export PYTHON="$PY"
+  step science $(( SCI_BUDGET + 30 )) 60 bash "$SCI_SH" --out "$SCI_OUT" \
+    --budget "$SCI_BUDGET" --bin "$BIN" --device "$DEV" "${SCI_DRY[@]}"
+else
+  printf 'science\tskipped\t0\tno gpu-science.sh\n' >> "$STEPS"
+fi
+[ -f "$SCI_OUT/science.json" ] && cp "$SCI_OUT/science.json" "$OUTDIR/science.json"
+SCI_CKPT="$("$PY" -c 'import json,sys; print(json.load(open(sys.argv[1])).get("checkpoint_for_bf16") or "")' "$SCI_OUT/science.json" 2>/dev/null)"
+# The science world serves the training steps when no bundled world came along (the dry run).
+if [ -z "$DATA" ] && [ -f "$SCI_OUT/work/prepared/index.json" ]; then DATA="$SCI_OUT/work/prepared"; fi
+
+# 2. bf16 agreement on the trained `paper` checkpoint of step 1 (late-sam, seed 0), not on
+#    random weights.
+if [ -n "$SCI_CKPT" ]; then
+  step bf16_trained 60 15 "$BIN" bench model --config "$SCI_CKPT" --device "$DEV" \
+    --precision bf16 --channels-last --height "$H" --width "$W" --batch-forward "$BF" \
+    --batch-train 0 --warmup-runs "$WU" --repeats 3 $THR --out "$S/bf16_trained.json"
+else
+  printf 'bf16_trained\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
+fi
+
+# 3. NCCL (never run before): one rank of `train --nproc 1` on the job's backend (NCCL on CUDA,
+#    Gloo on the CPU) against one plain process, same seed, dropout off (a plain process draws
+#    dropout from libtorch's generator, ranks from per-sample seeds); the all-reduce line.
+if [ -n "$DATA" ]; then
+  for m in single rank; do
+    np=(); [ "$m" = rank ] && np=(--nproc 1)
+    step "nccl_$m" 60 15 "$BIN" train --data "$DATA" --device "$DEV" --seed 0 \
+      "${NCCL_ARGS[@]}" "${np[@]}" --out "$S/nccl_$m"
+  done
+else
+  printf 'nccl_single\tskipped\t0\tno data\nnccl_rank\tskipped\t0\tno data\n' >> "$STEPS"
+fi
+
+# 4. onnxruntime's CUDA provider (CPU provider in the dry run) on the trained checkpoint's graph.
+if [ -n "$SCI_CKPT" ]; then
+  step ort_cuda 90 20 bash -c '"$1" export --checkpoint "$2" --format onnx --out "$3/model.onnx" \
+      --python "$4" && "$4" "$5" --onnx "$3/model.onnx" --device "$6" --batch "$7" --height "$8" \
+      --width "$9" --out "$3/ort_cuda.json"' _ "$BIN" "$SCI_CKPT" "$S" "$PY" "$ORT_PY" "$DEV" \
+      "$BF" "$H" "$W"
+else
+  printf 'ort_cuda\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
+fi
+
+# 5. The model benchmarks, released first (issue 9's targets), ours then PyTorch.
 for p in $PRESETS; do
   for v in $VARIANTS; do ours "$p" "$v"; done
   torchref "$p"
 done
-# 3. bf16 autocast in training: fp32 vs --amp on the bundled world, same seed.
+# 6. bf16 autocast in training: fp32 vs --amp on the bundled world, same seed.
 if [ -n "$DATA" ]; then
   for m in fp32 amp; do
     amp=(); [ "$m" = amp ] && amp=(--amp)
     step "train_$m" "$CAP_TRAIN" 20 "$BIN" train --data "$DATA" --device "$DEV" --seed 0 \
       "${TRAIN_ARGS[@]}" "${amp[@]}" --out "$S/train_$m"
   done
-  # 4. The real loader on prepared 800x350 data vs the training step (paper, batch 8).
+  # 7. The real loader on prepared 800x350 data vs the training step (paper, batch 8).
   step bench_train "$CAP_BTRAIN" 20 "$BIN" bench train --data "$DATA" --device "$DEV" \
     "${BTRAIN_ARGS[@]}" --out "$S/bench_train.json"
 else
   log "no prepared data (bundle/prepared): train and bench train skipped"
   printf 'train_fp32\tskipped\t0\tno data\ntrain_amp\tskipped\t0\tno data\nbench_train\tskipped\t0\tno data\n' >> "$STEPS"
 fi
-# 5. The CUDA demo plan (bigger world, wider network), with what is left.
+# 8. The CUDA demo plan (bigger world, wider network), with what is left.
 step demo "$CAP_DEMO" 45 "$BIN" demo --out "$S/demo" --seed 7 --pictures 1 "${DEMO_ARGS[@]}"
+# 9. Issue 44's inference steps (folded graph, CUDA graphs, pipelined predict): not built yet.
 
 # ------------------------------------------------------------------------------------------
 # Consolidate (≤ 7 files) and print the table.
@@ -387,6 +465,54 @@ prec = [{"config": r["config"], "variant": r["variant"], "impl": "ours", **r["pr
 prec += [{"config": r["config"], "variant": r["variant"], "impl": f"torch-{r['ordinal']}",
           **r["precision_check"]} for r in torch_runs if r.get("precision_check")]
 
+# Issue 45's checks after the science step.
+science = load(os.path.join(OUT, "science.json"))
+bf16_rec = load(os.path.join(S, "bf16_trained.json")) or {}
+bf16_trained = bf16_rec.get("precision_check")  # null on the CPU: bf16 runs on CUDA only
+
+
+def iter_losses(run):
+    out = {}
+    try:
+        with open(os.path.join(S, run, "metrics.jsonl")) as fh:
+            for line in fh:
+                d = json.loads(line)
+                if d.get("kind") == "iter":
+                    out[d["iteration"]] = d["loss"]
+    except (OSError, ValueError, KeyError):
+        pass
+    return out
+
+
+single, rank = iter_losses("nccl_single"), iter_losses("nccl_rank")
+common = sorted(set(single) & set(rank))
+allreduce = None
+try:
+    with open(os.path.join(S, "nccl_rank.log")) as fh:
+        allreduce = next((l.strip() for l in fh if l.startswith("all-reduce (")), None)
+except OSError:
+    pass
+max_diff = max((abs(single[i] - rank[i]) for i in common), default=None)
+nccl = {"status": {"single": status.get("nccl_single"), "rank": status.get("nccl_rank")},
+        "iterations_compared": len(common), "max_abs_loss_difference": max_diff,
+        "equal_within_1e-4": None if max_diff is None else max_diff <= 1e-4,
+        "allreduce_line": allreduce,
+        "backend": (allreduce.split("(")[1].split(",")[0] if allreduce else None)}
+ort_cuda = load(os.path.join(S, "ort_cuda.json"))
+# Every command's whole output (log.txt keeps only tails): the science runs' logs included.
+deprecations = []
+for root, _, files in os.walk(S):
+    for name in sorted(files):
+        if name.endswith(".log"):
+            with open(os.path.join(root, name), errors="replace") as fh:
+                deprecations += [f"{name}: {l.strip()}" for l in fh if "deprecat" in l.lower()]
+checks = {"bf16_trained": bf16_trained, "bf16_trained_status": status.get("bf16_trained"),
+          "bf16_trained_weights": bf16_rec.get("weights"),
+          "nccl": nccl, "ort_cuda": ort_cuda, "ort_cuda_status": status.get("ort_cuda"),
+          "deprecation_lines": len(deprecations), "deprecation_examples": deprecations[:5],
+          "inference_speed": "issue 44's steps (folded graph, CUDA graphs, pipelined predict) "
+                             "are not built yet"}
+
 # Training fp32 vs amp.
 train = {}
 for m in ("fp32", "amp"):
@@ -413,7 +539,7 @@ if bt:
                                      "loader_threads", "train_step_seconds")}
     if bt.get("train_images_per_s"):
         loader["loader_over_step_rate"] = bt["loader_images_per_s"] / bt["train_images_per_s"]
-dump("train.json", {"train": train, "bench_train": loader,
+dump("train.json", {"train": train, "bench_train": loader, "nccl": nccl,
                     "bench_train_status": status.get("bench_train"),
                     "note": "tiny preset on the bundled 10x5-keyframe world, same seed; "
                             "bench_train: loader alone vs step rate with the loader running"})
@@ -466,6 +592,9 @@ summary = {"env": {k: env[k] for k in ("date_utc", "gpu", "nvidia_smi_cuda", "to
            "train": {m: {"best_val_rmse": train[m]["best_val_rmse"],
                          "status": train[m]["status"]} for m in train},
            "loader": loader, "demo": demo_out, "targets": targets,
+           "science": None if not science else {
+               k: science.get(k) for k in ("ok", "training", "margin", "runs", "wall_seconds")},
+           "checks": checks,
            "steps": {s["step"]: s["status"] for s in steps}}
 dump("summary.json", summary)
 dump("env.json", env)
@@ -518,6 +647,29 @@ else:
     lines.append(f"demo: {demo_out['status']}, reached {demo_out.get('reached')}")
 for t in targets:
     lines.append("target " + json.dumps(t))
+if science:
+    mg = science.get("margin") or {}
+    mm = (mg.get("margin_m") or {}).get("mean")
+    lines.append(f"science: N = {science['training'].get('train_samples')}, "
+                 f"{science['training'].get('iterations')} iterations per run, margin of late-sam "
+                 f"over rgb {f(mm, 3)} m, t = {f(mg.get('t'))}, finding: {mg.get('finding')} "
+                 f"[{status.get('science')}]")
+else:
+    lines.append(f"science: no science.json [{status.get('science')}]")
+if bf16_trained:
+    lines.append(f"bf16 on the trained checkpoint: >1 bin {100 * bf16_trained['frac_pixels_level_moved_gt_1']:.4f} % "
+                 f"({'ok' if bf16_trained['ok'] else 'FAIL'}, ≤ 0.1 %)")
+else:
+    lines.append(f"bf16 on the trained checkpoint: not measured [{status.get('bf16_trained')}]")
+lines.append(f"one rank ({nccl['backend'] or '?'}) vs one process: {nccl['iterations_compared']} "
+             f"iterations, max |Δloss| {f(nccl['max_abs_loss_difference'], 6)}; {nccl['allreduce_line'] or 'no all-reduce line'}")
+if ort_cuda:
+    lines.append(f"onnxruntime ({(ort_cuda.get('providers_used') or ['-'])[0]}): "
+                 f"{f(ort_cuda.get('median_ms'))} ms median, batch {ort_cuda.get('batch')}"
+                 f"{'; ' + ort_cuda['note'] if ort_cuda.get('note') else ''}")
+else:
+    lines.append(f"onnxruntime: not measured [{status.get('ort_cuda')}]")
+lines.append(f"libtorch deprecation lines in the log: {checks['deprecation_lines']}")
 bad = [s for s in steps if s["status"] not in ("ok", "not selected")]
 lines.append("steps not ok: " + (", ".join(f"{s['step']} ({s['status']})" for s in bad) or "none"))
 lines.append(f"results: {OUT}")

@@ -7,7 +7,7 @@ use crate::cmd::heading as h;
 #[derive(clap::Args)]
 pub struct Args {
     #[arg(long, help_heading = h::MODEL, alias = "preset", default_value = "released", value_parser = depthsense_config::cli::parse_config_spec,
-          help = depthsense_config::cli::config_help("Network", ", a model-config JSON file or a checkpoint"))]
+          help = depthsense_config::cli::config_help("Network", ", a model-config JSON file or a checkpoint (RUN/best.safetensors: its network with its trained weights, so that the bf16 check is on a trained network)"))]
     pub config: String,
     #[arg(long = "set", help_heading = h::MODEL, value_name = "KEY=VALUE", value_parser = depthsense_config::cli::parse_set,
           help = crate::cmd::SET_HELP)]

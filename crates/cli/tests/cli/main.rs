@@ -4,6 +4,7 @@
 //!   ARCHITECTURE's layer table);
 //! - `errors`: no catch-all `…Error::Other(String)` built outside tests (issue 43 item 3);
 //! - `front`: the torch-free `depthsense` front and its hand-over to `depthsense-net`;
+//! - `gpu_check`: `scripts/gpu-check.sh --cpu-dry-run`, the science step first (issue 45);
 //! - `interruptions`, `run_folders`, `train_nproc`, `bench_export`: the binary under signals,
 //!   in run folders, with `--nproc` and `bench export`;
 //!
@@ -19,6 +20,7 @@ mod docs;
 mod errors;
 mod finetune;
 mod front;
+mod gpu_check;
 mod interruptions;
 mod keys;
 mod logs;

@@ -611,6 +611,9 @@ impl<'o> Trainer<'o> {
             write_curves(&metrics, &self.path(CURVES_FILE))?;
         }
         if let Some(d) = &self.dist {
+            if d.is_main() {
+                eprintln!("{}", comm_line(d));
+            }
             d.barrier()?;
         }
         Ok(summary)
@@ -712,6 +715,24 @@ impl Learner for Trainer<'_> {
             None => Ok(local),
         }
     }
+}
+
+/// The gradient all-reduce of this invocation on rank 0, one line (gpu-check reads it): bytes and
+/// buckets per step, the mean time per step and the algorithm bandwidth (bytes / time).
+fn comm_line(d: &Dist) -> String {
+    let s = d.stats;
+    let per_step = s.grad_allreduce_s / s.steps.max(1) as f64;
+    format!(
+        "all-reduce ({}, {} ranks): {:.1} MB of gradients per step in {} buckets, {} steps, \
+         {:.3} ms per step, {:.2} GB/s algorithm bandwidth",
+        d.process_group().backend_name(),
+        d.world_size(),
+        s.grad_bytes as f64 / 1e6,
+        s.buckets,
+        s.steps,
+        per_step * 1e3,
+        s.grad_bytes as f64 / per_step.max(1e-12) / 1e9
+    )
 }
 
 /// The run's length and cadence: the one place iterations × epochs is worked out.

@@ -45,6 +45,8 @@ struct Results {
     train_step: Option<Timing>,
     /// Mixed precision vs fp32 on the same input: fraction of pixels whose decoded level moves
     /// by more than one bin, and by any amount.
+    /// "trained" (`--config` was a checkpoint: its weights) or "random" (seed 0).
+    weights: &'static str,
     precision_check: Option<serde_json::Value>,
 }
 
@@ -172,6 +174,8 @@ struct Bench {
     channels_last: bool,
     /// The arithmetic in use (fp32 off CUDA).
     prec: Precision,
+    /// The weights are a checkpoint's (`--config RUN/best.safetensors`), not random.
+    trained: bool,
     params: i64,
     macs_per_image: u64,
     height: i64,
@@ -196,6 +200,7 @@ impl Bench {
         let mem_baseline = gpu_used_total_mib(dev);
         let vs = nn::VarStore::new(dev);
         let net = DepthNet::new(&vs.root(), &cfg)?;
+        let trained = load_trained_weights(&args.config, &vs)?;
         let channels_last = use_channels_last(args.channels_last, dev, &vs);
         let rep = report::model_report(&vs, &net, args.height, args.width);
         let asked = args.precision;
@@ -208,6 +213,7 @@ impl Bench {
             mem_baseline,
             channels_last,
             prec,
+            trained,
             params: rep.total_params,
             macs_per_image: rep.total_macs,
             height: args.height,
@@ -241,6 +247,7 @@ impl Bench {
             forward: None,
             forward_decode: None,
             train_step: None,
+            weights: if self.trained { "trained" } else { "random" },
             precision_check: None,
         }
     }
@@ -301,7 +308,12 @@ impl Bench {
             "frac_pixels_level_moved": any,
             "target_frac_gt_1": 0.001,
             "ok": more_than_one <= 0.001,
-            "note": "random weights and inputs; re-check on a trained checkpoint"
+            "weights": if self.trained { "trained" } else { "random" },
+            "note": if self.trained {
+                "the checkpoint's trained weights, random inputs"
+            } else {
+                "random weights and inputs; re-check on a trained checkpoint"
+            }
         })
     }
 
@@ -322,6 +334,19 @@ impl Bench {
             depthsense_train::step::backward_update(&mut opt, &loss, 1e-3);
         }))
     }
+}
+
+/// A depthsense checkpoint given as `--config` (`*.safetensors`): its trained weights copied
+/// into `vs` (true). A preset or a config JSON: the random weights stay (false).
+fn load_trained_weights(config: &str, vs: &nn::VarStore) -> anyhow::Result<bool> {
+    let path = std::path::Path::new(config);
+    if !(path.is_file() && path.extension().is_some_and(|e| e == "safetensors")) {
+        return Ok(false);
+    }
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let (tensors, _) = depthsense_checkpoint::host::parse_safetensors(path, &bytes)?;
+    depthsense_checkpoint::copy_into(path, vs, &tensors)?;
+    Ok(true)
 }
 
 /// Whether the channels-last layout is used (asked for, on CUDA); converts `vs` when it is.

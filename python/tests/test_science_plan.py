@@ -1,0 +1,53 @@
+"""scripts/science_json.py plan: the science step's choice of mode and iterations (issue 45)."""
+import json
+import os
+import subprocess
+import sys
+
+SCRIPT = os.path.join(os.path.dirname(__file__), "..", "..", "scripts", "science_json.py")
+
+
+def plan(tmp_path, one, fours, **kw):
+    (tmp_path / "probe_one.json").write_text(json.dumps({"train_images_per_s": one}))
+    for k, r in enumerate(fours, 1):
+        (tmp_path / f"probe_four_{k}.json").write_text(json.dumps({"train_images_per_s": r}))
+    args = {"runs": 4, "batch": 8, "epochs": 4, "size": 3000, "time-left": 240,
+            "run-overhead": 20, **kw}
+    cmd = [sys.executable, SCRIPT, "plan", "--work", str(tmp_path)]
+    for k, v in args.items():
+        cmd += [f"--{k}", str(v)]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    rec = json.loads((tmp_path / "plan.json").read_text())
+    return p, rec
+
+
+def test_four_at_once_when_the_probe_measures_ten_percent_more(tmp_path):
+    p, rec = plan(tmp_path, 130.0, [40.0, 40.0, 40.0, 40.0])
+    assert p.returncode == 0, p.stderr
+    assert rec["mode"] == "parallel" and abs(rec["parallel_gain"] - 160 / 130) < 1e-9
+    # (240 − 2·20) · 0.85 s at 160 images/s shared by 4 runs, batch 8, a multiple of 4.
+    expect = int((200 * 0.85 * 160 / 4) // 8) // 4 * 4
+    assert rec["iterations"] == expect and p.stdout.split() == ["parallel", str(expect), "3000"]
+
+
+def test_one_after_another_otherwise_and_n_shrinks_to_one_pass(tmp_path):
+    p, rec = plan(tmp_path, 130.0, [30.0, 30.0, 30.0, 30.0], **{"time-left": 150})
+    assert p.returncode == 0, p.stderr
+    assert rec["mode"] == "sequential"
+    # (150 − 4·20) · 0.85 / 4 s per run at 130 images/s: fewer images than 3,000.
+    expect = int((70 * 0.85 / 4 * 130) // 8) // 4 * 4
+    assert rec["iterations"] == expect
+    assert rec["size"] == expect * 8 < 3000, "N: what one pass of the iterations covers"
+
+
+def test_no_time_is_an_error_not_a_zero_iteration_run(tmp_path):
+    p, rec = plan(tmp_path, 130.0, [], **{"time-left": 60})
+    assert p.returncode == 1 and "not enough time" in p.stderr
+    assert rec["iterations"] == 0
+
+
+def test_a_forced_mode_and_a_cap(tmp_path):
+    p, rec = plan(tmp_path, 10.0, [1.0, 1.0, 1.0, 1.0], mode="parallel",
+                  **{"max-iterations": 12, "size": 24, "batch": 2, "epochs": 2})
+    assert p.returncode == 0, p.stderr
+    assert (rec["mode"], rec["iterations"], rec["size"]) == ("parallel", 12, 24)
