@@ -34,7 +34,7 @@ use depthsense_records::metrics_log::MetricsRecord;
 use depthsense_records::run_config::{Command, MerRunConfig, RUN_CONFIG_VERSION};
 use depthsense_records::{convert, to_json_pretty};
 use depthsense_train::adam::Adam;
-use depthsense_train::learner::{fit, Batches, Checkpointer, Learner, Plan};
+use depthsense_train::learner::{fit, Batches, Checkpointer, EpochTiming, Learner, Plan, StepDone};
 use depthsense_train::metrics_log::{logged_loss_sum, EpochRecord, IterRecord};
 use depthsense_train::optim::Optimizer;
 use depthsense_train::run_folder::RunFolder;
@@ -328,6 +328,10 @@ struct Run<'o> {
     ckpt: Checkpointer,
     /// The current epoch's loss: (sum, steps).
     epoch_loss: (f64, usize),
+    /// When this invocation began.
+    started: Instant,
+    /// The last step's loss and learning rate (the progress line).
+    last_loss: Option<(f64, f64)>,
 }
 
 impl<'o> Run<'o> {
@@ -354,6 +358,7 @@ impl<'o> Run<'o> {
     }
 
     fn new(opts: &'o MerTrainOptions) -> Result<Self, NetError> {
+        let started = Instant::now();
         if opts.batch_size == 0 || opts.epochs == 0 {
             return Err(NetError::Config("batch size and epochs must be ≥ 1".into()));
         }
@@ -386,6 +391,8 @@ impl<'o> Run<'o> {
             folder,
             ckpt: Checkpointer::new(&opts.out, optim_matches),
             epoch_loss: (0.0, 0),
+            started,
+            last_loss: None,
         };
         run.write_config(&part)?;
         Ok(run)
@@ -457,12 +464,7 @@ impl<'o> Run<'o> {
 
     /// One Adam step on the training samples `chunk`; a batch without a labelled pair counts
     /// as an iteration without an update.
-    fn adam_step(
-        &mut self,
-        chunk: &[usize],
-        epoch: u64,
-        progress: &Progress,
-    ) -> Result<u64, NetError> {
+    fn adam_step(&mut self, chunk: &[usize], epoch: u64) -> Result<u64, NetError> {
         let o = self.opts;
         let refs: Vec<&IndexEntry> = chunk.iter().map(|&i| &self.train[i]).collect();
         let flips: Vec<bool> = chunk
@@ -494,11 +496,7 @@ impl<'o> Run<'o> {
         self.epoch_loss = (self.epoch_loss.0 + lv, self.epoch_loss.1 + 1);
         self.folder
             .append::<MerValRecord>(&MetricsRecord::Iter(IterRecord::new(epoch, it, lv, lr)))?;
-        progress.set_message(format!(
-            "epoch {}/{} loss {lv:.4} lr {lr:.2e}",
-            epoch + 1,
-            o.epochs
-        ));
+        self.last_loss = Some((lv, lr));
         Ok(it)
     }
 
@@ -529,15 +527,21 @@ impl<'o> Run<'o> {
     }
 
     /// Epoch `epoch`'s (0-based) record in RUN/metrics.jsonl, validated as `v`, and the curves.
-    fn write_epoch_record(&mut self, epoch: u64, v: &MerValRecord) -> Result<(), NetError> {
+    fn write_epoch_record(
+        &mut self,
+        epoch: u64,
+        v: &MerValRecord,
+        timing: &EpochTiming,
+    ) -> Result<(), NetError> {
         let loss = self.epoch_loss.0 / self.epoch_loss.1.max(1) as f64;
         let it = self.state.iteration;
-        self.folder.append(&MetricsRecord::Epoch(EpochRecord::new(
-            epoch + 1,
-            it,
-            loss,
-            v.clone(),
-        )))?;
+        self.folder
+            .append(&MetricsRecord::Epoch(timing.stamp(EpochRecord::new(
+                epoch + 1,
+                it,
+                loss,
+                v.clone(),
+            ))))?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 }
@@ -624,6 +628,10 @@ impl Learner for Run<'_> {
         self.state.iteration
     }
 
+    fn started(&self) -> Instant {
+        self.started
+    }
+
     fn plan(&self) -> Plan {
         Plan {
             iterations_per_epoch: self.bpe,
@@ -672,13 +680,19 @@ impl Learner for Run<'_> {
         ))
     }
 
-    fn step(
-        &mut self,
-        chunk: Vec<usize>,
-        epoch: u64,
-        progress: &Progress,
-    ) -> Result<u64, NetError> {
-        self.adam_step(&chunk, epoch, progress)
+    fn step(&mut self, chunk: Vec<usize>, epoch: u64, _: &Progress) -> Result<StepDone, NetError> {
+        let iteration = self.adam_step(&chunk, epoch)?;
+        Ok(StepDone {
+            iteration,
+            images: chunk.len() as u64,
+        })
+    }
+
+    fn status(&self) -> String {
+        match self.last_loss {
+            Some((loss, lr)) => format!("loss {loss:.4} lr {lr:.2e}"),
+            None => "loss –".into(),
+        }
     }
 
     /// Losses are read at every step.
@@ -691,14 +705,18 @@ impl Learner for Run<'_> {
         self.write_last()
     }
 
-    fn log_epoch(&mut self, epoch: u64, v: &MerValRecord) -> Result<(), NetError> {
-        self.write_epoch_record(epoch, v)
+    fn log_epoch(
+        &mut self,
+        epoch: u64,
+        v: &MerValRecord,
+        timing: &EpochTiming,
+    ) -> Result<(), NetError> {
+        self.write_epoch_record(epoch, v, timing)
     }
 }
 
 /// Train the PDA network (see the module docs for RUN/).
 pub fn train_pda(opts: &MerTrainOptions, progress: &Progress) -> Result<MerTrainSummary, NetError> {
-    let started = Instant::now();
     depthsense_train::trainer::removing_new_folder_on_failure(&opts.out, || {
         let mut run = Run::new(opts)?;
         progress.println(run.start_line());
@@ -710,7 +728,7 @@ pub fn train_pda(opts: &MerTrainOptions, progress: &Progress) -> Result<MerTrain
             best_iteration: run.state.best_iteration,
             parameters: pda::parameter_count(&run.vs),
             iterations: run.state.iteration,
-            seconds: started.elapsed().as_secs_f64(),
+            seconds: fitted.clock.seconds(),
             interrupted: fitted.interrupted,
             signal: fitted.signal,
             total_iterations: run.plan().total_iterations(),

@@ -5,12 +5,17 @@
 //! - a [`Learner`] says what one step does (a batch in, the network and optimiser updated:
 //!   [`Learner::step`]), what a validation is, how an epoch's batches are drawn from any
 //!   iteration on, and how the run is checkpointed and an epoch closed;
-//! - [`fit`] owns the loop: the progress bar, the validation of the initial network on a fresh
+//! - [`fit`] owns the loop: the progress bar and its line (the learner's [`Learner::status`]
+//!   and the step's images per second), the invocation's [`Clock`] (the time of the steps, the
+//!   wait for their batches included, and of the validations; every epoch record's timings come
+//!   from it), the validation of the initial network on a fresh
 //!   run (`{"kind":"val","epoch":0,…}` in RUN/metrics.jsonl), the epochs still to run — a
 //!   resumed run starts inside its epoch, at the batch after the last one done — the checkpoint
 //!   cadence ([`Plan`]: every N iterations, at `--stop-after`), the epoch ends (validation,
 //!   RUN/last.safetensors, then RUN/best.safetensors when it improved) and the rule for the best
 //!   checkpoint ([`improves`]: the lowest [`Learner::score`], the initial network included);
+//! - the data-parallel strategy ([`Learner::dist`]: one process, or a rank of a c10d job whose
+//!   step all-reduces the gradients): the ranks agree on every stop;
 //! - a stop signal (SIGINT / SIGTERM, [`depthsense_base::interrupt`]) ends the loop after the
 //!   current step with a checkpoint that `--resume` continues from exactly ([`Fitted::signal`];
 //!   at an epoch's last step the epoch is closed first, its validation included);
@@ -29,9 +34,10 @@ use std::time::{Duration, Instant};
 
 use depthsense_base::interrupt::{self, StopSignal};
 use depthsense_progress::Progress;
-use depthsense_records::metrics_log::{MetricsRecord, ValLine};
+use depthsense_records::metrics_log::{EpochRecord, MetricsRecord, ValLine};
 use serde::Serialize;
 
+use crate::distributed::Dist;
 use crate::optim_state;
 use crate::run_folder::RunFolder;
 use depthsense_dataset::outputs::{LAST_CKPT, LAST_OPTIM};
@@ -71,6 +77,8 @@ pub trait Learner {
     type Batch;
     /// Global iterations done (0: a fresh run, whose initial network is validated first).
     fn iteration(&self) -> u64;
+    /// When this invocation began (its set-up counts in the records' wall `seconds`).
+    fn started(&self) -> Instant;
     /// The run's length, checkpoint cadence and stop.
     fn plan(&self) -> Plan;
     /// The current network on the validation samples, its record tagged with `epoch`: 0 before
@@ -102,26 +110,148 @@ pub trait Learner {
     /// RUN/metrics.jsonl's records of the skipped iterations).
     fn batches(&mut self, epoch: u64, skip: u64) -> Result<Batches<Self::Batch>, NetError>;
     /// One training step on `batch`: the learning rate and dropout seed of the iteration
-    /// ([`crate::schedule`]), forward, backward, optimiser step; returns the global iteration
-    /// after it. A learner may defer reading the loss to [`Learner::flush`].
+    /// ([`crate::schedule`]), forward, backward, optimiser step; says the global iteration
+    /// after it and the images it trained on. A learner may defer reading the loss to
+    /// [`Learner::flush`].
     fn step(
         &mut self,
         batch: Self::Batch,
         epoch: u64,
         progress: &Progress,
-    ) -> Result<u64, NetError>;
+    ) -> Result<StepDone, NetError>;
+    /// The last loss read and its learning rate, for the progress line (`loss 0.1234 lr
+    /// 1.00e-3`).
+    fn status(&self) -> String;
     /// Reads (and checks, and logs) the losses not read yet; [`fit`] calls it before anything
     /// is written and at an epoch's end.
     fn flush(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError>;
     /// Writes RUN/last.safetensors and its optimiser state, `epoch` epochs done.
     fn save_last(&mut self, epoch: u64) -> Result<(), NetError>;
-    /// Writes epoch `epoch`'s (0-based) record, validated as `v` and checkpointed, to
-    /// RUN/metrics.jsonl, and redraws RUN/curves.png.
-    fn log_epoch(&mut self, epoch: u64, v: &Self::Val) -> Result<(), NetError>;
-    /// The stop signal this run is asked to stop for, asked after every step. A data-parallel
-    /// learner makes its ranks agree (all stop at the same iteration, or none).
+    /// Writes epoch `epoch`'s (0-based) record, validated as `v`, checkpointed and timed as
+    /// `timing`, to RUN/metrics.jsonl, and redraws RUN/curves.png.
+    fn log_epoch(
+        &mut self,
+        epoch: u64,
+        v: &Self::Val,
+        timing: &EpochTiming,
+    ) -> Result<(), NetError>;
+    /// The stop signal this process has received (SIGINT / SIGTERM), asked after every step;
+    /// [`fit`] makes the ranks of a data-parallel job agree on it ([`Learner::dist`]).
     fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
         Ok(interrupt::requested())
+    }
+    /// The data-parallel strategy: this process's rank of a c10d job, or `None` for one
+    /// process. The learner's step synchronises the gradients; [`fit`] makes the ranks stop
+    /// together.
+    fn dist(&self) -> Option<&Dist> {
+        None
+    }
+}
+
+/// What one [`Learner::step`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StepDone {
+    /// The global iteration after the step.
+    pub iteration: u64,
+    /// Images it trained on (every rank's, in a data-parallel job).
+    pub images: u64,
+}
+
+/// Where an invocation's time went, kept by [`fit`]: the training steps (each one's time runs
+/// from the end of the previous one, so the wait for its batch is included), the validations
+/// and the images trained on.
+#[derive(Debug, Clone, Copy)]
+pub struct Clock {
+    started: Instant,
+    /// Images trained on in this invocation.
+    pub images: u64,
+    /// Seconds in training steps and in validations, this invocation.
+    pub train_secs: f64,
+    pub val_secs: f64,
+    /// `images` and `train_secs` when the current epoch began: the epoch's own rate, without
+    /// the first epoch's warm-up (cuDNN autotuning, first allocations).
+    epoch_mark: (u64, f64),
+    /// When the previous step ended, or the epoch's batches were ready.
+    step_ended: Instant,
+}
+
+/// The timings of an epoch record ([`Clock::close_epoch`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpochTiming {
+    /// Images per second of the training steps of the invocation so far.
+    pub images_per_s: f64,
+    /// Images per second of this epoch's training steps.
+    pub epoch_images_per_s: f64,
+    pub train_seconds: f64,
+    pub val_seconds: f64,
+    /// Wall seconds of the invocation so far (its set-up included).
+    pub seconds: f64,
+}
+
+impl EpochTiming {
+    /// `record` with these timings.
+    pub fn stamp<V>(&self, record: EpochRecord<V>) -> EpochRecord<V> {
+        EpochRecord {
+            images_per_s: Some(self.images_per_s),
+            epoch_images_per_s: Some(self.epoch_images_per_s),
+            train_seconds: Some(self.train_seconds),
+            val_seconds: Some(self.val_seconds),
+            seconds: Some(self.seconds),
+            ..record
+        }
+    }
+}
+
+impl Clock {
+    /// The clock of an invocation that began at `started`.
+    pub fn new(started: Instant) -> Self {
+        Self {
+            started,
+            images: 0,
+            train_secs: 0.0,
+            val_secs: 0.0,
+            epoch_mark: (0, 0.0),
+            step_ended: Instant::now(),
+        }
+    }
+
+    /// Images per second of the training steps so far (0 before any).
+    pub fn images_per_s(&self) -> f64 {
+        self.images as f64 / self.train_secs.max(1e-9)
+    }
+
+    /// Wall seconds since the invocation began.
+    pub fn seconds(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// An epoch's batches are ready: its first step's time starts here.
+    fn batches_ready(&mut self) {
+        self.step_ended = Instant::now();
+    }
+
+    /// A step of `images` ended: its time added; returns its own images per second.
+    fn step_done(&mut self, images: u64) -> f64 {
+        let now = Instant::now();
+        let secs = now.duration_since(self.step_ended).as_secs_f64();
+        self.step_ended = now;
+        self.train_secs += secs;
+        self.images += images;
+        images as f64 / secs.max(1e-9)
+    }
+
+    /// The timings of the epoch that just ended; the next one's rate starts here.
+    fn close_epoch(&mut self) -> EpochTiming {
+        let (images0, secs0) = self.epoch_mark;
+        self.epoch_mark = (self.images, self.train_secs);
+        EpochTiming {
+            images_per_s: self.images_per_s(),
+            epoch_images_per_s: (self.images - images0) as f64
+                / (self.train_secs - secs0).max(1e-9),
+            train_seconds: self.train_secs,
+            val_seconds: self.val_secs,
+            seconds: self.seconds(),
+        }
     }
 }
 
@@ -133,14 +263,17 @@ pub struct Fitted<V> {
     pub interrupted: bool,
     /// The signal that stopped it (checkpointed first), when one did.
     pub signal: Option<StopSignal>,
+    /// Where this invocation's time went.
+    pub clock: Clock,
 }
 
 impl<V> Fitted<V> {
-    fn stopped(val: Vec<V>, signal: Option<StopSignal>) -> Self {
+    fn stopped(val: Vec<V>, signal: Option<StopSignal>, clock: Clock) -> Self {
         Self {
             val,
             interrupted: true,
             signal,
+            clock,
         }
     }
 }
@@ -159,12 +292,13 @@ enum EpochStop {
 /// Runs `learner` to the end of its last epoch, or to its plan's `stop_after`.
 pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L::Val>, NetError> {
     let plan = learner.plan();
+    let mut clock = Clock::new(learner.started());
     progress.set_length(plan.total_iterations());
     progress.set_position(learner.iteration());
     let mut val = vec![];
     if learner.iteration() == 0 {
         progress.set_message("validating the initial network");
-        let v = learner.validation(0)?;
+        let v = validate(learner, 0, &mut clock)?;
         // The network before training is a candidate for RUN/best.safetensors like every
         // epoch's: a fine-tuning that only makes it worse keeps its start.
         if improves(L::score(&v), learner.best_score()) {
@@ -180,16 +314,23 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
     for epoch in learner.iteration() / per_epoch..epochs {
         // Nothing of this epoch done yet: a signal here needs no checkpoint (the last one, or
         // none at iteration 0, is where `--resume` starts).
-        if let Some(sig) = learner.stop_requested()? {
-            return Ok(Fitted::stopped(val, Some(sig)));
+        if let Some(sig) = stop_signal(learner)? {
+            return Ok(Fitted::stopped(val, Some(sig), clock));
         }
-        match run_epoch(learner, epoch, &plan, &mut pace, progress)? {
-            EpochStop::StopAfter => return Ok(Fitted::stopped(val, None)),
-            EpochStop::Signal(sig) => return Ok(Fitted::stopped(val, Some(sig))),
+        let mut steps = EpochSteps {
+            epoch,
+            plan: &plan,
+            pace: &mut pace,
+            clock: &mut clock,
+            progress,
+        };
+        match steps.run(learner)? {
+            EpochStop::StopAfter => return Ok(Fitted::stopped(val, None, clock)),
+            EpochStop::Signal(sig) => return Ok(Fitted::stopped(val, Some(sig), clock)),
             EpochStop::End => {}
         }
         progress.set_message(format!("epoch {}/{epochs}: validating", epoch + 1));
-        let v = close_epoch(learner, epoch)?;
+        let v = close_epoch(learner, epoch, &mut clock)?;
         progress.println(format!(
             "validation after epoch {}/{epochs} (iteration {}): {v}",
             epoch + 1,
@@ -197,14 +338,25 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
         ));
         val.push(v);
         if plan.stop_after == Some(learner.iteration()) {
-            return Ok(Fitted::stopped(val, None));
+            return Ok(Fitted::stopped(val, None, clock));
         }
     }
     Ok(Fitted {
         val,
         interrupted: false,
         signal: None,
+        clock,
     })
+}
+
+/// The stop signal of the job: this process's, or under data parallelism the one the ranks
+/// agree on (all stop at the same iteration, or none).
+fn stop_signal<L: Learner>(learner: &mut L) -> Result<Option<StopSignal>, NetError> {
+    let local = learner.stop_requested()?;
+    match learner.dist() {
+        Some(d) => d.agree_on_stop(local),
+        None => Ok(local),
+    }
 }
 
 /// The rule for RUN/best.safetensors, the same for every learner: a run's first validation is
@@ -218,11 +370,27 @@ pub fn improves(score: f64, best: Option<f64>) -> bool {
     }
 }
 
+/// [`Learner::validation`], its time added to the clock's validation seconds.
+fn validate<L: Learner>(
+    learner: &mut L,
+    epoch: u64,
+    clock: &mut Clock,
+) -> Result<L::Val, NetError> {
+    let t = Instant::now();
+    let v = learner.validation(epoch);
+    clock.val_secs += t.elapsed().as_secs_f64();
+    v
+}
+
 /// Closes epoch `epoch` (0-based) after its last step: validation, the best rule, the
 /// checkpoints (RUN/last.safetensors always, RUN/best.safetensors when it improved, both with
-/// the state that says so) and the epoch's record.
-fn close_epoch<L: Learner>(learner: &mut L, epoch: u64) -> Result<L::Val, NetError> {
-    let v = learner.validation(epoch + 1)?;
+/// the state that says so) and the epoch's record with its timings.
+fn close_epoch<L: Learner>(
+    learner: &mut L,
+    epoch: u64,
+    clock: &mut Clock,
+) -> Result<L::Val, NetError> {
+    let v = validate(learner, epoch + 1, clock)?;
     let improved = improves(L::score(&v), learner.best_score());
     if improved {
         learner.note_best(&v);
@@ -231,53 +399,68 @@ fn close_epoch<L: Learner>(learner: &mut L, epoch: u64) -> Result<L::Val, NetErr
     if improved {
         learner.save_best()?;
     }
-    learner.log_epoch(epoch, &v)?;
+    learner.log_epoch(epoch, &v, &clock.close_epoch())?;
     Ok(v)
 }
 
-/// The steps of one epoch from where the run stands, to its end, to `stop_after` or to a stop
-/// signal (both checkpointed). Its losses are all read when it returns.
-fn run_epoch<L: Learner>(
-    learner: &mut L,
+/// The steps of one epoch from where the run stands.
+struct EpochSteps<'a> {
     epoch: u64,
-    plan: &Plan,
-    pace: &mut Pace,
-    progress: &Progress,
-) -> Result<EpochStop, NetError> {
-    let per_epoch = plan.iterations_per_epoch.max(1);
-    let skip = learner.iteration() - epoch * per_epoch;
-    for batch in learner.batches(epoch, skip)? {
-        let it = learner.step(batch?, epoch, progress)?;
-        if let Some(line) = pace.step(it, plan) {
-            progress.println(line);
-        }
-        let epoch_end = it.is_multiple_of(per_epoch);
-        let stop_here = plan.stop_after == Some(it);
-        let periodic = plan.checkpoint_every > 0 && it.is_multiple_of(plan.checkpoint_every);
-        // At an epoch's last step the epoch is closed (validated, checkpointed) first.
-        let signal = if epoch_end {
-            None
-        } else {
-            learner.stop_requested()?
-        };
-        // Losses are read (and checked) before anything is written.
-        if epoch_end || stop_here || periodic || signal.is_some() {
-            learner.flush(epoch, progress)?;
-        }
-        // After the read, so that a progress line carries this iteration's loss.
-        progress.set_position(it);
-        if !epoch_end && (stop_here || periodic || signal.is_some()) {
-            learner.save_last(epoch)?;
-            if let Some(sig) = signal {
-                return Ok(EpochStop::Signal(sig));
+    plan: &'a Plan,
+    pace: &'a mut Pace,
+    clock: &'a mut Clock,
+    progress: &'a Progress,
+}
+
+impl EpochSteps<'_> {
+    /// To the epoch's end, to `stop_after` or to a stop signal (both checkpointed). Its losses
+    /// are all read when it returns.
+    fn run<L: Learner>(&mut self, learner: &mut L) -> Result<EpochStop, NetError> {
+        let (epoch, plan, progress) = (self.epoch, self.plan, self.progress);
+        let per_epoch = plan.iterations_per_epoch.max(1);
+        let skip = learner.iteration() - epoch * per_epoch;
+        let batches = learner.batches(epoch, skip)?;
+        self.clock.batches_ready();
+        for batch in batches {
+            let done = learner.step(batch?, epoch, progress)?;
+            let (it, rate) = (done.iteration, self.clock.step_done(done.images));
+            if let Some(line) = self.pace.step(it, plan) {
+                progress.println(line);
             }
-            if stop_here {
-                return Ok(EpochStop::StopAfter);
+            let epoch_end = it.is_multiple_of(per_epoch);
+            let stop_here = plan.stop_after == Some(it);
+            let periodic = plan.checkpoint_every > 0 && it.is_multiple_of(plan.checkpoint_every);
+            // At an epoch's last step the epoch is closed (validated, checkpointed) first.
+            let signal = if epoch_end {
+                None
+            } else {
+                stop_signal(learner)?
+            };
+            // Losses are read (and checked) before anything is written.
+            if epoch_end || stop_here || periodic || signal.is_some() {
+                learner.flush(epoch, progress)?;
+            }
+            // After the read, so that a progress line carries this iteration's loss.
+            progress.set_message(format!(
+                "epoch {}/{} {} {rate:.1} img/s",
+                epoch + 1,
+                plan.epochs,
+                learner.status()
+            ));
+            progress.set_position(it);
+            if !epoch_end && (stop_here || periodic || signal.is_some()) {
+                learner.save_last(epoch)?;
+                if let Some(sig) = signal {
+                    return Ok(EpochStop::Signal(sig));
+                }
+                if stop_here {
+                    return Ok(EpochStop::StopAfter);
+                }
             }
         }
+        learner.flush(epoch, progress)?;
+        Ok(EpochStop::End)
     }
-    learner.flush(epoch, progress)?;
-    Ok(EpochStop::End)
 }
 
 /// Steps timed before the run says how long an epoch takes (after the first, untimed one).
@@ -382,6 +565,8 @@ mod tests {
         /// The validation after epoch N is `vals[N]` (default 100 + N).
         vals: Vec<u64>,
         best: Option<f64>,
+        /// Steps of this invocation (2 images each).
+        steps: u64,
     }
 
     impl Toy {
@@ -395,6 +580,9 @@ mod tests {
         type Batch = u64;
         fn iteration(&self) -> u64 {
             self.iteration
+        }
+        fn started(&self) -> Instant {
+            Instant::now()
         }
         fn plan(&self) -> Plan {
             self.plan
@@ -431,13 +619,20 @@ mod tests {
             self.call(format!("epoch {epoch} from {skip}"));
             Ok(Box::new((epoch * 10 + skip..epoch * 10 + 10).map(Ok)))
         }
-        fn step(&mut self, batch: u64, _: u64, _: &Progress) -> Result<u64, NetError> {
+        fn step(&mut self, batch: u64, _: u64, _: &Progress) -> Result<StepDone, NetError> {
             assert_eq!(
                 batch, self.iteration,
                 "batches in order, none skipped twice"
             );
             self.iteration += 1;
-            Ok(self.iteration)
+            self.steps += 1;
+            Ok(StepDone {
+                iteration: self.iteration,
+                images: 2,
+            })
+        }
+        fn status(&self) -> String {
+            format!("loss {}", self.iteration)
         }
         fn flush(&mut self, _: u64, _: &Progress) -> Result<(), NetError> {
             self.call(format!("flush {}", self.iteration));
@@ -447,7 +642,14 @@ mod tests {
             self.call(format!("save {epoch} at {}", self.iteration));
             Ok(())
         }
-        fn log_epoch(&mut self, epoch: u64, v: &u64) -> Result<(), NetError> {
+        fn log_epoch(&mut self, epoch: u64, v: &u64, t: &EpochTiming) -> Result<(), NetError> {
+            let images = t.images_per_s * t.train_seconds.max(1e-9);
+            let expected = 2.0 * self.steps as f64;
+            assert!(
+                (images - expected).abs() <= 1e-6 * expected,
+                "every step's images counted: {images} vs {expected}"
+            );
+            assert!(t.epoch_images_per_s > 0.0 && t.seconds >= t.train_seconds);
             self.call(format!("end {epoch}: {v}"));
             Ok(())
         }
@@ -470,6 +672,7 @@ mod tests {
             signal_at: None,
             vals: vec![],
             best: None,
+            steps: 0,
         }
     }
 

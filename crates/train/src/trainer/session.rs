@@ -8,7 +8,6 @@ use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_base::fsutil::write_atomic;
-use depthsense_base::interrupt::StopSignal;
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
@@ -25,7 +24,7 @@ use super::{
     TrainOptions, TrainSummary, ValRecord,
 };
 use crate::distributed::Dist;
-use crate::learner::{fit, Batches, Checkpointer, Learner, Plan};
+use crate::learner::{fit, Batches, Checkpointer, Clock, EpochTiming, Learner, Plan, StepDone};
 use crate::metrics_log::{logged_loss_sum, EpochRecord, IterRecord};
 use crate::optim::Optimizer;
 use crate::optim_state;
@@ -57,8 +56,10 @@ pub struct Trainer<'o> {
     /// Batches per epoch and total iterations.
     bpe: u64,
     total: u64,
-    /// This invocation's clock and image count.
-    timing: Timing,
+    /// When this invocation began (its set-up included in the records' wall seconds).
+    started: Instant,
+    /// The last loss read and its learning rate (the progress line).
+    last_loss: Option<(f64, f64)>,
     /// Data-parallel training: this process's rank of the job (None: a single process).
     dist: Option<Dist>,
     /// The run folder, held by the process that writes it (rank 0 or the only one).
@@ -73,34 +74,6 @@ pub struct Trainer<'o> {
     best_written: bool,
 }
 
-/// This invocation's clock: where its time went and how many images it trained on.
-struct Timing {
-    started: Instant,
-    images: usize,
-    /// Seconds in training steps (loader waits included) and in validation, this invocation.
-    train_secs: f64,
-    val_secs: f64,
-    /// `images` and `train_secs` when the current epoch began (this invocation): the epoch's
-    /// own rate, without the first epoch's warm-up (cuDNN autotuning, first allocations).
-    epoch_mark: (usize, f64),
-    /// When the previous step ended (a step's time includes waiting for its batch).
-    step_ended: Instant,
-}
-
-impl Timing {
-    /// The clock of an invocation that started at `started`.
-    fn new(started: Instant) -> Self {
-        Self {
-            started,
-            images: 0,
-            train_secs: 0.0,
-            val_secs: 0.0,
-            epoch_mark: (0, 0.0),
-            step_ended: Instant::now(),
-        }
-    }
-}
-
 /// One optimiser step whose loss has not been read yet.
 struct PendingLoss {
     /// Global iteration after the step.
@@ -108,9 +81,6 @@ struct PendingLoss {
     /// The loss: a 0-d tensor on the training device (deferred read) or on the CPU (read).
     loss: tch::Tensor,
     lr: f64,
-    images: usize,
-    /// Wall time since the previous step ended (loading included).
-    seconds: f64,
 }
 
 /// The losses of an epoch: those not read yet and the running sum of those read.
@@ -196,7 +166,8 @@ impl<'o> Trainer<'o> {
             run: run.clone(),
             bpe,
             total: plan_of(opts, bpe).total_iterations(),
-            timing: Timing::new(started),
+            started,
+            last_loss: None,
             dist,
             folder,
             ckpt: Checkpointer::new(&run, optim_matches),
@@ -291,14 +262,6 @@ impl<'o> Trainer<'o> {
             None => r,
         };
         Ok(ValRecord::from_report(epoch, self.state.iteration, &r))
-    }
-
-    /// [`Trainer::validate`], its time added to the validation seconds of the summary.
-    fn validate_timed(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
-        let t = Instant::now();
-        let v = self.validate(epoch);
-        self.timing.val_secs += t.elapsed().as_secs_f64();
-        v
     }
 
     /// Iterations between two reads of the losses (see [`TrainOptions::loss_read_every`]).
@@ -397,14 +360,12 @@ impl<'o> Trainer<'o> {
             iteration: self.state.iteration,
             loss: value,
             lr,
-            images: batch.size,
-            seconds: 0.0,
         })
     }
 
     /// Reads the pending losses (one device→host copy) and logs them in order; the first
     /// non-finite one stops training with its own iteration.
-    fn read_losses(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError> {
+    fn read_losses(&mut self, epoch: u64) -> Result<(), NetError> {
         if self.acc.pending.is_empty() {
             return Ok(());
         }
@@ -429,13 +390,7 @@ impl<'o> Trainer<'o> {
                     p.lr,
                 )))?;
             }
-            progress.set_message(format!(
-                "epoch {}/{} loss {lv:.4} lr {:.2e} {:.1} img/s",
-                epoch + 1,
-                self.opts.schedule.epochs,
-                p.lr,
-                p.images as f64 / p.seconds.max(1e-9)
-            ));
+            self.last_loss = Some((lv, p.lr));
         }
         Ok(())
     }
@@ -466,26 +421,21 @@ impl<'o> Trainer<'o> {
     }
 
     /// Epoch `epoch`'s (0-based) record in RUN/metrics.jsonl, validated as `v`, and the curves.
-    fn write_epoch_record(&mut self, epoch: u64, v: &ValRecord) -> Result<(), NetError> {
+    fn write_epoch_record(
+        &mut self,
+        epoch: u64,
+        v: &ValRecord,
+        timing: &EpochTiming,
+    ) -> Result<(), NetError> {
         let (epoch_loss, epoch_n) = (self.acc.sum, self.acc.n);
-        let t = &mut self.timing;
-        let (mark_images, mark_secs) = t.epoch_mark;
-        let epoch_rate = (t.images - mark_images) as f64 / (t.train_secs - mark_secs).max(1e-9);
-        t.epoch_mark = (t.images, t.train_secs);
         let Some(folder) = &self.folder else {
             return Ok(());
         };
         let it = self.state.iteration;
-        let t = &self.timing;
-        folder.append(&MetricsRecord::Epoch(EpochRecord {
+        folder.append(&MetricsRecord::Epoch(timing.stamp(EpochRecord {
             lr: Some(self.lr_at(it)),
-            images_per_s: Some(t.images as f64 / t.train_secs.max(1e-9)),
-            epoch_images_per_s: Some(epoch_rate),
-            train_seconds: Some(t.train_secs),
-            val_seconds: Some(t.val_secs),
-            seconds: Some(t.started.elapsed().as_secs_f64()),
             ..EpochRecord::new(epoch + 1, it, epoch_loss / epoch_n.max(1) as f64, v.clone())
-        }))?;
+        })))?;
         write_curves(&self.path(METRICS_FILE), &self.path(CURVES_FILE))
     }
 
@@ -536,7 +486,6 @@ impl<'o> Trainer<'o> {
             (self.acc.sum, self.acc.n) =
                 logged_loss_sum(&path, epoch * self.bpe, self.state.iteration);
         }
-        self.timing.step_ended = Instant::now();
         Ok(loader)
     }
 
@@ -551,6 +500,7 @@ impl<'o> Trainer<'o> {
     pub fn run(mut self, progress: &Progress) -> Result<TrainSummary, NetError> {
         progress.println(self.start_line());
         let fitted = fit(&mut self, progress)?;
+        let clock = fitted.clock;
         let summary = TrainSummary {
             run_dir: self.run.clone(),
             losses: std::mem::take(&mut self.losses),
@@ -569,7 +519,7 @@ impl<'o> Trainer<'o> {
             partition: self.part.clone(),
             val_samples_used: self.val_entries.len(),
         };
-        self.finish(summary)
+        self.finish(summary, &clock)
     }
 
     /// What the run trains on and for how long (the first line of its log).
@@ -598,14 +548,14 @@ impl<'o> Trainer<'o> {
         )
     }
 
-    fn finish(self, mut summary: TrainSummary) -> Result<TrainSummary, NetError> {
+    fn finish(self, mut summary: TrainSummary, clock: &Clock) -> Result<TrainSummary, NetError> {
         summary.iterations_done = self.state.iteration;
         summary.best_val_rmse = self.state.best_val_rmse.unwrap_or(f64::INFINITY);
         summary.best = self.best();
-        summary.train_images_per_s = self.timing.images as f64 / self.timing.train_secs.max(1e-9);
-        summary.train_seconds = self.timing.train_secs;
-        summary.val_seconds = self.timing.val_secs;
-        summary.seconds = self.timing.started.elapsed().as_secs_f64();
+        summary.train_images_per_s = clock.images_per_s();
+        summary.train_seconds = clock.train_secs;
+        summary.val_seconds = clock.val_secs;
+        summary.seconds = clock.seconds();
         let metrics = self.path(METRICS_FILE);
         if self.is_main() && metrics.exists() {
             write_curves(&metrics, &self.path(CURVES_FILE))?;
@@ -628,12 +578,16 @@ impl Learner for Trainer<'_> {
         self.state.iteration
     }
 
+    fn started(&self) -> Instant {
+        self.started
+    }
+
     fn plan(&self) -> Plan {
         plan_of(self.opts, self.bpe)
     }
 
     fn validation(&mut self, epoch: u64) -> Result<ValRecord, NetError> {
-        let v = self.validate_timed(epoch)?;
+        let v = self.validate(epoch)?;
         if epoch > 0 {
             self.state.epoch = epoch;
             self.state.val_rmse = Some(v.rmse);
@@ -681,22 +635,28 @@ impl Learner for Trainer<'_> {
         ))
     }
 
-    fn step(&mut self, batch: Batch, epoch: u64, progress: &Progress) -> Result<u64, NetError> {
-        let mut p = self.sgd_step(&batch, epoch)?;
-        p.seconds = self.timing.step_ended.elapsed().as_secs_f64();
-        self.timing.step_ended = Instant::now();
-        let it = p.iteration;
-        self.timing.train_secs += p.seconds;
-        self.timing.images += batch.size * self.rank_world().1;
+    fn step(&mut self, batch: Batch, epoch: u64, _: &Progress) -> Result<StepDone, NetError> {
+        let p = self.sgd_step(&batch, epoch)?;
+        let iteration = p.iteration;
         self.acc.pending.push(p);
         if self.acc.pending.len() >= self.loss_read_every() {
-            self.read_losses(epoch, progress)?;
+            self.read_losses(epoch)?;
         }
-        Ok(it)
+        Ok(StepDone {
+            iteration,
+            images: (batch.size * self.rank_world().1) as u64,
+        })
     }
 
-    fn flush(&mut self, epoch: u64, progress: &Progress) -> Result<(), NetError> {
-        self.read_losses(epoch, progress)
+    fn status(&self) -> String {
+        match self.last_loss {
+            Some((loss, lr)) => format!("loss {loss:.4} lr {lr:.2e}"),
+            None => "loss –".into(),
+        }
+    }
+
+    fn flush(&mut self, epoch: u64, _: &Progress) -> Result<(), NetError> {
+        self.read_losses(epoch)
     }
 
     fn save_last(&mut self, epoch: u64) -> Result<(), NetError> {
@@ -704,16 +664,17 @@ impl Learner for Trainer<'_> {
         self.checkpoint()
     }
 
-    fn log_epoch(&mut self, epoch: u64, v: &ValRecord) -> Result<(), NetError> {
-        self.write_epoch_record(epoch, v)
+    fn log_epoch(
+        &mut self,
+        epoch: u64,
+        v: &ValRecord,
+        timing: &EpochTiming,
+    ) -> Result<(), NetError> {
+        self.write_epoch_record(epoch, v, timing)
     }
 
-    fn stop_requested(&mut self) -> Result<Option<StopSignal>, NetError> {
-        let local = depthsense_base::interrupt::requested();
-        match &self.dist {
-            Some(d) => d.agree_on_stop(local),
-            None => Ok(local),
-        }
+    fn dist(&self) -> Option<&Dist> {
+        self.dist.as_ref()
     }
 }
 
