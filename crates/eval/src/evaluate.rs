@@ -112,7 +112,10 @@ pub fn load_model(
         }
         (None, false) => None, // load_any names the missing --config
     };
-    Ok(checkpoint::load_any(checkpoint_path, cfg.as_ref(), device)?)
+    let (loaded, report) = checkpoint::load_any(checkpoint_path, cfg.as_ref(), device)?;
+    // The inference graph: BatchNorm folded, the fused decode (issue 44).
+    loaded.net.prepare_inference();
+    Ok((loaded, report))
 }
 
 /// Evaluate a checkpoint (see [`load_model`] for what `opts.checkpoint` may be). Returns the

@@ -561,6 +561,7 @@ fn test_best(
         )));
     }
     let loaded = checkpoint::load(&best, device)?;
+    loaded.net.prepare_inference();
     let radar = loaded.config.radar_input_for(None)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),

@@ -166,6 +166,21 @@ pub(crate) struct ResNet {
 }
 
 impl ResNet {
+    /// Folds every BatchNorm into its conv for the inference graph ([`ConvBn::fold_batch_norm`]).
+    pub fn fold_batch_norm(&self) {
+        let stem: &[ConvBn] = match &self.stem {
+            Stem::Torchvision(c) => std::slice::from_ref(c),
+            Stem::Deep(c) => c,
+            Stem::Radar(c) => c,
+        };
+        let blocks = self.layers.iter().flatten();
+        let in_blocks =
+            blocks.flat_map(|b| [Some(&b.c1), Some(&b.c2), b.c3.as_ref(), b.down.as_ref()]);
+        for c in stem.iter().chain(in_blocks.flatten()) {
+            c.fold_batch_norm();
+        }
+    }
+
     /// The encoder of `s` under `p`; `bn`: the BatchNorm hook of data-parallel training
     /// (`crate::sync_bn`), or None.
     pub fn new(p: &P, s: &ResNetSpec, bn: Option<&Rc<dyn BatchNormHook>>) -> ResNet {

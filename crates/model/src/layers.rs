@@ -144,6 +144,11 @@ impl Conv {
     pub fn forward(&self, x: &Tensor) -> Tensor {
         x.apply(&self.conv)
     }
+    /// This conv's geometry with other weights `[cout,cin,k,k]` and bias `[cout]`.
+    fn forward_with(&self, x: &Tensor, weight: &Tensor, bias: &Tensor) -> Tensor {
+        let (s, p, d) = (self.stride, self.pad, self.dil);
+        x.conv2d(weight, Some(bias), [s, s], [p, p], [d, d], 1)
+    }
     pub fn out_hw(&self, hw: (i64, i64)) -> (i64, i64) {
         (
             out_len(hw.0, self.k, self.stride, self.pad, self.dil),
@@ -168,6 +173,9 @@ pub(crate) struct ConvBn {
     bn: nn::BatchNorm,
     /// The training-mode BatchNorm of data-parallel training (`crate::sync_bn`), if any.
     hook: Option<std::rc::Rc<dyn crate::sync_bn::BatchNormHook>>,
+    /// The inference graph's conv with the BatchNorm folded in (weight, bias), once
+    /// [`ConvBn::fold_batch_norm`] has run; the training graph never uses it.
+    folded: std::cell::OnceCell<(Tensor, Tensor)>,
 }
 
 impl ConvBn {
@@ -192,11 +200,32 @@ impl ConvBn {
                 ConvInit::TorchvisionResNet,
             ),
             bn: batch_norm2d(pb, cout),
+            folded: std::cell::OnceCell::new(),
         }
     }
-    /// Conv then BN (no activation), shapes as [`Conv::forward`].
+    /// Conv then BN (no activation), shapes as [`Conv::forward`]. In evaluation mode after
+    /// [`ConvBn::fold_batch_norm`]: one conv with the folded weights.
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
+        if let (false, Some((w, b))) = (train, self.folded.get()) {
+            return self.conv.forward_with(x, w, b);
+        }
         crate::sync_bn::forward_t(&self.bn, &self.conv.forward(x), train, self.hook.as_ref())
+    }
+    /// Folds the evaluation-mode BatchNorm into the conv, once (the weights as they are now:
+    /// call it after loading them): with s = γ / √(σ² + ε), W' = W·s per output channel and
+    /// b' = β − μ·s, so that conv(x; W', b') = BN(conv(x; W)).
+    pub fn fold_batch_norm(&self) {
+        self.folded.get_or_init(|| {
+            tch::no_grad(|| {
+                let bn = &self.bn;
+                let gamma = bn.ws.as_ref().expect("affine BatchNorm");
+                let beta = bn.bs.as_ref().expect("affine BatchNorm");
+                let scale = gamma * (&bn.running_var + crate::sync_bn::BN_EPS).rsqrt();
+                let w = &self.conv.conv.ws * scale.view([-1, 1, 1, 1]);
+                let b = beta - &bn.running_mean * &scale;
+                (w.detach(), b.detach())
+            })
+        });
     }
 }
 

@@ -21,8 +21,11 @@ mod decoder;
 pub mod device;
 mod encoder;
 mod error;
+pub mod fused_decode;
 mod fusion;
 mod head;
+#[cfg(test)]
+mod inference_tests;
 #[cfg(test)]
 mod init_tests;
 mod layers;

@@ -26,6 +26,9 @@ pub struct DepthNet {
     late: Option<LateFusion>,
     attention: Option<SpatialAttention>,
     head: Head,
+    /// The inference graph ([`DepthNet::prepare_inference`]): BatchNorm folded into the convs
+    /// (evaluation mode only) and the fused ordinal decode.
+    inference: std::cell::Cell<bool>,
 }
 
 impl std::fmt::Debug for DepthNet {
@@ -74,7 +77,27 @@ impl DepthNet {
             late,
             attention,
             head,
+            inference: std::cell::Cell::new(false),
         })
+    }
+
+    /// Makes this network the inference graph, once its weights are loaded (`predict`, `eval`,
+    /// `explain`, the experiments' test runs): every BatchNorm folded into the conv before it
+    /// (W' = W·γ/√(σ²+ε), b' = β − μ·γ/√(σ²+ε); used in evaluation mode only, the training
+    /// graph is untouched) and, on the CPU, the ordinal decode without the full-resolution
+    /// `[B,K,H,W]` tensor ([`crate::fused_decode`]). Its decoded bins equal the training
+    /// graph's on ≥ 99.99 % of pixels (float rounding).
+    pub fn prepare_inference(&self) {
+        self.rgb.fold_batch_norm();
+        if let Some(late) = &self.late {
+            late.fold_batch_norm();
+        }
+        self.inference.set(true);
+    }
+
+    /// Whether [`DepthNet::prepare_inference`] has run.
+    pub fn is_inference_graph(&self) -> bool {
+        self.inference.get()
     }
 
     /// The configuration the network was built from.
@@ -209,6 +232,10 @@ impl DepthNet {
     pub fn decode_to(&self, out: &Tensor, height: i64, width: i64) -> Tensor {
         let ac = self.cfg.align_corners;
         match self.cfg.head {
+            HeadKind::Ordinal if self.inference.get() => crate::sid::levels_to_depth(
+                &self.cfg.sid,
+                &crate::fused_decode::ordinal_levels_fused(out, height, width, ac),
+            ),
             HeadKind::Ordinal => ordinal::ordinal_decode(out, &self.cfg.sid, height, width, ac),
             HeadKind::L1 | HeadKind::L2 => (ordinal::upsample(out, height, width, ac)
                 .to_kind(Kind::Float)

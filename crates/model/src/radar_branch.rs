@@ -43,6 +43,11 @@ pub(crate) struct RadarBranch {
 }
 
 impl RadarBranch {
+    /// Folds its ResNet's BatchNorms for the inference graph.
+    pub(crate) fn fold_batch_norm(&self) {
+        self.resnet.fold_batch_norm();
+    }
+
     pub(crate) fn new(p: &P, cfg: &ModelConfig, hooks: &TrainHooks) -> RadarBranch {
         let r = p.sub("radar");
         match cfg.radar_branch {

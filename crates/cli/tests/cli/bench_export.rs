@@ -37,11 +37,13 @@ fn bench_export_times_both_engines_on_the_same_inputs() {
         (r["height"].as_u64(), r["width"].as_u64()),
         (Some(350), Some(800))
     );
-    for engine in ["depthsense", "onnxruntime"] {
+    for engine in ["depthsense", "folded", "onnxruntime"] {
         let ms = r[engine]["median_ms"].as_f64().unwrap();
         assert!(ms > 0.0 && ms.is_finite(), "{engine}: {ms}");
     }
     assert_eq!(r["onnxruntime_providers"][0], "CPUExecutionProvider");
+    let same = r["folded_frac_same_depth"].as_f64().unwrap();
+    assert!(same >= 0.9999, "the inference graph's bins: {same}");
     let within = r["frac_within_1mm"].as_f64().unwrap();
     assert!(within >= 0.999, "{within}");
     assert!(r["onnx_bytes"].as_u64().unwrap() > 1_000_000);

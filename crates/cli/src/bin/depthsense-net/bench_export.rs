@@ -1,6 +1,7 @@
 //! `depthsense bench export` (the network side; its flags: `depthsense_cli::cmd::bench_export`):
 //! random weights (seed 0) → a checkpoint → `export --format onnx` → onnxruntime's CPU latency,
-//! and depthsense's own forward + decode on the same inputs with the same threads.
+//! and depthsense's own forward + decode on the same inputs with the same threads: the training
+//! graph in evaluation mode, then the inference graph (BatchNorm folded, fused decode).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -29,8 +30,15 @@ struct Results {
     threads: usize,
     warmup: usize,
     repeats: usize,
-    /// depthsense (libtorch, this process): forward and decode to full-resolution depth.
+    /// depthsense (libtorch, this process): forward and decode to full-resolution depth, the
+    /// training graph in evaluation mode.
     depthsense: Timing,
+    /// The same network as the inference graph (`DepthNet::prepare_inference`: BatchNorm
+    /// folded into the convs, the fused ordinal decode), the same inputs, in the same run.
+    folded: Timing,
+    /// Fraction of pixels where the inference graph's depth equals the training graph's
+    /// (the same decoded bin).
+    folded_frac_same_depth: f64,
     /// onnxruntime on the exported graph (image normalisation and decode inside it).
     onnxruntime: Timing,
     onnxruntime_version: String,
@@ -77,6 +85,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (image, radar) = inputs(&cfg, a.batch);
     let _guard = tch::no_grad_guard();
     let (ours, ours_depth) = time_depthsense(&net, &image, &radar, (height, width), &a)?;
+    net.prepare_inference();
+    let (folded, folded_depth) = time_depthsense(&net, &image, &radar, (height, width), &a)?;
+    let same = ours_depth
+        .iter()
+        .zip(&folded_depth)
+        .filter(|(a, b)| a == b)
+        .count();
 
     eprintln!("timing onnxruntime …");
     let (image_v, radar_v) = (values(&image)?, values(&radar)?);
@@ -101,6 +116,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         warmup: a.warmup_runs,
         repeats: a.repeats,
         depthsense: ours,
+        folded,
+        folded_frac_same_depth: same as f64 / ours_depth.len().max(1) as f64,
         onnxruntime: summarise(a.batch as i64, &ort.ms),
         onnxruntime_version: ort.onnxruntime_version,
         onnxruntime_providers: ort.providers,
@@ -137,7 +154,12 @@ fn time_depthsense(
     let std = Tensor::from_slice(&IMAGENET_STD).view([1, 3, 1, 1]);
     let normalised = (image - &mean) / &std;
     let forward = || net.decode_to(&net.forward_t(&normalised, radar, false), height, width);
-    eprintln!("timing depthsense …");
+    let graph = if net.is_inference_graph() {
+        "the inference graph"
+    } else {
+        "the training graph"
+    };
+    eprintln!("timing depthsense, {graph} …");
     let ours = time_it(
         Device::Cpu,
         a.warmup_runs,
