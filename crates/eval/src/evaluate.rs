@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use depthsense_dataset::subsample;
 use depthsense_infer::run::evaluate_net;
-use depthsense_infer::run::{run_net, RunPlan};
+use depthsense_infer::run::{run_net, RunPlan, RunStats};
 use depthsense_infer::NetError;
 use depthsense_prep::layout::IndexEntry;
 // Scoring files on disk is torch-free (depthsense-score), so `depthsense` runs
@@ -196,50 +196,68 @@ fn eval_with(
         on_batch,
     )
 }
-/// Run a network over the samples of `opts` (as `eval` would, without reading their ground
-/// truth) and write each prediction as `<out>/<token>.<ext>` for every format in `formats`;
-/// returns how many samples were written.
+/// Writes the predictions of `opts`'s samples into `out` (`<token>.<ext>` per format) and says
+/// how many, with where the time went. The files are encoded and written on a thread of their
+/// own while the network runs on the next batch (the loader reads and rasterises ahead on its
+/// threads): the network waits for neither.
 pub fn write_predictions(
     opts: &EvalOptions,
     loaded: &Loaded,
     out: &Path,
     formats: &[PredFormat],
     progress: &Progress,
-) -> Result<usize, NetError> {
+) -> Result<(usize, RunStats), NetError> {
     let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
     std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
-    let mut n = 0usize;
     let run = RunPlan {
         batch_size: opts.batch_size,
         jobs: opts.jobs,
         device: loaded.vs.device(),
     };
-    run_net(
-        &loaded.net,
-        &ds,
-        &entries,
-        &load,
-        &run,
-        progress,
-        |b, pred| {
-            let hw = b.width * b.height;
-            for (i, s) in b.samples.iter().enumerate() {
+    // (token, depth m, width, height) of one sample; a few batches may wait to be written.
+    let (tx, rx) = std::sync::mpsc::sync_channel::<(String, Vec<f32>, usize, usize)>(
+        4 * opts.batch_size.max(1),
+    );
+    std::thread::scope(|scope| {
+        let writer = scope.spawn(move || -> Result<usize, NetError> {
+            let mut n = 0usize;
+            for (token, pred, w, h) in rx {
                 for &f in formats {
-                    write_prediction(
-                        out,
-                        &s.token,
-                        &pred[i * hw..(i + 1) * hw],
-                        b.width,
-                        b.height,
-                        f,
-                    )?;
+                    write_prediction(out, &token, &pred, w, h, f)?;
                 }
                 n += 1;
             }
-            Ok(())
-        },
-    )?;
-    Ok(n)
+            Ok(n)
+        });
+        let stats = run_net(
+            &loaded.net,
+            &ds,
+            &entries,
+            &load,
+            &run,
+            progress,
+            |b, pred| {
+                let hw = b.width * b.height;
+                for (i, s) in b.samples.iter().enumerate() {
+                    let depth = pred[i * hw..(i + 1) * hw].to_vec();
+                    // A closed channel: the writer stopped on an error, which join reports.
+                    if tx
+                        .send((s.token.clone(), depth, b.width, b.height))
+                        .is_err()
+                    {
+                        break;
+                    }
+                }
+                Ok(())
+            },
+        );
+        drop(tx);
+        let written = writer
+            .join()
+            .map_err(|_| NetError::Config("the prediction writer thread panicked".into()))?;
+        let stats = stats?;
+        Ok((written?, stats))
+    })
 }
 
 #[cfg(test)]

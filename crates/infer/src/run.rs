@@ -134,6 +134,53 @@ fn score_net(
     Ok(ev.finish())
 }
 
+/// Where the time of a [`run_net`] went: the images, the wall time from the loader's start,
+/// and every batch's network time (upload, forward, decode, the copy back to the host) — what
+/// the network alone would take.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunStats {
+    pub images: usize,
+    pub wall_s: f64,
+    /// Per batch, in order: milliseconds in the network.
+    pub batch_ms: Vec<f64>,
+}
+
+impl RunStats {
+    /// Images per second of the whole run (loading, the network and `on_batch`).
+    pub fn images_per_s(&self) -> f64 {
+        self.images as f64 / self.wall_s.max(1e-9)
+    }
+
+    /// Images per second of the network alone (the sum of the batches' network times).
+    pub fn network_images_per_s(&self) -> f64 {
+        self.images as f64 / (self.batch_ms.iter().sum::<f64>() / 1e3).max(1e-9)
+    }
+
+    /// The `q`-quantile (0..=1, nearest rank) of the batches' network milliseconds.
+    pub fn latency_ms(&self, q: f64) -> Option<f64> {
+        let mut v = self.batch_ms.clone();
+        v.sort_by(f64::total_cmp);
+        let i = ((q.clamp(0.0, 1.0) * v.len() as f64).ceil() as usize).max(1) - 1;
+        v.get(i).copied()
+    }
+
+    /// One line: the rate, the network-alone rate and the share of it reached, the latency.
+    pub fn summary(&self, batch_size: usize) -> String {
+        let f = |x: Option<f64>| x.map_or("–".into(), |v| format!("{v:.1}"));
+        format!(
+            "{} images in {:.1} s: {:.2} images/s, the network alone {:.2} images/s ({:.0} %); \
+             network time per batch of {batch_size}: median {} ms, p99 {} ms",
+            self.images,
+            self.wall_s,
+            self.images_per_s(),
+            self.network_images_per_s(),
+            100.0 * self.images_per_s() / self.network_images_per_s().max(1e-9),
+            f(self.latency_ms(0.5)),
+            f(self.latency_ms(0.99)),
+        )
+    }
+}
+
 /// How [`run_net`] batches and where it runs.
 #[derive(Debug, Clone, Copy)]
 pub struct RunPlan {
@@ -146,7 +193,8 @@ pub struct RunPlan {
 /// Run `net` over `entries` in order (no augmentation; the maps `load` asks for, so no ground
 /// truth unless `load.eval_maps`) and hand every batch with its decoded predictions ([B,H,W]
 /// metres, row-major) to `on_batch`. Samples that cannot be read do not stop the others: they
-/// are all named at the end in one [`DataError::Unreadable`].
+/// are all named at the end in one [`DataError::Unreadable`]. The samples are read and
+/// rasterised on the loader's threads while the network runs (two batches ahead).
 pub fn run_net(
     net: &DepthNet,
     ds: &Dataset,
@@ -155,7 +203,7 @@ pub fn run_net(
     run: &RunPlan,
     progress: &Progress,
     on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
-) -> Result<(), NetError> {
+) -> Result<RunStats, NetError> {
     run_batches(
         net,
         ds,
@@ -178,7 +226,9 @@ fn run_batches(
     decode: Decode,
     progress: &Progress,
     mut on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
-) -> Result<(), NetError> {
+) -> Result<RunStats, NetError> {
+    let started = std::time::Instant::now();
+    let mut stats = RunStats::default();
     let mut load = load.clone();
     load.augment = false;
     let plan = EpochPlan {
@@ -202,13 +252,17 @@ fn run_batches(
             }
             Err(e) => return Err(e.into()),
         };
+        let t = std::time::Instant::now();
         let pred_v = predict_batch(net, &batch, run.device, decode)?;
+        stats.batch_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        stats.images += batch.size;
         on_batch(&batch, &pred_v)?;
         progress.inc(batch.size as u64);
     }
+    stats.wall_s = started.elapsed().as_secs_f64();
     match DataError::merged(unreadable) {
         Some(e) => Err(e.into()),
-        None => Ok(()),
+        None => Ok(stats),
     }
 }
 
@@ -292,4 +346,29 @@ fn predict_at_ground_truth(
         pred[i] = d;
     }
     Ok(pred)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RunStats;
+
+    #[test]
+    fn run_stats_rates_and_nearest_rank_latencies() {
+        let s = RunStats {
+            images: 8,
+            wall_s: 2.0,
+            batch_ms: vec![400.0, 100.0, 300.0, 200.0],
+        };
+        assert_eq!(s.images_per_s(), 4.0);
+        assert_eq!(
+            s.network_images_per_s(),
+            8.0,
+            "8 images in 1 s of network time"
+        );
+        assert_eq!(s.latency_ms(0.5), Some(200.0));
+        assert_eq!(s.latency_ms(0.99), Some(400.0));
+        assert_eq!(s.latency_ms(0.0), Some(100.0));
+        assert!(s.summary(2).contains("(50 %)"), "{}", s.summary(2));
+        assert_eq!(RunStats::default().latency_ms(0.5), None);
+    }
 }

@@ -56,9 +56,13 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     let by_checkpoint = run_eval(&eo, &pb).unwrap();
     let (loaded, _) = load_model(&eo.checkpoint, None, &[], Device::Cpu).unwrap();
     let out = tmp.path().join("preds");
-    let n =
+    let (n, stats) =
         write_predictions(&eo, &loaded, &out, &[PredFormat::Npy, PredFormat::Png], &pb).unwrap();
     assert_eq!(n, 10);
+    assert_eq!(stats.images, 10);
+    assert_eq!(stats.batch_ms.len(), 10usize.div_ceil(eo.batch_size.max(1)));
+    assert!(stats.images_per_s() <= stats.network_images_per_s() * 1.0001);
+    assert!(stats.latency_ms(0.5) <= stats.latency_ms(0.99));
 
     // .npy (float32 metres): bit for bit the same report
     let (npy_rep, sum) = run_eval_predictions(&popts(&out, &data, eo.eval.clone()), &pb).unwrap();

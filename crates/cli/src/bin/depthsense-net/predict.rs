@@ -39,7 +39,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
     let device = depthsense_model::device::parse_device(&a.device.name)?;
     let loaded = super::model_source::load(&a.model, device)?;
     let pb = progress_bar("predict");
-    let n = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
+    let (n, stats) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
     pb.finish_and_clear();
     eprintln!(
         "{n} predictions ({}) written to {}",
@@ -50,6 +50,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
             .join(", "),
         a.out.display()
     );
+    eprintln!("{}", stats.summary(opts.batch_size));
     Ok(ExitCode::SUCCESS)
 }
 
