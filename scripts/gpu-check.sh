@@ -21,7 +21,8 @@
 # Steps run most important first, each under `timeout`, within a total budget (--budget, default
 # 570 s): a step that no longer fits is recorded as skipped, and every JSON is written even then.
 # Order: science (its own share, --science-budget) → bf16 on the trained checkpoint → NCCL →
-# onnxruntime's CUDA provider → the model benchmarks → train fp32/amp → bench train → demo.
+# onnxruntime's CUDA provider → the inference graph, predict's pipeline and the per-operator
+# profile (issue 44) → the model benchmarks → train fp32/amp → bench train → demo.
 # The deprecation check reads the whole log at the end.
 #
 # Options:
@@ -31,7 +32,8 @@
 #   --demo-epochs N    epochs of each demo model (default 4; 0 = the CUDA plan's own 30)
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: science,
-#                      bf16_trained, nccl_single, nccl_rank, ort_cuda, ours_<preset>_<variant>,
+#                      bf16_trained, nccl_single, nccl_rank, ort_cuda, infer_<preset>,
+#                      predict_pipeline, profile_released, ours_<preset>_<variant>,
 #                      torch_<preset>, train_fp32, train_amp, bench_train, demo
 #   --cpu-dry-run      prove the script on a CPU machine: tiny preset, small sizes, CPU device,
 #                      no CUDA-only checks (ldd/nvidia-smi recorded, not required); the test
@@ -240,6 +242,7 @@ if [ "$DRY" = 1 ]; then
   DEMO_ARGS=(--quick --device cpu --jobs 1)
   NCCL_ARGS=(--config tiny --set dropout=0 --epochs 1 --batch-size 2 --max-batches-per-epoch 3 --max-val-samples 2 --set input-downscale=2 --jobs 1)
   CAP_OURS=120; CAP_TORCH=240; CAP_TRAIN=240; CAP_BTRAIN=180; CAP_DEMO=400
+  PROFILE_PRESET=tiny
 else
   DEV=cuda; H=350; W=800; BF=3; BT=8; WU=3; REP=10
   PRESETS="released paper"; VARIANTS="bf16-cl fp32 bf16"
@@ -251,6 +254,7 @@ else
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
   # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
   CAP_OURS=75; CAP_TORCH=200; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
+  PROFILE_PRESET=released
 fi
 
 ours() {  # ours PRESET VARIANT
@@ -320,28 +324,47 @@ else
   printf 'ort_cuda\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
 fi
 
-# 5. The model benchmarks, released first (issue 9's targets), ours then PyTorch.
+# 5. Issue 44's inference rows: the inference graph (BatchNorm folded into the convs) of each
+#    preset, fp32 forward; `predict` over the science world's test split on the trained
+#    checkpoint (images/s against the network alone, per-batch latency); PyTorch's per-operator
+#    profile of the released network's training step in NCHW and channels-last.
+for p in $PRESETS; do
+  step "infer_$p" "$CAP_OURS" 20 "$BIN" bench model --config "$p" --device "$DEV" \
+    --inference-graph --height "$H" --width "$W" --batch-forward "$BF" --batch-train 0 \
+    --warmup-runs "$WU" --repeats "$REP" $THR --out "$S/infer_$p.json"
+done
+if [ -n "$SCI_CKPT" ]; then
+  step predict_pipeline 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" \
+    --data "$SCI_OUT/work/prepared" --split test --format npy --out "$S/preds" --device "$DEV"
+else
+  printf 'predict_pipeline\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
+fi
+step profile_released 150 30 "$PY" "$REF" --config "$PROFILE_PRESET" --device "$DEV" \
+  --profile-train --batch-train "$BT" --height "$H" --width "$W" --warmup-runs 2 --repeats 3 \
+  $THR --out "$S/profile_released.json"
+
+# 6. The model benchmarks, released first (issue 9's targets), ours then PyTorch.
 for p in $PRESETS; do
   for v in $VARIANTS; do ours "$p" "$v"; done
   torchref "$p"
 done
-# 6. bf16 autocast in training: fp32 vs --amp on the bundled world, same seed.
+# 7. bf16 autocast in training: fp32 vs --amp on the bundled world, same seed.
 if [ -n "$DATA" ]; then
   for m in fp32 amp; do
     amp=(); [ "$m" = amp ] && amp=(--amp)
     step "train_$m" "$CAP_TRAIN" 20 "$BIN" train --data "$DATA" --device "$DEV" --seed 0 \
       "${TRAIN_ARGS[@]}" "${amp[@]}" --out "$S/train_$m"
   done
-  # 7. The real loader on prepared 800x350 data vs the training step (paper, batch 8).
+  # 8. The real loader on prepared 800x350 data vs the training step (paper, batch 8).
   step bench_train "$CAP_BTRAIN" 20 "$BIN" bench train --data "$DATA" --device "$DEV" \
     "${BTRAIN_ARGS[@]}" --out "$S/bench_train.json"
 else
   log "no prepared data (bundle/prepared): train and bench train skipped"
   printf 'train_fp32\tskipped\t0\tno data\ntrain_amp\tskipped\t0\tno data\nbench_train\tskipped\t0\tno data\n' >> "$STEPS"
 fi
-# 8. The CUDA demo plan (bigger world, wider network), with what is left.
+# 9. The CUDA demo plan (bigger world, wider network), with what is left.
 step demo "$CAP_DEMO" 45 "$BIN" demo --out "$S/demo" --seed 7 --pictures 1 "${DEMO_ARGS[@]}"
-# 9. Issue 44's inference steps (folded graph, CUDA graphs, pipelined predict): not built yet.
+# Issue 44's CUDA graphs are not built yet.
 
 # ------------------------------------------------------------------------------------------
 # Consolidate (≤ 7 files) and print the table.
@@ -506,12 +529,32 @@ for root, _, files in os.walk(S):
         if name.endswith(".log"):
             with open(os.path.join(root, name), errors="replace") as fh:
                 deprecations += [f"{name}: {l.strip()}" for l in fh if "deprecat" in l.lower()]
+inference = {}
+for p in os.environ["GC_PRESETS"].split():
+    r = load(os.path.join(S, f"infer_{p}.json")) or {}
+    inference[p] = {"graph": r.get("graph"), "forward_ms": med(r, "forward"),
+                    "forward_decode_ms": med(r, "forward_decode"),
+                    "status": status.get(f"infer_{p}")}
+pipeline = None
+try:
+    with open(os.path.join(S, "predict_pipeline.log")) as fh:
+        pipeline = next((l.strip() for l in fh if " images in " in l), None)
+except OSError:
+    pass
+prof = load(os.path.join(S, "profile_released.json")) or {}
+for v in (prof.get("layouts") or {}).values():
+    if "top" in v:
+        v["top"] = v["top"][:12]
+checks_inference = {"inference_graph": inference, "predict_pipeline": pipeline,
+                    "predict_pipeline_status": status.get("predict_pipeline"),
+                    "profile_train": prof or None,
+                    "profile_status": status.get("profile_released")}
 checks = {"bf16_trained": bf16_trained, "bf16_trained_status": status.get("bf16_trained"),
           "bf16_trained_weights": bf16_rec.get("weights"),
           "nccl": nccl, "ort_cuda": ort_cuda, "ort_cuda_status": status.get("ort_cuda"),
           "deprecation_lines": len(deprecations), "deprecation_examples": deprecations[:5],
-          "inference_speed": "issue 44's steps (folded graph, CUDA graphs, pipelined predict) "
-                             "are not built yet"}
+          "inference_speed": checks_inference,
+          "cuda_graphs": "issue 44's CUDA graphs are not built yet"}
 
 # Training fp32 vs amp.
 train = {}
@@ -670,6 +713,10 @@ if ort_cuda:
 else:
     lines.append(f"onnxruntime: not measured [{status.get('ort_cuda')}]")
 lines.append(f"libtorch deprecation lines in the log: {checks['deprecation_lines']}")
+for p, r in inference.items():
+    lines.append(f"inference graph {p}: forward {f(r['forward_ms'])} ms, with decode "
+                 f"{f(r['forward_decode_ms'])} ms [{r['status']}]")
+lines.append(f"predict pipeline: {pipeline or 'not measured'} [{status.get('predict_pipeline')}]")
 bad = [s for s in steps if s["status"] not in ("ok", "not selected")]
 lines.append("steps not ok: " + (", ".join(f"{s['step']} ({s['status']})" for s in bad) or "none"))
 lines.append(f"results: {OUT}")

@@ -338,6 +338,58 @@ def bench(cfg, a, dev, prec, cl, mode, baseline):
     return res
 
 
+def profile_train(cfg, a, dev, top=25):
+    """Issue 44: where the training step's time goes in NCHW and in channels-last — PyTorch's
+    profiler over a few steps of the same network (fp32, the released ordinal form), the
+    operators with the most self time on the device (CUDA) or the CPU, per layout."""
+    from torch.profiler import ProfilerActivity, profile
+    out = {"config": cfg["name"], "device": str(dev), "batch": a.batch_train,
+           "height": a.height, "width": a.width, "torch": torch.__version__, "layouts": {}}
+    cuda = dev.type == "cuda"
+    for cl in (False, True):
+        if cl and not cuda:
+            out["layouts"]["channels_last"] = {"note": "channels-last is only used on CUDA"}
+            continue
+        torch.manual_seed(0)
+        net = DepthNet(cfg).to(dev)
+        if cl:
+            net = net.to(memory_format=torch.channels_last)
+        run = Runner(net, "released")
+        img, radar, target = inputs(cfg, a.batch_train, a.height, a.width, dev, cl)
+        net.train()
+        opt = torch.optim.SGD(net.parameters(), lr=1e-3, momentum=0.9, weight_decay=1e-4)
+
+        def step():
+            opt.zero_grad()
+            run.loss(run.forward(img, radar), target).backward()
+            opt.step()
+
+        for _ in range(max(a.warmup, 1)):
+            step()
+        sync(dev)
+        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+        with profile(activities=acts) as prof:
+            for _ in range(max(a.repeats, 1)):
+                step()
+            sync(dev)
+        key = "self_device_time_total" if cuda else "self_cpu_time_total"
+        rows = []
+        for e in prof.key_averages():
+            t = getattr(e, key, None)
+            if t is None and cuda:
+                t = getattr(e, "self_cuda_time_total", 0)
+            rows.append({"op": e.key, "calls": e.count,
+                         "self_ms_per_step": (t or 0) / 1e3 / max(a.repeats, 1)})
+        rows.sort(key=lambda r: -r["self_ms_per_step"])
+        total = sum(r["self_ms_per_step"] for r in rows)
+        out["layouts"]["channels_last" if cl else "nchw"] = {
+            "self_ms_per_step_total": total, "top": rows[:top]}
+        del net, run, opt, img, radar, target
+        if cuda:
+            torch.cuda.empty_cache()
+    return out
+
+
 def fmt_row(r):
     def ms(t):
         return "-" if t is None else f"{t['median_ms']:.2f}"
@@ -432,6 +484,10 @@ def main():
     p.add_argument("--params-only", action="store_true",
                    help="print {params, macs_per_image} (meta device, no allocation) and exit")
     p.add_argument("--out", help="write the JSON here (one object, or {\"runs\": [...]})")
+    p.add_argument("--profile-train", action="store_true",
+                   help="instead of timing: PyTorch's profiler over --repeats training steps of "
+                   "the first --config in NCHW and channels-last (CUDA), the operators with "
+                   "the most self time per layout, to --out")
     p.add_argument("--check", metavar="DIR", help="load a depthsense VarStore and write its head "
                    "output for given inputs (see check(); used by the Rust test)")
     a = p.parse_args()
@@ -461,6 +517,15 @@ def main():
             print("error: --device cuda but torch.cuda.is_available() is False", file=sys.stderr)
             return 2
         torch.backends.cudnn.benchmark = a.cudnn_benchmark
+    if a.profile_train:
+        prof = profile_train(cfgs[0], a, dev)
+        for k, v in prof["layouts"].items():
+            for r in v.get("top", [])[:8]:
+                print(f"{k:<14} {r['self_ms_per_step']:9.2f} ms/step  {r['calls']:6d}x  {r['op']}")
+        if a.out:
+            with open(a.out, "w") as f:
+                json.dump(prof, f, indent=2)
+        return 0
     if a.variants:
         variants = []
         for v in a.variants.split(","):

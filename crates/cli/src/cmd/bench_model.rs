@@ -41,6 +41,11 @@ pub struct Args {
     /// Store conv weights and inputs channels-last (NHWC) so cuDNN can use NHWC kernels.
     #[arg(long, help_heading = h::DEVICE)]
     pub channels_last: bool,
+    /// Time the forward phases on the inference graph that `predict` and `eval` run
+    /// (BatchNorm folded into the convs, the fused ordinal decode on the CPU) instead of the
+    /// training graph in evaluation mode; the training step is the same either way.
+    #[arg(long, help_heading = h::MODEL)]
+    pub inference_graph: bool,
     /// cuDNN autotuning (`cudnn.benchmark`); on by default, `--cudnn-benchmark false` to disable.
     #[arg(long, help_heading = h::DEVICE, default_value_t = true, action = clap::ArgAction::Set)]
     pub cudnn_benchmark: bool,

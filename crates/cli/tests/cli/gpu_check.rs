@@ -188,4 +188,17 @@ fn the_gpu_script_runs_dry_on_the_cpu_with_the_science_first() {
         checks["bf16_trained_weights"], "trained",
         "the bf16 check runs on the science step's checkpoint"
     );
+    let inference = &checks["inference_speed"];
+    assert_eq!(inference["inference_graph"]["tiny"]["graph"], "inference");
+    let line = inference["predict_pipeline"].as_str().unwrap_or_default();
+    assert!(
+        line.contains("images/s"),
+        "predict's pipeline line: {inference}"
+    );
+    assert!(
+        inference["profile_train"]["layouts"]["nchw"]["top"][0]["self_ms_per_step"]
+            .as_f64()
+            .unwrap()
+            > 0.0
+    );
 }

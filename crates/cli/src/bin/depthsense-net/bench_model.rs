@@ -47,6 +47,9 @@ struct Results {
     /// by more than one bin, and by any amount.
     /// "trained" (`--config` was a checkpoint: its weights) or "random" (seed 0).
     weights: &'static str,
+    /// "inference" (`--inference-graph`: BatchNorm folded, the fused decode) or "training"
+    /// (the training graph in evaluation mode) for the forward phases.
+    graph: &'static str,
     precision_check: Option<serde_json::Value>,
 }
 
@@ -201,6 +204,9 @@ impl Bench {
         let vs = nn::VarStore::new(dev);
         let net = DepthNet::new(&vs.root(), &cfg)?;
         let trained = load_trained_weights(&args.config, &vs)?;
+        if args.inference_graph {
+            net.prepare_inference();
+        }
         let channels_last = use_channels_last(args.channels_last, dev, &vs);
         let rep = report::model_report(&vs, &net, args.height, args.width);
         let asked = args.precision;
@@ -248,6 +254,11 @@ impl Bench {
             forward_decode: None,
             train_step: None,
             weights: if self.trained { "trained" } else { "random" },
+            graph: if self.net.is_inference_graph() {
+                "inference"
+            } else {
+                "training"
+            },
             precision_check: None,
         }
     }
