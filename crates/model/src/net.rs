@@ -10,7 +10,7 @@ use crate::decoder::Decoder;
 use crate::encoder::{ResNet, ResNetSpec};
 use crate::fusion::{self, LateFusion, SpatialAttention};
 use crate::head::Head;
-use crate::layers::{MacRows, P};
+use crate::layers::{hw_of, MacRows, P};
 use crate::ordinal::{self, RegressionLoss};
 use crate::radar_branch::nearest_depth_pool;
 use crate::ModelError;
@@ -232,10 +232,13 @@ impl DepthNet {
     pub fn decode_to(&self, out: &Tensor, height: i64, width: i64) -> Tensor {
         let ac = self.cfg.align_corners;
         match self.cfg.head {
-            HeadKind::Ordinal if self.inference.get() => crate::sid::levels_to_depth(
-                &self.cfg.sid,
-                &crate::fused_decode::ordinal_levels_fused(out, height, width, ac),
-            ),
+            // The released head's differences are already at full resolution: nothing to fuse.
+            HeadKind::Ordinal if self.inference.get() && hw_of(out) != (height, width) => {
+                crate::sid::levels_to_depth(
+                    &self.cfg.sid,
+                    &crate::fused_decode::ordinal_levels_fused(out, height, width, ac),
+                )
+            }
             HeadKind::Ordinal => ordinal::ordinal_decode(out, &self.cfg.sid, height, width, ac),
             HeadKind::L1 | HeadKind::L2 => (ordinal::upsample(out, height, width, ac)
                 .to_kind(Kind::Float)
