@@ -207,7 +207,7 @@ impl Bench {
         if args.inference_graph {
             net.prepare_inference();
         }
-        let channels_last = use_channels_last(args.channels_last, dev, &vs);
+        let channels_last = use_channels_last(args.channels_last, dev, args.batch_train > 0, &vs);
         let rep = report::model_report(&vs, &net, args.height, args.width);
         let asked = args.precision;
         let prec = precision_on(asked, dev);
@@ -360,14 +360,16 @@ fn load_trained_weights(config: &str, vs: &nn::VarStore) -> anyhow::Result<bool>
     Ok(true)
 }
 
-/// Whether the channels-last layout is used (asked for, on CUDA); converts `vs` when it is.
-fn use_channels_last(asked: bool, dev: Device, vs: &nn::VarStore) -> bool {
+/// Whether the channels-last layout is used (asked for, on CUDA, or on the CPU without a
+/// training step); converts `vs` when it is.
+fn use_channels_last(asked: bool, dev: Device, train_step: bool, vs: &nn::VarStore) -> bool {
     // libtorch 2.11's CPU backward crashed (heap corruption) with channels-last weights at
-    // 175x400 in our tests, so the layout is only used on CUDA, where NHWC is cuDNN's fast path.
-    let channels_last_on = asked && dev.is_cuda();
+    // 175x400 in our tests, so a CPU run with a training step stays NCHW; a forward-only CPU
+    // run takes the layout (the path the GPU takes, exercised by gpu-check's dry run).
+    let channels_last_on = asked && (dev.is_cuda() || !train_step);
     if asked && !channels_last_on {
         eprintln!(
-            "note: --channels-last is only used on CUDA; running NCHW on {}",
+            "note: --channels-last with a training step is only used on CUDA; running NCHW on {}",
             device::describe(dev)
         );
     }
