@@ -203,12 +203,18 @@ def write(a):
         json.dump(rec, f, indent=2)
     os.replace(tmp, a.out)
     m = rec["margin"]
-    lines = [f"science: {'dry run, ' if rec['dry_run'] else ''}{a.preset} on {a.device}: "
-             f"world {rec['world']['splits']['train']['keyframes']} / "
-             f"{rec['world']['splits']['val']['keyframes']} / "
-             f"{rec['world']['splits']['test']['keyframes']} keyframes (train / val / test), "
-             f"N = {plan_rec.get('size')}, {iterations} iterations per run, "
-             f"{plan_rec.get('mode')} ({rec['wall_seconds']['total']} s)"]
+    head = f"science: {'dry run, ' if rec['dry_run'] else ''}{a.preset} on {a.device}: "
+    if plan_rec:
+        sp = rec["world"]["splits"]
+        head += (f"world {sp['train']['keyframes']} / {sp['val']['keyframes']} / "
+                 f"{sp['test']['keyframes']} keyframes (train / val / test), "
+                 f"N = {plan_rec.get('size')}, {iterations} iterations per run, "
+                 f"{plan_rec.get('mode')} ({rec['wall_seconds']['total']} s)")
+    else:
+        bad = next((s for s in stages if s["status"] != "ok"), None)
+        head += ("stopped before the plan" + (f": stage {bad['stage']} {bad['status']}" if bad
+                 else "") + f" ({rec['wall_seconds']['total']} s of a {a.budget} s budget)")
+    lines = [head]
     for r in runs:
         lines.append(f"  {r['arm']:<9} seed {r['seed']}: test RMSE {r['test_rmse_m']:.3f} m"
                      if r["test_rmse_m"] is not None else f"  {r['arm']} seed {r['seed']}: -")
