@@ -30,9 +30,9 @@ use depthsense_infer::NetError;
 use depthsense_model::pda::{self, balanced_bce, PdaNet};
 use depthsense_prep::layout::IndexEntry;
 use depthsense_progress::Progress;
+use depthsense_records::convert;
 use depthsense_records::metrics_log::MetricsRecord;
 use depthsense_records::run_config::{Command, MerRunConfig, RUN_CONFIG_VERSION};
-use depthsense_records::{convert, to_json_pretty};
 use depthsense_train::adam::Adam;
 use depthsense_train::learner::{fit, Batches, Checkpointer, EpochTiming, Learner, Plan, StepDone};
 use depthsense_train::metrics_log::{logged_loss_sum, EpochRecord, IterRecord};
@@ -425,8 +425,7 @@ impl<'o> Run<'o> {
             ),
             command: Command::of_words(&self.opts.command),
         };
-        let text = to_json_pretty(&config)?;
-        write_atomic(&p, text.as_bytes()).map_err(|e| NetError::io(&p, e))
+        self.folder.write_config(&config)
     }
 
     /// What a checkpoint stores beside the weights: the run's state and options.

@@ -1,14 +1,15 @@
 //! A training run's folder as the engine holds it ([`crate::learner::fit`] and the learners that
 //! it drives — `train`'s and `mer train`'s): taken for one writer ([`OutputLock`]), a folder that
 //! holds a run refused unless the run continues or is replaced ([`claim_run_folder`]), and its
-//! log, RUN/metrics.jsonl, written only through it ([`RunFolder::log`],
-//! [`RunFolder::append`]). Only the process that writes RUN/ holds one
+//! records written only through it: RUN/metrics.jsonl ([`RunFolder::log`],
+//! [`RunFolder::append`]) and RUN/config.json ([`RunFolder::write_config`]). Only the process
+//! that writes RUN/ holds one
 //! (rank 0 of a data-parallel job, or the only process).
 
 use std::path::{Path, PathBuf};
 
 use depthsense_base::lock::OutputLock;
-use depthsense_dataset::outputs::{claim_run_folder, METRICS_FILE};
+use depthsense_dataset::outputs::{claim_run_folder, CONFIG_FILE, METRICS_FILE};
 use depthsense_infer::NetError;
 use depthsense_records::metrics_log::MetricsRecord;
 use serde::Serialize;
@@ -37,6 +38,15 @@ impl RunFolder {
     /// RUN/`name`.
     pub fn file(&self, name: &str) -> PathBuf {
         self.dir.join(name)
+    }
+
+    /// Writes RUN/config.json (the run's typed record: `train`'s `TrainRunConfig`, `mer
+    /// train`'s `MerRunConfig`), whole or not at all (a temporary file, then a rename).
+    pub fn write_config<C: Serialize>(&self, config: &C) -> Result<(), NetError> {
+        let path = self.file(CONFIG_FILE);
+        let text = depthsense_records::to_json_pretty(config)?;
+        depthsense_base::fsutil::write_atomic(&path, text.as_bytes())
+            .map_err(|e| NetError::io(&path, e))
     }
 
     /// Appends one record to RUN/metrics.jsonl.
@@ -87,5 +97,9 @@ mod tests {
         f.restart_log(0).unwrap();
         assert!(!f.file(METRICS_FILE).exists());
         f.restart_log(0).unwrap();
+        f.write_config(&serde_json::json!({"format_version": 1}))
+            .unwrap();
+        let text = std::fs::read_to_string(f.file(CONFIG_FILE)).unwrap();
+        assert!(text.contains("\"format_version\": 1"), "{text}");
     }
 }

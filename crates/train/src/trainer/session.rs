@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
-use depthsense_base::fsutil::write_atomic;
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
@@ -37,7 +36,7 @@ use depthsense_dataset::outputs::{
 use depthsense_infer::NetError;
 use depthsense_records::metrics_log::MetricsRecord;
 use depthsense_records::run_config::{Command, LrSegment, TrainRunConfig, RUN_CONFIG_VERSION};
-use depthsense_records::{convert, to_json_pretty, RecordError};
+use depthsense_records::{convert, RecordError};
 
 /// A training run in progress.
 pub struct Trainer<'o> {
@@ -236,8 +235,10 @@ impl<'o> Trainer<'o> {
             },
             command: Command::of_words(&self.opts.command),
         };
-        let text = to_json_pretty(&config)?;
-        write_atomic(&path, text.as_bytes()).map_err(|e| NetError::io(&path, e))
+        match &self.folder {
+            Some(folder) => folder.write_config(&config),
+            None => Ok(()),
+        }
     }
 
     /// Metrics of the current network on the validation samples.
