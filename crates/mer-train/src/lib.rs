@@ -688,10 +688,7 @@ impl Learner for Run<'_> {
     }
 
     fn status(&self) -> String {
-        match self.last_loss {
-            Some((loss, lr)) => format!("loss {loss:.4} lr {lr:.2e}"),
-            None => "loss –".into(),
-        }
+        depthsense_train::learner::loss_status(self.last_loss)
     }
 
     /// Losses are read at every step.

@@ -349,6 +349,15 @@ pub fn fit<L: Learner>(learner: &mut L, progress: &Progress) -> Result<Fitted<L:
     })
 }
 
+/// The progress line's loss text of a learner whose last read step had `last` (loss, learning
+/// rate): `loss 0.1234 lr 1.00e-3`, or `loss –` before any.
+pub fn loss_status(last: Option<(f64, f64)>) -> String {
+    match last {
+        Some((loss, lr)) => format!("loss {loss:.4} lr {lr:.2e}"),
+        None => "loss –".into(),
+    }
+}
+
 /// The stop signal of the job: this process's, or under data parallelism the one the ranks
 /// agree on (all stop at the same iteration, or none).
 fn stop_signal<L: Learner>(learner: &mut L) -> Result<Option<StopSignal>, NetError> {

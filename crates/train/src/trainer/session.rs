@@ -650,10 +650,7 @@ impl Learner for Trainer<'_> {
     }
 
     fn status(&self) -> String {
-        match self.last_loss {
-            Some((loss, lr)) => format!("loss {loss:.4} lr {lr:.2e}"),
-            None => "loss –".into(),
-        }
+        crate::learner::loss_status(self.last_loss)
     }
 
     fn flush(&mut self, epoch: u64, _: &Progress) -> Result<(), NetError> {
