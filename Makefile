@@ -117,12 +117,13 @@ bench: build
 # Everything a GPU machine without Rust needs for scripts/gpu-check.sh (issue 9, ../shared/GPU.md):
 # the stripped release binary, a small prepared synthetic world and the scripts, in .gpu/
 # (git-ignored, < 64 MiB). On the GPU machine: `bash .gpu/gpu-check.sh`.
-# The binary is built with NCCL (feature nccl: ProcessGroupNCCL against the CUDA and NCCL headers of
-# the torch wheel's nvidia-* packages plus libcu++ from nvidia-cuda-cccl, installed here): gpu-check
-# runs one NCCL rank against one process. The same binary runs on CPU-only machines.
+# The binary is built with NCCL and CUDA graphs (features nccl and cuda-graphs: ProcessGroupNCCL and
+# at::cuda::CUDAGraph against the CUDA and NCCL headers of the torch wheel's nvidia-* packages plus
+# libcu++ from nvidia-cuda-cccl, installed here): gpu-check runs one NCCL rank against one process
+# and times the replayed graph. The same binary runs on CPU-only machines.
 gpu-bundle: setup
 	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "nvidia-cuda-cccl==13.0.*"
-	$(CARGO) build --release -p depthsense-cli --features depthsense-cli/nccl
+	$(CARGO) build --release -p depthsense-cli --features depthsense-cli/nccl,depthsense-cli/cuda-graphs
 	scripts/gpu-check.sh --make-bundle .gpu
 
 fmt:

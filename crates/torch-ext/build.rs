@@ -1,5 +1,9 @@
-//! Builds `shim/torch_ext.cpp` against the libtorch that tch links (same include paths, C++17
-//! and `_GLIBCXX_USE_CXX11_ABI` as torch-sys; build-support/torch_find.rs) and links libtorch.
+//! Builds `shim/torch_ext.cpp` and `shim/cuda_graph.cpp` against the libtorch that tch links
+//! (same include paths, C++17 and `_GLIBCXX_USE_CXX11_ABI` as torch-sys;
+//! build-support/torch_find.rs) and links libtorch. Feature `cuda-graphs`: `cuda_graph.cpp` with
+//! `at::cuda::CUDAGraph`, against the CUDA runtime headers of the torch wheel's `nvidia-*`
+//! packages (or `$CUDA_INCLUDE`), libcu++ from `nvidia-cuda-cccl` (or `$CCCL_INCLUDE`), as
+//! crates/dist's NCCL build; without it the graph functions are stubs.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -7,14 +11,65 @@ use std::process::Command;
 include!("../../build-support/torch_find.rs");
 include!("../../build-support/torch_link.rs");
 
+fn env_dir(var: &str) -> Option<PathBuf> {
+    println!("cargo:rerun-if-env-changed={var}");
+    std::env::var_os(var).map(PathBuf::from)
+}
+
+/// The include folders of the CUDA runtime headers (with `crt/` and libcu++'s `nv/`).
+fn cuda_includes(torch: &Torch) -> Vec<PathBuf> {
+    let nvidia = torch.site_packages.as_ref().map(|s| s.join("nvidia"));
+    let cuda = env_dir("CUDA_INCLUDE").or_else(|| {
+        let n = nvidia.as_ref()?;
+        ["cu13/include", "cuda_runtime/include"]
+            .iter()
+            .map(|s| n.join(s))
+            .find(|p| p.join("cuda_runtime_api.h").exists())
+    });
+    let Some(cuda) = cuda else {
+        panic!(
+            "depthsense-torch-ext feature `cuda-graphs`: CUDA runtime headers not found; set \
+             CUDA_INCLUDE"
+        );
+    };
+    let mut dirs = vec![cuda.clone()];
+    if !cuda.join("crt/host_config.h").exists() {
+        // triton's wheel ships the CUDA headers the runtime wheel lacks.
+        if let Some(t) = torch.site_packages.as_ref() {
+            dirs.push(t.join("triton/backends/nvidia/include"));
+        }
+    }
+    match env_dir("CCCL_INCLUDE") {
+        Some(cc) => dirs.push(cc),
+        None if !cuda.join("nv/target").exists() => println!(
+            "cargo:warning=feature cuda-graphs: <nv/target> not found: `pip install \
+             nvidia-cuda-cccl==13.0.*` into the venv or set CCCL_INCLUDE"
+        ),
+        None => {}
+    }
+    dirs
+}
+
 fn main() {
     println!("cargo:rerun-if-changed=shim/torch_ext.cpp");
+    println!("cargo:rerun-if-changed=shim/cuda_graph.cpp");
     let torch = find_torch();
-    shim_build(&torch)
-        .file("shim/torch_ext.cpp")
-        .compile("depthsense_torch_ext_shim");
+    let graphs = std::env::var_os("CARGO_FEATURE_CUDA_GRAPHS").is_some();
+    let mut build = shim_build(&torch);
+    build.file("shim/torch_ext.cpp").file("shim/cuda_graph.cpp");
+    if graphs {
+        build
+            .includes(cuda_includes(&torch))
+            .define("USE_CUDA", None)
+            .define("DSX_CUDA_GRAPHS", None);
+    }
+    build.compile("depthsense_torch_ext_shim");
     println!("cargo:rustc-link-search=native={}", torch.lib.display());
     println!("cargo:rustc-link-lib=dylib=torch_cpu");
     println!("cargo:rustc-link-lib=dylib=c10");
+    if graphs {
+        println!("cargo:rustc-link-lib=dylib=torch_cuda");
+        println!("cargo:rustc-link-lib=dylib=c10_cuda");
+    }
     link_torch();
 }

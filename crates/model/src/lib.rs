@@ -23,6 +23,7 @@ mod encoder;
 mod error;
 pub mod fused_decode;
 mod fusion;
+pub mod graphed;
 mod head;
 #[cfg(test)]
 mod inference_tests;

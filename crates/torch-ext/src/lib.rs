@@ -4,6 +4,8 @@
 //! `Tensor::pin_memory(device)` and `tch::autocast` log a libtorch deprecation warning on every
 //! call — hundreds of lines a minute in a GPU training log (first H200 run, 2026-12-04).
 
+pub mod cuda_graph;
+
 use std::ffi::{c_char, c_void, CStr};
 
 use tch::{Device, Kind, TchError, Tensor};

@@ -46,6 +46,11 @@ pub struct Args {
     /// training graph in evaluation mode; the training step is the same either way.
     #[arg(long, help_heading = h::MODEL)]
     pub inference_graph: bool,
+    /// Also time forward + decode replayed from a CUDA graph captured for this batch shape (a
+    /// build with the feature `cuda-graphs`, fp32, CUDA); otherwise that row runs eagerly and
+    /// the JSON's `cuda_graph` says why.
+    #[arg(long, help_heading = h::DEVICE)]
+    pub cuda_graph: bool,
     /// cuDNN autotuning (`cudnn.benchmark`); on by default, `--cudnn-benchmark false` to disable.
     #[arg(long, help_heading = h::DEVICE, default_value_t = true, action = clap::ArgAction::Set)]
     pub cudnn_benchmark: bool,

@@ -189,7 +189,16 @@ fn the_gpu_script_runs_dry_on_the_cpu_with_the_science_first() {
         "the bf16 check runs on the science step's checkpoint"
     );
     let inference = &checks["inference_speed"];
-    assert_eq!(inference["inference_graph"]["tiny"]["graph"], "inference");
+    let tiny = &inference["inference_graph"]["tiny"];
+    assert_eq!(tiny["graph"], "inference");
+    assert!(tiny["forward_decode_cuda_graph_ms"].as_f64().unwrap() > 0.0);
+    assert!(
+        tiny["cuda_graph"]
+            .as_str()
+            .unwrap()
+            .contains("not on a CUDA device"),
+        "on the CPU the graph row runs eagerly and says why: {tiny}"
+    );
     let line = inference["predict_pipeline"].as_str().unwrap_or_default();
     assert!(
         line.contains("images/s"),

@@ -42,6 +42,13 @@ struct Results {
     forward: Option<Timing>,
     /// Forward plus decoding to full-resolution depth.
     forward_decode: Option<Timing>,
+    /// `--cuda-graph`: forward + decode through a CUDA graph captured for this batch shape
+    /// (`model::graphed`), or eager when it cannot be (see `cuda_graph`).
+    forward_decode_graph: Option<Timing>,
+    /// `--cuda-graph`: "replayed", or why the graph row ran eagerly.
+    cuda_graph: Option<String>,
+    /// Whether this build has CUDA graphs (feature `cuda-graphs`).
+    cuda_graphs_built: bool,
     train_step: Option<Timing>,
     /// Mixed precision vs fp32 on the same input: fraction of pixels whose decoded level moves
     /// by more than one bin, and by any amount.
@@ -179,6 +186,8 @@ struct Bench {
     prec: Precision,
     /// The weights are a checkpoint's (`--config RUN/best.safetensors`), not random.
     trained: bool,
+    /// Also time forward + decode through a CUDA graph (`--cuda-graph`).
+    cuda_graph: bool,
     params: i64,
     macs_per_image: u64,
     height: i64,
@@ -220,6 +229,7 @@ impl Bench {
             channels_last,
             prec,
             trained,
+            cuda_graph: args.cuda_graph,
             params: rep.total_params,
             macs_per_image: rep.total_macs,
             height: args.height,
@@ -253,6 +263,9 @@ impl Bench {
             forward: None,
             forward_decode: None,
             train_step: None,
+            forward_decode_graph: None,
+            cuda_graph: None,
+            cuda_graphs_built: depthsense_model::graphed::built(),
             weights: if self.trained { "trained" } else { "random" },
             graph: if self.net.is_inference_graph() {
                 "inference"
@@ -296,9 +309,38 @@ impl Bench {
                 net.decode_to(&net.forward_t(&img, &radar, false), h, w)
             });
         }));
+        if self.cuda_graph {
+            self.graph_row(&img, &radar, res);
+        }
         if prec != Precision::Fp32 && self.cfg.head == HeadKind::Ordinal {
             res.precision_check = Some(self.precision_check(&img, &radar));
         }
+    }
+
+    /// The forward + decode row through a CUDA graph (fp32: autocast's cast cache and graph
+    /// capture do not mix), and how it ran.
+    fn graph_row(&self, img: &Tensor, radar: &Tensor, res: &mut Results) {
+        let (net, (h, w)) = (&self.net, (self.height, self.width));
+        let batch = img.size()[0];
+        let mut graphed = depthsense_model::graphed::GraphedForward::new();
+        let mut how: Option<String> = None;
+        let f = |i: &Tensor, r: &Tensor| net.decode_to(&net.forward_t(i, r, false), h, w);
+        res.forward_decode_graph = Some(self.time(batch, || {
+            let (_, line) = if self.prec == Precision::Fp32 {
+                graphed.run(img, radar, f)
+            } else {
+                (f(img, radar), Some("cuda graph: fp32 only: eager".into()))
+            };
+            if let Some(l) = line {
+                eprintln!("{l}");
+                how = Some(l);
+            }
+        }));
+        res.cuda_graph = Some(match how {
+            Some(l) if l.contains("captured") => "replayed".into(),
+            Some(l) => l,
+            None => "replayed".into(),
+        });
     }
 
     /// Mixed precision vs fp32 on the same input: the fraction of pixels whose decoded level
@@ -451,6 +493,17 @@ fn print_results(res: &Results) {
                 name, t.batch, t.median_ms, t.min_ms, t.images_per_s, mem
             );
         }
+    }
+    if let Some(t) = &res.forward_decode_graph {
+        println!(
+            "{:<26} {:>6} {:>11.2} {:>11.2} {:>10.2}   ({})",
+            "forward + decode, graph",
+            t.batch,
+            t.median_ms,
+            t.min_ms,
+            t.images_per_s,
+            res.cuda_graph.as_deref().unwrap_or("-")
+        );
     }
     if let Some(p) = &res.precision_check {
         println!("precision check vs fp32: {p}");
