@@ -44,6 +44,11 @@ fn bench_export_times_both_engines_on_the_same_inputs() {
     assert_eq!(r["onnxruntime_providers"][0], "CPUExecutionProvider");
     let same = r["folded_frac_same_depth"].as_f64().unwrap();
     assert!(same >= 0.9999, "the inference graph's bins: {same}");
+    let folded_within = r["folded_frac_within_1mm"].as_f64().unwrap();
+    assert!(
+        folded_within >= 0.999,
+        "the inference graph against onnxruntime: {folded_within}"
+    );
     let within = r["frac_within_1mm"].as_f64().unwrap();
     assert!(within >= 0.999, "{within}");
     assert!(r["onnx_bytes"].as_u64().unwrap() > 1_000_000);

@@ -49,6 +49,8 @@ struct Results {
     /// The two depth maps on the same input: largest |Δ| and the fraction within 1 mm.
     max_abs_diff_m: f64,
     frac_within_1mm: f64,
+    /// The same for the inference graph's depth map against onnxruntime's.
+    folded_frac_within_1mm: f64,
 }
 
 /// Random inputs as the graph takes them: RGB in [0, 1] and sparse radar in metres.
@@ -106,6 +108,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         a.repeats,
     )?;
     let diffs = abs_diffs_m(&ort.depth_m, &ours_depth)?;
+    let folded_diffs = abs_diffs_m(&ort.depth_m, &folded_depth)?;
     let res = Results {
         config: cfg.name.clone(),
         params,
@@ -124,7 +127,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         export_s,
         onnx_bytes,
         max_abs_diff_m: diffs.iter().copied().fold(0.0, f64::max),
-        frac_within_1mm: diffs.iter().filter(|d| **d <= 1e-3).count() as f64 / diffs.len() as f64,
+        frac_within_1mm: frac_within_1mm(&diffs),
+        folded_frac_within_1mm: frac_within_1mm(&folded_diffs),
     };
     print_results(&res, a.out.as_deref())?;
     Ok(ExitCode::SUCCESS)
@@ -171,6 +175,11 @@ fn time_depthsense(
     );
     let ours_depth = values(&forward().to_kind(Kind::Float))?;
     Ok((ours, ours_depth))
+}
+
+/// The fraction of `diffs` (m) within 1 mm.
+fn frac_within_1mm(diffs: &[f64]) -> f64 {
+    diffs.iter().filter(|d| **d <= 1e-3).count() as f64 / diffs.len().max(1) as f64
 }
 
 /// |Δ| (m) of the two depth maps, value by value; an error when their sizes differ.
