@@ -33,7 +33,7 @@
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: science,
 #                      bf16_trained, nccl_single, nccl_rank, ort_cuda, infer_<preset>,
-#                      predict_pipeline, profile_released, ours_<preset>_<variant>,
+#                      predict_pipeline, predict_graph, profile_released, ours_<preset>_<variant>,
 #                      torch_<preset>, train_fp32, train_amp, bench_train, demo
 #   --cpu-dry-run      prove the script on a CPU machine: tiny preset, small sizes, CPU device,
 #                      no CUDA-only checks (ldd/nvidia-smi recorded, not required); the test
@@ -338,8 +338,11 @@ done
 if [ -n "$SCI_CKPT" ]; then
   step predict_pipeline 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" \
     --data "$SCI_OUT/work/prepared" --split test --format npy --out "$S/preds" --device "$DEV"
+  step predict_graph 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" --cuda-graph \
+    --data "$SCI_OUT/work/prepared" --split test --format npy --out "$S/preds_graph" --device "$DEV"
 else
   printf 'predict_pipeline\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
+  printf 'predict_graph\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
 fi
 step profile_released 150 30 "$PY" "$REF" --config "$PROFILE_PRESET" --device "$DEV" \
   --profile-train --batch-train "$BT" --height "$H" --width "$W" --warmup-runs 2 --repeats 3 \
@@ -539,18 +542,26 @@ for p in os.environ["GC_PRESETS"].split():
                     "cuda_graph": r.get("cuda_graph"),
                     "cuda_graphs_built": r.get("cuda_graphs_built"),
                     "status": status.get(f"infer_{p}")}
-pipeline = None
-try:
-    with open(os.path.join(S, "predict_pipeline.log")) as fh:
-        pipeline = next((l.strip() for l in fh if " images in " in l), None)
-except OSError:
-    pass
+def stats_line(name, marker):
+    try:
+        with open(os.path.join(S, f"{name}.log")) as fh:
+            return next((l.strip() for l in fh if marker in l), None)
+    except OSError:
+        return None
+
+
+pipeline = stats_line("predict_pipeline", " images in ")
+pipeline_graph = stats_line("predict_graph", " images in ")
+pipeline_graph_how = stats_line("predict_graph", "cuda graph:")
 prof = load(os.path.join(S, "profile_released.json")) or {}
 for v in (prof.get("layouts") or {}).values():
     if "top" in v:
         v["top"] = v["top"][:12]
 checks_inference = {"inference_graph": inference, "predict_pipeline": pipeline,
                     "predict_pipeline_status": status.get("predict_pipeline"),
+                    "predict_cuda_graph": pipeline_graph,
+                    "predict_cuda_graph_how": pipeline_graph_how,
+                    "predict_cuda_graph_status": status.get("predict_graph"),
                     "profile_train": prof or None,
                     "profile_status": status.get("profile_released")}
 checks = {"bf16_trained": bf16_trained, "bf16_trained_status": status.get("bf16_trained"),
@@ -722,6 +733,8 @@ for p, r in inference.items():
                  f"{f(r['forward_decode_ms'])} ms, from a CUDA graph "
                  f"{f(r['forward_decode_cuda_graph_ms'])} ms ({r['cuda_graph']}) [{r['status']}]")
 lines.append(f"predict pipeline: {pipeline or 'not measured'} [{status.get('predict_pipeline')}]")
+lines.append(f"predict --cuda-graph: {pipeline_graph or 'not measured'} ({pipeline_graph_how}) "
+             f"[{status.get('predict_graph')}]")
 bad = [s for s in steps if s["status"] not in ("ok", "not selected")]
 lines.append("steps not ok: " + (", ".join(f"{s['step']} ({s['status']})" for s in bad) or "none"))
 lines.append(f"results: {OUT}")

@@ -20,7 +20,7 @@ use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
 use depthsense_dataset::subsample;
-use depthsense_infer::run::evaluate_net;
+use depthsense_infer::run::evaluate_net_on;
 use depthsense_infer::run::{run_net, RunPlan, RunStats};
 use depthsense_infer::NetError;
 use depthsense_prep::layout::IndexEntry;
@@ -61,6 +61,9 @@ pub struct EvalOptions {
     pub radar_input: Option<RadarInput>,
     /// Model name in the tables.
     pub name: String,
+    /// Replay each batch's forward and decode from a CUDA graph (`--cuda-graph`).
+    #[serde(default)]
+    pub cuda_graph: bool,
 }
 
 impl Default for EvalOptions {
@@ -82,6 +85,7 @@ impl Default for EvalOptions {
             max_samples: None,
             radar_input: None,
             name: "model".into(),
+            cuda_graph: false,
         }
     }
 }
@@ -183,19 +187,29 @@ fn eval_with(
     on_batch: impl FnMut(&depthsense_data::Batch, &[f32]) -> Result<(), NetError>,
 ) -> Result<Report, NetError> {
     let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
-    evaluate_net(
+    let run = run_plan(opts, loaded);
+    evaluate_net_on(
         &loaded.net,
         &ds,
         &entries,
         &load,
         &opts.eval,
-        opts.batch_size,
-        opts.jobs,
-        loaded.vs.device(),
+        &run,
         progress,
         on_batch,
     )
 }
+
+/// How `opts` runs the network.
+fn run_plan(opts: &EvalOptions, loaded: &Loaded) -> RunPlan {
+    RunPlan {
+        batch_size: opts.batch_size,
+        jobs: opts.jobs,
+        device: loaded.vs.device(),
+        cuda_graph: opts.cuda_graph,
+    }
+}
+
 /// Writes the predictions of `opts`'s samples into `out` (`<token>.<ext>` per format) and says
 /// how many, with where the time went. The files are encoded and written on a thread of their
 /// own while the network runs on the next batch (the loader reads and rasterises ahead on its
@@ -209,11 +223,7 @@ pub fn write_predictions(
 ) -> Result<(usize, RunStats), NetError> {
     let (ds, entries, load) = eval_inputs(opts, loaded, progress)?;
     std::fs::create_dir_all(out).map_err(|e| NetError::io(out, e))?;
-    let run = RunPlan {
-        batch_size: opts.batch_size,
-        jobs: opts.jobs,
-        device: loaded.vs.device(),
-    };
+    let run = run_plan(opts, loaded);
     // (token, depth m, width, height) of one sample; a few batches may wait to be written.
     let (tx, rx) = std::sync::mpsc::sync_channel::<(String, Vec<f32>, usize, usize)>(
         4 * opts.batch_size.max(1),

@@ -34,14 +34,31 @@ pub fn evaluate_net(
         batch_size,
         jobs,
         device,
+        cuda_graph: false,
     };
+    evaluate_net_on(net, ds, entries, load, eval_cfg, &run, progress, on_batch)
+}
+
+/// [`evaluate_net`] as `run` says (its `cuda_graph`: every batch's forward and decode replayed
+/// from a CUDA graph where it can be, [`depthsense_model::graphed`]).
+#[allow(clippy::too_many_arguments)]
+pub fn evaluate_net_on(
+    net: &DepthNet,
+    ds: &Dataset,
+    entries: &[IndexEntry],
+    load: &LoadOptions,
+    eval_cfg: &EvalConfig,
+    run: &RunPlan,
+    progress: &Progress,
+    on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
+) -> Result<Report, NetError> {
     score_net(
         net,
         ds,
         entries,
         load,
         eval_cfg,
-        &run,
+        run,
         Decode::Every,
         progress,
         on_batch,
@@ -68,6 +85,7 @@ pub fn validate_net(
         batch_size,
         jobs,
         device,
+        cuda_graph: false,
     };
     let decode = Decode::AtGroundTruth;
     score_net(
@@ -188,6 +206,9 @@ pub struct RunPlan {
     /// Loader threads (0 = all cores).
     pub jobs: usize,
     pub device: Device,
+    /// Replay every batch's forward and decode from a CUDA graph captured for its shape (a
+    /// build with the feature `cuda-graphs`, fp32, CUDA); otherwise eager, said once.
+    pub cuda_graph: bool,
 }
 
 /// Run `net` over `entries` in order (no augmentation; the maps `load` asks for, so no ground
@@ -242,6 +263,9 @@ fn run_batches(
         prefetch: 2,
     };
     depthsense_model::device::autotune_fixed_size(run.device);
+    let mut graphed = run
+        .cuda_graph
+        .then(depthsense_model::graphed::GraphedForward::new);
     let mut unreadable = vec![];
     for batch in Loader::start(ds, &load, &plan)? {
         let batch = match batch {
@@ -253,7 +277,7 @@ fn run_batches(
             Err(e) => return Err(e.into()),
         };
         let t = std::time::Instant::now();
-        let pred_v = predict_batch(net, &batch, run.device, decode)?;
+        let pred_v = predict_batch(net, &batch, run.device, decode, graphed.as_mut(), progress)?;
         stats.batch_ms.push(t.elapsed().as_secs_f64() * 1e3);
         stats.images += batch.size;
         on_batch(&batch, &pred_v)?;
@@ -273,15 +297,24 @@ fn predict_batch(
     batch: &Batch,
     device: Device,
     decode: Decode,
+    graphed: Option<&mut depthsense_model::graphed::GraphedForward>,
+    progress: &Progress,
 ) -> Result<Vec<f32>, NetError> {
     let (image, radar) = upload_inputs(batch, device);
     let hw = batch.width * batch.height;
     if decode == Decode::AtGroundTruth {
         return predict_at_ground_truth(net, batch, &image, &radar, device);
     }
-    let pred = tch::no_grad(|| {
-        let out = net.forward_t(&image, &radar, false);
-        net.decode(&out)
+    let forward = |i: &Tensor, r: &Tensor| net.decode(&net.forward_t(i, r, false));
+    let pred = tch::no_grad(|| match graphed {
+        Some(g) => {
+            let (pred, line) = g.run(&image, &radar, forward);
+            if let Some(l) = line {
+                progress.println(l);
+            }
+            pred
+        }
+        None => forward(&image, &radar),
     });
     let pred = pred
         .to_device(Device::Cpu)

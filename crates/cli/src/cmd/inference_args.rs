@@ -15,4 +15,9 @@ pub struct InferenceArgs {
     /// Evaluate at most this many samples (evenly spaced).
     #[arg(long, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub max_samples: Option<usize>,
+    /// Replay each batch's forward and decode from a CUDA graph captured for its shape (a
+    /// build with the feature `cuda-graphs`, fp32, CUDA): one launch instead of hundreds. Any
+    /// other batch runs eagerly, and the log says why once.
+    #[arg(long)]
+    pub cuda_graph: bool,
 }

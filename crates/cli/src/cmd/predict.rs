@@ -36,6 +36,11 @@ pub struct Args {
     /// With --data: batch size of inference.
     #[arg(long, help_heading = h::INPUT, default_value_t = 4, requires = "data", value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
     pub batch_size: usize,
+    /// With --data: replay each batch's forward and decode from a CUDA graph captured for its
+    /// shape (a build with the feature `cuda-graphs`, fp32, CUDA); any other batch runs eagerly
+    /// and the log says why once.
+    #[arg(long, help_heading = h::INPUT, requires = "data")]
+    pub cuda_graph: bool,
     /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
     #[arg(long, help_heading = h::INPUT, requires = "dataroot", conflicts_with = "image")]
     pub token: Option<String>,

@@ -204,6 +204,13 @@ fn the_gpu_script_runs_dry_on_the_cpu_with_the_science_first() {
         line.contains("images/s"),
         "predict's pipeline line: {inference}"
     );
+    let how = inference["predict_cuda_graph_how"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(
+        how.contains("not on a CUDA device"),
+        "predict --cuda-graph on the CPU: {inference}"
+    );
     assert!(
         inference["profile_train"]["layouts"]["nchw"]["top"][0]["self_ms_per_step"]
             .as_f64()

@@ -54,6 +54,12 @@ fn predict_outputs_reproduce_eval_checkpoint() {
     let (tmp, data, eo) = setup();
     let pb = Progress::hidden();
     let by_checkpoint = run_eval(&eo, &pb).unwrap();
+    // --cuda-graph on the CPU: the eager path, said once, the same report.
+    let graphed = EvalOptions {
+        cuda_graph: true,
+        ..eo.clone()
+    };
+    assert_eq!(run_eval(&graphed, &pb).unwrap(), by_checkpoint);
     let (loaded, _) = load_model(&eo.checkpoint, None, &[], Device::Cpu).unwrap();
     let out = tmp.path().join("preds");
     let (n, stats) =

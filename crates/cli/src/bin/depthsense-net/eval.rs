@@ -45,6 +45,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         max_samples: a.run.max_samples,
         radar_input: a.radar_input.as_deref().map(str::parse).transpose()?,
         name: name.clone(),
+        cuda_graph: a.run.cuda_graph,
     };
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let (loaded, load_report) =

@@ -134,6 +134,7 @@ fn evaluation(
         device: run.device.name,
         jobs: run.jobs,
         max_samples: run.max_samples,
+        cuda_graph: run.cuda_graph,
         ..Default::default()
     }
 }

@@ -24,6 +24,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         split: a.split.clone(),
         batch_size: a.batch_size,
         device: a.device.name.clone(),
+        cuda_graph: a.cuda_graph,
         ..EvalOptions::default()
     };
     let ds = depthsense_dataset::Dataset::open(data)?;
