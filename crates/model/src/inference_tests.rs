@@ -7,19 +7,40 @@ use tch::{nn::VarStore, Device, Kind, Tensor};
 use crate::DepthNet;
 use depthsense_config::ModelConfig;
 
-/// A network of `cfg` whose 1-d variables (BatchNorm γ, β, running mean and variance, conv
-/// biases) are drawn away from their initial values, as training leaves them.
+/// Uniform [0, 1) values of `shape` from a seeded xorshift, not libtorch's generator: the tests
+/// of this binary run in parallel and share that one, so its draws would differ between runs.
+fn uniform(shape: &[i64], seed: &mut u64) -> Tensor {
+    let n: i64 = shape.iter().product();
+    let v: Vec<f32> = (0..n)
+        .map(|_| {
+            *seed ^= *seed << 13;
+            *seed ^= *seed >> 7;
+            *seed ^= *seed << 17;
+            (*seed >> 40) as f32 / (1u64 << 24) as f32
+        })
+        .collect();
+    Tensor::from_slice(&v).view(shape)
+}
+
+/// A network of `cfg` with deterministic weights: every variable redrawn, the conv weights
+/// U(±1/√fan_in) and the 1-d ones (BatchNorm γ, β, running mean and variance, conv biases)
+/// away from their initial values, as training leaves them.
 fn trained_like(cfg: &ModelConfig) -> (VarStore, DepthNet) {
-    tch::manual_seed(11);
     let vs = VarStore::new(Device::Cpu);
     let net = DepthNet::new(&vs.root(), cfg).unwrap();
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let mut vars: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
+    vars.sort_by(|a, b| a.0.cmp(&b.0));
     tch::no_grad(|| {
-        for (name, mut t) in vs.variables() {
+        for (name, mut t) in vars {
+            let size = t.size();
             if t.dim() != 1 {
+                let fan_in: i64 = size[1..].iter().product();
+                let bound = 1.0 / (fan_in.max(1) as f64).sqrt();
+                t.copy_(&((uniform(&size, &mut seed) * 2.0 - 1.0) * bound));
                 continue;
             }
-            let n = t.size()[0];
-            let r = Tensor::rand([n], (Kind::Float, Device::Cpu));
+            let r = uniform(&size, &mut seed);
             let v = if name.ends_with("running_var") {
                 r * 1.5 + 0.5
             } else if name.ends_with("running_mean") {
@@ -39,11 +60,10 @@ fn trained_like(cfg: &ModelConfig) -> (VarStore, DepthNet) {
 /// difference of the head output.
 fn agreement(cfg: &ModelConfig, h: i64, w: i64) -> (f64, f64) {
     let (_vs, net) = trained_like(cfg);
-    tch::manual_seed(5);
-    let img = Tensor::randn([2, 3, h, w], (Kind::Float, Device::Cpu));
-    let keep = Tensor::rand([2, 1, h, w], (Kind::Float, Device::Cpu)).lt(0.02);
-    let radar = (Tensor::rand([2, 1, h, w], (Kind::Float, Device::Cpu)) * 60.0 + 2.0)
-        * keep.to_kind(Kind::Float);
+    let mut seed = 5u64 << 32 | 7;
+    let img = (uniform(&[2, 3, h, w], &mut seed) - 0.5) * 4.0;
+    let keep = uniform(&[2, 1, h, w], &mut seed).lt(0.02);
+    let radar = (uniform(&[2, 1, h, w], &mut seed) * 60.0 + 2.0) * keep.to_kind(Kind::Float);
     let channels = cfg.radar_channels;
     let radar = radar.repeat([1, channels, 1, 1]);
     let run = || {
