@@ -18,11 +18,7 @@ use std::process::Command;
 
 include!("../../build-support/torch_find.rs");
 include!("../../build-support/torch_link.rs");
-
-fn env_dir(var: &str) -> Option<PathBuf> {
-    println!("cargo:rerun-if-env-changed={var}");
-    std::env::var_os(var).map(PathBuf::from)
-}
+include!("../../build-support/cuda_find.rs");
 
 fn main() {
     println!("cargo:rerun-if-changed=shim/dist.cpp");
@@ -39,46 +35,13 @@ fn main() {
     };
     let nccl = std::env::var_os("CARGO_FEATURE_NCCL").is_some();
     if nccl {
-        let nvidia = torch.site_packages.as_ref().map(|s| s.join("nvidia"));
-        let cuda_inc = env_dir("CUDA_INCLUDE").or_else(|| {
-            let n = nvidia.as_ref()?;
-            ["cu13/include", "cuda_runtime/include"]
-                .iter()
-                .map(|s| n.join(s))
-                .find(|p| p.join("cuda_runtime_api.h").exists())
-        });
         let nccl_inc = env_dir("NCCL_INCLUDE").or_else(|| {
-            let p = nvidia.as_ref()?.join("nccl/include");
+            let p = nvidia_dir(&torch)?.join("nccl/include");
             p.join("nccl.h").exists().then_some(p)
         });
-        // The runtime wheel lacks `crt/host_config.h`, which cuda_runtime.h includes; triton's
-        // wheel ships the CUDA headers with it.
-        let crt_inc = torch.site_packages.as_ref().and_then(|s| {
-            let p = s.join("triton/backends/nvidia/include");
-            p.join("crt/host_config.h").exists().then_some(p)
-        });
-        match (cuda_inc, nccl_inc) {
+        match (cuda_includes(&torch, "nccl"), nccl_inc) {
             (Some(c), Some(n)) => {
-                let has_crt = c.join("crt/host_config.h").exists();
-                let has_cccl = c.join("nv/target").exists();
-                build.include(c).include(n);
-                // libcu++'s <nv/target> (cuda_fp16.h includes it): the `nvidia-cuda-cccl`
-                // wheel installs it next to the runtime headers, or `$CCCL_INCLUDE`.
-                match env_dir("CCCL_INCLUDE") {
-                    Some(cc) => {
-                        build.include(cc);
-                    }
-                    None if !has_cccl => println!(
-                        "cargo:warning=feature nccl: <nv/target> not found: `pip install \
-                         nvidia-cuda-cccl==13.0.*` into the venv or set CCCL_INCLUDE"
-                    ),
-                    None => {}
-                }
-                if !has_crt {
-                    if let Some(t) = crt_inc {
-                        build.include(t);
-                    }
-                }
+                build.includes(c).include(n);
                 build
                     .define("USE_C10D_NCCL", None)
                     .define("USE_CUDA", None)

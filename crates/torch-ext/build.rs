@@ -10,45 +10,7 @@ use std::process::Command;
 
 include!("../../build-support/torch_find.rs");
 include!("../../build-support/torch_link.rs");
-
-fn env_dir(var: &str) -> Option<PathBuf> {
-    println!("cargo:rerun-if-env-changed={var}");
-    std::env::var_os(var).map(PathBuf::from)
-}
-
-/// The include folders of the CUDA runtime headers (with `crt/` and libcu++'s `nv/`).
-fn cuda_includes(torch: &Torch) -> Vec<PathBuf> {
-    let nvidia = torch.site_packages.as_ref().map(|s| s.join("nvidia"));
-    let cuda = env_dir("CUDA_INCLUDE").or_else(|| {
-        let n = nvidia.as_ref()?;
-        ["cu13/include", "cuda_runtime/include"]
-            .iter()
-            .map(|s| n.join(s))
-            .find(|p| p.join("cuda_runtime_api.h").exists())
-    });
-    let Some(cuda) = cuda else {
-        panic!(
-            "depthsense-torch-ext feature `cuda-graphs`: CUDA runtime headers not found; set \
-             CUDA_INCLUDE"
-        );
-    };
-    let mut dirs = vec![cuda.clone()];
-    if !cuda.join("crt/host_config.h").exists() {
-        // triton's wheel ships the CUDA headers the runtime wheel lacks.
-        if let Some(t) = torch.site_packages.as_ref() {
-            dirs.push(t.join("triton/backends/nvidia/include"));
-        }
-    }
-    match env_dir("CCCL_INCLUDE") {
-        Some(cc) => dirs.push(cc),
-        None if !cuda.join("nv/target").exists() => println!(
-            "cargo:warning=feature cuda-graphs: <nv/target> not found: `pip install \
-             nvidia-cuda-cccl==13.0.*` into the venv or set CCCL_INCLUDE"
-        ),
-        None => {}
-    }
-    dirs
-}
+include!("../../build-support/cuda_find.rs");
 
 fn main() {
     println!("cargo:rerun-if-changed=shim/torch_ext.cpp");
@@ -59,7 +21,12 @@ fn main() {
     build.file("shim/torch_ext.cpp").file("shim/cuda_graph.cpp");
     if graphs {
         build
-            .includes(cuda_includes(&torch))
+            .includes(cuda_includes(&torch, "cuda-graphs").unwrap_or_else(|| {
+                panic!(
+                    "depthsense-torch-ext feature `cuda-graphs`: CUDA runtime headers not found; \
+                     set CUDA_INCLUDE"
+                )
+            }))
             .define("USE_CUDA", None)
             .define("DSX_CUDA_GRAPHS", None);
     }
