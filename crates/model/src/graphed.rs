@@ -41,6 +41,8 @@ pub struct GraphedForward {
     said: Vec<String>,
     /// Capture failed: eager from then on.
     failed: bool,
+    /// How the last [`GraphedForward::run`] ran.
+    last: Option<Ran>,
 }
 
 impl GraphedForward {
@@ -59,7 +61,7 @@ impl GraphedForward {
         radar: &Tensor,
         f: impl Fn(&Tensor, &Tensor) -> Tensor,
     ) -> (Tensor, Option<String>) {
-        match self.try_graph(image, radar, &f) {
+        let (out, ran, line) = match self.try_graph(image, radar, &f) {
             Ok((out, ran)) => {
                 let line = (ran == Ran::Captured).then(|| {
                     format!(
@@ -69,16 +71,23 @@ impl GraphedForward {
                         radar.size()
                     )
                 });
-                (out, line)
+                (out, ran, line)
             }
             Err(reason) => {
                 let line = (!self.said.contains(&reason)).then(|| {
                     self.said.push(reason.clone());
                     format!("cuda graph: {reason}: eager")
                 });
-                (f(image, radar), line)
+                (f(image, radar), Ran::Eager(reason), line)
             }
-        }
+        };
+        self.last = Some(ran);
+        (out, line)
+    }
+
+    /// How the last [`GraphedForward::run`] ran (`None` before the first).
+    pub fn last(&self) -> Option<&Ran> {
+        self.last.as_ref()
     }
 
     /// The graph's run, or why it cannot take this batch.
@@ -152,5 +161,6 @@ mod tests {
         assert!(line.unwrap().contains("not on a CUDA device"));
         let (_, line) = g.run(&img, &radar, f);
         assert!(line.is_none(), "said once");
+        assert!(matches!(g.last(), Some(Ran::Eager(r)) if r.contains("not on a CUDA device")));
     }
 }

@@ -323,23 +323,24 @@ impl Bench {
         let (net, (h, w)) = (&self.net, (self.height, self.width));
         let batch = img.size()[0];
         let mut graphed = depthsense_model::graphed::GraphedForward::new();
-        let mut how: Option<String> = None;
         let f = |i: &Tensor, r: &Tensor| net.decode_to(&net.forward_t(i, r, false), h, w);
+        let fp32 = self.prec == Precision::Fp32;
+        if !fp32 {
+            eprintln!("cuda graph: fp32 only: eager");
+        }
         res.forward_decode_graph = Some(self.time(batch, || {
-            let (_, line) = if self.prec == Precision::Fp32 {
-                graphed.run(img, radar, f)
-            } else {
-                (f(img, radar), Some("cuda graph: fp32 only: eager".into()))
-            };
-            if let Some(l) = line {
-                eprintln!("{l}");
-                how = Some(l);
+            if !fp32 {
+                let _ = f(img, radar);
+            } else if let (_, Some(line)) = graphed.run(img, radar, f) {
+                eprintln!("{line}");
             }
         }));
-        res.cuda_graph = Some(match how {
-            Some(l) if l.contains("captured") => "replayed".into(),
-            Some(l) => l,
-            None => "replayed".into(),
+        use depthsense_model::graphed::Ran;
+        res.cuda_graph = Some(match graphed.last() {
+            _ if !fp32 => "fp32 only: eager".into(),
+            Some(Ran::Eager(reason)) => format!("{reason}: eager"),
+            Some(Ran::Captured | Ran::Replayed) => "replayed".into(),
+            None => "not run".into(),
         });
     }
 
