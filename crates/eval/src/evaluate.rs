@@ -16,6 +16,7 @@ use depthsense_data::radar_failure::RadarFailure;
 use depthsense_data::LoadOptions;
 use depthsense_dataset::Dataset;
 use depthsense_metrics::{EvalConfig, Report};
+use depthsense_model::precision::InferenceLayout;
 use depthsense_progress::Progress;
 use serde::{Deserialize, Serialize};
 
@@ -101,6 +102,19 @@ pub fn load_model(
     set: &[String],
     device: tch::Device,
 ) -> Result<(Loaded, Option<LoadReport>), NetError> {
+    let layout = InferenceLayout::Fastest;
+    load_model_in(checkpoint_path, config, set, device, layout)
+}
+
+/// [`load_model`] with the inference graph's weights in `layout`: `explain`, which runs
+/// backward through the graph, takes [`InferenceLayout::Nchw`].
+pub fn load_model_in(
+    checkpoint_path: &Path,
+    config: Option<&str>,
+    set: &[String],
+    device: tch::Device,
+    layout: InferenceLayout,
+) -> Result<(Loaded, Option<LoadReport>), NetError> {
     let cfg = match (config, set.is_empty()) {
         (Some(c), _) => Some(depthsense_checkpoint::config::resolve(c)?.with_options(set)?),
         (None, true) => None,
@@ -118,7 +132,7 @@ pub fn load_model(
     };
     let (loaded, report) = checkpoint::load_any(checkpoint_path, cfg.as_ref(), device)?;
     // The inference graph: BatchNorm folded, the fused decode (issue 44).
-    loaded.net.prepare_inference();
+    loaded.net.prepare_inference(layout);
     Ok((loaded, report))
 }
 

@@ -491,7 +491,9 @@ fn evaluate_both(
     pb.set_length(2 * test.len() as u64);
     for (name, dir, ..) in runs {
         let loaded = checkpoint::load(&dir.join(BEST_CKPT), device)?;
-        loaded.net.prepare_inference();
+        loaded
+            .net
+            .prepare_inference(depthsense_model::precision::InferenceLayout::Fastest);
         let load = load_options(&loaded.config)?;
         let rep = evaluate_net(
             &loaded.net,

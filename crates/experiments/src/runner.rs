@@ -561,7 +561,9 @@ fn test_best(
         )));
     }
     let loaded = checkpoint::load(&best, device)?;
-    loaded.net.prepare_inference();
+    loaded
+        .net
+        .prepare_inference(depthsense_model::precision::InferenceLayout::Fastest);
     let radar = loaded.config.radar_input_for(None)?;
     let load = LoadOptions {
         radar: radar.unwrap_or_default(),

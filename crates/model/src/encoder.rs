@@ -167,7 +167,7 @@ pub(crate) struct ResNet {
 
 impl ResNet {
     /// Folds every BatchNorm into its conv for the inference graph ([`ConvBn::fold_batch_norm`]).
-    pub fn fold_batch_norm(&self) {
+    pub fn fold_batch_norm(&self, layout: crate::precision::InferenceLayout) {
         let stem: &[ConvBn] = match &self.stem {
             Stem::Torchvision(c) => std::slice::from_ref(c),
             Stem::Deep(c) => c,
@@ -177,7 +177,7 @@ impl ResNet {
         let in_blocks =
             blocks.flat_map(|b| [Some(&b.c1), Some(&b.c2), b.c3.as_ref(), b.down.as_ref()]);
         for c in stem.iter().chain(in_blocks.flatten()) {
-            c.fold_batch_norm();
+            c.fold_batch_norm(layout);
         }
     }
 

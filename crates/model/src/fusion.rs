@@ -51,8 +51,8 @@ pub(crate) struct LateFusion {
 
 impl LateFusion {
     /// Folds the radar branch's BatchNorms for the inference graph (the radar skip has none).
-    pub(crate) fn fold_batch_norm(&self) {
-        self.radar.fold_batch_norm();
+    pub(crate) fn fold_batch_norm(&self, layout: crate::precision::InferenceLayout) {
+        self.radar.fold_batch_norm(layout);
     }
 
     /// The radar paths of `cfg` under `root` (in this order), or `None` without late fusion.

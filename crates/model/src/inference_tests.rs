@@ -4,6 +4,7 @@
 
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
+use crate::precision::InferenceLayout;
 use crate::DepthNet;
 use depthsense_config::ModelConfig;
 
@@ -58,7 +59,7 @@ fn trained_like(cfg: &ModelConfig) -> (VarStore, DepthNet) {
 
 /// Fraction of pixels whose decoded depth is the same in both graphs, and the largest
 /// difference of the head output.
-fn agreement(cfg: &ModelConfig, h: i64, w: i64) -> (f64, f64) {
+fn agreement(cfg: &ModelConfig, h: i64, w: i64, layout: InferenceLayout) -> (f64, f64) {
     let (_vs, net) = trained_like(cfg);
     let mut seed = 5u64 << 32 | 7;
     let img = (uniform(&[2, 3, h, w], &mut seed) - 0.5) * 4.0;
@@ -74,7 +75,7 @@ fn agreement(cfg: &ModelConfig, h: i64, w: i64) -> (f64, f64) {
     };
     let (d_train, z_train) = run();
     assert!(!net.is_inference_graph());
-    net.prepare_inference();
+    net.prepare_inference(layout);
     let (d_inf, z_inf) = run();
     let same = d_train
         .eq_tensor(&d_inf)
@@ -87,7 +88,8 @@ fn agreement(cfg: &ModelConfig, h: i64, w: i64) -> (f64, f64) {
 
 #[test]
 fn the_inference_graph_decodes_the_training_graphs_bins() {
-    for (name, cfg) in [
+    let layouts = [InferenceLayout::Fastest, InferenceLayout::Nchw];
+    let cases = [
         ("tiny", ModelConfig::tiny()),
         (
             "tiny, rgb only",
@@ -95,21 +97,50 @@ fn the_inference_graph_decodes_the_training_graphs_bins() {
                 .with_options(&["fusion=none".to_string()])
                 .unwrap(),
         ),
-    ] {
-        let (same, dz) = agreement(&cfg, 64, 128);
+    ];
+    for ((name, cfg), layout) in cases.iter().flat_map(|c| layouts.map(|l| (c, l))) {
+        let (same, dz) = agreement(cfg, 64, 128, layout);
         assert!(
             same >= 0.9999,
-            "{name}: the same bin on {same} of the pixels"
+            "{name}, {layout:?}: the same bin on {same} of the pixels"
         );
-        assert!(dz < 1e-3, "{name}: head outputs differ by {dz}");
-        assert!(dz > 0.0 || same == 1.0, "{name}: compared something");
+        assert!(dz < 1e-3, "{name}, {layout:?}: head outputs differ by {dz}");
+        assert!(
+            dz > 0.0 || same == 1.0,
+            "{name}, {layout:?}: compared something"
+        );
+    }
+}
+
+/// On the CPU the fastest layout stores the folded weights channels-last, and the head's
+/// output comes out channels-last (the layout travelled through the graph).
+#[test]
+fn the_cpu_inference_graph_runs_channels_last() {
+    let cfg = ModelConfig::tiny();
+    for (layout, want) in [
+        (InferenceLayout::Fastest, true),
+        (InferenceLayout::Nchw, false),
+    ] {
+        let (_vs, net) = trained_like(&cfg);
+        net.prepare_inference(layout);
+        let img = Tensor::zeros([1, 3, 32, 64], (Kind::Float, Device::Cpu));
+        let radar = Tensor::zeros([1, cfg.radar_channels, 32, 64], (Kind::Float, Device::Cpu));
+        let z = tch::no_grad(|| net.forward_logits_t(&img, &radar, false));
+        let (c, h, w) = (z.size()[1], z.size()[2], z.size()[3]);
+        let nhwc = z.stride() == [h * w * c, 1, w * c, c];
+        assert_eq!(
+            nhwc,
+            want,
+            "{layout:?}: head output strides {:?}",
+            z.stride()
+        );
     }
 }
 
 #[test]
 fn folding_changes_nothing_in_training_mode() {
     let (_vs, net) = trained_like(&ModelConfig::tiny());
-    net.prepare_inference();
+    net.prepare_inference(InferenceLayout::Fastest);
     tch::manual_seed(2);
     let img = Tensor::randn([2, 3, 32, 64], (Kind::Float, Device::Cpu));
     let radar = Tensor::zeros(

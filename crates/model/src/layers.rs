@@ -1,6 +1,7 @@
 //! Building blocks with analytic multiply-add counting: var-store paths, conv, conv + BN and
 //! their initialisation (SPEC §6); the ResNet encoders built from them are in [`crate::encoder`].
 
+use crate::precision::InferenceLayout;
 use tch::{nn, Tensor};
 
 /// A var-store path together with its dotted name (for FLOP reports).
@@ -213,15 +214,19 @@ impl ConvBn {
     }
     /// Folds the evaluation-mode BatchNorm into the conv, once (the weights as they are now:
     /// call it after loading them): with s = γ / √(σ² + ε), W' = W·s per output channel and
-    /// b' = β − μ·s, so that conv(x; W', b') = BN(conv(x; W)).
-    pub fn fold_batch_norm(&self) {
+    /// b' = β − μ·s, so that conv(x; W', b') = BN(conv(x; W)). W' is stored in `layout`.
+    pub fn fold_batch_norm(&self, layout: InferenceLayout) {
         self.folded.get_or_init(|| {
             tch::no_grad(|| {
                 let bn = &self.bn;
                 let gamma = bn.ws.as_ref().expect("affine BatchNorm");
                 let beta = bn.bs.as_ref().expect("affine BatchNorm");
                 let scale = gamma * (&bn.running_var + crate::sync_bn::BN_EPS).rsqrt();
-                let w = &self.conv.conv.ws * scale.view([-1, 1, 1, 1]);
+                let ws = &self.conv.conv.ws;
+                let mut w = ws * scale.view([-1, 1, 1, 1]);
+                if layout.channels_last_on(ws.device()) {
+                    w = crate::precision::channels_last(&w);
+                }
                 let b = beta - &bn.running_mean * &scale;
                 (w.detach(), b.detach())
             })

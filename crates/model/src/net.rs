@@ -12,6 +12,7 @@ use crate::fusion::{self, LateFusion, SpatialAttention};
 use crate::head::Head;
 use crate::layers::{hw_of, MacRows, P};
 use crate::ordinal::{self, RegressionLoss};
+use crate::precision::InferenceLayout;
 use crate::radar_branch::nearest_depth_pool;
 use crate::ModelError;
 use depthsense_config::{HeadKind, ModelConfig};
@@ -86,11 +87,13 @@ impl DepthNet {
     /// (W' = W·γ/√(σ²+ε), b' = β − μ·γ/√(σ²+ε); used in evaluation mode only, the training
     /// graph is untouched) and, on the CPU, the ordinal decode without the full-resolution
     /// `[B,K,H,W]` tensor ([`crate::fused_decode`]). Its decoded bins equal the training
-    /// graph's on ≥ 99.99 % of pixels (float rounding).
-    pub fn prepare_inference(&self) {
-        self.rgb.fold_batch_norm();
+    /// graph's on ≥ 99.99 % of pixels (float rounding). The folded weights are stored in
+    /// `layout` ([`InferenceLayout::Fastest`]: channels-last on the CPU; the decoder and head
+    /// convs then follow their inputs' layout).
+    pub fn prepare_inference(&self, layout: InferenceLayout) {
+        self.rgb.fold_batch_norm(layout);
         if let Some(late) = &self.late {
-            late.fold_batch_norm();
+            late.fold_batch_norm(layout);
         }
         self.inference.set(true);
     }

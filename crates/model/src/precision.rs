@@ -30,6 +30,28 @@ pub fn channels_last(t: &tch::Tensor) -> tch::Tensor {
     t.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
 }
 
+/// The memory layout of the inference graph's folded conv weights
+/// ([`crate::DepthNet::prepare_inference`]). A conv whose weight is channels-last runs
+/// channels-last (libtorch follows the weight's layout as well as the input's), and its output
+/// carries the layout on through the convs after it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InferenceLayout {
+    /// The layout measured fastest on the weights' device: channels-last on the CPU (oneDNN;
+    /// `paper`, batch 1, 350x800 on a 2-core EPYC: 700 → 632 ms, BENCHMARKS.md), NCHW on
+    /// CUDA (its fp32 forward has not been measured channels-last).
+    Fastest,
+    /// NCHW everywhere: for a caller that runs backward through the inference graph
+    /// (`explain`), since libtorch 2.11's CPU backward crashed with channels-last weights.
+    Nchw,
+}
+
+impl InferenceLayout {
+    /// Whether folded weights on `device` are stored channels-last.
+    pub fn channels_last_on(self, device: tch::Device) -> bool {
+        self == InferenceLayout::Fastest && device == tch::Device::Cpu
+    }
+}
+
 /// Converts every 4-d variable (conv weights) of `vs` to channels-last storage in place.
 /// Use on CUDA: libtorch 2.11's CPU backward crashed with channels-last weights at 175x400.
 pub fn vs_to_channels_last(vs: &tch::nn::VarStore) {

@@ -44,8 +44,8 @@ pub(crate) struct RadarBranch {
 
 impl RadarBranch {
     /// Folds its ResNet's BatchNorms for the inference graph.
-    pub(crate) fn fold_batch_norm(&self) {
-        self.resnet.fold_batch_norm();
+    pub(crate) fn fold_batch_norm(&self, layout: crate::precision::InferenceLayout) {
+        self.resnet.fold_batch_norm(layout);
     }
 
     pub(crate) fn new(p: &P, cfg: &ModelConfig, hooks: &TrainHooks) -> RadarBranch {

@@ -87,7 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (image, radar) = inputs(&cfg, a.batch);
     let _guard = tch::no_grad_guard();
     let (ours, ours_depth) = time_depthsense(&net, &image, &radar, (height, width), &a)?;
-    net.prepare_inference();
+    net.prepare_inference(depthsense_model::precision::InferenceLayout::Fastest);
     let (folded, folded_depth) = time_depthsense(&net, &image, &radar, (height, width), &a)?;
     let same = ours_depth
         .iter()

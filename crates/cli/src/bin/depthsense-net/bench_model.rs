@@ -214,7 +214,7 @@ impl Bench {
         let net = DepthNet::new(&vs.root(), &cfg)?;
         let trained = load_trained_weights(&args.config, &vs)?;
         if args.inference_graph {
-            net.prepare_inference();
+            net.prepare_inference(depthsense_model::precision::InferenceLayout::Fastest);
         }
         let channels_last = use_channels_last(args.channels_last, dev, args.batch_train > 0, &vs);
         let rep = report::model_report(&vs, &net, args.height, args.width);

@@ -3,6 +3,7 @@
 use depthsense_cli::cmd::explain::Args;
 use depthsense_dataset::Dataset;
 use depthsense_eval::explain::run_explain;
+use depthsense_model::precision::InferenceLayout;
 use depthsense_score::predictions::select_split;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -25,7 +26,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .collect();
     depthsense_dataset::outputs::refuse_existing(&own, a.force, "explain")?;
     let device = depthsense_model::device::parse_device(&a.device.name)?;
-    let loaded = super::model_source::load(&a.model, device)?;
+    let loaded = super::model_source::load(&a.model, device, InferenceLayout::Nchw)?;
     let r = run_explain(
         &loaded.net,
         &a.model.checkpoint,

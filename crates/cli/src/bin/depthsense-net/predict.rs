@@ -7,6 +7,7 @@ use depthsense_eval::predict::{
     input_from_prepared, input_from_raw, input_from_token, predict, radar_warnings,
     trained_radar_settings, write_outputs, PredictInput, OUTPUT_FILES,
 };
+use depthsense_model::precision::InferenceLayout;
 use depthsense_nuscenes::depth_png::DepthMap;
 use depthsense_prep::calibration::RadarSettings;
 use std::path::PathBuf;
@@ -38,7 +39,7 @@ fn run_dataset(a: &Args, data: &std::path::Path) -> anyhow::Result<ExitCode> {
         .collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device.name)?;
-    let loaded = super::model_source::load(&a.model, device)?;
+    let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let pb = progress_bar("predict");
     let (n, stats) = write_predictions(&opts, &loaded, &a.out, &formats, &pb)?;
     pb.finish_and_clear();
@@ -62,7 +63,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device.name)?;
-    let loaded = super::model_source::load(&a.model, device)?;
+    let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let trained = trained_radar_settings(&loaded.extra).or_else(|| sidecar_radar(&a));
     let mut input = read_input(&a, trained.as_ref())?;
     for w in radar_warnings(trained.as_ref(), &input) {
