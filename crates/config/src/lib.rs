@@ -12,7 +12,8 @@
 //! - [`training`]: the option groups of training (schedule, data loading, validation,
 //!   checkpoints, device and precision, data-parallel), each defined once with its flags,
 //!   ranges ([`ranges`]), help heading ([`heading`]) and defaults; the command line flattens
-//!   them and the trainer holds them; [`words_parser`]: the value parser of every enum flag.
+//!   them and the trainer holds them; [`mer_training`]: `mer train`'s own groups (its Adam
+//!   schedule, its loading); [`words_parser`]: the value parser of every enum flag.
 //!
 //! The depthsense binary parses every command without libtorch, so these live here rather than
 //! in `depthsense-model`, which builds the network from a [`ModelConfig`].
@@ -21,6 +22,7 @@ pub mod cli;
 pub mod device;
 pub mod flags;
 pub mod heading;
+pub mod mer_training;
 mod model_config;
 pub mod options;
 pub mod pda;

@@ -10,7 +10,8 @@
 //! | [`ScheduleOptions`] | Schedule | epochs, batches, learning rate and its decay, seed |
 //! | [`LoadingOptions`] | Data | loader threads, target, augmentation, radar dropout, subsets |
 //! | [`ValidationOptions`] | Validation | the validation samples |
-//! | [`CheckpointOptions`] | Output | checkpoint cadence, stop, resume, extend, force |
+//! | [`CheckpointOptions`] | Output | checkpoint cadence, stop, resume, force (`train`, `mer train`) |
+//! | [`ExtendOptions`] | Output | `--extend` (`train`) |
 //! | [`HardwareOptions`] | Device | device, mixed precision, loss reads |
 //! | [`DistributedOptions`] | Data-parallel | local workers, SyncBatchNorm, all-reduce buckets |
 
@@ -183,7 +184,8 @@ impl Default for ValidationOptions {
 }
 
 /// When a run writes its checkpoints, where it stops, and what it does with a run folder that
-/// holds a run.
+/// holds a run: `train`'s and `mer train`'s (the training engine, `depthsense_train::learner`,
+/// applies them to both).
 #[derive(clap::Args, Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[command(next_help_heading = h::OUTPUT)]
 pub struct CheckpointOptions {
@@ -193,16 +195,11 @@ pub struct CheckpointOptions {
     /// Stop after this global iteration (checkpointed; continue with --resume).
     #[arg(long, value_parser = ranges::count_u64, allow_negative_numbers = true)]
     pub stop_after: Option<u64>,
-    /// Continue exactly from OUT/last.safetensors (same options required). A finished run is
-    /// reported as finished (exit status 0); train it longer with --extend.
+    /// Continue exactly from OUT/last.safetensors (same options required), inside an epoch
+    /// where it stopped. A finished run is reported as finished (exit status 0); `train` trains
+    /// it longer with --extend.
     #[arg(long)]
     pub resume: bool,
-    /// Train the run in OUT longer: continue from OUT/last.safetensors to --epochs (more than
-    /// it had) with a new learning-rate schedule from there (poly decay from --lr to 0 at the
-    /// new end; the same batch size and seed). config.json records every schedule segment.
-    #[arg(long, conflicts_with = "force")]
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub extend: bool,
     /// Start over in an --out that holds a run: its config.json, metrics.jsonl, curves.png and
     /// checkpoints are removed first (other files stay). Without --resume or --force such a
     /// folder is refused.
@@ -214,6 +211,26 @@ pub struct CheckpointOptions {
 impl Default for CheckpointOptions {
     fn default() -> Self {
         defaults()
+    }
+}
+
+/// `train --extend`: a finished run trained longer (`train` only).
+#[derive(clap::Args, Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[command(next_help_heading = h::OUTPUT)]
+pub struct ExtendOptions {
+    /// Train the run in OUT longer: continue from OUT/last.safetensors to --epochs (more than
+    /// it had) with a new learning-rate schedule from there (poly decay from --lr to 0 at the
+    /// new end; the same batch size and seed). config.json records every schedule segment.
+    #[arg(long, conflicts_with = "force")]
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub extend: bool,
+}
+
+impl Default for ExtendOptions {
+    /// A switch is off unless given. (Not [`defaults`]: alone, without [`CheckpointOptions`],
+    /// this group's conflict with `--force` names no flag.)
+    fn default() -> Self {
+        ExtendOptions { extend: false }
     }
 }
 
@@ -308,6 +325,8 @@ mod tests {
         #[command(flatten)]
         checkpointing: CheckpointOptions,
         #[command(flatten)]
+        extension: ExtendOptions,
+        #[command(flatten)]
         hardware: HardwareOptions,
         #[command(flatten)]
         distributed: DistributedOptions,
@@ -333,6 +352,7 @@ mod tests {
         let f = Flat::try_parse_from(["x"]).unwrap();
         assert_eq!(f.schedule, s);
         assert_eq!(f.loading, l);
+        assert_eq!(f.extension, ExtendOptions::default());
     }
 
     #[test]
@@ -365,6 +385,13 @@ mod tests {
         assert!(e.contains("--epochs") && e.contains("at least 1"), "{e}");
         assert!(Flat::try_parse_from(["x", "--resume", "--force"]).is_err());
         assert!(Flat::try_parse_from(["x", "--extend", "--init-from", "w"]).is_err());
+        assert!(Flat::try_parse_from(["x", "--extend", "--force"]).is_err());
+        assert!(
+            Flat::try_parse_from(["x", "--extend"])
+                .unwrap()
+                .extension
+                .extend
+        );
     }
 
     #[test]

@@ -19,7 +19,10 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
+use depthsense_config::device::DeviceArg;
+use depthsense_config::mer_training::{MerLoadingOptions, MerScheduleOptions};
 use depthsense_config::pda::PdaConfig;
+use depthsense_config::training::{CheckpointOptions, ValidationOptions};
 use depthsense_data::{epoch_order, sample_rng};
 use depthsense_dataset::outputs::{
     BEST_CKPT, CONFIG_FILE, CURVES_FILE, LAST_CKPT, LAST_OPTIM, METRICS_FILE,
@@ -45,34 +48,24 @@ use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use depthsense_mer::labels::{load_labelled, PdaInput};
 
-/// Options of `mer train`.
+/// Options of `mer train`: its own option groups and `train`'s validation and checkpointing
+/// groups (`depthsense_config::{mer_training, training}`), flattened: RUN/config.json's
+/// `"mer_train"` keeps flat keys.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MerTrainOptions {
     pub data: PathBuf,
     pub out: PathBuf,
     pub pda: PdaConfig,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub lr: f64,
-    pub lr_power: f64,
-    pub weight_decay: f64,
-    pub seed: u64,
-    pub device: String,
-    pub resume: bool,
-    /// Start over in a folder that holds a run ([`depthsense_dataset::outputs`]). Absent from the JSON when
-    /// false.
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub force: bool,
-    /// Loader threads (0 = all cores).
-    pub jobs: usize,
-    /// Horizontal flip with p = 0.5 (the window is left/right symmetric).
-    pub augment: bool,
-    pub val_every_scene: usize,
-    pub max_val_samples: Option<usize>,
-    /// Stop after this global iteration, checkpointed (continue with `resume`). Absent from
-    /// the JSON when not set.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub stop_after: Option<u64>,
+    #[serde(flatten)]
+    pub schedule: MerScheduleOptions,
+    #[serde(flatten)]
+    pub loading: MerLoadingOptions,
+    #[serde(flatten)]
+    pub validation: ValidationOptions,
+    #[serde(flatten)]
+    pub checkpointing: CheckpointOptions,
+    #[serde(flatten)]
+    pub device: DeviceArg,
     /// The command line that started the run (its words, program first), recorded in
     /// RUN/config.json as `"command"` (empty: not recorded).
     #[serde(skip)]
@@ -85,22 +78,11 @@ impl Default for MerTrainOptions {
             data: PathBuf::from("prepared"),
             out: PathBuf::from("runs/mer"),
             pda: PdaConfig::paper(),
-            epochs: 20,
-            batch_size: 4,
-            // Adam at 1e-2: val AUC 0.584 after 4 epochs on the 20-scene world, 1e-3: 0.501
-            // after 1 epoch (docs/guide/mer.md).
-            lr: 1e-2,
-            lr_power: 0.9,
-            weight_decay: 1e-4,
-            seed: 0,
-            device: "auto".into(),
-            resume: false,
-            force: false,
-            jobs: 0,
-            augment: true,
-            val_every_scene: 5,
-            max_val_samples: None,
-            stop_after: None,
+            schedule: MerScheduleOptions::default(),
+            loading: MerLoadingOptions::default(),
+            validation: ValidationOptions::default(),
+            checkpointing: CheckpointOptions::default(),
+            device: DeviceArg::default(),
             command: Vec::new(),
         }
     }
@@ -348,10 +330,10 @@ impl<'o> Run<'o> {
             self.train.len(),
             self.val.len(),
             o.data.display(),
-            o.epochs,
+            o.schedule.epochs,
             self.bpe,
-            o.batch_size,
-            o.lr,
+            o.schedule.batch_size,
+            o.schedule.lr,
             depthsense_model::device::describe(self.device),
             o.out.display()
         )
@@ -359,28 +341,33 @@ impl<'o> Run<'o> {
 
     fn new(opts: &'o MerTrainOptions) -> Result<Self, NetError> {
         let started = Instant::now();
-        if opts.batch_size == 0 || opts.epochs == 0 {
+        if opts.schedule.batch_size == 0 || opts.schedule.epochs == 0 {
             return Err(NetError::Config("batch size and epochs must be ≥ 1".into()));
         }
-        let device = depthsense_model::device::parse_device(&opts.device)?;
+        let device = depthsense_model::device::parse_device(&opts.device.name)?;
         let ds = Dataset::open(&opts.data)?;
-        let part = partition(&ds, opts.val_every_scene)?;
+        let part = partition(&ds, opts.validation.val_every_scene)?;
         part.require_train_and_val(&opts.data)?;
         // One writer per run folder; a run there is refused unless --resume or --force.
-        let folder = RunFolder::take(&opts.out, "mer train", opts.resume, opts.force)?;
-        let jobs = depthsense_data::loader_threads(opts.jobs);
+        let folder = RunFolder::take(
+            &opts.out,
+            "mer train",
+            opts.checkpointing.resume,
+            opts.checkpointing.force,
+        )?;
+        let jobs = depthsense_data::loader_threads(opts.loading.jobs);
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(jobs)
             .build()
             .map_err(|e| NetError::Config(format!("cannot start loader threads: {e}")))?;
         let (vs, net, optim, state, optim_matches) = build(opts, device)?;
         folder.restart_log(state.iteration)?;
-        let bpe = (part.train.len() / opts.batch_size).max(1) as u64;
+        let bpe = opts.schedule.iterations_per_epoch(part.train.len());
         let run = Run {
             opts,
             device,
             ds,
-            val: subsample(&part.val, opts.max_val_samples),
+            val: subsample(&part.val, opts.validation.max_val_samples),
             train: part.train.clone(),
             vs,
             net,
@@ -447,14 +434,14 @@ impl<'o> Run<'o> {
     /// epoch's loss starts with the losses logged before a resume.
     fn epoch_batches(&mut self, epoch: u64, skip: u64) -> Vec<Vec<usize>> {
         let o = self.opts;
-        let order = epoch_order(self.train.len(), o.seed, epoch, true);
+        let order = epoch_order(self.train.len(), o.schedule.seed, epoch, true);
         self.epoch_loss = (0.0, 0);
         if skip > 0 {
             let path = self.path(METRICS_FILE);
             self.epoch_loss = logged_loss_sum(&path, epoch * self.bpe, self.state.iteration);
         }
         order
-            .chunks(o.batch_size)
+            .chunks(o.schedule.batch_size)
             .take(self.bpe as usize)
             .skip(skip as usize)
             .map(<[usize]>::to_vec)
@@ -468,13 +455,18 @@ impl<'o> Run<'o> {
         let refs: Vec<&IndexEntry> = chunk.iter().map(|&i| &self.train[i]).collect();
         let flips: Vec<bool> = chunk
             .iter()
-            .map(|&i| o.augment && sample_rng(o.seed, epoch, i).uniform() < 0.5)
+            .map(|&i| o.loading.augment && sample_rng(o.schedule.seed, epoch, i).uniform() < 0.5)
             .collect();
         let samples = load_group(&self.ds, &refs, &flips, &o.pda, &self.pool)?;
         let b = stack(&samples, self.device)?;
         let total = self.plan().total_iterations();
-        let lr = poly_lr(o.lr, self.state.iteration, total, o.lr_power);
-        seed_step(o.seed, self.state.iteration);
+        let lr = poly_lr(
+            o.schedule.lr,
+            self.state.iteration,
+            total,
+            o.schedule.lr_power,
+        );
+        seed_step(o.schedule.seed, self.state.iteration);
         self.state.iteration += 1;
         let it = self.state.iteration;
         let Some((loss, _)) = batch_loss(&self.net, &b, true) else {
@@ -516,7 +508,7 @@ impl<'o> Run<'o> {
             &self.net,
             &self.ds,
             &self.val,
-            self.opts.batch_size,
+            self.opts.schedule.batch_size,
             &self.pool,
             self.device,
         )?;
@@ -555,18 +547,18 @@ fn build(
         kind: "depthsense-mer-train".into(),
         epoch: 0,
         iteration: 0,
-        seed: opts.seed,
-        batch_size: opts.batch_size,
-        epochs: opts.epochs,
-        lr: opts.lr,
+        seed: opts.schedule.seed,
+        batch_size: opts.schedule.batch_size,
+        epochs: opts.schedule.epochs,
+        lr: opts.schedule.lr,
         best_auc: None,
         best_iteration: None,
     };
-    if !(opts.resume && last.exists()) {
-        tch::manual_seed(opts.seed as i64);
+    if !(opts.checkpointing.resume && last.exists()) {
+        tch::manual_seed(opts.schedule.seed as i64);
         let vs = VarStore::new(device);
         let net = PdaNet::new(&vs.root(), &opts.pda)?;
-        let optim = Adam::new(&vs, opts.weight_decay);
+        let optim = Adam::new(&vs, opts.schedule.weight_decay);
         return Ok((vs, net, optim, state, true));
     }
     let l = depthsense_checkpoint::pda::load(&last, device)?;
@@ -585,7 +577,7 @@ fn build(
         )));
     }
     state = stored;
-    let mut optim = Adam::new(&l.vs, opts.weight_decay);
+    let mut optim = Adam::new(&l.vs, opts.schedule.weight_decay);
     let matches = depthsense_train::optim_state::load_matching(
         &opts.out.join(LAST_OPTIM),
         &last,
@@ -634,9 +626,9 @@ impl Learner for Run<'_> {
     fn plan(&self) -> Plan {
         Plan {
             iterations_per_epoch: self.bpe,
-            epochs: self.opts.epochs as u64,
-            checkpoint_every: 0,
-            stop_after: self.opts.stop_after,
+            epochs: self.opts.schedule.epochs as u64,
+            checkpoint_every: self.opts.checkpointing.checkpoint_every,
+            stop_after: self.opts.checkpointing.stop_after,
         }
     }
 

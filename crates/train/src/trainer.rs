@@ -14,7 +14,8 @@ use std::path::{Path, PathBuf};
 
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::training::{
-    CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+    CheckpointOptions, ExtendOptions, HardwareOptions, LoadingOptions, ScheduleOptions,
+    ValidationOptions,
 };
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
@@ -53,6 +54,8 @@ pub struct TrainOptions {
     #[serde(flatten)]
     pub checkpointing: CheckpointOptions,
     #[serde(flatten)]
+    pub extension: ExtendOptions,
+    #[serde(flatten)]
     pub hardware: HardwareOptions,
     /// torchvision ResNet state dict for the RGB encoder (ImageNet initialisation).
     pub backbone_weights: Option<PathBuf>,
@@ -85,6 +88,7 @@ impl Default for TrainOptions {
             loading: LoadingOptions::default(),
             validation: ValidationOptions::default(),
             checkpointing: CheckpointOptions::default(),
+            extension: ExtendOptions::default(),
             hardware: HardwareOptions::default(),
             backbone_weights: None,
             radar_input: None,

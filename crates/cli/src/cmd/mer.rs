@@ -42,46 +42,16 @@ pub struct TrainArgs {
     /// default: the preset's). See docs/guide/mer.md.
     #[arg(long, help_heading = h::MODEL)]
     pub affinity: Option<i64>,
-    /// Epochs.
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 20, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
-    pub epochs: usize,
-    /// Batch size.
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 4, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
-    pub batch_size: usize,
-    /// Initial learning rate (Adam, poly decay 0.9 per iteration).
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-2, value_parser = crate::cmd::ranges::positive, allow_negative_numbers = true)]
-    pub lr: f64,
-    /// Weight decay.
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 1e-4, value_parser = crate::cmd::ranges::non_negative, allow_negative_numbers = true)]
-    pub weight_decay: f64,
-    /// Seed of initialisation, shuffling and flips.
-    #[arg(long, help_heading = h::SCHEDULE, default_value_t = 0)]
-    pub seed: u64,
+    #[command(flatten)]
+    pub schedule: depthsense_config::mer_training::MerScheduleOptions,
+    #[command(flatten)]
+    pub loading: depthsense_config::mer_training::MerLoadingOptions,
+    #[command(flatten)]
+    pub validation: depthsense_config::training::ValidationOptions,
+    #[command(flatten)]
+    pub checkpointing: depthsense_config::training::CheckpointOptions,
     #[command(flatten, next_help_heading = h::DEVICE)]
     pub device: depthsense_config::device::DeviceArg,
-    /// Continue from OUT/last.safetensors (same options required): at the iteration it was
-    /// written, inside an epoch after --stop-after.
-    #[arg(long, help_heading = h::OUTPUT)]
-    pub resume: bool,
-    /// Stop after this global iteration (checkpointed; continue with --resume).
-    #[arg(long, help_heading = h::SCHEDULE, value_parser = crate::cmd::ranges::count_u64, allow_negative_numbers = true)]
-    pub stop_after: Option<u64>,
-    /// Start over in an --out that holds a PDA run (its run files are removed first); without
-    /// --resume or --force such a folder is refused.
-    #[arg(long, help_heading = h::OUTPUT, conflicts_with = "resume")]
-    pub force: bool,
-    /// Loader threads (0 = all cores).
-    #[arg(long, help_heading = h::DEVICE, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
-    pub jobs: usize,
-    /// Disable the horizontal flip augmentation.
-    #[arg(long, help_heading = h::DATA)]
-    pub no_augment: bool,
-    /// Validate on at most this many validation samples (evenly spaced).
-    #[arg(long, help_heading = h::VALIDATION, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
-    pub max_val_samples: Option<usize>,
-    /// Only without validation lists: every N-th training scene is held out for validation.
-    #[arg(long, help_heading = h::VALIDATION, default_value_t = 5, value_parser = crate::cmd::ranges::count, allow_negative_numbers = true)]
-    pub val_every_scene: usize,
 }
 
 #[derive(clap::Args)]

@@ -49,6 +49,8 @@ pub struct Args {
     #[command(flatten)]
     pub checkpointing: depthsense_config::training::CheckpointOptions,
     #[command(flatten)]
+    pub extension: depthsense_config::training::ExtendOptions,
+    #[command(flatten)]
     pub hardware: depthsense_config::training::HardwareOptions,
     #[command(flatten)]
     pub distributed: depthsense_config::training::DistributedOptions,

@@ -9,7 +9,9 @@ use depthsense_config::training::{
 };
 use std::path::Path;
 
+use depthsense_config::mer_training::{MerLoadingOptions, MerScheduleOptions};
 use depthsense_config::pda::{MerWindow, PdaConfig};
+use depthsense_config::training::CheckpointOptions;
 use depthsense_config::{ModelConfig, RadarInput};
 use depthsense_data::{load_sample, LoadOptions, Rng};
 use depthsense_dataset::mer_maps::{derive_channels, quantise_conf, read_mer_maps, THRESHOLDS};
@@ -175,10 +177,16 @@ fn train_opts(data: &Path, out: &Path) -> MerTrainOptions {
         data: data.to_path_buf(),
         out: out.to_path_buf(),
         pda: PdaConfig::test(),
-        epochs: 6,
-        batch_size: 2,
-        device: "cpu".into(),
-        jobs: 2,
+        schedule: MerScheduleOptions {
+            epochs: 6,
+            batch_size: 2,
+            ..Default::default()
+        },
+        device: DeviceArg { name: "cpu".into() },
+        loading: MerLoadingOptions {
+            jobs: 2,
+            ..Default::default()
+        },
         ..MerTrainOptions::default()
     }
 }
@@ -204,10 +212,8 @@ fn mer_train_stops_inside_an_epoch_and_resumes_exactly() {
     let data = tmp.path().join("data");
     toy(&data);
     let whole_out = tmp.path().join("whole");
-    let whole_opts = MerTrainOptions {
-        epochs: 2,
-        ..train_opts(&data, &whole_out)
-    };
+    let mut whole_opts = train_opts(&data, &whole_out);
+    whole_opts.schedule.epochs = 2;
     let whole = train_pda(&whole_opts, &Progress::hidden()).unwrap();
     assert!(!whole.interrupted);
     let per_epoch = whole.iterations / 2;
@@ -216,9 +222,14 @@ fn mer_train_stops_inside_an_epoch_and_resumes_exactly() {
         "{per_epoch} iterations per epoch: no inside"
     );
     let split_out = tmp.path().join("split");
+    // Checkpoints every iteration on the way (`--checkpoint-every 1`): they change nothing.
     let first = MerTrainOptions {
         out: split_out.clone(),
-        stop_after: Some(per_epoch + 1),
+        checkpointing: CheckpointOptions {
+            stop_after: Some(per_epoch + 1),
+            checkpoint_every: 1,
+            ..Default::default()
+        },
         ..whole_opts.clone()
     };
     let stopped = train_pda(&first, &Progress::hidden()).unwrap();
@@ -227,8 +238,10 @@ fn mer_train_stops_inside_an_epoch_and_resumes_exactly() {
     assert_eq!(stopped.val.len(), 2, "the initial network and epoch 1");
     let resumed = train_pda(
         &MerTrainOptions {
-            resume: true,
-            stop_after: None,
+            checkpointing: CheckpointOptions {
+                resume: true,
+                ..Default::default()
+            },
             ..first
         },
         &Progress::hidden(),
@@ -341,8 +354,11 @@ fn train_apply_twice_and_the_seven_channel_input() {
     // 2x2, `input_stride` 2, which its checkpoint keeps).
     let run2 = tmp.path().join("pda2");
     let o2 = MerTrainOptions {
-        epochs: 1,
-        seed: 3,
+        schedule: MerScheduleOptions {
+            epochs: 1,
+            seed: 3,
+            ..train_opts(&data, &run2).schedule
+        },
         pda: PdaConfig {
             input_stride: 2,
             ..PdaConfig::test()

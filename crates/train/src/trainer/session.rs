@@ -707,7 +707,7 @@ fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
 /// `--resume` (not `--extend`) of a run whose checkpoint has done all its iterations.
 fn resumes_a_finished_run(opts: &TrainOptions, state: &State, bpe: u64) -> bool {
     let c = &opts.checkpointing;
-    c.resume && !c.extend && state.iteration >= plan_of(opts, bpe).total_iterations()
+    c.resume && !opts.extension.extend && state.iteration >= plan_of(opts, bpe).total_iterations()
 }
 
 /// The summary of a run that `--resume` found finished: nothing trained, nothing written.
@@ -753,7 +753,12 @@ fn finished_summary(
 /// --extend or --force.
 fn take_run_folder(opts: &TrainOptions) -> Result<RunFolder, NetError> {
     let c = &opts.checkpointing;
-    RunFolder::take(&opts.out, "train", c.resume || c.extend, c.force)
+    RunFolder::take(
+        &opts.out,
+        "train",
+        c.resume || opts.extension.extend,
+        c.force,
+    )
 }
 
 /// The options every rank checks before touching the run folder; returns whether this is the
@@ -893,10 +898,10 @@ fn network(
     hooks: &TrainHooks,
 ) -> Result<(Built, bool), NetError> {
     let run = &opts.out;
-    if (opts.checkpointing.resume || opts.checkpointing.extend) && run.join(LAST_CKPT).exists() {
+    if (opts.checkpointing.resume || opts.extension.extend) && run.join(LAST_CKPT).exists() {
         return resume(opts, run, cfg, device, bpe, hooks);
     }
-    if opts.checkpointing.extend {
+    if opts.extension.extend {
         return Err(NetError::Config(format!(
             "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, without \
              --extend",
@@ -1020,7 +1025,7 @@ fn resume(
             path: last.to_path_buf(),
             reason: format!("train_state: {e}"),
         })?;
-    if opts.checkpointing.extend {
+    if opts.extension.extend {
         extend_schedule(opts, &last, &mut state, bpe)?;
     }
     check_same_schedule(&state, opts, &last)?;

@@ -52,21 +52,12 @@ fn train_options(a: TrainArgs) -> anyhow::Result<MerTrainOptions> {
             }
             c
         },
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        weight_decay: a.weight_decay,
-        seed: a.seed,
-        device: a.device.name,
-        resume: a.resume,
-        force: a.force,
-        jobs: a.jobs,
-        augment: !a.no_augment,
-        max_val_samples: a.max_val_samples,
-        val_every_scene: a.val_every_scene,
-        stop_after: a.stop_after,
+        schedule: a.schedule,
+        loading: a.loading,
+        validation: a.validation,
+        checkpointing: a.checkpointing,
+        device: a.device,
         command: depthsense_cli::stop::invocation(),
-        ..MerTrainOptions::default()
     })
 }
 

@@ -76,7 +76,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 fn launch_workers(a: &Args, n: usize) -> anyhow::Result<ExitCode> {
     // Refused before any worker starts (rank 0 checks again and takes the folder's lock).
     let c = &a.checkpointing;
-    if !c.resume && !c.extend && !c.force {
+    if !c.resume && !a.extension.extend && !c.force {
         depthsense_dataset::outputs::claim_run_folder(&a.out, "train", false, false)?;
     }
     // Another writer fails us here, at once (taken and released: rank 0 holds it next).
@@ -135,6 +135,7 @@ fn train_options(a: Args, model: ModelConfig) -> anyhow::Result<TrainOptions> {
         loading: a.loading,
         validation: a.validation,
         checkpointing: a.checkpointing,
+        extension: a.extension,
         hardware: a.hardware,
         backbone_weights: a.backbone_weights,
         init_from: a.init_from,
