@@ -32,7 +32,7 @@
 #   --demo-epochs N    epochs of each demo model (default 4; 0 = the CUDA plan's own 30)
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: science,
-#                      bf16_trained, nccl_single, nccl_rank, ort_cuda, infer_<preset>,
+#                      bf16_trained, nccl_single, nccl_rank, ort_cuda, infer_<preset>[_cl],
 #                      predict_pipeline, predict_graph, profile_released, ours_<preset>_<variant>,
 #                      torch_<preset>, train_fp32, train_amp, bench_train, demo
 #   --cpu-dry-run      prove the script on a CPU machine: tiny preset, small sizes, CPU device,
@@ -234,7 +234,8 @@ step() {
 
 # Sizes.
 if [ "$DRY" = 1 ]; then
-  DEV=cpu; H=176; W=400; BF=1; BT=2; WU=1; REP=5
+  # The dry run proves the code paths, not the timings: one warm-up, two timed passes.
+  DEV=cpu; H=176; W=400; BF=1; BT=2; WU=1; REP=2; PROF_RUNS=(--warmup-runs 1 --repeats 1)
   PRESETS="tiny"; VARIANTS="fp32 bf16-cl"
   THR="--threads 1"
   TRAIN_ARGS=(--config tiny --epochs 1 --batch-size 2 --max-batches-per-epoch 2 --max-val-samples 4 --set input-downscale=2 --jobs 1)
@@ -254,7 +255,7 @@ else
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
   # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
   CAP_OURS=75; CAP_TORCH=200; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
-  PROFILE_PRESET=released
+  PROFILE_PRESET=released; PROF_RUNS=(--warmup-runs 2 --repeats 3)
 fi
 
 ours() {  # ours PRESET VARIANT
@@ -334,6 +335,11 @@ for p in $PRESETS; do
   step "infer_$p" "$CAP_OURS" 20 "$BIN" bench model --config "$p" --device "$DEV" \
     --inference-graph --cuda-graph --height "$H" --width "$W" --batch-forward "$BF" \
     --batch-train 0 --warmup-runs "$WU" --repeats "$REP" $THR --out "$S/infer_$p.json"
+  # The same graph channels-last: the inference graph keeps NCHW on CUDA until this row says
+  # channels-last is faster there (on the CPU it is, and the graph uses it).
+  step "infer_${p}_cl" "$CAP_OURS" 20 "$BIN" bench model --config "$p" --device "$DEV" \
+    --inference-graph --channels-last --height "$H" --width "$W" --batch-forward "$BF" \
+    --batch-train 0 --warmup-runs "$WU" --repeats "$REP" $THR --out "$S/infer_${p}_cl.json"
 done
 if [ -n "$SCI_CKPT" ]; then
   step predict_pipeline 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" \
@@ -345,7 +351,7 @@ else
   printf 'predict_graph\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
 fi
 step profile_released 150 30 "$PY" "$REF" --config "$PROFILE_PRESET" --device "$DEV" \
-  --profile-train --batch-train "$BT" --height "$H" --width "$W" --warmup-runs 2 --repeats 3 \
+  --profile-train --batch-train "$BT" --height "$H" --width "$W" "${PROF_RUNS[@]}" \
   $THR --out "$S/profile_released.json"
 
 # 6. The model benchmarks, released first (issue 9's targets), ours then PyTorch.
@@ -536,8 +542,12 @@ for root, _, files in os.walk(S):
 inference = {}
 for p in os.environ["GC_PRESETS"].split():
     r = load(os.path.join(S, f"infer_{p}.json")) or {}
+    cl = load(os.path.join(S, f"infer_{p}_cl.json")) or {}
     inference[p] = {"graph": r.get("graph"), "forward_ms": med(r, "forward"),
                     "forward_decode_ms": med(r, "forward_decode"),
+                    "forward_channels_last_ms": med(cl, "forward"),
+                    "forward_decode_channels_last_ms": med(cl, "forward_decode"),
+                    "channels_last_status": status.get(f"infer_{p}_cl"),
                     "forward_decode_cuda_graph_ms": med(r, "forward_decode_graph"),
                     "cuda_graph": r.get("cuda_graph"),
                     "cuda_graphs_built": r.get("cuda_graphs_built"),

@@ -193,6 +193,10 @@ fn the_gpu_script_runs_dry_on_the_cpu_with_the_science_first() {
     assert_eq!(tiny["graph"], "inference");
     assert!(tiny["forward_decode_cuda_graph_ms"].as_f64().unwrap() > 0.0);
     assert!(
+        tiny["forward_decode_channels_last_ms"].as_f64().unwrap() > 0.0,
+        "the channels-last inference row: {tiny}"
+    );
+    assert!(
         tiny["cuda_graph"]
             .as_str()
             .unwrap()
