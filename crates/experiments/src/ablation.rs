@@ -361,9 +361,9 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
     let t0 = Instant::now();
     check_options(opts)?;
     let models = variant_models(opts)?;
-    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let device = depthsense_model::device::parse_device(&opts.run.hardware.device.name)?;
     let ds = Dataset::open(&opts.run.data)?;
-    let part = partition(&ds, opts.run.val_every_scene)?;
+    let part = partition(&ds, opts.run.validation.val_every_scene)?;
     require_test(opts, &part)?;
     // One writer per experiment folder (each run's folder has its own lock too).
     let _writing =
@@ -767,11 +767,11 @@ fn md_setup(r: &AblationResult, doc: &mut Doc) {
             "Model preset `{}`{set}; {} epochs, batch {}, lr {}, max batches/epoch {}, max \
              validation samples {}.",
             o.run.preset,
-            o.run.epochs,
-            o.run.batch_size,
-            o.run.lr,
-            all(o.run.max_batches_per_epoch),
-            all(o.run.max_val_samples)
+            o.run.schedule.epochs,
+            o.run.schedule.batch_size,
+            o.run.schedule.lr,
+            all(o.run.schedule.max_batches_per_epoch),
+            all(o.run.validation.max_val_samples)
         ),
         format!(
             "Metrics: caps {:?} m, protocol {:?}, aggregation {:?}, prediction clipped to [{}, \

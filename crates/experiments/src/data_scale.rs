@@ -180,7 +180,7 @@ fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
     if opts.sizes.contains(&0) {
         return cfg("a training-set size of 0".into());
     }
-    if opts.run.epoch_iterations.is_some() {
+    if opts.run.schedule.epoch_iterations.is_some() {
         return cfg(
             "data-scale sets the iterations per epoch itself (the largest size's pass split \
              over --epochs); drop --epoch-iterations and use --iterations for the total"
@@ -207,12 +207,12 @@ fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
         ));
     }
     if let Some(i) = opts.iterations {
-        if (i as u128) * (opts.run.batch_size as u128) < largest as u128 {
+        if (i as u128) * (opts.run.schedule.batch_size as u128) < largest as u128 {
             return cfg(format!(
                 "--iterations {i} × batch {} < {largest}: the largest training set would not \
                  be seen once; pass at least {} iterations",
-                opts.run.batch_size,
-                largest.div_ceil(opts.run.batch_size.max(1))
+                opts.run.schedule.batch_size,
+                largest.div_ceil(opts.run.schedule.batch_size.max(1))
             ));
         }
     }
@@ -223,8 +223,8 @@ fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
 /// every image once, rounded up to a multiple of the epochs.
 pub fn schedule(opts: &DataScaleOptions) -> (u64, u64) {
     let largest = opts.sizes.iter().max().copied().unwrap_or(1) as u64;
-    let batch = opts.run.batch_size.max(1) as u64;
-    let epochs = opts.run.epochs.max(1) as u64;
+    let batch = opts.run.schedule.batch_size.max(1) as u64;
+    let epochs = opts.run.schedule.epochs.max(1) as u64;
     let wanted = opts.iterations.unwrap_or(largest.div_ceil(batch)).max(1);
     let per_epoch = wanted.div_ceil(epochs);
     (per_epoch * epochs, per_epoch)
@@ -241,9 +241,9 @@ fn run_dir(out: &std::path::Path, n: usize, arm: &Arm, seed: u64) -> PathBuf {
 /// scenes, write the tables and the chart. Resumable like the ablation.
 pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleResult, NetError> {
     let t0 = Instant::now();
-    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let device = depthsense_model::device::parse_device(&opts.run.hardware.device.name)?;
     let ds = Dataset::open(&opts.run.data)?;
-    let part = partition(&ds, opts.run.val_every_scene)?;
+    let part = partition(&ds, opts.run.validation.val_every_scene)?;
     check(opts, part.train.len())?;
     if part.test.is_empty() {
         return Err(NetError::Data(format!(
@@ -385,7 +385,7 @@ fn scale_row(
     Some(ScaleRow {
         train_samples: n,
         arm: arm.label.clone(),
-        passes: iterations as f64 * opts.run.batch_size as f64 / n as f64,
+        passes: iterations as f64 * opts.run.schedule.batch_size as f64 / n as f64,
         rmse,
         mae: stat(|h| h.mae),
         abs_rel: stat(|h| h.abs_rel),
@@ -604,10 +604,11 @@ fn setup_text(r: &DataScaleResult) -> String {
             format!(" with {}", o.run.set.join(", "))
         },
         r.iterations,
-        o.run.batch_size,
-        r.iterations * o.run.batch_size as u64,
+        o.run.schedule.batch_size,
+        r.iterations * o.run.schedule.batch_size as u64,
         r.epoch_iterations,
         o.run
+            .validation
             .max_val_samples
             .map_or(r.partition.val_samples, |m| m.min(r.partition.val_samples)),
         r.partition.test_samples,
@@ -686,6 +687,7 @@ fn csv(r: &DataScaleResult) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use depthsense_config::training::ScheduleOptions;
 
     fn opts(
         sizes: &[usize],
@@ -695,8 +697,11 @@ mod tests {
     ) -> DataScaleOptions {
         DataScaleOptions {
             run: RunSettings {
-                batch_size: batch,
-                epochs,
+                schedule: ScheduleOptions {
+                    batch_size: batch,
+                    epochs,
+                    ..Default::default()
+                },
                 ..RunSettings::default()
             },
             out: PathBuf::new(),
@@ -723,7 +728,7 @@ mod tests {
         );
         assert!(check(&opts(&[100], 4, 2, Some(25)), 200).is_ok());
         let mut o = opts(&[100], 4, 2, None);
-        o.run.epoch_iterations = Some(10);
+        o.run.schedule.epoch_iterations = Some(10);
         let e = check(&o, 200).unwrap_err().to_string();
         assert!(e.contains("--epoch-iterations"), "{e}");
         let e = check(&opts(&[300], 4, 2, None), 200)

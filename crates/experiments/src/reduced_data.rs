@@ -143,9 +143,9 @@ pub fn run_reduced_data(
     let t0 = Instant::now();
     check(opts)?;
     let model = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
-    let device = depthsense_model::device::parse_device(&opts.run.device)?;
+    let device = depthsense_model::device::parse_device(&opts.run.hardware.device.name)?;
     let ds = Dataset::open(&opts.run.data)?;
-    let part = partition(&ds, opts.run.val_every_scene)?;
+    let part = partition(&ds, opts.run.validation.val_every_scene)?;
     require_test(opts, &part)?;
     // One writer per experiment folder (each run's folder has its own lock too).
     let _writing = depthsense_base::lock::OutputLock::exclusive(
@@ -248,7 +248,7 @@ fn document(r: &ReducedDataResult) -> Doc {
          seeds, full image, cap {} m.",
         o.run.preset,
         o.seeds,
-        o.run.epochs,
+        o.run.schedule.epochs,
         r.partition.test_scenes.join(", "),
         o.eval.main_cap()
     ));

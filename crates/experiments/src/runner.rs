@@ -10,7 +10,6 @@ use std::time::Instant;
 
 use depthsense_base::fsutil::write_atomic;
 use depthsense_checkpoint as checkpoint;
-use depthsense_config::device::DeviceArg;
 use depthsense_config::training::{
     CheckpointOptions, HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
 };
@@ -29,8 +28,11 @@ use serde::{Deserialize, Serialize};
 
 use super::Stat;
 
-/// How every run of a training experiment (`ablation`, `reduced-data`) is trained: the same
-/// for each variant or grid cell and seed. Serialised flat into the experiment's options.
+/// How every run of a training experiment (`ablation`, `reduced-data`, `data-scale`) is
+/// trained: the same for each variant or grid cell and seed. It holds `train`'s option groups
+/// (`depthsense_config::training`) as a run's [`TrainOptions`] takes them, so a run's options
+/// are these groups with its own seed, output folder and network; serialised flat into the
+/// experiment's options. `schedule.seed` is not used: each run has the seed of its `--seeds`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunSettings {
     /// Prepared data directory.
@@ -40,50 +42,28 @@ pub struct RunSettings {
     /// `key=value` model-config overrides applied to the preset (an experiment may reserve
     /// fields for itself: the ablation's variants own fusion, attention and head).
     pub set: Vec<String>,
-    pub epochs: usize,
-    pub batch_size: usize,
-    pub lr: f64,
-    /// auto | cpu | cuda | cuda:N
-    pub device: String,
-    /// Loader threads (0 = all cores).
-    pub jobs: usize,
-    /// Validate on at most this many validation samples (None = all).
-    pub max_val_samples: Option<usize>,
-    /// At most this many batches per epoch (None = all).
-    pub max_batches_per_epoch: Option<usize>,
-    /// The trainer's `val_every_scene` (partition of data without split lists).
-    pub val_every_scene: usize,
-    /// The trainer's training-time radar dropout (0 = off; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub train_radar_drop: f64,
-    /// The trainer's learning-rate warmup (0 = none; absent from the JSON when 0).
-    #[serde(default, skip_serializing_if = "depthsense_data::is_default")]
-    pub warmup_iters: u64,
-    /// Iterations per epoch whatever the training-set size (`train --epoch-iterations`;
-    /// None: an epoch is one pass; absent from the JSON when None).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub epoch_iterations: Option<u64>,
+    #[serde(flatten)]
+    pub schedule: ScheduleOptions,
+    #[serde(flatten)]
+    pub loading: LoadingOptions,
+    #[serde(flatten)]
+    pub validation: ValidationOptions,
+    #[serde(flatten)]
+    pub hardware: HardwareOptions,
 }
 
 impl Default for RunSettings {
-    /// The paper's training settings (SPEC §8) on the `paper` preset.
+    /// The paper's training settings (SPEC §8, `train`'s defaults) on the `paper` preset.
     fn default() -> Self {
         let t = TrainOptions::default();
         Self {
             data: t.data,
             preset: "paper".into(),
             set: vec![],
-            epochs: t.schedule.epochs,
-            batch_size: t.schedule.batch_size,
-            lr: t.schedule.lr,
-            device: t.hardware.device.name,
-            jobs: t.loading.jobs,
-            max_val_samples: t.validation.max_val_samples,
-            max_batches_per_epoch: t.schedule.max_batches_per_epoch,
-            val_every_scene: t.validation.val_every_scene,
-            train_radar_drop: t.loading.train_radar_drop,
-            warmup_iters: t.schedule.warmup_iters,
-            epoch_iterations: t.schedule.epoch_iterations,
+            schedule: t.schedule,
+            loading: t.loading,
+            validation: t.validation,
+            hardware: t.hardware,
         }
     }
 }
@@ -92,7 +72,6 @@ impl RunSettings {
     /// The training options of one run stored in `run_dir`: `model` with `seed`, continuing
     /// from the run's last checkpoint when it has one (exact resume).
     pub fn train_options(&self, run_dir: PathBuf, model: &ModelConfig, seed: u64) -> TrainOptions {
-        let t = TrainOptions::default();
         let resume = run_dir
             .join(depthsense_dataset::outputs::LAST_CKPT)
             .exists();
@@ -101,35 +80,17 @@ impl RunSettings {
             out: run_dir,
             model: model.clone(),
             schedule: ScheduleOptions {
-                epochs: self.epochs,
-                batch_size: self.batch_size,
-                lr: self.lr,
                 seed,
-                max_batches_per_epoch: self.max_batches_per_epoch,
-                warmup_iters: self.warmup_iters,
-                epoch_iterations: self.epoch_iterations,
-                ..t.schedule
+                ..self.schedule.clone()
             },
-            loading: LoadingOptions {
-                jobs: self.jobs,
-                train_radar_drop: self.train_radar_drop,
-                ..t.loading
-            },
-            validation: ValidationOptions {
-                max_val_samples: self.max_val_samples,
-                val_every_scene: self.val_every_scene,
-            },
+            loading: self.loading.clone(),
+            validation: self.validation.clone(),
             checkpointing: CheckpointOptions {
                 resume,
-                ..t.checkpointing
+                ..CheckpointOptions::default()
             },
-            hardware: HardwareOptions {
-                device: DeviceArg {
-                    name: self.device.clone(),
-                },
-                ..t.hardware
-            },
-            ..t
+            hardware: self.hardware.clone(),
+            ..TrainOptions::default()
         }
     }
 }

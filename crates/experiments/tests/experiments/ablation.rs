@@ -329,7 +329,7 @@ fn ablation_runs_reports_and_resumes() {
 
     // Other options in the same directory are refused rather than mixed.
     let mut other = o.clone();
-    other.run.lr = 1e-2;
+    other.run.schedule.lr = 1e-2;
     let err = run_ablation(&other, &hidden()).unwrap_err().to_string();
     assert!(err.contains("other training options"), "{err}");
 }

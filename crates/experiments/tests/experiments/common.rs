@@ -5,6 +5,10 @@
 use std::path::Path;
 use std::time::SystemTime;
 
+use depthsense_config::device::DeviceArg;
+use depthsense_config::training::{
+    HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use depthsense_experiments::runner::RunSettings;
 use depthsense_progress::Board;
 
@@ -64,13 +68,24 @@ pub fn quick_runs(data: &Path) -> RunSettings {
         data: data.to_path_buf(),
         preset: "tiny".into(),
         set: small_model(),
-        epochs: 20,
-        batch_size: 2,
-        lr: 2e-3,
-        device: "cpu".into(),
-        jobs: 2,
-        max_val_samples: Some(2),
-        ..RunSettings::default()
+        schedule: ScheduleOptions {
+            epochs: 20,
+            batch_size: 2,
+            lr: 2e-3,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 2,
+            ..Default::default()
+        },
+        validation: ValidationOptions {
+            max_val_samples: Some(2),
+            ..Default::default()
+        },
     }
 }
 

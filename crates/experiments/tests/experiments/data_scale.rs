@@ -20,7 +20,7 @@ fn data_scale_trains_matched_iterations_and_writes_json_and_plot() {
     depthsense_data::write_toy_dataset(&data, 10, 2, 64, 32, 2).unwrap();
     let out = tmp.path().join("ds");
     let mut run = quick_runs(&data);
-    run.epochs = 2;
+    run.schedule.epochs = 2;
     let opts = DataScaleOptions {
         run,
         out: out.clone(),

@@ -7,6 +7,9 @@ use depthsense_cli::cmd::experiment::{
 use depthsense_cli::cmd::inference_args::InferenceArgs;
 use depthsense_cli::cmd::model_source::ModelSource;
 use depthsense_cli::cmd::progress::progress_bar;
+use depthsense_config::training::{
+    HardwareOptions, LoadingOptions, ScheduleOptions, ValidationOptions,
+};
 use depthsense_experiments::ablation::{
     run_ablation, AblationOptions, AblationResult, MD_FILE, PNG_FILE,
 };
@@ -235,22 +238,34 @@ fn print_ablation(r: &AblationResult, opts: &AblationOptions) {
     );
 }
 
-/// The shared training settings of an experiment's runs.
+/// The shared training settings of an experiment's runs: `train`'s option groups with the
+/// experiments' flags, the rest at `train`'s defaults.
 fn run_settings(a: RunArgs) -> RunSettings {
     RunSettings {
         data: a.data,
         preset: a.config,
         set: a.set,
-        epochs: a.epochs,
-        batch_size: a.batch_size,
-        lr: a.lr,
-        device: a.device.name,
-        jobs: a.jobs,
-        max_val_samples: a.max_val_samples,
-        max_batches_per_epoch: a.max_batches_per_epoch,
-        val_every_scene: a.val_every_scene,
-        train_radar_drop: a.train_radar_drop,
-        warmup_iters: a.warmup,
-        epoch_iterations: a.epoch_iterations,
+        schedule: ScheduleOptions {
+            epochs: a.epochs,
+            batch_size: a.batch_size,
+            lr: a.lr,
+            max_batches_per_epoch: a.max_batches_per_epoch,
+            warmup_iters: a.warmup,
+            epoch_iterations: a.epoch_iterations,
+            ..ScheduleOptions::default()
+        },
+        loading: LoadingOptions {
+            jobs: a.jobs,
+            train_radar_drop: a.train_radar_drop,
+            ..LoadingOptions::default()
+        },
+        validation: ValidationOptions {
+            max_val_samples: a.max_val_samples,
+            val_every_scene: a.val_every_scene,
+        },
+        hardware: HardwareOptions {
+            device: a.device,
+            ..HardwareOptions::default()
+        },
     }
 }
