@@ -159,14 +159,25 @@ pub fn input_from_token(
     opts: &depthsense_prep::PrepareOptions,
 ) -> Result<PredictInput, DataError> {
     let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version).map_err(data_err)?;
+    input_from_tables(&nu, token, opts)
+}
+
+/// [`input_from_token`] with the dataroot's tables already loaded (`predict` over a list of
+/// tokens loads them once).
+pub fn input_from_tables(
+    nu: &depthsense_nuscenes::tables::NuScenes,
+    token: &str,
+    opts: &depthsense_prep::PrepareOptions,
+) -> Result<PredictInput, DataError> {
     let want = depthsense_nuscenes::tables::Token::parse(token);
     let sample = nu.sample.iter().find(|s| s.token == want).ok_or_else(|| {
         DataError::Data(format!(
-            "{}/{version}: no sample with token {token}",
-            dataroot.display()
+            "{}/{}: no sample with token {token}",
+            opts.dataroot.display(),
+            opts.version
         ))
     })?;
-    let maps = depthsense_prep::pipeline::compute_sample(&nu, sample, opts)
+    let maps = depthsense_prep::pipeline::compute_sample(nu, sample, opts)
         .map_err(|e| DataError::Data(format!("sample {token}: {e}")))?;
     let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, maps.image_rgb)
         .ok_or_else(|| DataError::Data(format!("sample {token}: image has the wrong size")))?;

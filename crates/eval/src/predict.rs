@@ -25,8 +25,8 @@ use depthsense_infer::NetError;
 // The inputs are built without libtorch (`depthsense_data::net_input`), where the Python module
 // `depthsense` builds them too: one path from files to the network's arrays.
 pub use depthsense_data::net_input::{
-    as_stored, input_from_prepared, input_from_raw, input_from_raw_bytes, input_from_token,
-    radar_warnings, trained_radar_settings, NetInputs, PredictInput,
+    as_stored, input_from_prepared, input_from_raw, input_from_raw_bytes, input_from_tables,
+    input_from_token, radar_warnings, trained_radar_settings, NetInputs, PredictInput,
 };
 
 /// Predict a depth map (metres, the input's frame size).

@@ -10,8 +10,9 @@ const EXAMPLES: &str = "Examples:
   depthsense predict --checkpoint runs/paper/best.safetensors --sample data/prepared/ca9a282c9e77460f8360f564131a8af5
   depthsense predict --checkpoint runs/paper/best.safetensors --data data/prepared --split held-out --out preds/paper
   depthsense predict --checkpoint runs/paper/best.safetensors --dataroot data/nuscenes --token ca9a282c9e77460f8360f564131a8af5
+  depthsense predict --checkpoint runs/paper/best.safetensors --dataroot data/nuscenes --tokens tokens.txt --out preds/frames
   depthsense predict --checkpoint runs/paper/best.safetensors --image cam.jpg --calibration cam.json
-(docs/guide/deploy.md: the four inputs, raw files and their calibration)";
+(docs/guide/deploy.md: the four inputs, a list of tokens, raw files and their calibration)";
 
 #[derive(clap::Args)]
 #[command(after_help = EXAMPLES)]
@@ -19,12 +20,12 @@ pub struct Args {
     #[command(flatten, next_help_heading = h::MODEL)]
     pub model: super::model_source::ModelSource,
     /// Input 1: a prepared sample directory (holds image.png, radar_*.png, meta.json).
-    #[arg(long, help_heading = h::INPUT, conflicts_with_all = ["token", "image", "data"])]
+    #[arg(long, help_heading = h::INPUT, conflicts_with_all = ["token", "tokens", "image", "data"])]
     pub sample: Option<PathBuf>,
     /// Input 4: every sample of a split of a prepared data directory; writes
     /// OUT/<token>.png (16-bit, depth×256) and/or OUT/<token>.npy (float32 metres), the
     /// layout `eval --predictions` reads.
-    #[arg(long, help_heading = h::INPUT, conflicts_with_all = ["token", "image"])]
+    #[arg(long, help_heading = h::INPUT, conflicts_with_all = ["token", "tokens", "image"])]
     pub data: Option<PathBuf>,
     /// With --data: held-out (test scenes), all, or a split name of the index.
     #[arg(long, help_heading = h::INPUT, default_value = "held-out", requires = "data")]
@@ -42,8 +43,19 @@ pub struct Args {
     #[arg(long, help_heading = h::INPUT, requires = "data")]
     pub cuda_graph: bool,
     /// Input 2: a sample token of --dataroot (its maps are computed like `prepare` does).
-    #[arg(long, help_heading = h::INPUT, requires = "dataroot", conflicts_with = "image")]
-    pub token: Option<String>,
+    /// Repeatable (or comma-separated): more than one token is a list, predicted in a pipeline
+    /// — loader threads build the frames from the raw files while the network runs — each into
+    /// OUT/<token>/, with images/s and the per-frame latency at the end.
+    #[arg(long, help_heading = h::INPUT, requires = "dataroot", conflicts_with = "image", value_delimiter = ',')]
+    pub token: Vec<String>,
+    /// Input 2 as a list from a file: sample tokens of --dataroot, one a line (blank lines and
+    /// `#` comments skipped); predicted as a list of --token.
+    #[arg(long, help_heading = h::INPUT, requires = "dataroot", conflicts_with = "image", value_name = "FILE")]
+    pub tokens: Option<PathBuf>,
+    /// Loader threads of a token list (0 = all cores): they build frames while the network
+    /// runs.
+    #[arg(long, help_heading = h::INPUT, default_value_t = 0, value_parser = crate::cmd::ranges::non_negative_usize, allow_negative_numbers = true)]
+    pub jobs: usize,
     /// nuScenes-format dataroot for --token.
     #[arg(long, help_heading = h::INPUT)]
     pub dataroot: Option<PathBuf>,

@@ -12,7 +12,8 @@
 //! - `logs`: long commands followed from a log file;
 //! - `keys`: one set of presets and `--set` keys, the same everywhere;
 //! - `mistakes`: errors that name the cause once and the next step; unreadable samples;
-//! - `finetune`: `--resume` of a finished run, `--extend`, `--init-from`.
+//! - `finetune`: `--resume` of a finished run, `--extend`, `--init-from`;
+//! - `predict_frames`: `predict` over a list of sample tokens, pipelined.
 
 mod bench_export;
 mod common;
@@ -25,5 +26,6 @@ mod interruptions;
 mod keys;
 mod logs;
 mod mistakes;
+mod predict_frames;
 mod run_folders;
 mod train_nproc;

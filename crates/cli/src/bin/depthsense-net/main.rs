@@ -19,6 +19,7 @@ mod mer;
 mod model_info;
 mod model_source;
 mod predict;
+mod predict_frames;
 mod train;
 
 fn run_network(command: Command) -> anyhow::Result<ExitCode> {

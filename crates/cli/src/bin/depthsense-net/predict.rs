@@ -60,6 +60,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(data) = a.data.clone() {
         return run_dataset(&a, &data);
     }
+    if a.tokens.is_some() || a.token.len() > 1 {
+        return super::predict_frames::run(&a);
+    }
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
     refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device.name)?;
@@ -84,7 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 }
 
 /// The radar settings an export sidecar given as `--config` records (`trained_radar`).
-fn sidecar_radar(a: &Args) -> Option<RadarSettings> {
+pub fn sidecar_radar(a: &Args) -> Option<RadarSettings> {
     let path = std::path::Path::new(a.model.config.as_deref()?);
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(path).ok()?).ok()?;
     serde_json::from_value(json.get("trained_radar")?.clone()).ok()
@@ -95,24 +98,9 @@ fn sidecar_radar(a: &Args) -> Option<RadarSettings> {
 fn read_input(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<PredictInput> {
     Ok(if let Some(dir) = &a.sample {
         input_from_prepared(dir)?
-    } else if let Some(token) = &a.token {
-        let dataroot = a
-            .dataroot
-            .as_ref()
-            .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
-        let mut opts = depthsense_prep::PrepareOptions {
-            dataroot: dataroot.clone(),
-            version: a.version.clone(),
-            ..depthsense_prep::PrepareOptions::default()
-        };
-        if let Some(t) = trained {
-            opts.radar_sweeps = t.radar_sweeps;
-            opts.radar_channels = t.radar_channels.clone();
-            opts.radar_filters = t.radar_filters;
-            opts.radar_velocity_compensation = t.radar_velocity_compensation;
-        }
-        opts.radar_filters &= !a.no_radar_filters;
-        input_from_token(dataroot, &a.version, token, &opts)?
+    } else if let Some(token) = a.token.first() {
+        let opts = token_prepare_options(a, trained)?;
+        input_from_token(&opts.dataroot, &a.version, token, &opts)?
     } else if let Some(jpeg) = &a.image {
         let calib = a
             .calibration
@@ -122,6 +110,31 @@ fn read_input(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Predi
     } else {
         anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");
     })
+}
+
+/// How a sample token's maps are computed: `prepare`'s options for --dataroot and --version
+/// with the radar settings the network was `trained` on (and --no-radar-filters).
+pub fn token_prepare_options(
+    a: &Args,
+    trained: Option<&RadarSettings>,
+) -> anyhow::Result<depthsense_prep::PrepareOptions> {
+    let dataroot = a
+        .dataroot
+        .as_ref()
+        .ok_or_else(|| anyhow::anyhow!("--token needs --dataroot"))?;
+    let mut opts = depthsense_prep::PrepareOptions {
+        dataroot: dataroot.clone(),
+        version: a.version.clone(),
+        ..depthsense_prep::PrepareOptions::default()
+    };
+    if let Some(t) = trained {
+        opts.radar_sweeps = t.radar_sweeps;
+        opts.radar_channels = t.radar_channels.clone();
+        opts.radar_filters = t.radar_filters;
+        opts.radar_velocity_compensation = t.radar_velocity_compensation;
+    }
+    opts.radar_filters &= !a.no_radar_filters;
+    Ok(opts)
 }
 
 /// The prediction's size, mean depth and radar pixels, and its RMSE against the lidar

@@ -1,0 +1,149 @@
+//! `predict` over a list of raw frames (`--tokens FILE`, repeated `--token`; issue 44): each
+//! frame's outputs equal those of `predict --token` for it alone, byte for byte; the run says
+//! its rate and latency; unknown and repeated tokens are refused before any work, all named at
+//! once; a second run into the same folder is refused without --force.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use crate::common::tiny_train;
+
+const BIN: &str = env!("CARGO_BIN_EXE_depthsense");
+
+fn run(args: &[&str], cwd: &Path) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .current_dir(cwd)
+        .env_remove("WORLD_SIZE")
+        .env_remove("RANK")
+        .output()
+        .unwrap()
+}
+
+fn ok(o: &Output) -> String {
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
+fn predict(args: &[&str], cwd: &Path) -> Output {
+    let base = [
+        "predict",
+        "--checkpoint",
+        "run/best.safetensors",
+        "--dataroot",
+        "world",
+        "--version",
+        "v1.0-synth",
+        "--device",
+        "cpu",
+    ];
+    run(&[&base[..], args].concat(), cwd)
+}
+
+#[test]
+fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    ok(&run(
+        &[
+            "synth",
+            "--out",
+            "world",
+            "--scenes",
+            "2",
+            "--keyframes-per-scene",
+            "2",
+        ],
+        t,
+    ));
+    let prepare = [
+        "prepare",
+        "--dataroot",
+        "world",
+        "--version",
+        "v1.0-synth",
+        "--lidar-sweeps",
+        "0",
+        "--out",
+        "prepared",
+    ];
+    ok(&run(&prepare, t));
+    let mut c = tiny_train(&t.join("prepared"), &t.join("run"), 1);
+    ok(&c.args(["--max-batches-per-epoch", "1"]).output().unwrap());
+    let samples: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(t.join("world/v1.0-synth/sample.json")).unwrap())
+            .unwrap();
+    let tokens: Vec<&str> = samples
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["token"].as_str().unwrap())
+        .collect();
+    assert_eq!(tokens.len(), 4);
+    let list = format!("# frames\n{}\n\n{}  # a comment\n", tokens[0], tokens[1]);
+    std::fs::write(t.join("tokens.txt"), list).unwrap();
+
+    // Three frames: two from the file, one from --token.
+    let err = ok(&predict(
+        &[
+            "--tokens",
+            "tokens.txt",
+            "--token",
+            tokens[2],
+            "--jobs",
+            "2",
+            "--out",
+            "frames",
+        ],
+        t,
+    ));
+    assert!(err.contains("3 frames written"), "{err}");
+    assert!(
+        err.contains("images/s") && err.contains("median") && err.contains("p99"),
+        "{err}"
+    );
+    for tok in &tokens[..3] {
+        let alone = format!("alone-{tok}");
+        ok(&predict(&["--token", tok, "--out", &alone], t));
+        for f in [
+            "depth.png",
+            "depth_color.png",
+            "radar_overlay.png",
+            "image.png",
+        ] {
+            let a = std::fs::read(t.join(&alone).join(f)).unwrap();
+            let b = std::fs::read(t.join("frames").join(tok).join(f)).unwrap();
+            assert!(a == b, "{tok}/{f} differs from predict --token alone");
+        }
+    }
+    assert!(!t.join("frames").join(tokens[3]).exists());
+
+    // Again into the same folder: refused, nothing rewritten; --force writes it again.
+    let o = predict(&["--tokens", "tokens.txt", "--out", "frames"], t);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+    ok(&predict(
+        &["--tokens", "tokens.txt", "--out", "frames", "--force"],
+        t,
+    ));
+
+    // Unknown tokens: all named at once, before the network runs; a token listed twice.
+    let o = predict(
+        &["--token", "nope1,nope2", "--token", tokens[0], "--out", "x"],
+        t,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("no sample with token nope1, nope2 (of 3 listed)"),
+        "{err}"
+    );
+    assert!(!t.join("x").exists(), "a refused list wrote x/");
+    let o = predict(
+        &["--token", tokens[0], "--tokens", "tokens.txt", "--out", "y"],
+        t,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("listed twice"), "{err}");
+}
