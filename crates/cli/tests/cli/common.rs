@@ -58,6 +58,17 @@ impl Drop for Guard {
     }
 }
 
+/// `depthsense ARGS` in `cwd`, without the distributed environment; its output.
+pub fn run(args: &[&str], cwd: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_depthsense"))
+        .args(args)
+        .current_dir(cwd)
+        .env_remove("WORLD_SIZE")
+        .env_remove("RANK")
+        .output()
+        .unwrap()
+}
+
 /// `depthsense train` of a narrow `tiny` network on `data` (a toy dataset), batch 2, on one CPU
 /// thread of the loader, validating on 2 samples; without the distributed environment.
 pub fn tiny_train(data: &Path, out: &Path, epochs: u32) -> Command {

@@ -6,21 +6,9 @@
 //! checkpoint leaves no run folder behind.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-use crate::common::tiny_train;
-
-const BIN: &str = env!("CARGO_BIN_EXE_depthsense");
-
-fn run(args: &[&str], cwd: &Path) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("WORLD_SIZE")
-        .env_remove("RANK")
-        .output()
-        .unwrap()
-}
+use crate::common::{run, tiny_train};
 
 fn ok(o: &Output) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
