@@ -258,6 +258,17 @@ pub fn file_of(calibration: &Path, e: &RadarEntry) -> PathBuf {
     }
 }
 
+/// The camera image a calibration names (`camera_file`; relative to the calibration's folder
+/// when relative), if it names one.
+pub fn camera_file_of(calibration: &Path, c: &Calibration) -> Option<PathBuf> {
+    let p = PathBuf::from(c.camera_file.as_ref()?);
+    Some(if p.is_absolute() {
+        p
+    } else {
+        calibration.parent().unwrap_or(Path::new(".")).join(p)
+    })
+}
+
 /// Writes `c` as pretty JSON, atomically.
 pub fn write(path: &Path, c: &Calibration) -> Result<(), PrepError> {
     let bytes = serde_json::to_vec_pretty(c).map_err(|e| PrepError::encode(path.display(), e))?;

@@ -72,9 +72,12 @@ pub struct Args {
     pub radar: Vec<PathBuf>,
     /// Calibration JSON for --image: the camera intrinsics and, per radar file, its channel,
     /// sweep, time and sweep → camera transform — `depthsense calibration` writes one from a
-    /// nuScenes sample (docs/guide/deploy.md, "Raw files").
-    #[arg(long, help_heading = h::INPUT)]
-    pub calibration: Option<PathBuf>,
+    /// nuScenes sample (docs/guide/deploy.md, "Raw files"). Without --image, one or more
+    /// (repeated, comma-separated, or several after one flag: `--calibration frames/*.json`)
+    /// are a list of raw frames: each names its camera JPEG (`camera_file`) and radar files,
+    /// predicted in a pipeline into OUT/<calibration file name>/.
+    #[arg(long, help_heading = h::INPUT, num_args = 1.., value_delimiter = ',', conflicts_with_all = ["token", "tokens", "data", "sample"])]
+    pub calibration: Vec<PathBuf>,
     /// Keep every radar point (disable the devkit filters) for --image / --token.
     #[arg(long, help_heading = h::INPUT)]
     pub no_radar_filters: bool,

@@ -1,7 +1,8 @@
-//! `predict` over a list of raw frames (`--tokens FILE`, repeated `--token`; issue 44): each
-//! frame's outputs equal those of `predict --token` for it alone, byte for byte; the run says
-//! its rate and latency; unknown and repeated tokens are refused before any work, all named at
-//! once; a second run into the same folder is refused without --force.
+//! `predict` over a list of raw frames (`--tokens FILE`, repeated `--token`, or calibration
+//! JSONs naming their images; issue 44): each frame's outputs equal those of `predict --token`
+//! for it alone, byte for byte; the run says its rate and latency; unknown and repeated tokens,
+//! and calibrations without their image, are refused before any work, all named at once; a
+//! second run into the same folder is refused without --force.
 
 use std::path::Path;
 use std::process::Output;
@@ -134,4 +135,51 @@ fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
     );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("listed twice"), "{err}");
+
+    // Raw files without a dataroot: calibration JSONs naming their image, several after one
+    // flag; each frame as its token gave it (raw files and tokens give one input).
+    for (i, tok) in tokens[..2].iter().enumerate() {
+        let c = format!("c{i}.json");
+        let args = [
+            "calibration",
+            "--dataroot",
+            "world",
+            "--version",
+            "v1.0-synth",
+        ];
+        ok(&run(
+            &[&args[..], &["--token", tok, "--out", &c]].concat(),
+            t,
+        ));
+    }
+    let base = [
+        "predict",
+        "--checkpoint",
+        "run/best.safetensors",
+        "--device",
+        "cpu",
+    ];
+    let calib = [&base[..], &["--calibration", "c0.json", "c1.json"]].concat();
+    let err = ok(&run(&[&calib[..], &["--out", "raw"]].concat(), t));
+    assert!(err.contains("2 frames written"), "{err}");
+    for (i, tok) in tokens[..2].iter().enumerate() {
+        let a = std::fs::read(t.join(format!("raw/c{i}/depth.png"))).unwrap();
+        let b = std::fs::read(t.join("frames").join(tok).join("depth.png")).unwrap();
+        assert!(a == b, "c{i}.json's depth differs from its token's");
+    }
+    // A calibration whose image is gone: named, with the way out, before any work.
+    let mut c1: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(t.join("c1.json")).unwrap()).unwrap();
+    c1["camera_file"] = "gone.jpg".into();
+    std::fs::write(t.join("c2.json"), c1.to_string()).unwrap();
+    let calib = [&base[..], &["--calibration", "c0.json,c2.json"]].concat();
+    let o = run(&[&calib[..], &["--out", "raw2"]].concat(), t);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("1 of 2 calibrations cannot be used") && err.contains("gone.jpg"),
+        "{err}"
+    );
+    assert!(err.contains("--image"), "{err}");
+    assert!(!t.join("raw2").exists());
 }

@@ -60,7 +60,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(data) = a.data.clone() {
         return run_dataset(&a, &data);
     }
-    if a.tokens.is_some() || a.token.len() > 1 {
+    if a.tokens.is_some() || a.token.len() > 1 || (a.image.is_none() && !a.calibration.is_empty()) {
         return super::predict_frames::run(&a);
     }
     let files: Vec<PathBuf> = OUTPUT_FILES.iter().map(|f| a.out.join(f)).collect();
@@ -102,10 +102,14 @@ fn read_input(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Predi
         let opts = token_prepare_options(a, trained)?;
         input_from_token(&opts.dataroot, &a.version, token, &opts)?
     } else if let Some(jpeg) = &a.image {
-        let calib = a
-            .calibration
-            .as_ref()
-            .ok_or_else(|| anyhow::anyhow!("--image needs --calibration"))?;
+        let calib = match a.calibration.as_slice() {
+            [] => anyhow::bail!("--image needs --calibration"),
+            [one] => one,
+            _ => anyhow::bail!(
+                "--image takes one --calibration; without --image each calibration is a frame \
+                 that names its own image (`camera_file`)"
+            ),
+        };
         input_from_raw(jpeg, &a.radar, calib, !a.no_radar_filters)?
     } else {
         anyhow::bail!("give one input: --sample DIR, --data P, --token T --dataroot D, or --image J --radar P --calibration C");

@@ -1,5 +1,6 @@
-//! `depthsense predict --dataroot D --token T1,T2,…` or `--tokens FILE`: a list of raw frames,
-//! pipelined (`depthsense_eval::predict_frames`), each frame's outputs in OUT/<token>/.
+//! `depthsense predict --dataroot D --token T1,T2,…`, `--tokens FILE` or `--calibration
+//! C1.json C2.json …` (without --image): a list of raw frames, pipelined
+//! (`depthsense_eval::predict_frames`), each frame's outputs in OUT/<token or calibration>/.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -9,29 +10,75 @@ use depthsense_cli::cmd::predict::Args;
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_dataset::outputs::refuse_existing;
 use depthsense_eval::predict::{
-    input_from_tables, predict, trained_radar_settings, write_outputs, PredictInput, OUTPUT_FILES,
+    input_from_raw, input_from_tables, predict, trained_radar_settings, write_outputs,
+    PredictInput, OUTPUT_FILES,
 };
 use depthsense_eval::predict_frames::{predict_frames, Stages};
 use depthsense_infer::NetError;
 use depthsense_model::precision::InferenceLayout;
 use depthsense_nuscenes::depth_png::DepthMap;
+use depthsense_prep::calibration::RadarSettings;
 
-/// Runs the list: every token checked against the dataroot's tables before the network loads.
+/// Where a list's frames come from.
+enum Frames {
+    /// Sample tokens of a dataroot, its tables loaded once.
+    Tokens {
+        nu: Box<depthsense_nuscenes::tables::NuScenes>,
+        tokens: Vec<String>,
+        opts: depthsense_prep::PrepareOptions,
+    },
+    /// Calibration JSONs, each naming its camera image and radar files.
+    Calibrations(Vec<(String, PathBuf, PathBuf)>),
+}
+
+impl Frames {
+    fn len(&self) -> usize {
+        match self {
+            Frames::Tokens { tokens, .. } => tokens.len(),
+            Frames::Calibrations(c) => c.len(),
+        }
+    }
+
+    /// Frame `i`'s input, named as its output folder.
+    fn load(&self, i: usize, radar_filters: bool) -> Result<PredictInput, NetError> {
+        Ok(match self {
+            Frames::Tokens { nu, tokens, opts } => input_from_tables(nu, tokens[i].as_str(), opts)?,
+            Frames::Calibrations(c) => {
+                let (name, jpeg, calib) = &c[i];
+                let mut input = input_from_raw(jpeg, &[], calib, radar_filters)?;
+                input.name = name.clone();
+                input
+            }
+        })
+    }
+
+    /// The output folder names, in order.
+    fn names(&self) -> Vec<String> {
+        match self {
+            Frames::Tokens { tokens, .. } => tokens.clone(),
+            Frames::Calibrations(c) => c.iter().map(|(n, ..)| n.clone()).collect(),
+        }
+    }
+}
+
+/// Runs the list: every frame checked (tokens against the dataroot's tables, calibrations
+/// for their image) before the network loads.
 pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
-    let tokens = token_list(a)?;
-    let files: Vec<PathBuf> = tokens
-        .iter()
-        .flat_map(|t| OUTPUT_FILES.iter().map(move |f| a.out.join(t).join(f)))
-        .collect();
-    refuse_existing(&files, a.force, "predict")?;
     let device = depthsense_model::device::parse_device(&a.device.name)?;
     let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let trained =
         trained_radar_settings(&loaded.extra).or_else(|| super::predict::sidecar_radar(a));
-    let opts = super::predict::token_prepare_options(a, trained.as_ref())?;
-    let nu = depthsense_nuscenes::tables::NuScenes::load(&opts.dataroot, &a.version)
-        .with_context(|| format!("reading the tables of {}", opts.dataroot.display()))?;
-    check_tokens(&nu, &tokens, &opts.dataroot, &a.version)?;
+    let frames = if a.calibration.is_empty() {
+        token_frames(a, trained.as_ref())?
+    } else {
+        Frames::Calibrations(calibration_frames(&a.calibration)?)
+    };
+    let files: Vec<PathBuf> = frames
+        .names()
+        .iter()
+        .flat_map(|t| OUTPUT_FILES.iter().map(move |f| a.out.join(t).join(f)))
+        .collect();
+    refuse_existing(&files, a.force, "predict")?;
     let radar = loaded.config.radar_input_for(None)?;
     let pda = match &a.mer_checkpoint {
         Some(ck) => Some(depthsense_checkpoint::pda::load(ck, device)?),
@@ -40,9 +87,9 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     let pb = progress_bar("predict");
     let stats = predict_frames(
         Stages {
-            n: tokens.len(),
+            n: frames.len(),
             loaders: depthsense_data::loader_threads(a.jobs),
-            load: |i: usize| Ok(input_from_tables(&nu, tokens[i].as_str(), &opts)?),
+            load: |i: usize| frames.load(i, !a.no_radar_filters),
             network: |input: &mut PredictInput| {
                 if let Some(p) = &pda {
                     depthsense_eval::predict::attach_mer(input, &p.net, device)?;
@@ -57,13 +104,67 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     )?;
     pb.finish_and_clear();
     eprintln!(
-        "{} frames written to {}/<token>/ ({})",
+        "{} frames written to {}/<frame>/ ({})",
         stats.images,
         a.out.display(),
         OUTPUT_FILES.join(", ")
     );
     eprintln!("{}", stats.summary(1));
     Ok(ExitCode::SUCCESS)
+}
+
+/// The token list of --token / --tokens, checked against the dataroot's tables.
+fn token_frames(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Frames> {
+    let tokens = token_list(a)?;
+    let opts = super::predict::token_prepare_options(a, trained)?;
+    let nu = depthsense_nuscenes::tables::NuScenes::load(&opts.dataroot, &a.version)
+        .with_context(|| format!("reading the tables of {}", opts.dataroot.display()))?;
+    check_tokens(&nu, &tokens, &opts.dataroot, &a.version)?;
+    Ok(Frames::Tokens {
+        nu: Box::new(nu),
+        tokens,
+        opts,
+    })
+}
+
+/// Each calibration with its image (`camera_file`) and its output folder's name (the file's
+/// stem, unique in the list); the ones that name no image, or a missing one, named at once.
+fn calibration_frames(list: &[PathBuf]) -> anyhow::Result<Vec<(String, PathBuf, PathBuf)>> {
+    let mut frames = vec![];
+    let mut problems = vec![];
+    let mut seen = std::collections::HashSet::new();
+    for c in list {
+        let name = c
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if !seen.insert(name.clone()) {
+            anyhow::bail!(
+                "two calibrations named {name} would write one folder OUT/{name}/: give each \
+                 frame once, with distinct file names"
+            );
+        }
+        let calib = depthsense_prep::calibration::read(c)?;
+        match depthsense_prep::calibration::camera_file_of(c, &calib) {
+            Some(jpeg) if jpeg.is_file() => frames.push((name, jpeg, c.clone())),
+            Some(jpeg) => problems.push(format!(
+                "{}: its image {} does not exist",
+                c.display(),
+                jpeg.display()
+            )),
+            None => problems.push(format!("{}: names no image (camera_file)", c.display())),
+        }
+    }
+    if !problems.is_empty() {
+        anyhow::bail!(
+            "{} of {} calibrations cannot be used:\n  {}\nfor one frame give its image with \
+             --image; `depthsense calibration` writes camera_file",
+            problems.len(),
+            list.len(),
+            problems.join("\n  ")
+        );
+    }
+    Ok(frames)
 }
 
 /// --token (repeatable, comma-separated) then the lines of --tokens, in order; a token named
