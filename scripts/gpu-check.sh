@@ -33,7 +33,8 @@
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: science,
 #                      bf16_trained, nccl_single, nccl_rank, ort_cuda, infer_<preset>[_cl],
-#                      predict_pipeline, predict_graph, profile_released, ours_<preset>_<variant>,
+#                      predict_pipeline, predict_graph, predict_tokens[_world], profile_released,
+#                      ours_<preset>_<variant>,
 #                      torch_<preset>, train_fp32, train_amp, bench_train, demo
 #   --cpu-dry-run      prove the script on a CPU machine: tiny preset, small sizes, CPU device,
 #                      no CUDA-only checks (ldd/nvidia-smi recorded, not required); the test
@@ -243,7 +244,7 @@ if [ "$DRY" = 1 ]; then
   DEMO_ARGS=(--quick --device cpu --jobs 1)
   NCCL_ARGS=(--config tiny --set dropout=0 --epochs 1 --batch-size 2 --max-batches-per-epoch 3 --max-val-samples 2 --set input-downscale=2 --jobs 1)
   CAP_OURS=120; CAP_TORCH=240; CAP_TRAIN=240; CAP_BTRAIN=180; CAP_DEMO=400
-  PROFILE_PRESET=tiny
+  PROFILE_PRESET=tiny; TOK_SCENES=1
 else
   DEV=cuda; H=350; W=800; BF=3; BT=8; WU=3; REP=10
   PRESETS="released paper"; VARIANTS="bf16-cl fp32 bf16"
@@ -255,7 +256,7 @@ else
   [ "$DEMO_EPOCHS" = 0 ] || DEMO_ARGS+=(--epochs "$DEMO_EPOCHS")
   # H200, 2026-12-04: ours 15–41 s a variant, PyTorch 62 s (paper) and > 150 s (released).
   CAP_OURS=75; CAP_TORCH=200; CAP_TRAIN=60; CAP_BTRAIN=60; CAP_DEMO=240
-  PROFILE_PRESET=released; PROF_RUNS=(--warmup-runs 2 --repeats 3)
+  PROFILE_PRESET=released; PROF_RUNS=(--warmup-runs 2 --repeats 3); TOK_SCENES=6
 fi
 
 ours() {  # ours PRESET VARIANT
@@ -346,9 +347,19 @@ if [ -n "$SCI_CKPT" ]; then
     --data "$SCI_OUT/work/prepared" --split test --format npy --out "$S/preds" --device "$DEV"
   step predict_graph 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" --cuda-graph \
     --data "$SCI_OUT/work/prepared" --split test --format npy --out "$S/preds_graph" --device "$DEV"
+  # A list of raw frames (sample tokens of a small world of its own): loader threads build
+  # each frame from the raw files while the network runs (images/s against the network alone).
+  step predict_tokens_world 60 10 "$BIN" synth --out "$S/tok_world" --scenes "$TOK_SCENES" \
+    --keyframes-per-scene 10 --seed 44 --lean --jobs 0
+  "$PY" -c 'import json,sys; print("\n".join(s["token"] for s in json.load(open(sys.argv[1]))))' \
+    "$S/tok_world/v1.0-synth/sample.json" > "$S/tokens.txt" 2>/dev/null || : > "$S/tokens.txt"
+  step predict_tokens 90 15 "$BIN" predict --checkpoint "$SCI_CKPT" --dataroot "$S/tok_world" \
+    --version v1.0-synth --tokens "$S/tokens.txt" --out "$S/preds_tokens" --device "$DEV"
+  rm -rf "$S/tok_world" "$S/preds_tokens"
 else
   printf 'predict_pipeline\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
   printf 'predict_graph\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
+  printf 'predict_tokens\tskipped\t0\tno trained checkpoint from the science step\n' >> "$STEPS"
 fi
 step profile_released 150 30 "$PY" "$REF" --config "$PROFILE_PRESET" --device "$DEV" \
   --profile-train --batch-train "$BT" --height "$H" --width "$W" "${PROF_RUNS[@]}" \
@@ -562,6 +573,7 @@ def stats_line(name, marker):
 
 pipeline = stats_line("predict_pipeline", " images in ")
 pipeline_graph = stats_line("predict_graph", " images in ")
+pipeline_tokens = stats_line("predict_tokens", " images in ")
 pipeline_graph_how = stats_line("predict_graph", "cuda graph:")
 prof = load(os.path.join(S, "profile_released.json")) or {}
 for v in (prof.get("layouts") or {}).values():
@@ -572,6 +584,8 @@ checks_inference = {"inference_graph": inference, "predict_pipeline": pipeline,
                     "predict_cuda_graph": pipeline_graph,
                     "predict_cuda_graph_how": pipeline_graph_how,
                     "predict_cuda_graph_status": status.get("predict_graph"),
+                    "predict_tokens": pipeline_tokens,
+                    "predict_tokens_status": status.get("predict_tokens"),
                     "profile_train": prof or None,
                     "profile_status": status.get("profile_released")}
 checks = {"bf16_trained": bf16_trained, "bf16_trained_status": status.get("bf16_trained"),

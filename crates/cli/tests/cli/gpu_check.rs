@@ -208,6 +208,11 @@ fn the_gpu_script_runs_dry_on_the_cpu_with_the_science_first() {
         line.contains("images/s"),
         "predict's pipeline line: {inference}"
     );
+    let tokens = inference["predict_tokens"].as_str().unwrap_or_default();
+    assert!(
+        tokens.contains("10 images") && tokens.contains("images/s"),
+        "predict over a token list: {inference}"
+    );
     let how = inference["predict_cuda_graph_how"]
         .as_str()
         .unwrap_or_default();
