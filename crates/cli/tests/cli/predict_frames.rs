@@ -182,4 +182,12 @@ fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
     );
     assert!(err.contains("--image"), "{err}");
     assert!(!t.join("raw2").exists());
+    // --radar belongs to one --image: with a list it is refused, not ignored.
+    let calib = [&base[..], &["--calibration", "c0.json", "--radar", "a.pcd"]].concat();
+    let o = run(&[&calib[..], &["--out", "raw3"]].concat(), t);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("--radar picks"),
+        "{err}"
+    );
 }

@@ -10,8 +10,8 @@ use depthsense_cli::cmd::predict::Args;
 use depthsense_cli::cmd::progress::progress_bar;
 use depthsense_dataset::outputs::refuse_existing;
 use depthsense_eval::predict::{
-    input_from_raw, input_from_tables, predict, trained_radar_settings, write_outputs,
-    PredictInput, OUTPUT_FILES,
+    input_from_raw, input_from_tables, predict, radar_warnings, trained_radar_settings,
+    write_outputs, PredictInput, OUTPUT_FILES,
 };
 use depthsense_eval::predict_frames::{predict_frames, Stages};
 use depthsense_infer::NetError;
@@ -68,11 +68,7 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let trained =
         trained_radar_settings(&loaded.extra).or_else(|| super::predict::sidecar_radar(a));
-    let frames = if a.calibration.is_empty() {
-        token_frames(a, trained.as_ref())?
-    } else {
-        Frames::Calibrations(calibration_frames(&a.calibration)?)
-    };
+    let frames = frames_of(a, trained.as_ref())?;
     let files: Vec<PathBuf> = frames
         .names()
         .iter()
@@ -85,12 +81,19 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
         None => None,
     };
     let pb = progress_bar("predict");
+    // Radar settings that differ from the training's: each warning said once.
+    let mut warned = std::collections::HashSet::new();
     let stats = predict_frames(
         Stages {
             n: frames.len(),
             loaders: depthsense_data::loader_threads(a.jobs),
             load: |i: usize| frames.load(i, !a.no_radar_filters),
             network: |input: &mut PredictInput| {
+                for w in radar_warnings(trained.as_ref(), input) {
+                    if warned.insert(w.clone()) {
+                        pb.println(w);
+                    }
+                }
                 if let Some(p) = &pda {
                     depthsense_eval::predict::attach_mer(input, &p.net, device)?;
                 }
@@ -111,6 +114,20 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     );
     eprintln!("{}", stats.summary(1));
     Ok(ExitCode::SUCCESS)
+}
+
+/// The list the command line names: tokens, or calibrations (which take no --radar).
+fn frames_of(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Frames> {
+    if a.calibration.is_empty() {
+        return token_frames(a, trained);
+    }
+    if !a.radar.is_empty() {
+        anyhow::bail!(
+            "--radar picks the radar files of one --image; a list of calibrations uses every \
+             file each one names"
+        );
+    }
+    Ok(Frames::Calibrations(calibration_frames(&a.calibration)?))
 }
 
 /// The token list of --token / --tokens, checked against the dataroot's tables.
