@@ -155,3 +155,36 @@ fn folding_changes_nothing_in_training_mode() {
         "the training graph keeps its BatchNorm parameters"
     );
 }
+
+/// Weights loaded after `prepare_inference` (a `copy_` into the variables, as loading does):
+/// the inference graph folds them again, so that it computes what a network prepared after
+/// the load computes, not the weights it first folded.
+#[test]
+fn weights_loaded_after_preparing_are_folded_again() {
+    let cfg = ModelConfig::tiny();
+    let (vs, net) = trained_like(&cfg);
+    net.prepare_inference(InferenceLayout::Fastest);
+    let mut seed = 11u64;
+    let img = (uniform(&[1, 3, 32, 64], &mut seed) - 0.5) * 4.0;
+    let radar = Tensor::zeros([1, cfg.radar_channels, 32, 64], (Kind::Float, Device::Cpu));
+    let run = |net: &DepthNet| tch::no_grad(|| net.forward_logits_t(&img, &radar, false));
+    let before = run(&net);
+    tch::no_grad(|| {
+        for (name, mut t) in vs.variables() {
+            if name.ends_with("running_var") || name.contains("conv") {
+                let changed = &t * 1.5;
+                t.copy_(&changed);
+            }
+        }
+    });
+    let after = run(&net);
+    let mut vs2 = VarStore::new(Device::Cpu);
+    let fresh = DepthNet::new(&vs2.root(), &cfg).unwrap();
+    vs2.copy(&vs).unwrap();
+    fresh.prepare_inference(InferenceLayout::Fastest);
+    let want = run(&fresh);
+    let moved = (&after - &before).abs().max().double_value(&[]);
+    let off = (&after - &want).abs().max().double_value(&[]);
+    assert!(moved > 1e-3, "the new weights changed nothing ({moved})");
+    assert!(off < 1e-5, "stale folded weights: {off} from a fresh fold");
+}

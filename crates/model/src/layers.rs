@@ -174,9 +174,9 @@ pub(crate) struct ConvBn {
     bn: nn::BatchNorm,
     /// The training-mode BatchNorm of data-parallel training (`crate::sync_bn`), if any.
     hook: Option<std::rc::Rc<dyn crate::sync_bn::BatchNormHook>>,
-    /// The inference graph's conv with the BatchNorm folded in (weight, bias), once
+    /// The inference graph's conv with the BatchNorm folded in, once
     /// [`ConvBn::fold_batch_norm`] has run; the training graph never uses it.
-    folded: std::cell::OnceCell<(Tensor, Tensor)>,
+    folded: std::cell::RefCell<Option<Folded>>,
 }
 
 impl ConvBn {
@@ -201,37 +201,75 @@ impl ConvBn {
                 ConvInit::TorchvisionResNet,
             ),
             bn: batch_norm2d(pb, cout),
-            folded: std::cell::OnceCell::new(),
+            folded: std::cell::RefCell::new(None),
         }
     }
     /// Conv then BN (no activation), shapes as [`Conv::forward`]. In evaluation mode after
-    /// [`ConvBn::fold_batch_norm`]: one conv with the folded weights.
+    /// [`ConvBn::fold_batch_norm`]: one conv with the folded weights — folded again first if
+    /// the conv's or the BatchNorm's tensors changed since (weights loaded afterwards).
     pub fn forward_t(&self, x: &Tensor, train: bool) -> Tensor {
-        if let (false, Some((w, b))) = (train, self.folded.get()) {
-            return self.conv.forward_with(x, w, b);
+        if !train {
+            let mut folded = self.folded.borrow_mut();
+            if let Some(f) = folded.as_mut() {
+                if f.versions != self.versions() {
+                    *f = self.fold(f.layout);
+                }
+                return self.conv.forward_with(x, &f.weight, &f.bias);
+            }
         }
         crate::sync_bn::forward_t(&self.bn, &self.conv.forward(x), train, self.hook.as_ref())
     }
-    /// Folds the evaluation-mode BatchNorm into the conv, once (the weights as they are now:
-    /// call it after loading them): with s = γ / √(σ² + ε), W' = W·s per output channel and
-    /// b' = β − μ·s, so that conv(x; W', b') = BN(conv(x; W)). W' is stored in `layout`.
+    /// Folds the evaluation-mode BatchNorm into the conv (the weights as they are now; again at
+    /// the next forward if they change): with s = γ / √(σ² + ε), W' = W·s per output channel
+    /// and b' = β − μ·s, so that conv(x; W', b') = BN(conv(x; W)). W' is stored in `layout`.
     pub fn fold_batch_norm(&self, layout: InferenceLayout) {
-        self.folded.get_or_init(|| {
-            tch::no_grad(|| {
-                let bn = &self.bn;
-                let gamma = bn.ws.as_ref().expect("affine BatchNorm");
-                let beta = bn.bs.as_ref().expect("affine BatchNorm");
-                let scale = gamma * (&bn.running_var + crate::sync_bn::BN_EPS).rsqrt();
-                let ws = &self.conv.conv.ws;
-                let mut w = ws * scale.view([-1, 1, 1, 1]);
-                if layout.channels_last_on(ws.device()) {
-                    w = crate::precision::channels_last(&w);
-                }
-                let b = beta - &bn.running_mean * &scale;
-                (w.detach(), b.detach())
-            })
-        });
+        let mut folded = self.folded.borrow_mut();
+        if folded.is_none() {
+            *folded = Some(self.fold(layout));
+        }
     }
+    /// The in-place version counters of W, γ, β, μ and σ² (libtorch bumps one at every
+    /// in-place write: `copy_` when weights are loaded).
+    fn versions(&self) -> [i64; 5] {
+        let bn = &self.bn;
+        let v = |t: Option<&Tensor>| t.map_or(-1, Tensor::internal_version);
+        [
+            self.conv.conv.ws.internal_version(),
+            v(bn.ws.as_ref()),
+            v(bn.bs.as_ref()),
+            bn.running_mean.internal_version(),
+            bn.running_var.internal_version(),
+        ]
+    }
+    fn fold(&self, layout: InferenceLayout) -> Folded {
+        tch::no_grad(|| {
+            let bn = &self.bn;
+            let gamma = bn.ws.as_ref().expect("affine BatchNorm");
+            let beta = bn.bs.as_ref().expect("affine BatchNorm");
+            let scale = gamma * (&bn.running_var + crate::sync_bn::BN_EPS).rsqrt();
+            let ws = &self.conv.conv.ws;
+            let mut w = ws * scale.view([-1, 1, 1, 1]);
+            if layout.channels_last_on(ws.device()) {
+                w = crate::precision::channels_last(&w);
+            }
+            let b = beta - &bn.running_mean * &scale;
+            Folded {
+                weight: w.detach(),
+                bias: b.detach(),
+                layout,
+                versions: self.versions(),
+            }
+        })
+    }
+}
+
+/// A conv's weights with its BatchNorm folded in, and what they were folded from.
+struct Folded {
+    weight: Tensor,
+    bias: Tensor,
+    layout: InferenceLayout,
+    /// [`ConvBn::versions`] when folded.
+    versions: [i64; 5],
 }
 
 pub(crate) fn resize_to(x: &Tensor, hw: (i64, i64), nearest: bool) -> Tensor {

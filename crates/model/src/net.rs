@@ -89,7 +89,8 @@ impl DepthNet {
     /// `[B,K,H,W]` tensor ([`crate::fused_decode`]). Its decoded bins equal the training
     /// graph's on ≥ 99.99 % of pixels (float rounding). The folded weights are stored in
     /// `layout` ([`InferenceLayout::Fastest`]: channels-last on the CPU; the decoder and head
-    /// convs then follow their inputs' layout).
+    /// convs then follow their inputs' layout). Weights written after this (a load: libtorch
+    /// counts every in-place write) are folded again at the next forward.
     pub fn prepare_inference(&self, layout: InferenceLayout) {
         self.rgb.fold_batch_norm(layout);
         if let Some(late) = &self.late {
