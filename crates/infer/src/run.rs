@@ -30,12 +30,7 @@ pub fn evaluate_net(
     progress: &Progress,
     on_batch: impl FnMut(&Batch, &[f32]) -> Result<(), NetError>,
 ) -> Result<Report, NetError> {
-    let run = RunPlan {
-        batch_size,
-        jobs,
-        device,
-        cuda_graph: false,
-    };
+    let run = RunPlan::eager(batch_size, jobs, device);
     evaluate_net_on(net, ds, entries, load, eval_cfg, &run, progress, on_batch)
 }
 
@@ -81,12 +76,7 @@ pub fn validate_net(
     device: Device,
     progress: &Progress,
 ) -> Result<Report, NetError> {
-    let run = RunPlan {
-        batch_size,
-        jobs,
-        device,
-        cuda_graph: false,
-    };
+    let run = RunPlan::eager(batch_size, jobs, device);
     let decode = Decode::AtGroundTruth;
     score_net(
         net,
@@ -209,6 +199,18 @@ pub struct RunPlan {
     /// Replay every batch's forward and decode from a CUDA graph captured for its shape (a
     /// build with the feature `cuda-graphs`, fp32, CUDA); otherwise eager, said once.
     pub cuda_graph: bool,
+}
+
+impl RunPlan {
+    /// Batches of `batch_size` on `device`, `jobs` loader threads, every forward eager.
+    pub fn eager(batch_size: usize, jobs: usize, device: Device) -> RunPlan {
+        RunPlan {
+            batch_size,
+            jobs,
+            device,
+            cuda_graph: false,
+        }
+    }
 }
 
 /// Run `net` over `entries` in order (no augmentation; the maps `load` asks for, so no ground
