@@ -5,23 +5,9 @@
 use tch::{nn::VarStore, Device, Kind, Tensor};
 
 use crate::precision::InferenceLayout;
+use crate::test_rng::uniform;
 use crate::DepthNet;
 use depthsense_config::ModelConfig;
-
-/// Uniform [0, 1) values of `shape` from a seeded xorshift, not libtorch's generator: the tests
-/// of this binary run in parallel and share that one, so its draws would differ between runs.
-fn uniform(shape: &[i64], seed: &mut u64) -> Tensor {
-    let n: i64 = shape.iter().product();
-    let v: Vec<f32> = (0..n)
-        .map(|_| {
-            *seed ^= *seed << 13;
-            *seed ^= *seed >> 7;
-            *seed ^= *seed << 17;
-            (*seed >> 40) as f32 / (1u64 << 24) as f32
-        })
-        .collect();
-    Tensor::from_slice(&v).view(shape)
-}
 
 /// A network of `cfg` with deterministic weights: every variable redrawn, the conv weights
 /// U(±1/√fan_in) and the 1-d ones (BatchNorm γ, β, running mean and variance, conv biases)

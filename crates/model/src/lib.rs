@@ -39,6 +39,8 @@ pub mod reference;
 pub mod report;
 pub mod sid;
 pub mod sync_bn;
+#[cfg(test)]
+mod test_rng;
 
 pub use error::{ModelError, ShapeMismatch};
 pub use layers::MacRows;
