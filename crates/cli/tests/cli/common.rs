@@ -58,6 +58,27 @@ impl Drop for Guard {
     }
 }
 
+/// How the tests prepare a synthetic world `world` (v1.0-synth, no lidar sweeps) into
+/// `prepared`.
+pub const PREPARE: [&str; 9] = [
+    "prepare",
+    "--dataroot",
+    "world",
+    "--version",
+    "v1.0-synth",
+    "--lidar-sweeps",
+    "0",
+    "--out",
+    "prepared",
+];
+
+/// Asserts that a command succeeded (its stderr in the message); its stderr.
+pub fn ok(o: &std::process::Output) -> String {
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    err
+}
+
 /// `depthsense ARGS` in `cwd`, without the distributed environment; its output.
 pub fn run(args: &[&str], cwd: &Path) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_depthsense"))

@@ -6,13 +6,8 @@
 //! checkpoint leaves no run folder behind.
 
 use std::path::{Path, PathBuf};
-use std::process::Output;
 
-use crate::common::{run, tiny_train};
-
-fn ok(o: &Output) {
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-}
+use crate::common::{ok, run, tiny_train, PREPARE};
 
 /// Something a line of the error says twice: a `: `-separated part of ten characters or more
 /// that occurs again in its line (`x: not found: not found`).
@@ -25,19 +20,6 @@ fn repeated(err: &str) -> Option<String> {
             .map(str::to_string)
     })
 }
-
-/// How the setup prepares its world (and `--verify` rebuilds it).
-const PREPARE: [&str; 9] = [
-    "prepare",
-    "--dataroot",
-    "world",
-    "--version",
-    "v1.0-synth",
-    "--lidar-sweeps",
-    "0",
-    "--out",
-    "prepared",
-];
 
 /// A small world, its prepared folder, a toy prepared folder and a checkpoint trained on it.
 struct Setup {

@@ -7,13 +7,7 @@
 use std::path::Path;
 use std::process::Output;
 
-use crate::common::{run, tiny_train};
-
-fn ok(o: &Output) -> String {
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(o.status.success(), "{err}");
-    err
-}
+use crate::common::{ok, run, tiny_train, PREPARE};
 
 fn predict(args: &[&str], cwd: &Path) -> Output {
     let base = [
@@ -46,18 +40,7 @@ fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
         ],
         t,
     ));
-    let prepare = [
-        "prepare",
-        "--dataroot",
-        "world",
-        "--version",
-        "v1.0-synth",
-        "--lidar-sweeps",
-        "0",
-        "--out",
-        "prepared",
-    ];
-    ok(&run(&prepare, t));
+    ok(&run(&PREPARE, t));
     let mut c = tiny_train(&t.join("prepared"), &t.join("run"), 1);
     ok(&c.args(["--max-batches-per-epoch", "1"]).output().unwrap());
     let samples: serde_json::Value =
