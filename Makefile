@@ -24,9 +24,19 @@ export LIBTORCH_USE_PYTORCH := 1
 CARGO ?= cargo
 BIN := target/release/depthsense
 
-.PHONY: all setup build install demo test test-browser bench fmt clippy check clean-venv gpu-bundle python
+# `prerequisites`: setup and python at once (used by demo and test).
+.PHONY: prerequisites all setup build install demo test test-browser bench fmt clippy check clean-venv gpu-bundle python
 
 all: build
+
+# The venv's first package: maturin alone (a Rust binary in a wheel, no dependencies), so that
+# the torch-free Python module compiles while pip unpacks torch and its CUDA wheels: `make test`
+# and `make demo` run the two at once (prerequisites, below).
+MATURIN_STAMP := $(VENV)/.depthsense-maturin-$(SETUP_VERSION)
+$(MATURIN_STAMP):
+	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "maturin>=1.9.4,<2"
+	@touch $@
 
 # The venv: torch (libtorch + CUDA runtime wheels; runs on CPU-only machines too),
 # numpy, the official nuScenes devkit used by the format check of the synthetic world, and
@@ -34,8 +44,7 @@ all: build
 # Python module, `make python`) and pytest (its tests). One pip call, so that onnx's ml_dtypes
 # is resolved against the devkit's numpy < 2 (a later, separate install of onnx upgrades numpy
 # to 2 and breaks the devkit).
-$(STAMP):
-	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+$(STAMP): $(MATURIN_STAMP)
 	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime "maturin>=1.9.4,<2" pytest
 	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
 	@touch $@
@@ -55,15 +64,27 @@ PY_WHEELS := target/wheels/depthsense
 # second time for release (about 2.5 minutes on a clean clone of a 2-core machine).
 PY_PROFILE ?= --release
 PY_STAMP := $(VENV)/.depthsense-python
+PY_WHEEL_STAMP := target/wheels/.depthsense-built
 PY_SOURCES := $(shell find crates -path '*/src/*.rs' -o -name Cargo.toml -o -name pyproject.toml) Cargo.toml Cargo.lock
 
-$(PY_STAMP): $(STAMP) $(PY_SOURCES)
+# The wheel needs maturin and the venv's interpreter only, not torch.
+$(PY_WHEEL_STAMP): $(MATURIN_STAMP) $(PY_SOURCES)
 	rm -rf $(PY_WHEELS)
 	$(VENV)/bin/maturin build $(PY_PROFILE) --quiet -i $(VENV)/bin/python -m crates/python/Cargo.toml --out $(PY_WHEELS)
+	@touch $@
+
+$(PY_STAMP): $(STAMP) $(PY_WHEEL_STAMP)
 	$(VENV)/bin/python -m pip install --disable-pip-version-check -q --force-reinstall --no-deps $(PY_WHEELS)/depthsense-*.whl
 	@touch $@
 
 python: $(PY_STAMP)
+
+# pip's install of torch (one core: unpacking ≈ 3 GB) and the Python module's compile (both
+# cores) at once; then the module into the venv. On a clean clone of the 2-core VM: 68 s + 119 s
+# one after the other.
+prerequisites:
+	@$(MAKE) --no-print-directory -j2 $(STAMP) $(PY_WHEEL_STAMP) PY_PROFILE=$(PY_PROFILE)
+	@$(MAKE) --no-print-directory $(PY_STAMP) PY_PROFILE=$(PY_PROFILE)
 
 # Both binaries into $(PREFIX)/bin (depthsense-net must stay beside depthsense; it finds
 # libtorch in this checkout's .venv through its rpath).
@@ -76,7 +97,8 @@ install: build
 
 # A finished demo in runs/demo is never replaced silently: `make demo DEMO_ARGS=--force`.
 DEMO_ARGS ?=
-demo: build python
+demo: prerequisites
+	@$(MAKE) --no-print-directory build
 	$(BIN) demo --out runs/demo $(DEMO_ARGS)
 
 # The test binaries run with the memory settings `depthsense-net` makes at start (tune_memory
@@ -89,15 +111,21 @@ TEST_MALLOC := glibc.malloc.mmap_threshold=33554432:glibc.malloc.trim_threshold=
 # instead of skipping. Every skip that remains is listed on the last line (SKIP_LOG).
 SKIP_LOG := $(CURDIR)/target/test-skips.log
 
+# libtorch's OpenMP pool is one thread per test process: the harness already runs one test per
+# core, and a second OpenMP thread each oversubscribed the cores with libgomp spinning at every
+# parallel region (clean clone, 2-core EPYC VM: the Rust tests 326 s → 264 s wall, 582 → 408
+# CPU-seconds; the cli tests 125 s → 72 s). Tests that time threads set them (`--threads`).
+TEST_THREADS_ENV := OMP_NUM_THREADS=1
+
 # The Python module's tests (pytest, python/tests) run after the Rust tests, with the debug
 # `depthsense` that `cargo test` built.
 test: PY_PROFILE :=
-test: setup python
+test: prerequisites
 	$(CARGO) test --workspace --no-run
 	@rm -f $(SKIP_LOG)
-	GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 DEPTHSENSE_REQUIRE_DEVKIT=1 DEPTHSENSE_REQUIRE_TORCH=1 \
-	  DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) $(CARGO) test --workspace; rc=$$?; \
-	DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) DEPTHSENSE_BIN=$(CURDIR)/target/debug/depthsense \
+	$(TEST_THREADS_ENV) GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 DEPTHSENSE_REQUIRE_DEVKIT=1 \
+	  DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) $(CARGO) test --workspace; rc=$$?; \
+	$(TEST_THREADS_ENV) DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) DEPTHSENSE_BIN=$(CURDIR)/target/debug/depthsense \
 	  $(VENV)/bin/python -m pytest -q -p no:cacheprovider python/tests || rc=1; \
 	scripts/skip-summary.sh $(SKIP_LOG); exit $$rc
 
