@@ -117,14 +117,21 @@ SKIP_LOG := $(CURDIR)/target/test-skips.log
 # CPU-seconds; the cli tests 125 s → 72 s). Tests that time threads set them (`--threads`).
 TEST_THREADS_ENV := OMP_NUM_THREADS=1
 
-# The Python module's tests (pytest, python/tests) run after the Rust tests, with the debug
-# `depthsense` that `cargo test` built.
+TEST_ENV := $(TEST_THREADS_ENV) GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 \
+  DEPTHSENSE_REQUIRE_DEVKIT=1 DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG)
+TEST_BINARIES := target/test-binaries.json
+
+# The Rust test binaries run two at once (scripts/run-tests.py: each one's output printed whole
+# when it ends, then a count and the failed binaries with the cargo command that reruns them),
+# then the doc-tests through cargo. One binary by hand: `cargo test -p CRATE --test NAME`.
+# The Python module's tests (pytest, python/tests) run last, with the debug `depthsense` that
+# `cargo test` built.
 test: PY_PROFILE :=
 test: prerequisites
-	$(CARGO) test --workspace --no-run
+	$(CARGO) test --workspace --no-run --message-format=json-render-diagnostics > $(TEST_BINARIES)
 	@rm -f $(SKIP_LOG)
-	$(TEST_THREADS_ENV) GLIBC_TUNABLES=$(TEST_MALLOC) THP_MEM_ALLOC_ENABLE=1 DEPTHSENSE_REQUIRE_DEVKIT=1 \
-	  DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) $(CARGO) test --workspace; rc=$$?; \
+	$(TEST_ENV) $(VENV)/bin/python scripts/run-tests.py $(TEST_BINARIES); rc=$$?; \
+	$(TEST_ENV) $(CARGO) test --workspace --doc -q || rc=1; \
 	$(TEST_THREADS_ENV) DEPTHSENSE_REQUIRE_TORCH=1 DEPTHSENSE_SKIP_LOG=$(SKIP_LOG) DEPTHSENSE_BIN=$(CURDIR)/target/debug/depthsense \
 	  $(VENV)/bin/python -m pytest -q -p no:cacheprovider python/tests || rc=1; \
 	scripts/skip-summary.sh $(SKIP_LOG); exit $$rc
