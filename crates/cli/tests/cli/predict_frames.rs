@@ -112,6 +112,31 @@ fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
         "{err}"
     );
     assert!(!t.join("x").exists(), "a refused list wrote x/");
+    // Checked before the network loads: with no checkpoint there, the tokens are still the error.
+    let o = run(
+        &[
+            "predict",
+            "--checkpoint",
+            "missing.safetensors",
+            "--dataroot",
+            "world",
+            "--version",
+            "v1.0-synth",
+            "--token",
+            "nope1",
+            "--token",
+            tokens[0],
+            "--out",
+            "x",
+        ],
+        t,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("no sample with token nope1 (of 2 listed)"),
+        "{err}"
+    );
+    assert!(!err.contains("missing.safetensors"), "{err}");
     let o = predict(
         &["--token", tokens[0], "--tokens", "tokens.txt", "--out", "y"],
         t,

@@ -65,10 +65,11 @@ impl Frames {
 /// for their image) before the network loads.
 pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     let device = depthsense_model::device::parse_device(&a.device.name)?;
+    let listed = listed_frames(a)?;
     let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let trained =
         trained_radar_settings(&loaded.extra).or_else(|| super::predict::sidecar_radar(a));
-    let frames = frames_of(a, trained.as_ref())?;
+    let frames = listed.with_radar_settings(a, trained.as_ref())?;
     let files: Vec<PathBuf> = frames
         .names()
         .iter()
@@ -116,10 +117,37 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The list the command line names: tokens, or calibrations (which take no --radar).
-fn frames_of(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Frames> {
+/// The list the command line names, checked, before the network loads: tokens (against the
+/// dataroot's tables) or calibrations (which take no --radar).
+enum Listed {
+    Tokens {
+        nu: Box<depthsense_nuscenes::tables::NuScenes>,
+        tokens: Vec<String>,
+    },
+    Calibrations(Vec<(String, PathBuf, PathBuf)>),
+}
+
+impl Listed {
+    /// The frames, built with the radar settings the network was trained with.
+    fn with_radar_settings(
+        self,
+        a: &Args,
+        trained: Option<&RadarSettings>,
+    ) -> anyhow::Result<Frames> {
+        Ok(match self {
+            Listed::Tokens { nu, tokens } => Frames::Tokens {
+                nu,
+                tokens,
+                opts: super::predict::token_prepare_options(a, trained)?,
+            },
+            Listed::Calibrations(c) => Frames::Calibrations(c),
+        })
+    }
+}
+
+fn listed_frames(a: &Args) -> anyhow::Result<Listed> {
     if a.calibration.is_empty() {
-        return token_frames(a, trained);
+        return token_list_checked(a);
     }
     if !a.radar.is_empty() {
         anyhow::bail!(
@@ -127,20 +155,19 @@ fn frames_of(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Frames
              file each one names"
         );
     }
-    Ok(Frames::Calibrations(calibration_frames(&a.calibration)?))
+    Ok(Listed::Calibrations(calibration_frames(&a.calibration)?))
 }
 
 /// The token list of --token / --tokens, checked against the dataroot's tables.
-fn token_frames(a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<Frames> {
+fn token_list_checked(a: &Args) -> anyhow::Result<Listed> {
     let tokens = token_list(a)?;
-    let opts = super::predict::token_prepare_options(a, trained)?;
-    let nu = depthsense_nuscenes::tables::NuScenes::load(&opts.dataroot, &a.version)
-        .with_context(|| format!("reading the tables of {}", opts.dataroot.display()))?;
-    check_tokens(&nu, &tokens, &opts.dataroot, &a.version)?;
-    Ok(Frames::Tokens {
+    let dataroot = &super::predict::token_prepare_options(a, None)?.dataroot;
+    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, &a.version)
+        .with_context(|| format!("reading the tables of {}", dataroot.display()))?;
+    check_tokens(&nu, &tokens, dataroot, &a.version)?;
+    Ok(Listed::Tokens {
         nu: Box::new(nu),
         tokens,
-        opts,
     })
 }
 
