@@ -11,7 +11,7 @@ Rust tests 264 s → 218 s wall, all passing).
 
 Each binary runs as `cargo test` runs it (in its package's folder, with the environment given
 here); its output goes to target/test-logs/NAME.log and is printed whole when it ends, after a
-`Running` line as cargo's. The last lines count the tests and name every failed binary with the
+`Running` line as cargo's; while binaries run, a `Waiting` line each minute names them. The last lines count the tests and name every failed binary with the
 cargo command that reruns it. Exit status 1 when any failed. Each run's durations go to
 target/test-times.json and order the next run, longest first; a clean clone starts with the
 binaries known to be long (LONG_FIRST). Doc-tests are not here: `cargo test --doc`.
@@ -31,6 +31,9 @@ from pathlib import Path
 # Known to run longest (seconds on the 2-core VM): the order of a clean clone without
 # target/test-times.json. Only the order depends on it.
 LONG_FIRST = {"test:cli": 72, "test:experiments": 46, "test:export": 45, "test:model": 32}
+
+# Seconds between the "still running" lines (the environment can shorten it: tests).
+HEARTBEAT_S = float(os.environ.get("RUN_TESTS_HEARTBEAT_S", "60"))
 
 RESULT = re.compile(r"test result: (\w+)\. (\d+) passed; (\d+) failed; (\d+) ignored")
 
@@ -131,9 +134,10 @@ def main():
     todo.sort(key=lambda b: -times.get(b.key, LONG_FIRST.get(b.key, 0.0)))
 
     env = dict(os.environ)
-    lock, children, failed = threading.Lock(), set(), []
+    lock, children, failed, running = threading.Lock(), set(), [], {}
     queue = list(todo)
     t0 = time.monotonic()
+    last_beat = [t0]
 
     def worker():
         while True:
@@ -141,9 +145,11 @@ def main():
                 if not queue:
                     return
                 b = queue.pop(0)
+                running[b.name] = time.monotonic()
                 print(f"     Started {b.rel(b.src)} ({b.package})", flush=True)
             text = run_one(b, a.args, env, children, lock)
             with lock:
+                running.pop(b.name, None)
                 print(f"     Running {b.rel(b.src)} ({b.rel(b.exe)}) — {b.seconds:.1f} s", flush=True)
                 sys.stdout.write(text if text.endswith("\n") or not text else text + "\n")
                 sys.stdout.flush()
@@ -166,8 +172,15 @@ def main():
     threads = [threading.Thread(target=worker, daemon=True) for _ in range(max(1, a.jobs))]
     for t in threads:
         t.start()
-    for t in threads:
-        t.join()
+    # A line a minute while binaries run (their own output comes when each ends).
+    while any(t.is_alive() for t in threads):
+        threads[0].join(timeout=HEARTBEAT_S) if threads[0].is_alive() else time.sleep(1)
+        with lock:
+            now = time.monotonic()
+            if running and now - last_beat[0] >= HEARTBEAT_S:
+                last_beat[0] = now
+                names = ", ".join(f"{n} ({now - t:.0f} s)" for n, t in running.items())
+                print(f"     Waiting {now - t0:.0f} s in: still running {names}", flush=True)
 
     wall = time.monotonic() - t0
     passed, nfail, ignored = (sum(b.counts[i] for b in todo) for i in range(3))

@@ -32,13 +32,14 @@ def fake_binary(tmp_path, name, passed, failed, seconds=0.0):
     }
 
 
-def run(tmp_path, msgs, *extra):
+def run(tmp_path, msgs, *extra, env=None):
     listing = tmp_path / "binaries.json"
     lines = [json.dumps(m) for m in msgs] + ['{"reason":"build-finished","success":true}']
     listing.write_text("\n".join(lines) + "\n")
     cmd = [sys.executable, SCRIPT, str(listing), "--logs", str(tmp_path / "logs"),
            "--times", str(tmp_path / "times.json"), *extra]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=60,
+                          env={**os.environ, **(env or {})})
 
 
 def test_counts_every_binary_and_names_the_failed_one_with_its_rerun(tmp_path):
@@ -56,13 +57,14 @@ def test_counts_every_binary_and_names_the_failed_one_with_its_rerun(tmp_path):
 
 
 def test_all_passing_is_exit_0_and_the_last_durations_order_the_next_run(tmp_path):
-    msgs = [fake_binary(tmp_path, "short", 1, 0), fake_binary(tmp_path, "long", 1, 0, 0.3)]
+    msgs = [fake_binary(tmp_path, "short", 1, 0), fake_binary(tmp_path, "long", 1, 0, 1.0)]
     (tmp_path / "times.json").write_text(json.dumps({"test:short": 1.0, "test:long": 9.0}))
-    p = run(tmp_path, msgs, "--jobs", "1")
+    p = run(tmp_path, msgs, "--jobs", "1", env={"RUN_TESTS_HEARTBEAT_S": "0.2"})
     assert p.returncode == 0, p.stdout + p.stderr
+    assert "still running long (" in p.stdout, "a line while a binary runs"
     started = [ln.split()[1] for ln in p.stdout.splitlines() if ln.strip().startswith("Started")]
     assert [os.path.basename(os.path.dirname(os.path.dirname(s))) for s in started] == ["long", "short"]
-    assert json.loads((tmp_path / "times.json").read_text())["test:long"] >= 0.3
+    assert json.loads((tmp_path / "times.json").read_text())["test:long"] >= 1.0
 
 
 def test_a_listing_without_binaries_is_refused(tmp_path):
