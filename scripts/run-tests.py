@@ -11,8 +11,9 @@ Rust tests 264 s → 218 s wall, all passing).
 
 Each binary runs as `cargo test` runs it (in its package's folder, with the environment given
 here); its output goes to target/test-logs/NAME.log and is printed whole when it ends, after a
-`Running` line as cargo's; while binaries run, a `Waiting` line each minute names them. The last lines count the tests and name every failed binary with the
-cargo command that reruns it. Exit status 1 when any failed. Each run's durations go to
+`Running` line as cargo's; while binaries run, a `Waiting` line each minute names them. The
+last lines count the tests and name every failed binary with the cargo command that reruns it.
+Exit status 1 when any failed. Each run's durations go to
 target/test-times.json and order the next run, longest first; a clean clone starts with the
 binaries known to be long (LONG_FIRST). Doc-tests are not here: `cargo test --doc`.
 """
