@@ -43,10 +43,9 @@ $(MATURIN_STAMP):
 # onnx + onnxruntime for `depthsense export` (its ONNX check and tests), maturin (builds the
 # Python module, `make python`) and pytest (its tests). One pip call, so that onnx's ml_dtypes
 # is resolved against the devkit's numpy < 2 (a later, separate install of onnx upgrades numpy
-# to 2 and breaks the devkit). `--no-compile`: Python compiles the modules a program imports when
-# it first imports them, instead of pip byte-compiling all of torch's (70 → 50 s, 2-core VM).
+# to 2 and breaks the devkit).
 $(STAMP): $(MATURIN_STAMP)
-	$(VENV)/bin/python -m pip install --disable-pip-version-check --no-compile -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime "maturin>=1.9.4,<2" pytest
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime "maturin>=1.9.4,<2" pytest
 	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
 	@touch $@
 
