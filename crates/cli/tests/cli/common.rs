@@ -72,6 +72,23 @@ pub const PREPARE: [&str; 9] = [
     "prepared",
 ];
 
+/// `depthsense synth` of a world `world` in `cwd` (`scenes` × `keyframes`), prepared into
+/// `prepared` as PREPARE does.
+pub fn synth_and_prepare(cwd: &Path, scenes: u32, keyframes: u32) {
+    let (scenes, keyframes) = (scenes.to_string(), keyframes.to_string());
+    let synth = [
+        "synth",
+        "--out",
+        "world",
+        "--scenes",
+        &scenes,
+        "--keyframes-per-scene",
+        &keyframes,
+    ];
+    ok(&run(&synth, cwd));
+    ok(&run(&PREPARE, cwd));
+}
+
 /// Asserts that a command succeeded (its stderr in the message); its stderr.
 pub fn ok(o: &std::process::Output) -> String {
     let err = String::from_utf8_lossy(&o.stderr).into_owned();

@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::common::{ok, run, tiny_train, PREPARE};
+use crate::common::{ok, run, synth_and_prepare, tiny_train, PREPARE};
 
 /// Something a line of the error says twice: a `: `-separated part of ten characters or more
 /// that occurs again in its line (`x: not found: not found`).
@@ -30,19 +30,7 @@ impl Setup {
     fn new() -> Setup {
         let tmp = tempfile::tempdir().unwrap();
         let t = tmp.path();
-        ok(&run(
-            &[
-                "synth",
-                "--out",
-                "world",
-                "--scenes",
-                "5",
-                "--keyframes-per-scene",
-                "1",
-            ],
-            t,
-        ));
-        ok(&run(&PREPARE, t));
+        synth_and_prepare(t, 5, 1);
         depthsense_data::write_toy_dataset(&t.join("toy"), 6, 4, 128, 64, 3).unwrap();
         let mut c = tiny_train(&t.join("toy"), &t.join("run"), 1);
         c.args(["--max-batches-per-epoch", "1"]);

@@ -7,7 +7,7 @@
 use std::path::Path;
 use std::process::Output;
 
-use crate::common::{ok, run, tiny_train, PREPARE};
+use crate::common::{ok, run, synth_and_prepare, tiny_train};
 
 fn predict(args: &[&str], cwd: &Path) -> Output {
     let base = [
@@ -28,19 +28,7 @@ fn predict(args: &[&str], cwd: &Path) -> Output {
 fn a_token_list_gives_each_frame_what_predict_gives_it_alone() {
     let tmp = tempfile::tempdir().unwrap();
     let t = tmp.path();
-    ok(&run(
-        &[
-            "synth",
-            "--out",
-            "world",
-            "--scenes",
-            "2",
-            "--keyframes-per-scene",
-            "2",
-        ],
-        t,
-    ));
-    ok(&run(&PREPARE, t));
+    synth_and_prepare(t, 2, 2);
     let mut c = tiny_train(&t.join("prepared"), &t.join("run"), 1);
     ok(&c.args(["--max-batches-per-epoch", "1"]).output().unwrap());
     let samples: serde_json::Value =
