@@ -175,7 +175,7 @@ def main():
         t.start()
     # A line a minute while binaries run (their own output comes when each ends).
     while any(t.is_alive() for t in threads):
-        threads[0].join(timeout=HEARTBEAT_S) if threads[0].is_alive() else time.sleep(1)
+        time.sleep(min(1.0, HEARTBEAT_S))
         with lock:
             now = time.monotonic()
             if running and now - last_beat[0] >= HEARTBEAT_S:

@@ -59,17 +59,26 @@ impl Frames {
             Frames::Calibrations(c) => c.iter().map(|(n, ..)| n.clone()).collect(),
         }
     }
+
+    /// Token frames are built with the radar settings the network was trained with (known once
+    /// it is loaded; calibrations name their radar files themselves).
+    fn trained_with(&mut self, a: &Args, trained: Option<&RadarSettings>) -> anyhow::Result<()> {
+        if let Frames::Tokens { opts, .. } = self {
+            *opts = super::predict::token_prepare_options(a, trained)?;
+        }
+        Ok(())
+    }
 }
 
 /// Runs the list: every frame checked (tokens against the dataroot's tables, calibrations
 /// for their image) before the network loads.
 pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     let device = depthsense_model::device::parse_device(&a.device.name)?;
-    let listed = listed_frames(a)?;
+    let mut frames = frames_of(a)?;
     let loaded = super::model_source::load(&a.model, device, InferenceLayout::Fastest)?;
     let trained =
         trained_radar_settings(&loaded.extra).or_else(|| super::predict::sidecar_radar(a));
-    let frames = listed.with_radar_settings(a, trained.as_ref())?;
+    frames.trained_with(a, trained.as_ref())?;
     let files: Vec<PathBuf> = frames
         .names()
         .iter()
@@ -117,37 +126,11 @@ pub fn run(a: &Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// The list the command line names, checked, before the network loads: tokens (against the
+/// The list the command line names, checked before the network loads: tokens (against the
 /// dataroot's tables) or calibrations (which take no --radar).
-enum Listed {
-    Tokens {
-        nu: Box<depthsense_nuscenes::tables::NuScenes>,
-        tokens: Vec<String>,
-    },
-    Calibrations(Vec<(String, PathBuf, PathBuf)>),
-}
-
-impl Listed {
-    /// The frames, built with the radar settings the network was trained with.
-    fn with_radar_settings(
-        self,
-        a: &Args,
-        trained: Option<&RadarSettings>,
-    ) -> anyhow::Result<Frames> {
-        Ok(match self {
-            Listed::Tokens { nu, tokens } => Frames::Tokens {
-                nu,
-                tokens,
-                opts: super::predict::token_prepare_options(a, trained)?,
-            },
-            Listed::Calibrations(c) => Frames::Calibrations(c),
-        })
-    }
-}
-
-fn listed_frames(a: &Args) -> anyhow::Result<Listed> {
+fn frames_of(a: &Args) -> anyhow::Result<Frames> {
     if a.calibration.is_empty() {
-        return token_list_checked(a);
+        return token_frames(a);
     }
     if !a.radar.is_empty() {
         anyhow::bail!(
@@ -155,19 +138,21 @@ fn listed_frames(a: &Args) -> anyhow::Result<Listed> {
              file each one names"
         );
     }
-    Ok(Listed::Calibrations(calibration_frames(&a.calibration)?))
+    Ok(Frames::Calibrations(calibration_frames(&a.calibration)?))
 }
 
-/// The token list of --token / --tokens, checked against the dataroot's tables.
-fn token_list_checked(a: &Args) -> anyhow::Result<Listed> {
+/// The token list of --token / --tokens, checked against the dataroot's tables (the radar
+/// settings: `Frames::trained_with`).
+fn token_frames(a: &Args) -> anyhow::Result<Frames> {
     let tokens = token_list(a)?;
-    let dataroot = &super::predict::token_prepare_options(a, None)?.dataroot;
-    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, &a.version)
-        .with_context(|| format!("reading the tables of {}", dataroot.display()))?;
-    check_tokens(&nu, &tokens, dataroot, &a.version)?;
-    Ok(Listed::Tokens {
+    let opts = super::predict::token_prepare_options(a, None)?;
+    let nu = depthsense_nuscenes::tables::NuScenes::load(&opts.dataroot, &a.version)
+        .with_context(|| format!("reading the tables of {}", opts.dataroot.display()))?;
+    check_tokens(&nu, &tokens, &opts.dataroot, &a.version)?;
+    Ok(Frames::Tokens {
         nu: Box::new(nu),
         tokens,
+        opts,
     })
 }
 
