@@ -276,9 +276,9 @@ pub fn write_predictions(
             },
         );
         drop(tx);
-        let written = writer
-            .join()
-            .map_err(|_| NetError::Config("the prediction writer thread panicked".into()))?;
+        let written = writer.join().map_err(|_| NetError::ThreadPanicked {
+            thread: "prediction writer",
+        })?;
         let stats = stats?;
         Ok((written?, stats))
     })

@@ -78,7 +78,7 @@ where
         stop.store(true, Ordering::Relaxed);
         let written = writer
             .join()
-            .unwrap_or_else(|_| Err(NetError::Config("the writer thread panicked".into())));
+            .unwrap_or_else(|_| Err(NetError::ThreadPanicked { thread: "writer" }));
         let batch_ms = ran?;
         written?;
         Ok(RunStats {

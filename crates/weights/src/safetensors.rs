@@ -53,29 +53,71 @@ pub fn serialize(tensors: &[(String, HostTensor)], metadata: &BTreeMap<String, S
     out
 }
 
+/// The header's length from a file's first 8 bytes, checked against the file's `total` length
+/// (bytes) and a 100 MiB cap, so that a foreign or truncated file is an error, never a huge
+/// allocation.
+fn header_len(path: &Path, first8: &[u8], total: u64) -> Result<usize, WeightsError> {
+    let bad = |m: String| WeightsError::format(path, m);
+    let n = match <[u8; 8]>::try_from(first8) {
+        Ok(b) if total >= 8 => u64::from_le_bytes(b),
+        _ => return Err(bad(format!("not a safetensors file ({total} bytes)"))),
+    };
+    if n > total - 8 || n > 100 << 20 {
+        return Err(bad(format!(
+            "not a safetensors file or truncated: header length {n} but the file has {total} bytes"
+        )));
+    }
+    Ok(n as usize)
+}
+
+/// The JSON header of `bytes[8..]` (`n` bytes, see [`header_len`]).
+fn header_json(
+    path: &Path,
+    text: &[u8],
+) -> Result<serde_json::Map<String, serde_json::Value>, WeightsError> {
+    serde_json::from_slice(text).map_err(|e| {
+        WeightsError::format(
+            path,
+            format!("not a safetensors file: header is not JSON ({e})"),
+        )
+    })
+}
+
 /// The JSON header of safetensors `bytes` and the data section after it.
 fn split<'b>(
     path: &Path,
     bytes: &'b [u8],
 ) -> Result<(serde_json::Map<String, serde_json::Value>, &'b [u8]), WeightsError> {
-    let bad = |m: String| WeightsError::format(path, m);
-    if bytes.len() < 8 {
-        return Err(bad(format!(
-            "not a safetensors file ({} bytes)",
-            bytes.len()
-        )));
-    }
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap_or([0; 8])) as usize;
-    if n > bytes.len() - 8 || n > 100 << 20 {
-        return Err(bad(format!(
-            "not a safetensors file or truncated: header length {n} but the file has {} bytes",
-            bytes.len()
-        )));
-    }
-    let header: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_slice(&bytes[8..8 + n])
-            .map_err(|e| bad(format!("not a safetensors file: header is not JSON ({e})")))?;
+    let n = header_len(path, &bytes[..bytes.len().min(8)], bytes.len() as u64)?;
+    let header = header_json(path, &bytes[8..8 + n])?;
     Ok((header, &bytes[8 + n..]))
+}
+
+/// The `__metadata__` strings of a header.
+fn metadata_of(header: &serde_json::Map<String, serde_json::Value>) -> BTreeMap<String, String> {
+    let mut meta = BTreeMap::new();
+    if let Some(m) = header.get("__metadata__").and_then(|v| v.as_object()) {
+        for (k, v) in m {
+            meta.insert(k.clone(), v.as_str().unwrap_or_default().to_string());
+        }
+    }
+    meta
+}
+
+/// The metadata of the safetensors file at `path`, reading its header only (8 bytes and the
+/// JSON): a model config or a training state without the tensors' hundreds of megabytes.
+/// The tensors' entries are not checked here; [`parse`] checks them when they are read.
+pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, WeightsError> {
+    use std::io::Read;
+    let io = |e| WeightsError::io(path, e);
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let total = f.metadata().map_err(io)?.len();
+    let mut first8 = Vec::with_capacity(8);
+    (&mut f).take(8).read_to_end(&mut first8).map_err(io)?;
+    let n = header_len(path, &first8, total)?;
+    let mut text = vec![0u8; n];
+    f.read_exact(&mut text).map_err(io)?;
+    Ok(metadata_of(&header_json(path, &text)?))
 }
 
 /// Tensor `name` of a safetensors header: its entry `v` checked against the `data` section.
@@ -144,20 +186,13 @@ fn tensor<'b>(
 /// `bytes`. `path` only names the file in errors.
 pub fn parse<'b>(path: &Path, bytes: &'b [u8]) -> Result<Parsed<'b>, WeightsError> {
     let (header, data) = split(path, bytes)?;
-    let mut meta = BTreeMap::new();
     let mut out = Vec::new();
     for (name, v) in &header {
-        if name == "__metadata__" {
-            if let Some(m) = v.as_object() {
-                for (k, v) in m {
-                    meta.insert(k.clone(), v.as_str().unwrap_or_default().to_string());
-                }
-            }
-            continue;
+        if name != "__metadata__" {
+            out.push((name.clone(), tensor(path, name, v, data)?));
         }
-        out.push((name.clone(), tensor(path, name, v, data)?));
     }
-    Ok((out, meta))
+    Ok((out, metadata_of(&header)))
 }
 
 #[cfg(test)]
@@ -252,5 +287,35 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("truncated: tensor w ends at byte"), "{e}");
+    }
+
+    /// The header alone gives the metadata that the whole parse gives; a file cut inside its
+    /// header, or with a header length beyond its end, is an error naming it.
+    #[test]
+    fn the_metadata_is_read_from_the_header_alone() {
+        let d = tempfile::tempdir().unwrap();
+        let meta: BTreeMap<String, String> = [("format", "x"), ("depthsense.config", "{}")]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+        let bytes = serialize(&sample(), &meta);
+        let path = d.path().join("m.safetensors");
+        std::fs::write(&path, &bytes).unwrap();
+        assert_eq!(read_metadata(&path).unwrap(), meta);
+        assert_eq!(parse(&path, &bytes).unwrap().1, meta);
+        // The data section is not read: a file cut after its header still gives its metadata.
+        let n = 8 + u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+        std::fs::write(&path, &bytes[..n]).unwrap();
+        assert_eq!(read_metadata(&path).unwrap(), meta);
+        for cut in [0, 5, 8, n - 1] {
+            std::fs::write(&path, &bytes[..cut]).unwrap();
+            let e = read_metadata(&path).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("{}: ", path.display())),
+                "{cut}: {e}"
+            );
+        }
+        let e = read_metadata(&d.path().join("none")).unwrap_err();
+        assert!(matches!(e, WeightsError::Io { .. }), "{e}");
     }
 }

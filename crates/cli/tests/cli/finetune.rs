@@ -61,6 +61,26 @@ fn a_finished_run_is_said_finished_extended_with_a_new_schedule_and_fine_tuned_f
     );
     assert!(!err.contains("img/s"), "{err}");
     assert_eq!(snapshot(&run), before);
+    // The finished check reads the checkpoint's header only; a finished run resumed with
+    // another schedule or another model is still refused, saying what differs.
+    for (extra, says) in [
+        (["--lr", "0.003"], "an exact resume needs the same values"),
+        (["--set", "dropout=0.3"], "holds a different model config"),
+    ] {
+        let mut c = tiny_train(&data, &run, 1);
+        c.args(["--max-batches-per-epoch", "2", "--resume"])
+            .args(extra);
+        if extra[0] != "--lr" {
+            c.args(["--lr", "0.002"]);
+        }
+        let o = c.output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(says),
+            "{extra:?}: {err}"
+        );
+    }
+    assert_eq!(snapshot(&run), before);
 
     // --extend to the same number of epochs: refused with the next step.
     let o = train(1, &["--extend"]);

@@ -131,6 +131,11 @@ impl<'o> Trainer<'o> {
         let run = opts.out.clone();
         let cfg = model_config_for_data(opts, &ds)?;
         let bpe = opts.schedule.iterations_per_epoch(part.train.len());
+        if let Some(state) = finished_state(opts, &cfg, bpe)? {
+            let n_val = val_entries.len();
+            let summary = finished_summary(opts, &state, part, n_val, bpe, started);
+            return Ok(Opened::Finished(Box::new(summary)));
+        }
         // Data parallelism is decided when the network is built (SyncBatchNorm, dropout seeds).
         let hooks = dist.as_mut().map(Dist::train_hooks).unwrap_or_default();
         let ((vs, net, mut state, optim), optim_matches) =
@@ -140,11 +145,6 @@ impl<'o> Trainer<'o> {
         }
         if state.data_settings.is_empty() {
             state.data_settings = ds.index.settings.clone();
-        }
-        if resumes_a_finished_run(opts, &state, bpe) {
-            let n_val = val_entries.len();
-            let summary = finished_summary(opts, &state, part, n_val, bpe, started);
-            return Ok(Opened::Finished(Box::new(summary)));
         }
         if let Some(d) = dist.as_mut() {
             attach(d, &vs, part.train.len(), opts.schedule.batch_size)?;
@@ -704,10 +704,32 @@ fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
     }
 }
 
-/// `--resume` (not `--extend`) of a run whose checkpoint has done all its iterations.
-fn resumes_a_finished_run(opts: &TrainOptions, state: &State, bpe: u64) -> bool {
-    let c = &opts.checkpointing;
-    c.resume && !opts.extension.extend && state.iteration >= plan_of(opts, bpe).total_iterations()
+/// `--resume` (not `--extend`) of a run whose checkpoint has done all its iterations: that
+/// checkpoint's training state, read from its header alone (no network is built, no tensor
+/// read). None otherwise — also for a checkpoint of another config or schedule, whose resume
+/// then fails saying what differs ([`resume`]).
+fn finished_state(
+    opts: &TrainOptions,
+    cfg: &ModelConfig,
+    bpe: u64,
+) -> Result<Option<State>, NetError> {
+    let last = opts.out.join(LAST_CKPT);
+    if !opts.checkpointing.resume || opts.extension.extend || !last.exists() {
+        return Ok(None);
+    }
+    let (ck_cfg, extra) = checkpoint::read_config(&last)?;
+    let state = train_state(&last, &extra)?;
+    let done = state.iteration >= plan_of(opts, bpe).total_iterations();
+    let same = &ck_cfg == cfg && check_same_schedule(&state, opts, &last).is_ok();
+    Ok((done && same).then_some(state))
+}
+
+/// The training state stored in a checkpoint's extra JSON (`"train_state"`).
+fn train_state(last: &Path, extra: &serde_json::Value) -> Result<State, NetError> {
+    serde_json::from_value(extra["train_state"].clone()).map_err(|e| NetError::Parse {
+        path: last.to_path_buf(),
+        reason: format!("train_state: {e}"),
+    })
 }
 
 /// The summary of a run that `--resume` found finished: nothing trained, nothing written.
@@ -1020,11 +1042,7 @@ fn resume(
             cfg.name
         )));
     }
-    let mut state: State =
-        serde_json::from_value(extra["train_state"].clone()).map_err(|e| NetError::Parse {
-            path: last.to_path_buf(),
-            reason: format!("train_state: {e}"),
-        })?;
+    let mut state = train_state(&last, &extra)?;
     if opts.extension.extend {
         extend_schedule(opts, &last, &mut state, bpe)?;
     }
