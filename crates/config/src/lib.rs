@@ -13,7 +13,8 @@
 //!   checkpoints, device and precision, data-parallel), each defined once with its flags,
 //!   ranges ([`ranges`]), help heading ([`heading`]) and defaults; the command line flattens
 //!   them and the trainer holds them; [`mer_training`]: `mer train`'s own groups (its Adam
-//!   schedule, its loading); [`words_parser`]: the value parser of every enum flag.
+//!   schedule, its loading); [`refusal`]: what a training run refuses before it trains, in
+//!   those groups' terms; [`words_parser`]: the value parser of every enum flag.
 //!
 //! The depthsense binary parses every command without libtorch, so these live here rather than
 //! in `depthsense-model`, which builds the network from a [`ModelConfig`].
@@ -28,6 +29,7 @@ pub mod options;
 pub mod pda;
 pub mod presets;
 pub mod ranges;
+pub mod refusal;
 pub mod training;
 pub mod variant;
 pub mod words_parser;

@@ -30,6 +30,10 @@ pub enum NetError {
     Data(String),
     #[error("configuration: {0}")]
     Config(String),
+    /// A training run's options refused: by themselves, against the data or the ranks, or
+    /// against the checkpoint they continue.
+    #[error("configuration: {0}")]
+    Refused(#[from] depthsense_config::refusal::TrainingRefusal),
     #[error(transparent)]
     Model(#[from] depthsense_model::ModelError),
     #[error(transparent)]

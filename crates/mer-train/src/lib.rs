@@ -22,6 +22,7 @@ use depthsense_base::fsutil::write_atomic;
 use depthsense_config::device::DeviceArg;
 use depthsense_config::mer_training::{MerLoadingOptions, MerScheduleOptions};
 use depthsense_config::pda::PdaConfig;
+use depthsense_config::refusal::{ScheduleKey, TrainingRefusal};
 use depthsense_config::training::{CheckpointOptions, ValidationOptions};
 use depthsense_data::{epoch_order, sample_rng};
 use depthsense_dataset::outputs::{
@@ -125,6 +126,18 @@ struct State {
     /// recorded).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     best_iteration: Option<u64>,
+}
+
+impl State {
+    /// The schedule values this checkpoint was trained with, which an exact resume keeps.
+    fn schedule_key(&self) -> ScheduleKey {
+        ScheduleKey {
+            batch_size: self.batch_size,
+            epochs: self.epochs,
+            lr: self.lr,
+            seed: self.seed,
+        }
+    }
 }
 
 /// A batch on the device: image `[B,3,h,w]`, radar `[B,1,h,w]`, flat radar-pixel indices
@@ -341,9 +354,7 @@ impl<'o> Run<'o> {
 
     fn new(opts: &'o MerTrainOptions) -> Result<Self, NetError> {
         let started = Instant::now();
-        if opts.schedule.batch_size == 0 || opts.schedule.epochs == 0 {
-            return Err(NetError::Config("batch size and epochs must be ≥ 1".into()));
-        }
+        opts.schedule.check()?;
         let device = depthsense_model::device::parse_device(&opts.device.name)?;
         let ds = Dataset::open(&opts.data)?;
         let part = partition(&ds, opts.validation.val_every_scene)?;
@@ -359,7 +370,7 @@ impl<'o> Run<'o> {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(jobs)
             .build()
-            .map_err(|e| NetError::Config(format!("cannot start loader threads: {e}")))?;
+            .map_err(|e| depthsense_dataset::DataError::thread_start("loader threads", e))?;
         let (vs, net, optim, state, optim_matches) = build(opts, device)?;
         folder.restart_log(state.iteration)?;
         let bpe = opts.schedule.iterations_per_epoch(part.train.len());
@@ -567,14 +578,8 @@ fn build(
             path: last.to_path_buf(),
             reason: format!("train_state: {e}"),
         })?;
-    let same = (stored.batch_size, stored.epochs, stored.lr, stored.seed)
-        == (state.batch_size, state.epochs, state.lr, state.seed);
-    if l.config != opts.pda || !same {
-        return Err(NetError::Config(format!(
-            "--resume: {} was trained with another PDA config or batch/epochs/lr/seed; \
-             an exact resume needs the same options",
-            last.display()
-        )));
+    if l.config != opts.pda || stored.schedule_key() != opts.schedule.key() {
+        return Err(TrainingRefusal::OtherPdaRun { checkpoint: last }.into());
     }
     state = stored;
     let mut optim = Adam::new(&l.vs, opts.schedule.weight_decay);

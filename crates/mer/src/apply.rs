@@ -260,7 +260,7 @@ pub fn apply(opts: &MerApplyOptions, progress: &Progress) -> Result<MerApplySumm
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(if opts.jobs == 0 { 0 } else { opts.jobs })
         .build()
-        .map_err(|e| NetError::Config(format!("cannot start threads: {e}")))?;
+        .map_err(|e| depthsense_dataset::DataError::thread_start("MER threads", e))?;
     progress.set_length(todo.len() as u64);
     progress.println(format!(
         "{} samples of {} to enhance ({skipped} already done) on {}",

@@ -226,6 +226,18 @@ struct State {
     data_settings: std::collections::BTreeMap<String, serde_json::Value>,
 }
 
+impl State {
+    /// The schedule values this checkpoint was trained with, which an exact resume keeps.
+    fn schedule_key(&self) -> depthsense_config::refusal::ScheduleKey {
+        depthsense_config::refusal::ScheduleKey {
+            batch_size: self.batch_size,
+            epochs: self.epochs,
+            lr: self.lr,
+            seed: self.seed,
+        }
+    }
+}
+
 /// One segment of the learning-rate schedule: a poly decay from `lr` at `start_iteration` to 0
 /// at `end_iteration` (after `warmup` iterations of linear warmup).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -161,3 +161,68 @@ fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
         .unwrap_err();
     assert!(err.to_string().contains("raw-height"), "{err}");
 }
+
+/// A continued run is refused with the values at fault, as typed refusals a caller can match:
+/// another schedule on `--resume`, no more epochs on `--extend`, nothing to extend.
+#[test]
+fn a_continued_run_is_refused_with_the_values_at_fault() {
+    use depthsense_config::refusal::TrainingRefusal as R;
+    use depthsense_config::training::{CheckpointOptions, ExtendOptions};
+    use depthsense_infer::NetError;
+    let _rng = torch_rng();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    toy(&data, 3, 2);
+    let mut model = ModelConfig::tiny();
+    model.backbone_width = 8;
+    model.radar_width = 8;
+    let opts = TrainOptions {
+        data,
+        out: tmp.path().join("run"),
+        model,
+        schedule: ScheduleOptions {
+            epochs: 1,
+            batch_size: 2,
+            max_batches_per_epoch: Some(1),
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 1,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
+        ..TrainOptions::default()
+    };
+    let refusal = |o: &TrainOptions| match train(o, &Progress::hidden()) {
+        Err(NetError::Refused(r)) => r,
+        other => panic!("not refused: {other:?}"),
+    };
+    let extend = |o: &TrainOptions| TrainOptions {
+        extension: ExtendOptions { extend: true },
+        ..o.clone()
+    };
+    assert!(matches!(refusal(&extend(&opts)), R::NothingToExtend { .. }));
+    train(&opts, &Progress::hidden()).unwrap();
+    let mut other_lr = opts.clone();
+    other_lr.schedule.lr = 0.5;
+    other_lr.checkpointing = CheckpointOptions {
+        resume: true,
+        ..Default::default()
+    };
+    match refusal(&other_lr) {
+        R::OtherSchedule {
+            stored, requested, ..
+        } => assert_eq!((stored.lr, requested.lr), (opts.schedule.lr, 0.5)),
+        r => panic!("{r}"),
+    }
+    assert_eq!(
+        refusal(&extend(&opts)),
+        R::ExtendWithoutMoreEpochs {
+            checkpoint: opts.out.join(LAST_CKPT),
+            epochs: 1
+        }
+    );
+}

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_checkpoint as checkpoint;
+use depthsense_config::refusal::TrainingRefusal as Refusal;
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
@@ -786,24 +787,9 @@ fn take_run_folder(opts: &TrainOptions) -> Result<RunFolder, NetError> {
 /// The options every rank checks before touching the run folder; returns whether this is the
 /// main process (rank 0, or a single process).
 fn check_options(opts: &TrainOptions, dist: Option<&Dist>) -> Result<bool, NetError> {
-    if opts.schedule.batch_size == 0 || opts.schedule.epochs == 0 {
-        return Err(NetError::Config(
-            "batch size and epochs must be at least 1".into(),
-        ));
-    }
-    if !(0.0..=1.0).contains(&opts.loading.train_radar_drop) {
-        return Err(NetError::Config(format!(
-            "train radar drop {} is not a fraction in [0, 1]",
-            opts.loading.train_radar_drop
-        )));
-    }
     let (main, world) = dist.map_or((true, 1), |d| (d.is_main(), d.world_size()));
-    if !opts.schedule.batch_size.is_multiple_of(world) {
-        return Err(NetError::Config(format!(
-            "the global batch size {} is not a multiple of the {world} ranks",
-            opts.schedule.batch_size
-        )));
-    }
+    opts.schedule.check(world)?;
+    opts.loading.check()?;
     Ok(main)
 }
 
@@ -815,11 +801,12 @@ fn open_partition(opts: &TrainOptions) -> Result<(Dataset, Partition), NetError>
     depthsense_data::exclusion::apply_exclusions(&mut part, &opts.exclude);
     if let Some(n) = opts.loading.train_subset {
         if n > part.train.len() {
-            return Err(NetError::Config(format!(
-                "--train-subset {n}: {} holds only {} training samples",
-                opts.data.display(),
-                part.train.len()
-            )));
+            return Err(Refusal::SubsetTooLarge {
+                requested: n,
+                data: opts.data.clone(),
+                available: part.train.len(),
+            }
+            .into());
         }
         part.train = training_subset(&part.train, n);
     }
@@ -924,11 +911,11 @@ fn network(
         return resume(opts, run, cfg, device, bpe, hooks);
     }
     if opts.extension.extend {
-        return Err(NetError::Config(format!(
-            "--extend: {} holds no run to extend (no {LAST_CKPT}); train it first, without \
-             --extend",
-            run.display()
-        )));
+        return Err(Refusal::NothingToExtend {
+            run: run.clone(),
+            checkpoint: LAST_CKPT,
+        }
+        .into());
     }
     Ok((fresh(opts, run, cfg, device, main, hooks)?, true))
 }
@@ -937,9 +924,11 @@ fn network(
 /// batch is known to fit the training samples.
 fn attach(d: &mut Dist, vs: &VarStore, train_samples: usize, batch: usize) -> Result<(), NetError> {
     if train_samples < batch {
-        return Err(NetError::Config(format!(
-            "{train_samples} training samples: fewer than one global batch of {batch}"
-        )));
+        return Err(Refusal::FewerSamplesThanBatch {
+            samples: train_samples,
+            batch,
+        }
+        .into());
     }
     d.attach(vs)
 }
@@ -1034,13 +1023,12 @@ fn resume(
     checkpoint::copy_into(&last, &vs, &tensors)?;
     let (ck_cfg, extra) = checkpoint::read_config(&last)?;
     if &ck_cfg != cfg {
-        return Err(NetError::Config(format!(
-            "--resume: {} holds a different model config than requested \
-             (checkpoint preset {:?}, requested {:?}); resume with the same --config",
-            last.display(),
-            ck_cfg.name,
-            cfg.name
-        )));
+        return Err(Refusal::OtherModel {
+            checkpoint: last,
+            stored: ck_cfg.name,
+            requested: cfg.name.clone(),
+        }
+        .into());
     }
     let mut state = train_state(&last, &extra)?;
     if opts.extension.extend {
@@ -1055,25 +1043,14 @@ fn resume(
 
 /// An exact resume continues the same computation: the checkpoint's batch size, epochs,
 /// learning rate and seed must be the options' (`--extend` has updated epochs and lr first).
-fn check_same_schedule(state: &State, opts: &TrainOptions, last: &Path) -> Result<(), NetError> {
-    if state.batch_size != opts.schedule.batch_size
-        || state.epochs != opts.schedule.epochs
-        || state.lr != opts.schedule.lr
-        || state.seed != opts.schedule.seed
-    {
-        return Err(NetError::Config(format!(
-            "--resume: {} was trained with batch {} epochs {} lr {} seed {}; \
-             an exact resume needs the same values (got batch {} epochs {} lr {} seed {})",
-            last.display(),
-            state.batch_size,
-            state.epochs,
-            state.lr,
-            state.seed,
-            opts.schedule.batch_size,
-            opts.schedule.epochs,
-            opts.schedule.lr,
-            opts.schedule.seed
-        )));
+fn check_same_schedule(state: &State, opts: &TrainOptions, last: &Path) -> Result<(), Refusal> {
+    let (stored, requested) = (state.schedule_key(), opts.schedule.key());
+    if stored != requested {
+        return Err(Refusal::OtherSchedule {
+            checkpoint: last.to_path_buf(),
+            stored,
+            requested,
+        });
     }
     Ok(())
 }
@@ -1088,23 +1065,20 @@ fn extend_schedule(
     bpe: u64,
 ) -> Result<(), NetError> {
     if opts.schedule.epochs <= state.epochs {
-        return Err(NetError::Config(format!(
-            "--extend: {} has {} epochs; give more with --epochs (e.g. --epochs {})",
-            last.display(),
-            state.epochs,
-            2 * state.epochs
-        )));
+        return Err(Refusal::ExtendWithoutMoreEpochs {
+            checkpoint: last.to_path_buf(),
+            epochs: state.epochs,
+        }
+        .into());
     }
-    if state.batch_size != opts.schedule.batch_size || state.seed != opts.schedule.seed {
-        return Err(NetError::Config(format!(
-            "--extend: {} was trained with batch {} seed {}; an extension keeps them (got \
-             batch {} seed {})",
-            last.display(),
-            state.batch_size,
-            state.seed,
-            opts.schedule.batch_size,
-            opts.schedule.seed
-        )));
+    let (stored, requested) = (state.schedule_key(), opts.schedule.key());
+    if (stored.batch_size, stored.seed) != (requested.batch_size, requested.seed) {
+        return Err(Refusal::ExtendChangesBatchOrSeed {
+            checkpoint: last.to_path_buf(),
+            stored,
+            requested,
+        }
+        .into());
     }
     if state.schedule.is_empty() {
         state.schedule.push(super::Segment {

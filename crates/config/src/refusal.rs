@@ -1,0 +1,254 @@
+//! What a training run refuses before it trains (`train` and `mer train`), in the terms of its
+//! option groups ([`crate::training`]): the groups checked on their own
+//! ([`ScheduleOptions::check`], [`LoadingOptions::check`], [`MerScheduleOptions::check`]), against the data and the ranks, and a
+//! continued run (`--resume`, `--extend`) against the checkpoint it continues ([`ScheduleKey`]).
+//! Each variant carries the values at fault; the message says the flag and the next step.
+
+use std::path::PathBuf;
+
+use crate::mer_training::MerScheduleOptions;
+use crate::training::{LoadingOptions, ScheduleOptions};
+
+/// The schedule values that an exact resume keeps: a checkpoint's and the options' must be
+/// equal (`--extend` changes epochs and lr first).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScheduleKey {
+    pub batch_size: usize,
+    pub epochs: usize,
+    pub lr: f64,
+    pub seed: u64,
+}
+
+impl std::fmt::Display for ScheduleKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "batch {} epochs {} lr {} seed {}",
+            self.batch_size, self.epochs, self.lr, self.seed
+        )
+    }
+}
+
+/// Why a training run is refused. Read as `configuration: …` through the training stack's
+/// error.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TrainingRefusal {
+    /// `--batch-size 0` or `--epochs 0` (the command line's ranges refuse them first; a
+    /// library caller may not).
+    #[error("batch size and epochs must be at least 1")]
+    EmptySchedule,
+    #[error("train radar drop {drop} is not a fraction in [0, 1]")]
+    RadarDropNotAFraction { drop: f64 },
+    /// Data-parallel training: the global batch is split evenly over the ranks.
+    #[error("the global batch size {batch} is not a multiple of the {ranks} ranks")]
+    BatchNotAMultiple { batch: usize, ranks: usize },
+    #[error("--train-subset {requested}: {} holds only {available} training samples", .data.display())]
+    SubsetTooLarge {
+        requested: usize,
+        data: PathBuf,
+        available: usize,
+    },
+    #[error("{samples} training samples: fewer than one global batch of {batch}")]
+    FewerSamplesThanBatch { samples: usize, batch: usize },
+    #[error(
+        "--extend: {} holds no run to extend (no {checkpoint}); train it first, without --extend",
+        .run.display()
+    )]
+    NothingToExtend {
+        run: PathBuf,
+        checkpoint: &'static str,
+    },
+    #[error(
+        "--resume: {} holds a different model config than requested (checkpoint preset \
+         {stored:?}, requested {requested:?}); resume with the same --config",
+        .checkpoint.display()
+    )]
+    OtherModel {
+        checkpoint: PathBuf,
+        stored: String,
+        requested: String,
+    },
+    #[error(
+        "--resume: {} was trained with {stored}; an exact resume needs the same values (got \
+         {requested})",
+        .checkpoint.display()
+    )]
+    OtherSchedule {
+        checkpoint: PathBuf,
+        stored: ScheduleKey,
+        requested: ScheduleKey,
+    },
+    #[error(
+        "--extend: {} has {epochs} epochs; give more with --epochs (e.g. --epochs {})",
+        .checkpoint.display(),
+        .epochs * 2
+    )]
+    ExtendWithoutMoreEpochs { checkpoint: PathBuf, epochs: usize },
+    #[error(
+        "--extend: {} was trained with batch {} seed {}; an extension keeps them (got batch {} \
+         seed {})",
+        .checkpoint.display(), .stored.batch_size, .stored.seed, .requested.batch_size,
+        .requested.seed
+    )]
+    ExtendChangesBatchOrSeed {
+        checkpoint: PathBuf,
+        stored: ScheduleKey,
+        requested: ScheduleKey,
+    },
+    /// `mer train --resume`: the PDA network's config or the schedule differ.
+    #[error(
+        "--resume: {} was trained with another PDA config or batch/epochs/lr/seed; an exact \
+         resume needs the same options",
+        .checkpoint.display()
+    )]
+    OtherPdaRun { checkpoint: PathBuf },
+}
+
+impl ScheduleOptions {
+    /// The values an exact resume keeps.
+    pub fn key(&self) -> ScheduleKey {
+        ScheduleKey {
+            batch_size: self.batch_size,
+            epochs: self.epochs,
+            lr: self.lr,
+            seed: self.seed,
+        }
+    }
+
+    /// At least one epoch of batches of at least one sample, the global batch split evenly
+    /// over `ranks` data-parallel ranks (1: a single process).
+    pub fn check(&self, ranks: usize) -> Result<(), TrainingRefusal> {
+        if self.batch_size == 0 || self.epochs == 0 {
+            return Err(TrainingRefusal::EmptySchedule);
+        }
+        if !self.batch_size.is_multiple_of(ranks.max(1)) {
+            return Err(TrainingRefusal::BatchNotAMultiple {
+                batch: self.batch_size,
+                ranks,
+            });
+        }
+        Ok(())
+    }
+}
+
+impl MerScheduleOptions {
+    /// The values an exact resume keeps.
+    pub fn key(&self) -> ScheduleKey {
+        ScheduleKey {
+            batch_size: self.batch_size,
+            epochs: self.epochs,
+            lr: self.lr,
+            seed: self.seed,
+        }
+    }
+
+    /// At least one epoch of batches of at least one sample (`mer train` runs one process).
+    pub fn check(&self) -> Result<(), TrainingRefusal> {
+        if self.batch_size == 0 || self.epochs == 0 {
+            return Err(TrainingRefusal::EmptySchedule);
+        }
+        Ok(())
+    }
+}
+
+impl LoadingOptions {
+    /// `--train-radar-drop` a fraction.
+    pub fn check(&self) -> Result<(), TrainingRefusal> {
+        if !(0.0..=1.0).contains(&self.train_radar_drop) {
+            return Err(TrainingRefusal::RadarDropNotAFraction {
+                drop: self.train_radar_drop,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The messages the trainer's strings had, now from the typed values.
+    #[test]
+    fn refusals_read_as_the_strings_they_replaced() {
+        let key = |batch_size, seed| ScheduleKey {
+            batch_size,
+            epochs: 2,
+            lr: 0.001,
+            seed,
+        };
+        let last = PathBuf::from("run/last.safetensors");
+        let cases = [
+            (
+                TrainingRefusal::OtherSchedule {
+                    checkpoint: last.clone(),
+                    stored: key(8, 0),
+                    requested: key(4, 0),
+                },
+                "--resume: run/last.safetensors was trained with batch 8 epochs 2 lr 0.001 seed 0; \
+                 an exact resume needs the same values (got batch 4 epochs 2 lr 0.001 seed 0)",
+            ),
+            (
+                TrainingRefusal::ExtendWithoutMoreEpochs {
+                    checkpoint: last.clone(),
+                    epochs: 3,
+                },
+                "--extend: run/last.safetensors has 3 epochs; give more with --epochs (e.g. \
+                 --epochs 6)",
+            ),
+            (
+                TrainingRefusal::ExtendChangesBatchOrSeed {
+                    checkpoint: last.clone(),
+                    stored: key(8, 0),
+                    requested: key(8, 5),
+                },
+                "--extend: run/last.safetensors was trained with batch 8 seed 0; an extension \
+                 keeps them (got batch 8 seed 5)",
+            ),
+            (
+                TrainingRefusal::NothingToExtend {
+                    run: "run".into(),
+                    checkpoint: "last.safetensors",
+                },
+                "--extend: run holds no run to extend (no last.safetensors); train it first, \
+                 without --extend",
+            ),
+            (
+                TrainingRefusal::OtherModel {
+                    checkpoint: last,
+                    stored: "tiny".into(),
+                    requested: "paper".into(),
+                },
+                "--resume: run/last.safetensors holds a different model config than requested \
+                 (checkpoint preset \"tiny\", requested \"paper\"); resume with the same --config",
+            ),
+        ];
+        for (e, says) in cases {
+            assert_eq!(e.to_string(), says);
+        }
+    }
+
+    #[test]
+    fn the_groups_check_themselves() {
+        let mut s = ScheduleOptions::default();
+        assert_eq!(s.check(1), Ok(()));
+        s.batch_size = 6;
+        assert_eq!(
+            s.check(4),
+            Err(TrainingRefusal::BatchNotAMultiple { batch: 6, ranks: 4 })
+        );
+        assert_eq!(s.check(3), Ok(()));
+        s.epochs = 0;
+        assert_eq!(s.check(1), Err(TrainingRefusal::EmptySchedule));
+        let mut l = LoadingOptions::default();
+        assert_eq!(l.check(), Ok(()));
+        l.train_radar_drop = 1.5;
+        assert_eq!(
+            l.check(),
+            Err(TrainingRefusal::RadarDropNotAFraction { drop: 1.5 })
+        );
+        assert_eq!(
+            l.check().unwrap_err().to_string(),
+            "train radar drop 1.5 is not a fraction in [0, 1]"
+        );
+    }
+}
