@@ -6,8 +6,11 @@
 
 use std::path::PathBuf;
 
+use serde_json::Value;
+
 use crate::mer_training::MerScheduleOptions;
 use crate::training::{LoadingOptions, ScheduleOptions};
+use crate::ModelConfig;
 
 /// The schedule values that an exact resume keeps: a checkpoint's and the options' must be
 /// equal (`--extend` changes epochs and lr first).
@@ -26,6 +29,62 @@ impl std::fmt::Display for ScheduleKey {
             "batch {} epochs {} lr {} seed {}",
             self.batch_size, self.epochs, self.lr, self.seed
         )
+    }
+}
+
+/// One field in which two model configs differ: a checkpoint's and the one requested.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigDifference {
+    /// The `--set` key of the field (the JSON field name when no key sets it).
+    pub key: String,
+    pub stored: String,
+    pub requested: String,
+}
+
+impl ConfigDifference {
+    /// The fields in which `stored` (a checkpoint's) and `requested` differ, in alphabetical
+    /// order of the fields, the name aside.
+    pub fn between(stored: &ModelConfig, requested: &ModelConfig) -> Vec<ConfigDifference> {
+        let (Ok(Value::Object(a)), Ok(Value::Object(b))) = (
+            serde_json::to_value(stored),
+            serde_json::to_value(requested),
+        ) else {
+            return vec![];
+        };
+        let word = |v: Option<&Value>| match v {
+            Some(Value::String(s)) => s.clone(),
+            Some(v) => v.to_string(),
+            None => "absent".into(),
+        };
+        let mut fields: Vec<&String> = a.keys().chain(b.keys()).collect();
+        fields.sort();
+        fields.dedup();
+        fields
+            .into_iter()
+            .filter(|f| f.as_str() != "name" && a.get(*f) != b.get(*f))
+            .map(|f| ConfigDifference {
+                key: crate::options::find(f).map_or_else(|| f.clone(), |o| o.key.to_string()),
+                stored: word(a.get(f)),
+                requested: word(b.get(f)),
+            })
+            .collect()
+    }
+
+    /// `key: X in the checkpoint, Y requested`, joined (or why none is listed).
+    fn list(differences: &[ConfigDifference]) -> String {
+        if differences.is_empty() {
+            return "no field differs but the name".into();
+        }
+        differences
+            .iter()
+            .map(|d| {
+                format!(
+                    "{}: {} in the checkpoint, {} requested",
+                    d.key, d.stored, d.requested
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
     }
 }
 
@@ -60,13 +119,16 @@ pub enum TrainingRefusal {
     },
     #[error(
         "--resume: {} holds a different model config than requested (checkpoint preset \
-         {stored:?}, requested {requested:?}); resume with the same --config",
-        .checkpoint.display()
+         {stored:?}, requested {requested:?}; {}); resume with the same --config and --set",
+        .checkpoint.display(),
+        ConfigDifference::list(.differences)
     )]
     OtherModel {
         checkpoint: PathBuf,
         stored: String,
         requested: String,
+        /// Each field that differs, named by its `--set` key where it has one.
+        differences: Vec<ConfigDifference>,
     },
     #[error(
         "--resume: {} was trained with {stored}; an exact resume needs the same values (got \
@@ -216,10 +278,18 @@ mod tests {
                 TrainingRefusal::OtherModel {
                     checkpoint: last,
                     stored: "tiny".into(),
-                    requested: "paper".into(),
+                    requested: "tiny".into(),
+                    differences: ConfigDifference::between(&ModelConfig::tiny(), &{
+                        let mut c = ModelConfig::tiny();
+                        c.set_option("input-downscale", "2").unwrap();
+                        c.set_option("width", "8").unwrap();
+                        c
+                    }),
                 },
                 "--resume: run/last.safetensors holds a different model config than requested \
-                 (checkpoint preset \"tiny\", requested \"paper\"); resume with the same --config",
+                 (checkpoint preset \"tiny\", requested \"tiny\"; width: 16 in the checkpoint, 8 \
+                 requested; input-downscale: 1 in the checkpoint, 2 requested); resume with the \
+                 same --config and --set",
             ),
         ];
         for (e, says) in cases {

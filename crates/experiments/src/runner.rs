@@ -304,12 +304,59 @@ pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
     (done && run.join(BEST_CKPT).exists(), secs)
 }
 
-pub fn mismatch(run: &Path, file: &str) -> NetError {
+/// A run folder made with other options than the experiment asks for: each differing key
+/// named (`differences`, from [`json_differences`]).
+pub fn mismatch(run: &Path, file: &str, differences: &[String]) -> NetError {
     NetError::Config(format!(
         "{}: this run was made with other training options (see its {file}) than this \
-         experiment asks for; use another --out, or delete the run to redo it",
-        run.display()
+         experiment asks for ({}); use another --out, or delete the run to redo it",
+        run.display(),
+        if differences.is_empty() {
+            "no key differs".to_string()
+        } else {
+            differences.join("; ")
+        }
     ))
+}
+
+/// The keys in which `stored` and `asked` differ (as [`same_json`] compares), dotted below
+/// `prefix` (`model.dropout: 0.5 there, 0.3 asked`), in key order.
+pub fn json_differences(
+    prefix: &str,
+    stored: &serde_json::Value,
+    asked: &serde_json::Value,
+) -> Vec<String> {
+    use serde_json::Value as V;
+    if let (V::Object(a), V::Object(b)) = (stored, asked) {
+        let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+        keys.sort();
+        keys.dedup();
+        let null = V::Null;
+        return keys
+            .into_iter()
+            .flat_map(|k| {
+                let path = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                json_differences(&path, a.get(k).unwrap_or(&null), b.get(k).unwrap_or(&null))
+            })
+            .collect();
+    }
+    if same_json(stored, asked) {
+        return vec![];
+    }
+    let word = |v: &V| match v {
+        V::Null => "absent".to_string(),
+        V::String(s) => s.clone(),
+        v => v.to_string(),
+    };
+    vec![format!(
+        "{prefix}: {} there, {} asked",
+        word(stored),
+        word(asked)
+    )]
 }
 
 pub fn row_values(r: &Report) -> Vec<RowValues> {
@@ -437,7 +484,13 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
             reason: e.to_string(),
         })?;
         if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
-            return Err(mismatch(run, RUN_EVAL_FILE));
+            let mut diffs = json_differences("", &fingerprint(&rec.train_options)?, &fp);
+            diffs.extend(json_differences(
+                "eval",
+                &serde_json::to_value(&rec.report.config)?,
+                &serde_json::to_value(eval)?,
+            ));
+            return Err(mismatch(run, RUN_EVAL_FILE, &diffs));
         }
         // A run is recognised by its options, not by where it was trained: one moved here
         // from another --out (a second process's share of the seeds) names its folder now.
@@ -453,8 +506,13 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
                 path: cfg_path.to_path_buf(),
                 reason: format!("train: {e}"),
             })?;
-        if !same_json(&fingerprint(&stored_opts)?, &fp) {
-            return Err(mismatch(run, CONFIG_FILE));
+        let stored_fp = fingerprint(&stored_opts)?;
+        if !same_json(&stored_fp, &fp) {
+            return Err(mismatch(
+                run,
+                CONFIG_FILE,
+                &json_differences("", &stored_fp, &fp),
+            ));
         }
     }
     Ok(None)
@@ -546,4 +604,37 @@ fn test_best(
         device,
         pb,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::json;
+
+    /// Nested keys are dotted, numbers compare as `same_json` does, a missing key is absent.
+    #[test]
+    fn json_differences_name_each_key_at_fault() {
+        let stored = json!({"lr": 0.001, "model": {"dropout": 0.5, "head": "ordinal"}, "seed": 0});
+        let asked = json!({"lr": 0.001 + 1e-16, "model": {"dropout": 0.3, "head": "ordinal"},
+                           "seed": 0, "amp": true});
+        assert_eq!(
+            json_differences("", &stored, &asked),
+            [
+                "amp: absent there, true asked",
+                "model.dropout: 0.5 there, 0.3 asked"
+            ]
+        );
+        assert!(json_differences("", &stored, &stored).is_empty());
+        let e = mismatch(
+            Path::new("run"),
+            "config.json",
+            &json_differences("", &stored, &asked),
+        );
+        assert_eq!(
+            e.to_string(),
+            "configuration: run: this run was made with other training options (see its \
+             config.json) than this experiment asks for (amp: absent there, true asked; \
+             model.dropout: 0.5 there, 0.3 asked); use another --out, or delete the run to redo it"
+        );
+    }
 }

@@ -332,6 +332,7 @@ fn ablation_runs_reports_and_resumes() {
     other.run.schedule.lr = 1e-2;
     let err = run_ablation(&other, &hidden()).unwrap_err().to_string();
     assert!(err.contains("other training options"), "{err}");
+    assert!(err.contains("(lr: 0.002 there, 0.01 asked)"), "{err}");
 }
 
 #[test]

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use crate::step::{forward_loss, step_precision};
 use depthsense_checkpoint as checkpoint;
-use depthsense_config::refusal::TrainingRefusal as Refusal;
+use depthsense_config::refusal::{ConfigDifference, TrainingRefusal as Refusal};
 use depthsense_config::ModelConfig;
 use depthsense_config::RadarInput;
 use depthsense_data::{Batch, EpochPlan, LoadOptions, Loader};
@@ -1025,6 +1025,7 @@ fn resume(
     if &ck_cfg != cfg {
         return Err(Refusal::OtherModel {
             checkpoint: last,
+            differences: ConfigDifference::between(&ck_cfg, cfg),
             stored: ck_cfg.name,
             requested: cfg.name.clone(),
         }
