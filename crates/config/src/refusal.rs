@@ -14,7 +14,7 @@ use crate::ModelConfig;
 
 /// The schedule values that an exact resume keeps: a checkpoint's and the options' must be
 /// equal (`--extend` changes epochs and lr first).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ScheduleKey {
     pub batch_size: usize,
     pub epochs: usize,
@@ -45,6 +45,22 @@ impl ConfigDifference {
     /// The fields in which `stored` (a checkpoint's) and `requested` differ, in alphabetical
     /// order of the fields, the name aside.
     pub fn between(stored: &ModelConfig, requested: &ModelConfig) -> Vec<ConfigDifference> {
+        Self::fields(stored, requested, |f| {
+            crate::options::find(f).map_or_else(|| f.to_string(), |o| o.key.to_string())
+        })
+    }
+
+    /// The fields in which `stored` and `requested` differ (a PDA config, a schedule), named
+    /// by their JSON field.
+    pub fn between_any<T: serde::Serialize>(stored: &T, requested: &T) -> Vec<ConfigDifference> {
+        Self::fields(stored, requested, str::to_string)
+    }
+
+    fn fields<T: serde::Serialize>(
+        stored: &T,
+        requested: &T,
+        key: impl Fn(&str) -> String,
+    ) -> Vec<ConfigDifference> {
         let (Ok(Value::Object(a)), Ok(Value::Object(b))) = (
             serde_json::to_value(stored),
             serde_json::to_value(requested),
@@ -63,7 +79,7 @@ impl ConfigDifference {
             .into_iter()
             .filter(|f| f.as_str() != "name" && a.get(*f) != b.get(*f))
             .map(|f| ConfigDifference {
-                key: crate::options::find(f).map_or_else(|| f.clone(), |o| o.key.to_string()),
+                key: key(f),
                 stored: word(a.get(f)),
                 requested: word(b.get(f)),
             })
@@ -159,11 +175,15 @@ pub enum TrainingRefusal {
     },
     /// `mer train --resume`: the PDA network's config or the schedule differ.
     #[error(
-        "--resume: {} was trained with another PDA config or batch/epochs/lr/seed; an exact \
-         resume needs the same options",
-        .checkpoint.display()
+        "--resume: {} was trained with another PDA config or batch/epochs/lr/seed ({}); an \
+         exact resume needs the same options",
+        .checkpoint.display(),
+        ConfigDifference::list(.differences)
     )]
-    OtherPdaRun { checkpoint: PathBuf },
+    OtherPdaRun {
+        checkpoint: PathBuf,
+        differences: Vec<ConfigDifference>,
+    },
 }
 
 impl ScheduleOptions {
@@ -292,6 +312,16 @@ mod tests {
                  same --config and --set",
             ),
         ];
+        let pda = TrainingRefusal::OtherPdaRun {
+            checkpoint: "mer/last.safetensors".into(),
+            differences: ConfigDifference::between_any(&key(8, 0), &key(8, 3)),
+        };
+        assert_eq!(
+            pda.to_string(),
+            "--resume: mer/last.safetensors was trained with another PDA config or \
+             batch/epochs/lr/seed (seed: 0 in the checkpoint, 3 requested); an exact resume needs \
+             the same options"
+        );
         for (e, says) in cases {
             assert_eq!(e.to_string(), says);
         }

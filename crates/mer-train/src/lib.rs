@@ -22,7 +22,7 @@ use depthsense_base::fsutil::write_atomic;
 use depthsense_config::device::DeviceArg;
 use depthsense_config::mer_training::{MerLoadingOptions, MerScheduleOptions};
 use depthsense_config::pda::PdaConfig;
-use depthsense_config::refusal::{ScheduleKey, TrainingRefusal};
+use depthsense_config::refusal::{ConfigDifference, ScheduleKey, TrainingRefusal};
 use depthsense_config::training::{CheckpointOptions, ValidationOptions};
 use depthsense_data::{epoch_order, sample_rng};
 use depthsense_dataset::outputs::{
@@ -579,7 +579,16 @@ fn build(
             reason: format!("train_state: {e}"),
         })?;
     if l.config != opts.pda || stored.schedule_key() != opts.schedule.key() {
-        return Err(TrainingRefusal::OtherPdaRun { checkpoint: last }.into());
+        let mut differences = ConfigDifference::between_any(&l.config, &opts.pda);
+        differences.extend(ConfigDifference::between_any(
+            &stored.schedule_key(),
+            &opts.schedule.key(),
+        ));
+        return Err(TrainingRefusal::OtherPdaRun {
+            checkpoint: last,
+            differences,
+        }
+        .into());
     }
     state = stored;
     let mut optim = Adam::new(&l.vs, opts.schedule.weight_decay);
