@@ -22,6 +22,23 @@ pub struct ScheduleKey {
     pub seed: u64,
 }
 
+impl ScheduleKey {
+    /// At least one epoch of batches of at least one sample, the global batch split evenly
+    /// over `ranks` data-parallel ranks.
+    fn check(&self, ranks: usize) -> Result<(), TrainingRefusal> {
+        if self.batch_size == 0 || self.epochs == 0 {
+            return Err(TrainingRefusal::EmptySchedule);
+        }
+        if !self.batch_size.is_multiple_of(ranks.max(1)) {
+            return Err(TrainingRefusal::BatchNotAMultiple {
+                batch: self.batch_size,
+                ranks,
+            });
+        }
+        Ok(())
+    }
+}
+
 impl std::fmt::Display for ScheduleKey {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
@@ -200,16 +217,7 @@ impl ScheduleOptions {
     /// At least one epoch of batches of at least one sample, the global batch split evenly
     /// over `ranks` data-parallel ranks (1: a single process).
     pub fn check(&self, ranks: usize) -> Result<(), TrainingRefusal> {
-        if self.batch_size == 0 || self.epochs == 0 {
-            return Err(TrainingRefusal::EmptySchedule);
-        }
-        if !self.batch_size.is_multiple_of(ranks.max(1)) {
-            return Err(TrainingRefusal::BatchNotAMultiple {
-                batch: self.batch_size,
-                ranks,
-            });
-        }
-        Ok(())
+        self.key().check(ranks)
     }
 }
 
@@ -226,10 +234,7 @@ impl MerScheduleOptions {
 
     /// At least one epoch of batches of at least one sample (`mer train` runs one process).
     pub fn check(&self) -> Result<(), TrainingRefusal> {
-        if self.batch_size == 0 || self.epochs == 0 {
-            return Err(TrainingRefusal::EmptySchedule);
-        }
-        Ok(())
+        self.key().check(1)
     }
 }
 

@@ -31,6 +31,36 @@ fn toy(dir: &Path, scenes: usize, per_scene: usize) -> Dataset {
     Dataset::open(dir).unwrap()
 }
 
+/// One step of a narrow tiny network on a toy dataset of 3 scenes × 2 samples in `dir`, on the
+/// CPU: a run to check what is stored and refused, not what is learnt.
+fn one_step_run(dir: &Path) -> TrainOptions {
+    let data = dir.join("data");
+    toy(&data, 3, 2);
+    let mut model = ModelConfig::tiny();
+    model.backbone_width = 8;
+    model.radar_width = 8;
+    TrainOptions {
+        data,
+        out: dir.join("run"),
+        model,
+        schedule: ScheduleOptions {
+            epochs: 1,
+            batch_size: 2,
+            max_batches_per_epoch: Some(1),
+            ..Default::default()
+        },
+        loading: LoadingOptions {
+            jobs: 1,
+            ..Default::default()
+        },
+        hardware: HardwareOptions {
+            device: DeviceArg { name: "cpu".into() },
+            ..Default::default()
+        },
+        ..TrainOptions::default()
+    }
+}
+
 /// Per-image standard deviation of `v` over `mask`.
 fn std_over(v: &[f32], mask: &[bool]) -> f64 {
     let x: Vec<f64> = v
@@ -119,33 +149,9 @@ fn tiny_network_with_attention_leaves_the_label_marginal_in_its_first_epoch() {
 fn the_radar_input_is_stored_with_the_model_and_used_by_eval() {
     let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    toy(&data, 3, 2);
-    let mut model = ModelConfig::tiny();
-    model.backbone_width = 8;
-    model.radar_width = 8;
-    let opts = TrainOptions {
-        data: data.clone(),
-        out: tmp.path().join("run"),
-        model,
-        radar_input: Some(RadarInput::Raw),
-        schedule: ScheduleOptions {
-            epochs: 1,
-            batch_size: 2,
-            seed: 1,
-            max_batches_per_epoch: Some(1),
-            ..Default::default()
-        },
-        loading: LoadingOptions {
-            jobs: 1,
-            ..Default::default()
-        },
-        hardware: HardwareOptions {
-            device: DeviceArg { name: "cpu".into() },
-            ..Default::default()
-        },
-        ..TrainOptions::default()
-    };
+    let mut opts = one_step_run(tmp.path());
+    opts.radar_input = Some(RadarInput::Raw);
+    opts.schedule.seed = 1;
     train(&opts, &Progress::hidden()).unwrap();
     let loaded = checkpoint::load(&opts.out.join(BEST_CKPT), tch::Device::Cpu).unwrap();
     assert_eq!(loaded.config.radar_input, RadarInput::Raw);
@@ -171,31 +177,7 @@ fn a_continued_run_is_refused_with_the_values_at_fault() {
     use depthsense_infer::NetError;
     let _rng = torch_rng();
     let tmp = tempfile::tempdir().unwrap();
-    let data = tmp.path().join("data");
-    toy(&data, 3, 2);
-    let mut model = ModelConfig::tiny();
-    model.backbone_width = 8;
-    model.radar_width = 8;
-    let opts = TrainOptions {
-        data,
-        out: tmp.path().join("run"),
-        model,
-        schedule: ScheduleOptions {
-            epochs: 1,
-            batch_size: 2,
-            max_batches_per_epoch: Some(1),
-            ..Default::default()
-        },
-        loading: LoadingOptions {
-            jobs: 1,
-            ..Default::default()
-        },
-        hardware: HardwareOptions {
-            device: DeviceArg { name: "cpu".into() },
-            ..Default::default()
-        },
-        ..TrainOptions::default()
-    };
+    let opts = one_step_run(tmp.path());
     let refusal = |o: &TrainOptions| match train(o, &Progress::hidden()) {
         Err(NetError::Refused(r)) => r,
         other => panic!("not refused: {other:?}"),
