@@ -103,6 +103,27 @@ impl ConfigDifference {
             .collect()
     }
 
+    /// The next step: the network's output size comes from the prepared data's frames (the
+    /// `out-height`/`out-width` the trainer sets), every other field from `--config`/`--set`.
+    fn advice(differences: &[ConfigDifference]) -> String {
+        let frame = |d: &ConfigDifference| matches!(d.key.as_str(), "out-height" | "out-width");
+        let (by_frame, by_flags) = (
+            differences.iter().any(frame),
+            differences.iter().any(|d| !frame(d)),
+        );
+        let mut steps = vec![];
+        if by_flags || !by_frame {
+            steps.push("resume with the same --config and --set");
+        }
+        if by_frame {
+            steps.push(
+                "resume on data prepared at the checkpoint's frame size (the network's output \
+                 size is the prepared frames')",
+            );
+        }
+        steps.join("; ")
+    }
+
     /// `key: X in the checkpoint, Y requested`, joined (or why none is listed).
     fn list(differences: &[ConfigDifference]) -> String {
         if differences.is_empty() {
@@ -152,9 +173,10 @@ pub enum TrainingRefusal {
     },
     #[error(
         "--resume: {} holds a different model config than requested (checkpoint preset \
-         {stored:?}, requested {requested:?}; {}); resume with the same --config and --set",
+         {stored:?}, requested {requested:?}; {}); {}",
         .checkpoint.display(),
-        ConfigDifference::list(.differences)
+        ConfigDifference::list(.differences),
+        ConfigDifference::advice(.differences)
     )]
     OtherModel {
         checkpoint: PathBuf,
@@ -326,6 +348,25 @@ mod tests {
             "--resume: mer/last.safetensors was trained with another PDA config or \
              batch/epochs/lr/seed (seed: 0 in the checkpoint, 3 requested); an exact resume needs \
              the same options"
+        );
+        let frame = TrainingRefusal::OtherModel {
+            checkpoint: "run/last.safetensors".into(),
+            stored: "tiny".into(),
+            requested: "tiny".into(),
+            differences: ConfigDifference::between(&ModelConfig::tiny(), &{
+                let mut c = ModelConfig::tiny();
+                c.out_height = 176;
+                c
+            }),
+        };
+        assert!(
+            frame.to_string().ends_with(&format!(
+                "out-height: {} in the checkpoint, 176 requested); resume on data prepared at \
+                 the checkpoint's frame size (the network's output size is the prepared \
+                 frames')",
+                ModelConfig::tiny().out_height
+            )),
+            "{frame}"
         );
         for (e, says) in cases {
             assert_eq!(e.to_string(), says);
