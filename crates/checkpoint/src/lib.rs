@@ -90,7 +90,9 @@ pub fn read_config(path: &Path) -> Result<(ModelConfig, serde_json::Value), Mode
     config_of(path, &meta)
 }
 
-fn config_of(
+/// The model config and extra JSON of a checkpoint's metadata, already read (the metadata of
+/// `host::parse_safetensors` or `weights::safetensors::read_metadata`); `path` names the file.
+pub fn config_of(
     path: &Path,
     meta: &BTreeMap<String, String>,
 ) -> Result<(ModelConfig, serde_json::Value), ModelError> {

@@ -707,8 +707,8 @@ fn plan_of(opts: &TrainOptions, iterations_per_epoch: u64) -> Plan {
 
 /// `--resume` (not `--extend`) of a run whose checkpoint has done all its iterations: that
 /// checkpoint's training state, read from its header alone (no network is built, no tensor
-/// read). None otherwise — also for a checkpoint of another config or schedule, whose resume
-/// then fails saying what differs ([`resume`]).
+/// read). None otherwise — also for a checkpoint of another config or schedule: [`resume`]
+/// refuses it then, with every tensor of another shape named when the copy fails first.
 fn finished_state(
     opts: &TrainOptions,
     cfg: &ModelConfig,
@@ -1019,9 +1019,9 @@ fn resume(
     let vs = VarStore::new(device);
     let net = DepthNet::with_hooks(&vs.root(), cfg, hooks)?;
     let bytes = std::fs::read(&last).map_err(|e| NetError::io(&last, e))?;
-    let (tensors, _) = depthsense_checkpoint::host::parse_safetensors(&last, &bytes)?;
+    let (tensors, meta) = depthsense_checkpoint::host::parse_safetensors(&last, &bytes)?;
     checkpoint::copy_into(&last, &vs, &tensors)?;
-    let (ck_cfg, extra) = checkpoint::read_config(&last)?;
+    let (ck_cfg, extra) = checkpoint::config_of(&last, &meta)?;
     if &ck_cfg != cfg {
         return Err(Refusal::OtherModel {
             checkpoint: last,
