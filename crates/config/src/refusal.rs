@@ -49,6 +49,44 @@ impl std::fmt::Display for ScheduleKey {
     }
 }
 
+/// The leaves in which two JSON values differ, in key order: (the dotted path below `prefix`,
+/// the stored value, the requested one), each value as a word — a string bare, `absent` for a
+/// key one side lacks. Objects on both sides are compared key by key; `same` compares the rest
+/// (exactly, or within a tolerance). Shared by the refusals here and the experiments' runner.
+pub fn differing_leaves(
+    prefix: &str,
+    stored: Option<&Value>,
+    requested: Option<&Value>,
+    same: &dyn Fn(&Value, &Value) -> bool,
+) -> Vec<(String, String, String)> {
+    if let (Some(Value::Object(a)), Some(Value::Object(b))) = (stored, requested) {
+        let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+        keys.sort();
+        keys.dedup();
+        return keys
+            .into_iter()
+            .flat_map(|k| {
+                let path = match prefix {
+                    "" => k.clone(),
+                    p => format!("{p}.{k}"),
+                };
+                differing_leaves(&path, a.get(k), b.get(k), same)
+            })
+            .collect();
+    }
+    if let (Some(x), Some(y)) = (stored, requested) {
+        if same(x, y) {
+            return vec![];
+        }
+    }
+    let word = |v: Option<&Value>| match v {
+        Some(Value::String(s)) => s.clone(),
+        Some(v) => v.to_string(),
+        None => "absent".into(),
+    };
+    vec![(prefix.to_string(), word(stored), word(requested))]
+}
+
 /// One field in which two model configs differ: a checkpoint's and the one requested.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConfigDifference {
@@ -60,7 +98,7 @@ pub struct ConfigDifference {
 
 impl ConfigDifference {
     /// The fields in which `stored` (a checkpoint's) and `requested` differ, in alphabetical
-    /// order of the fields, the name aside.
+    /// order of the fields (a nested one dotted: `sid.alpha`), the name aside.
     pub fn between(stored: &ModelConfig, requested: &ModelConfig) -> Vec<ConfigDifference> {
         Self::fields(stored, requested, |f| {
             crate::options::find(f).map_or_else(|| f.to_string(), |o| o.key.to_string())
@@ -78,27 +116,19 @@ impl ConfigDifference {
         requested: &T,
         key: impl Fn(&str) -> String,
     ) -> Vec<ConfigDifference> {
-        let (Ok(Value::Object(a)), Ok(Value::Object(b))) = (
+        let (Ok(a), Ok(b)) = (
             serde_json::to_value(stored),
             serde_json::to_value(requested),
         ) else {
             return vec![];
         };
-        let word = |v: Option<&Value>| match v {
-            Some(Value::String(s)) => s.clone(),
-            Some(v) => v.to_string(),
-            None => "absent".into(),
-        };
-        let mut fields: Vec<&String> = a.keys().chain(b.keys()).collect();
-        fields.sort();
-        fields.dedup();
-        fields
+        differing_leaves("", Some(&a), Some(&b), &|x, y| x == y)
             .into_iter()
-            .filter(|f| f.as_str() != "name" && a.get(*f) != b.get(*f))
-            .map(|f| ConfigDifference {
-                key: key(f),
-                stored: word(a.get(f)),
-                requested: word(b.get(f)),
+            .filter(|(path, ..)| path != "name")
+            .map(|(path, stored, requested)| ConfigDifference {
+                key: key(&path),
+                stored,
+                requested,
             })
             .collect()
     }
@@ -367,6 +397,17 @@ mod tests {
                 ModelConfig::tiny().out_height
             )),
             "{frame}"
+        );
+        // A nested field is named by its dotted path, not shown as the whole object.
+        let mut beta = ModelConfig::tiny();
+        beta.sid.beta_m = 60.0;
+        assert_eq!(
+            ConfigDifference::between(&ModelConfig::tiny(), &beta),
+            [ConfigDifference {
+                key: "sid.beta_m".into(),
+                stored: format!("{:?}", ModelConfig::tiny().sid.beta_m),
+                requested: "60.0".into(),
+            }]
         );
         for (e, says) in cases {
             assert_eq!(e.to_string(), says);

@@ -326,37 +326,10 @@ pub fn json_differences(
     stored: &serde_json::Value,
     asked: &serde_json::Value,
 ) -> Vec<String> {
-    use serde_json::Value as V;
-    if let (V::Object(a), V::Object(b)) = (stored, asked) {
-        let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
-        keys.sort();
-        keys.dedup();
-        let null = V::Null;
-        return keys
-            .into_iter()
-            .flat_map(|k| {
-                let path = if prefix.is_empty() {
-                    k.clone()
-                } else {
-                    format!("{prefix}.{k}")
-                };
-                json_differences(&path, a.get(k).unwrap_or(&null), b.get(k).unwrap_or(&null))
-            })
-            .collect();
-    }
-    if same_json(stored, asked) {
-        return vec![];
-    }
-    let word = |v: &V| match v {
-        V::Null => "absent".to_string(),
-        V::String(s) => s.clone(),
-        v => v.to_string(),
-    };
-    vec![format!(
-        "{prefix}: {} there, {} asked",
-        word(stored),
-        word(asked)
-    )]
+    depthsense_config::refusal::differing_leaves(prefix, Some(stored), Some(asked), &same_json)
+        .into_iter()
+        .map(|(path, stored, asked)| format!("{path}: {stored} there, {asked} asked"))
+        .collect()
 }
 
 pub fn row_values(r: &Report) -> Vec<RowValues> {
