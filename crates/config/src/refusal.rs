@@ -3,6 +3,7 @@
 //! ([`ScheduleOptions::check`], [`LoadingOptions::check`], [`MerScheduleOptions::check`]), against the data and the ranks, and a
 //! continued run (`--resume`, `--extend`) against the checkpoint it continues ([`ScheduleKey`]).
 //! Each variant carries the values at fault; the message says the flag and the next step.
+//! `explain`'s refusals of a network it cannot explain are here too ([`ExplainRefusal`]).
 
 use std::path::PathBuf;
 
@@ -300,6 +301,18 @@ impl LoadingOptions {
         }
         Ok(())
     }
+}
+
+/// What `explain` (Grad-CAM++ over the ordinal head) refuses to explain. Read as
+/// `configuration: …` through the training stack's error.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ExplainRefusal {
+    #[error("explain needs an ordinal head at low resolution (not l1/l2, not clamp_logits)")]
+    NotOrdinal,
+    #[error("none of the layers {0:?} exists in this network (rgb.layer1..4, decoder, radar)")]
+    NoSuchLayers(Vec<String>),
+    #[error("explain supports the raw or height radar input, not {}", .0.name())]
+    RadarInput(crate::RadarInput),
 }
 
 #[cfg(test)]

@@ -284,10 +284,7 @@ fn read_sample(
 ) -> Result<Sample, DataError> {
     let dir = ds.sample_dir(entry);
     if !dir.join(META_FILE).exists() {
-        return Err(DataError::Data(format!(
-            "{}: incomplete sample directory (no {META_FILE})",
-            dir.display()
-        )));
+        return Err(DataError::IncompleteSample { dir });
     }
     let rgb = decode_rgb(&dir.join(IMAGE_FILE))?;
     let (w, h) = (rgb.width() as usize, rgb.height() as usize);

@@ -34,6 +34,39 @@ pub enum DataError {
     /// (no `meta.json`); what it is instead says what to pass.
     #[error("{}", not_a_sample_text(.dir, .found))]
     NotASample { dir: String, found: SampleFolder },
+    /// A prepared sample's folder without its `meta.json` (written last by `prepare`).
+    #[error("data: {}: incomplete sample directory (no {META_FILE})", .dir.display())]
+    IncompleteSample { dir: PathBuf },
+    /// A prepared sample's map (`path`) whose size is not its image's.
+    #[error(
+        "data: {}: map is {}x{} but the image is {}x{}",
+        .path.display(), .size.0, .size.1, .image.0, .image.1
+    )]
+    MapSize {
+        path: PathBuf,
+        /// (width, height) of the map.
+        size: (usize, usize),
+        /// (width, height) of the image.
+        image: (usize, usize),
+    },
+    /// A sample prepared without the accumulated lidar (`meta` records `--lidar-sweeps 0`)
+    /// where `needs` requires it.
+    #[error(
+        "data: {}: prepared with --lidar-sweeps 0; {needs} need the accumulated lidar of \
+         `depthsense prepare --lidar-sweeps K` with K > 0 (SPEC §4–5)",
+        .meta.display()
+    )]
+    NotAccumulated { meta: PathBuf, needs: &'static str },
+    /// A sample's accumulated lidar map (`path`) missing where `needs` requires it.
+    #[error(
+        "data: {}: missing; {needs} need the accumulated lidar map of `depthsense prepare \
+         --lidar-sweeps K` (K > 0, SPEC §5)",
+        .path.display()
+    )]
+    NoAccumulatedLidar { path: PathBuf, needs: &'static str },
+    /// A sample without the lidar ground truth that `needs` requires.
+    #[error("data: {}: no lidar GT ({needs} needs it)", .dir.display())]
+    NoGroundTruth { dir: PathBuf, needs: &'static str },
     /// A worker thread (`what`: the loader's) that the system would not start.
     #[error("cannot start {what}: {source}")]
     ThreadStart {

@@ -61,12 +61,11 @@ pub fn decode_rgb_bytes(bytes: &[u8], path: &Path) -> Result<image::RgbImage, Da
 
 pub fn check_size(map: &DepthMap, w: usize, h: usize, path: &Path) -> Result<(), DataError> {
     if map.width as usize != w || map.height as usize != h {
-        return Err(DataError::Data(format!(
-            "{}: map is {}x{} but the image is {w}x{h}",
-            path.display(),
-            map.width,
-            map.height
-        )));
+        return Err(DataError::MapSize {
+            path: path.to_path_buf(),
+            size: (map.width as usize, map.height as usize),
+            image: (w, h),
+        });
     }
     Ok(())
 }
@@ -102,6 +101,30 @@ fn decode_rgb_luma(path: &Path) -> Result<Vec<bool>, DataError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A map of another size than its image is refused with both sizes.
+    #[test]
+    fn a_map_of_another_size_names_both() {
+        let map = DepthMap {
+            width: 4,
+            height: 2,
+            depth_m: vec![0.0; 8],
+        };
+        assert!(check_size(&map, 4, 2, Path::new("s/radar.png")).is_ok());
+        let e = check_size(&map, 8, 2, Path::new("s/radar.png")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "data: s/radar.png: map is 4x2 but the image is 8x2"
+        );
+        assert!(matches!(
+            e,
+            DataError::MapSize {
+                size: (4, 2),
+                image: (8, 2),
+                ..
+            }
+        ));
+    }
 
     /// A folder passed as one sample that is not one says what it is and what to pass, in the
     /// words `predict --sample` has always used.

@@ -161,10 +161,7 @@ fn eval_inputs(
     progress: &Progress,
 ) -> Result<(Dataset, Vec<IndexEntry>, LoadOptions), NetError> {
     if !(0.0..=1.0).contains(&opts.radar_drop) {
-        return Err(NetError::Config(format!(
-            "--radar-drop must be within [0, 1], got {}",
-            opts.radar_drop
-        )));
+        return Err(NetError::RadarDropNotAFraction(opts.radar_drop));
     }
     let ds = Dataset::open(&opts.data)?;
     let entries = subsample(

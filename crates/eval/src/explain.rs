@@ -27,8 +27,10 @@
 use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::write_atomic;
+use depthsense_config::refusal::ExplainRefusal;
 use depthsense_config::{HeadKind, SidConfig};
 use depthsense_data::{normalise_image, Augment};
+use depthsense_dataset::DataError;
 use depthsense_infer::NetError;
 use depthsense_metrics::doc::{Doc, Documented};
 use depthsense_metrics::table::{md_num, Align, MdTable};
@@ -124,9 +126,7 @@ pub fn explain_image(
 ) -> Result<Vec<CamMap>, NetError> {
     let cfg = net.config();
     if cfg.head != HeadKind::Ordinal || cfg.clamp_logits {
-        return Err(NetError::Config(
-            "explain needs an ordinal head at low resolution (not l1/l2, not clamp_logits)".into(),
-        ));
+        return Err(ExplainRefusal::NotOrdinal.into());
     }
     let (h, w) = (cfg.out_height, cfg.out_width);
     let radar = if with_radar {
@@ -147,9 +147,7 @@ pub fn explain_image(
         let ch = channels_at(&cfg.sid, d, band);
         let s = evidence(&z, &mask, &ch);
         if taps.is_empty() {
-            return Err(NetError::Config(format!(
-                "none of the layers {layers:?} exists in this network (rgb.layer1..4, decoder, radar)"
-            )));
+            return Err(ExplainRefusal::NoSuchLayers(layers.to_vec()).into());
         }
         let inputs: Vec<&Tensor> = taps.iter().map(|(_, t)| t).collect();
         let grads = Tensor::run_backward(&[&s], &inputs, false, false);
@@ -246,10 +244,10 @@ pub fn run_explain(
     let mut tiles: Vec<Vec<image::RgbImage>> = vec![];
     for dir in dirs {
         let input = crate::predict::input_from_prepared(dir)?;
-        let gt = input
-            .gt
-            .clone()
-            .ok_or_else(|| NetError::Data(format!("{}: no lidar GT", dir.display())))?;
+        let gt = input.gt.clone().ok_or_else(|| DataError::NoGroundTruth {
+            dir: dir.to_path_buf(),
+            needs: "explain",
+        })?;
         let (img, radar, gt_t) = sample_tensors(&input, &gt, radar_input, device)?;
         let states: &[bool] = if radar_input.is_some() {
             &[true, false]
@@ -333,12 +331,7 @@ fn sample_tensors(
         None => vec![0.0; (w * h) as usize],
         Some(depthsense_config::RadarInput::Raw) => input.radar_raw.depth_m.clone(),
         Some(depthsense_config::RadarInput::Height) => input.radar_height.depth_m.clone(),
-        Some(r) => {
-            return Err(NetError::Config(format!(
-                "explain supports the raw or height radar input, not {}",
-                r.name()
-            )))
-        }
+        Some(r) => return Err(ExplainRefusal::RadarInput(r).into()),
     };
     let radar = Tensor::from_slice(&planes)
         .view([1, 1, h as i64, w as i64])

@@ -166,6 +166,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
     use std::sync::Mutex;
 
     fn input(i: usize) -> PredictInput {
@@ -228,13 +229,19 @@ mod tests {
                     n: 40,
                     loaders: 2,
                     load: |i| match i == bad_load {
-                        true => Err(NetError::Config(format!("cannot load f{i}"))),
+                        true => Err(NetError::io(
+                            Path::new(&format!("f{i}")),
+                            std::io::Error::other("cannot load"),
+                        )),
                         false => Ok(input(i)),
                     },
                     network: |i: &mut PredictInput| Ok(depth(i)),
                     write: |i: &PredictInput, _: &DepthMap| match i.name == format!("f{bad_write}")
                     {
-                        true => Err(NetError::Config(format!("cannot write {}", i.name))),
+                        true => Err(NetError::io(
+                            Path::new(&i.name),
+                            std::io::Error::other("cannot write"),
+                        )),
                         false => Ok(()),
                     },
                 },
@@ -242,9 +249,9 @@ mod tests {
             )
         };
         let e = run(5, usize::MAX).unwrap_err().to_string();
-        assert!(e.contains("cannot load f5"), "{e}");
+        assert_eq!(e, "f5: cannot load");
         let e = run(usize::MAX, 7).unwrap_err().to_string();
-        assert!(e.contains("cannot write f7"), "{e}");
+        assert_eq!(e, "f7: cannot write");
         assert_eq!(run(usize::MAX, usize::MAX).unwrap().images, 40);
     }
 }

@@ -21,9 +21,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
 
+use crate::{ExperimentError, SpecRefusal};
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset, Partition};
-use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_field, csv_num, csv_row, md_num, Align, MdTable};
 use depthsense_metrics::EvalConfig;
@@ -107,7 +107,7 @@ fn one_run(
     part: &Partition,
     device: tch::Device,
     mp: &Board,
-) -> Result<(RunRecord, RunStatus), NetError> {
+) -> Result<(RunRecord, RunStatus), ExperimentError> {
     let run = opts
         .out
         .join("runs")
@@ -156,18 +156,22 @@ impl AblationResult {
 }
 
 /// The model of a preset name (`tiny-wide` included) or a config JSON file.
-pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, NetError> {
+pub(crate) fn base_model(spec: &str) -> Result<ModelConfig, ExperimentError> {
     Ok(depthsense_checkpoint::config::resolve(spec)?)
 }
 
 /// The model config of each variant (preset → `set` → variant fields).
-pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfig)>, NetError> {
+pub fn variant_models(
+    opts: &AblationOptions,
+) -> Result<Vec<(Variant, ModelConfig)>, ExperimentError> {
     for s in &opts.run.set {
         let key = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
         if ["fusion", "attention", "head", "loss"].contains(&key) {
-            return Err(NetError::Config(format!(
-                "--set {s}: {key} is what the ablation variants set; choose variants instead"
-            )));
+            return Err(SpecRefusal::SetsVariantKey {
+                setting: s.clone(),
+                key: key.to_string(),
+            }
+            .into());
         }
     }
     let base = base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
@@ -182,12 +186,12 @@ pub fn variant_models(opts: &AblationOptions) -> Result<Vec<(Variant, ModelConfi
         .collect()
 }
 
-fn check_options(opts: &AblationOptions) -> Result<(), NetError> {
+fn check_options(opts: &AblationOptions) -> Result<(), SpecRefusal> {
     if opts.variants.is_empty() {
-        return Err(NetError::Config("no ablation variants given".into()));
+        return Err(SpecRefusal::NothingGiven("ablation variants"));
     }
     if opts.seeds.is_empty() {
-        return Err(NetError::Config("no seeds given".into()));
+        return Err(SpecRefusal::NothingGiven("seeds"));
     }
     let dup = |names: Vec<String>| {
         let mut s = names.clone();
@@ -195,10 +199,16 @@ fn check_options(opts: &AblationOptions) -> Result<(), NetError> {
         s.windows(2).find(|w| w[0] == w[1]).map(|w| w[0].clone())
     };
     if let Some(d) = dup(opts.variants.iter().map(|v| v.name().to_string()).collect()) {
-        return Err(NetError::Config(format!("variant {d} given twice")));
+        return Err(SpecRefusal::GivenTwice {
+            what: "variant",
+            item: d,
+        });
     }
     if let Some(d) = dup(opts.seeds.iter().map(|s| s.to_string()).collect()) {
-        return Err(NetError::Config(format!("seed {d} given twice")));
+        return Err(SpecRefusal::GivenTwice {
+            what: "seed",
+            item: d,
+        });
     }
     Ok(())
 }
@@ -342,22 +352,20 @@ fn verdicts(variants: &[&str], summary: &[SummaryRow], runs: &[RunRecord]) -> Ve
 }
 
 /// A partition with test samples: the ablation reports on the test scenes only.
-fn require_test(opts: &AblationOptions, part: &Partition) -> Result<(), NetError> {
+fn require_test(opts: &AblationOptions, part: &Partition) -> Result<(), ExperimentError> {
     if part.test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test samples ({}): the ablation reports on the test scenes and never on \
-             the validation scenes the checkpoints are selected on; prepare the data with a \
-             test split (or without split lists, so that scenes are held out for test)",
-            opts.run.data.display(),
-            part.method
-        )));
+        return Err(ExperimentError::NoTestSamples {
+            data: opts.run.data.clone(),
+            method: part.method.to_string(),
+            experiment: "the ablation",
+        });
     }
     Ok(())
 }
 
 /// Run the ablation: every variant × seed, test evaluation, tables and chart in `opts.out`.
 /// `mp` hosts one progress bar per run (pass a hidden one in tests).
-pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, NetError> {
+pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult, ExperimentError> {
     let t0 = Instant::now();
     check_options(opts)?;
     let models = variant_models(opts)?;
@@ -415,7 +423,7 @@ pub fn run_ablation(opts: &AblationOptions, mp: &Board) -> Result<AblationResult
     Ok(result)
 }
 
-fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), NetError> {
+fn write_outputs(dir: &Path, r: &AblationResult) -> Result<(), ExperimentError> {
     super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
     super::save(&dir.join(PNG_FILE), &chart(r)?)?;
@@ -443,7 +451,7 @@ fn headline_stats(r: &AblationResult) -> (Vec<&str>, [Vec<f64>; 4]) {
     (names, cols)
 }
 
-fn chart(r: &AblationResult) -> Result<Vec<u8>, NetError> {
+fn chart(r: &AblationResult) -> Result<Vec<u8>, ExperimentError> {
     let (names, [rm, rs, dm, dsd]) = headline_stats(r);
     let n = r.options.seeds.len();
     let t1 = format!("test RMSE (m), mean ± std over {n} seed(s)");
@@ -811,7 +819,10 @@ mod tests {
             ..AblationOptions::default()
         };
         assert!(
-            variant_models(&opts).is_err(),
+            matches!(
+                variant_models(&opts),
+                Err(ExperimentError::Spec(SpecRefusal::SetsVariantKey { key, .. })) if key == "head"
+            ),
             "--set head is the variant's"
         );
     }

@@ -12,6 +12,7 @@
 use std::path::Path;
 use std::time::Instant;
 
+use crate::ExperimentError;
 use depthsense_config::ModelConfig;
 use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
@@ -70,7 +71,11 @@ fn sync(d: Device) {
 }
 
 /// Cost of one model config.
-pub fn measure(cfg: &ModelConfig, o: &CostOptions, device: Device) -> Result<CostRow, NetError> {
+pub fn measure(
+    cfg: &ModelConfig,
+    o: &CostOptions,
+    device: Device,
+) -> Result<CostRow, ExperimentError> {
     let mut cfg = cfg.clone();
     cfg.out_height = o.height;
     cfg.out_width = o.width;
@@ -109,7 +114,7 @@ pub fn run_cost(
     o: &CostOptions,
     out: &Path,
     progress: &depthsense_progress::Progress,
-) -> Result<CostResult, NetError> {
+) -> Result<CostResult, ExperimentError> {
     let device = depthsense_model::device::parse_device(&o.device)?;
     progress.set_length((o.presets.len() * o.variants.len()) as u64);
     progress.println(format!(

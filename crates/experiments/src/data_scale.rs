@@ -16,9 +16,9 @@ use std::path::PathBuf;
 use std::str::FromStr;
 use std::time::Instant;
 
+use crate::{ExperimentError, SpecRefusal};
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset};
-use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::EvalConfig;
@@ -53,7 +53,7 @@ pub struct Arm {
 pub const ORACLE_WORD: &str = "oracle";
 
 impl FromStr for Arm {
-    type Err = NetError;
+    type Err = ExperimentError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let label = s.trim().to_string();
         let mut parts = label.split('+');
@@ -63,18 +63,16 @@ impl FromStr for Arm {
         set.retain(|p| p != ORACLE_WORD);
         let radar_oracle = set.len() < before;
         if radar_oracle && matches!(variant, Variant::Rgb | Variant::LateSamMer) {
-            return Err(NetError::Config(format!(
-                "arm {label:?}: the oracle radar needs a variant that reads the radar maps \
-                 (early, late, late-sam, l1, l2), e.g. late-sam+oracle"
-            )));
+            return Err(SpecRefusal::OracleWithoutRadar { arm: label }.into());
         }
         for kv in &set {
             let key = kv.split_once('=').map_or(kv.as_str(), |(k, _)| k).trim();
             if !kv.contains('=') || ["fusion", "attention", "head", "loss"].contains(&key) {
-                return Err(NetError::Config(format!(
-                    "arm {label:?}: {kv:?} is not a model option the arm may set (key=value; \
-                     fusion, attention and head are the variant's)"
-                )));
+                return Err(SpecRefusal::ArmSetting {
+                    arm: label,
+                    setting: kv.clone(),
+                }
+                .into());
             }
         }
         Ok(Arm {
@@ -88,7 +86,7 @@ impl FromStr for Arm {
 
 impl Arm {
     /// The arm's network: preset → shared `set` → variant fields → the arm's own options.
-    pub fn model(&self, base: &ModelConfig) -> Result<ModelConfig, NetError> {
+    pub fn model(&self, base: &ModelConfig) -> Result<ModelConfig, ExperimentError> {
         let mut c = base.clone();
         self.variant.apply(&mut c);
         let c = c.with_options(&self.set)?;
@@ -172,20 +170,21 @@ impl DataScaleResult {
     }
 }
 
-fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
-    let cfg = |m: String| Err(NetError::Config(m));
-    if opts.sizes.is_empty() || opts.arms.is_empty() || opts.seeds.is_empty() {
-        return cfg("the sizes, the arms and the seeds must not be empty".into());
+fn check(opts: &DataScaleOptions, available: usize) -> Result<(), SpecRefusal> {
+    for (empty, what) in [
+        (opts.sizes.is_empty(), "training-set sizes"),
+        (opts.arms.is_empty(), "arms"),
+        (opts.seeds.is_empty(), "seeds"),
+    ] {
+        if empty {
+            return Err(SpecRefusal::NothingGiven(what));
+        }
     }
     if opts.sizes.contains(&0) {
-        return cfg("a training-set size of 0".into());
+        return Err(SpecRefusal::ZeroSize);
     }
     if opts.run.schedule.epoch_iterations.is_some() {
-        return cfg(
-            "data-scale sets the iterations per epoch itself (the largest size's pass split \
-             over --epochs); drop --epoch-iterations and use --iterations for the total"
-                .into(),
-        );
+        return Err(SpecRefusal::EpochIterationsGiven);
     }
     let mut labels: Vec<&str> = opts
         .arms
@@ -195,25 +194,27 @@ fn check(opts: &DataScaleOptions, available: usize) -> Result<(), NetError> {
         .collect();
     labels.sort_unstable();
     if let Some(w) = labels.windows(2).find(|w| w[0] == w[1]) {
-        return cfg(format!("arm {} given twice", w[0]));
+        return Err(SpecRefusal::GivenTwice {
+            what: "arm",
+            item: w[0].to_string(),
+        });
     }
     let largest = opts.sizes.iter().max().copied().unwrap_or(0);
     if largest > available {
-        return cfg(format!(
-            "size {largest}: {} holds only {available} training samples; generate a larger \
-             world (`depthsense synth --scenes … --lean`, docs/guide/experiments.md) or pass \
-             smaller --sizes",
-            opts.run.data.display()
-        ));
+        return Err(SpecRefusal::SizeExceedsData {
+            size: largest,
+            data: opts.run.data.clone(),
+            available,
+        });
     }
     if let Some(i) = opts.iterations {
         if (i as u128) * (opts.run.schedule.batch_size as u128) < largest as u128 {
-            return cfg(format!(
-                "--iterations {i} × batch {} < {largest}: the largest training set would not \
-                 be seen once; pass at least {} iterations",
-                opts.run.schedule.batch_size,
-                largest.div_ceil(opts.run.schedule.batch_size.max(1))
-            ));
+            return Err(SpecRefusal::TooFewIterations {
+                iterations: i,
+                batch: opts.run.schedule.batch_size,
+                largest,
+                needed: largest.div_ceil(opts.run.schedule.batch_size.max(1)),
+            });
         }
     }
     Ok(())
@@ -239,18 +240,21 @@ fn run_dir(out: &std::path::Path, n: usize, arm: &Arm, seed: u64) -> PathBuf {
 
 /// Train every size × arm × seed (and the extra arms at the largest size), test on the test
 /// scenes, write the tables and the chart. Resumable like the ablation.
-pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleResult, NetError> {
+pub fn run_data_scale(
+    opts: &DataScaleOptions,
+    mp: &Board,
+) -> Result<DataScaleResult, ExperimentError> {
     let t0 = Instant::now();
     let device = depthsense_model::device::parse_device(&opts.run.hardware.device.name)?;
     let ds = Dataset::open(&opts.run.data)?;
     let part = partition(&ds, opts.run.validation.val_every_scene)?;
     check(opts, part.train.len())?;
     if part.test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test samples ({}): data-scale reports on the test scenes",
-            opts.run.data.display(),
-            part.method
-        )));
+        return Err(ExperimentError::NoTestSamples {
+            data: opts.run.data.clone(),
+            method: part.method.to_string(),
+            experiment: "data-scale",
+        });
     }
     let base = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
     let (iterations, per_epoch) = schedule(opts);
@@ -301,7 +305,7 @@ pub fn run_data_scale(opts: &DataScaleOptions, mp: &Board) -> Result<DataScaleRe
 fn plan_runs<'a>(
     opts: &'a DataScaleOptions,
     base: &ModelConfig,
-) -> Result<Vec<(usize, &'a Arm, u64, ModelConfig)>, NetError> {
+) -> Result<Vec<(usize, &'a Arm, u64, ModelConfig)>, ExperimentError> {
     let mut plan: Vec<(usize, &Arm, u64, ModelConfig)> = vec![];
     let largest = opts.sizes.iter().max().copied().unwrap_or(0);
     for &seed in &opts.seeds {
@@ -485,7 +489,7 @@ fn trend(opts: &DataScaleOptions, rows: &[ScaleRow]) -> Option<String> {
     ))
 }
 
-fn write_outputs(r: &DataScaleResult) -> Result<(), NetError> {
+fn write_outputs(r: &DataScaleResult) -> Result<(), ExperimentError> {
     let dir = &r.options.out;
     super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
@@ -504,7 +508,7 @@ fn series_parts(
 
 /// Left: each arm's margin over the baseline (mean, bars ± one standard error) against the
 /// training-set size (log axis); right: each arm's test RMSE (mean, bars ± one standard error).
-fn chart(r: &DataScaleResult) -> Result<Vec<u8>, NetError> {
+fn chart(r: &DataScaleResult) -> Result<Vec<u8>, ExperimentError> {
     type Series = (String, Vec<(f64, f64)>, Vec<f64>);
     let x = |n: usize| (n as f64).log10();
     let series = |arm: &Arm, get: fn(&ScaleRow) -> Option<Stat>| -> Option<Series> {
@@ -722,21 +726,55 @@ mod tests {
         // 1001 images, batch 4: 251 iterations → rounded up to 7 × 36 = 252.
         assert_eq!(schedule(&opts(&[1001], 4, 7, None)), (252, 36));
         assert_eq!(schedule(&opts(&[10], 4, 2, Some(9))), (10, 5));
-        assert!(
-            check(&opts(&[100], 4, 2, Some(24)), 200).is_err(),
+        assert_eq!(
+            check(&opts(&[100], 4, 2, Some(24)), 200),
+            Err(SpecRefusal::TooFewIterations {
+                iterations: 24,
+                batch: 4,
+                largest: 100,
+                needed: 25
+            }),
             "24 × 4 < 100"
         );
         assert!(check(&opts(&[100], 4, 2, Some(25)), 200).is_ok());
         let mut o = opts(&[100], 4, 2, None);
         o.run.schedule.epoch_iterations = Some(10);
-        let e = check(&o, 200).unwrap_err().to_string();
-        assert!(e.contains("--epoch-iterations"), "{e}");
-        let e = check(&opts(&[300], 4, 2, None), 200)
-            .unwrap_err()
-            .to_string();
+        let e = check(&o, 200).unwrap_err();
+        assert_eq!(e, SpecRefusal::EpochIterationsGiven);
+        assert!(e.to_string().contains("--epoch-iterations"), "{e}");
+        let e = check(&opts(&[300], 4, 2, None), 200).unwrap_err();
         assert!(
-            e.contains("only 200 training samples") && e.contains("--sizes"),
+            matches!(
+                e,
+                SpecRefusal::SizeExceedsData {
+                    size: 300,
+                    available: 200,
+                    ..
+                }
+            ),
             "{e}"
+        );
+        assert!(e.to_string().contains("--sizes"), "{e}");
+    }
+
+    /// Empty, zero and repeated items are refused by name.
+    #[test]
+    fn the_lists_are_checked_item_by_item() {
+        let mut o = opts(&[100], 4, 2, None);
+        o.arms.clear();
+        assert_eq!(check(&o, 200), Err(SpecRefusal::NothingGiven("arms")));
+        assert_eq!(
+            check(&opts(&[0, 100], 4, 2, None), 200),
+            Err(SpecRefusal::ZeroSize)
+        );
+        let mut o = opts(&[100], 4, 2, None);
+        o.at_largest = vec![o.arms[0].clone()];
+        assert_eq!(
+            check(&o, 200),
+            Err(SpecRefusal::GivenTwice {
+                what: "arm",
+                item: o.arms[0].label.clone()
+            })
         );
     }
 
@@ -749,7 +787,10 @@ mod tests {
         );
         let m = a.model(&ModelConfig::tiny()).unwrap();
         assert_eq!(m.radar_skip_channels, 8);
-        assert!("late-sam+fusion=early".parse::<Arm>().is_err());
+        assert!(matches!(
+            "late-sam+fusion=early".parse::<Arm>(),
+            Err(ExperimentError::Spec(SpecRefusal::ArmSetting { setting, .. })) if setting == "fusion=early"
+        ));
         assert!("late-sam+radar-skip".parse::<Arm>().is_err());
         assert!("rbg".parse::<Arm>().is_err());
         assert!("late-sam+radar-skipp=8"
@@ -765,7 +806,11 @@ mod tests {
             run_dir(std::path::Path::new("o"), 3000, &o, 2),
             std::path::Path::new("o/runs/n3000/late-sam_oracle_radar-skip_8/seed2")
         );
-        let e = "rgb+oracle".parse::<Arm>().unwrap_err().to_string();
-        assert!(e.contains("late-sam+oracle"), "{e}");
+        let e = "rgb+oracle".parse::<Arm>().unwrap_err();
+        assert!(
+            matches!(&e, ExperimentError::Spec(SpecRefusal::OracleWithoutRadar { arm }) if arm == "rgb+oracle"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("late-sam+oracle"), "{e}");
     }
 }

@@ -33,6 +33,7 @@ use depthsense_progress::{Board, Progress};
 use serde::{Deserialize, Serialize};
 use tch::Device;
 
+use crate::ExperimentError;
 use depthsense_dataset::outputs::{BEST_CKPT, METRICS_FILE};
 use depthsense_dataset::subsample;
 use depthsense_infer::run::evaluate_net;
@@ -199,7 +200,7 @@ fn stage_bar(mp: &Board, name: &str) -> Progress {
 }
 
 /// Run the demo. `mp` hosts one progress bar per stage (pass a hidden one in tests).
-pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, NetError> {
+pub fn run_demo(opts: &DemoOptions, mp: &Board) -> Result<DemoSummary, ExperimentError> {
     let t0 = Instant::now();
     let device = depthsense_model::device::parse_device(&opts.device)?;
     let cuda = device.is_cuda();
@@ -270,15 +271,15 @@ fn announcement(plan: &DemoPlan, device: Device, out: &Path) -> String {
 }
 
 /// The prepared folder and its partition, which must hold test scenes to report on.
-fn held_out(prepared: &Path, plan: &DemoPlan) -> Result<(Dataset, Partition), NetError> {
+fn held_out(prepared: &Path, plan: &DemoPlan) -> Result<(Dataset, Partition), ExperimentError> {
     let ds = Dataset::open(prepared)?;
     let part = partition(&ds, plan.val_every_scene)?;
     if part.test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test scenes ({})",
-            prepared.display(),
-            part.method
-        )));
+        return Err(ExperimentError::NoTestSamples {
+            data: prepared.to_path_buf(),
+            method: part.method.to_string(),
+            experiment: "the demo",
+        });
     }
     Ok((ds, part))
 }
@@ -293,11 +294,11 @@ fn headline_rmse(reports: &[(String, Report)], name: &str) -> f64 {
 }
 
 /// An earlier demo in `out` is refused unless `--force`; with it, its report folder goes.
-fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), NetError> {
+fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), ExperimentError> {
     let out = &opts.out;
     if let Some(what) = demo_in(out) {
         if !opts.force {
-            return Err(NetError::OutputExists {
+            return Err(ExperimentError::OutputExists {
                 dir: out.display().to_string(),
                 what,
                 advice:
@@ -323,7 +324,7 @@ fn synthesise(
     opts: &DemoOptions,
     plan: &DemoPlan,
     mp: &Board,
-) -> Result<(PathBuf, depthsense_synth::SynthConfig), NetError> {
+) -> Result<(PathBuf, depthsense_synth::SynthConfig), ExperimentError> {
     let world = opts.out.join("world");
     let mut scfg = depthsense_synth::SynthConfig::demo();
     scfg.scenes = plan.scenes;
@@ -334,10 +335,11 @@ fn synthesise(
     scfg.seed = opts.seed;
     scfg.jobs = opts.jobs;
     let pb = stage_bar(mp, "synth");
-    let synth = depthsense_synth::generate(&world, &scfg, &pb).map_err(|e| NetError::Stage {
-        stage: "synth",
-        source: Box::new(e),
-    })?;
+    let synth =
+        depthsense_synth::generate(&world, &scfg, &pb).map_err(|e| ExperimentError::Stage {
+            stage: "synth",
+            source: Box::new(e),
+        })?;
     pb.finish_with_message(format!("{} keyframes", synth.keyframes));
     Ok((world, scfg))
 }
@@ -349,7 +351,7 @@ fn prepare_world(
     world: &Path,
     version: &str,
     mp: &Board,
-) -> Result<PathBuf, NetError> {
+) -> Result<PathBuf, ExperimentError> {
     let prepared = opts.out.join("prepared");
     // The world was just regenerated: samples prepared from an earlier world (or by an older
     // `prepare` whose settings it now refuses) are stale, and preparing takes seconds.
@@ -366,17 +368,16 @@ fn prepare_world(
         ..depthsense_prep::PrepareOptions::default()
     };
     let pb = stage_bar(mp, "prepare");
-    let ps = depthsense_prep::prepare(&popts, &pb).map_err(|e| NetError::Stage {
+    let ps = depthsense_prep::prepare(&popts, &pb).map_err(|e| ExperimentError::Stage {
         stage: "prepare",
         source: Box::new(e),
     })?;
     if !ps.failed.is_empty() {
-        return Err(NetError::Data(format!(
-            "prepare failed for {} sample(s), first: {} ({})",
-            ps.failed.len(),
-            ps.failed[0].0,
-            ps.failed[0].1
-        )));
+        return Err(ExperimentError::PrepareFailed {
+            count: ps.failed.len(),
+            first: ps.failed[0].0.to_string(),
+            reason: ps.failed[0].1.to_string(),
+        });
     }
     pb.finish_with_message(format!(
         "{} prepared, {} cached",
@@ -396,7 +397,7 @@ fn train_both(
     prepared: &Path,
     mp: &Board,
     stages: &mut Vec<(String, f64)>,
-) -> Result<Vec<DemoRun>, NetError> {
+) -> Result<Vec<DemoRun>, ExperimentError> {
     let out = &opts.out;
     let base_cfg = demo_model(&plan.preset)?;
     let mut runs: Vec<DemoRun> = vec![];
@@ -481,12 +482,14 @@ fn evaluate_both(
     report_dir: &Path,
     device: Device,
     mp: &Board,
-) -> Result<Vec<(String, Report)>, NetError> {
+) -> Result<Vec<(String, Report)>, ExperimentError> {
     let pic_tokens: Vec<String> = subsample(test, Some(opts.pictures.max(1)))
         .iter()
         .map(|e| e.sample_token.clone())
         .collect();
     let mut reports: Vec<(String, Report)> = vec![];
+    // the pictures' predictions, kept from the evaluation's batches and drawn after it
+    let mut pictures: Vec<Picture> = vec![];
     let pb = stage_bar(mp, "eval");
     pb.set_length(2 * test.len() as u64);
     for (name, dir, ..) in runs {
@@ -509,21 +512,21 @@ fn evaluate_both(
                 let hw = batch.width * batch.height;
                 for (i, s) in batch.samples.iter().enumerate() {
                     if pic_tokens.contains(&s.token) {
-                        write_pictures(
-                            &report_dir.join("samples").join(&s.token),
-                            name,
-                            ds,
-                            &s.token,
-                            &preds[i * hw..(i + 1) * hw],
-                            &s.sparse_m,
-                            batch.width as u32,
-                            batch.height as u32,
-                        )?;
+                        pictures.push(Picture {
+                            token: s.token.clone(),
+                            pred_m: preds[i * hw..(i + 1) * hw].to_vec(),
+                            gt_m: s.sparse_m.clone(),
+                            width: batch.width as u32,
+                            height: batch.height as u32,
+                        });
                     }
                 }
                 Ok(())
             },
         )?;
+        for p in pictures.drain(..) {
+            write_pictures(&report_dir.join("samples").join(&p.token), name, ds, &p)?;
+        }
         reports.push((name.to_string(), rep));
     }
     pb.finish();
@@ -535,7 +538,7 @@ fn evaluate_both(
 
 /// What a network of `cfg` is fed on the test scenes: the radar input it was built for, or
 /// none.
-fn load_options(cfg: &ModelConfig) -> Result<LoadOptions, NetError> {
+fn load_options(cfg: &ModelConfig) -> Result<LoadOptions, ExperimentError> {
     let radar = cfg.radar_input_for(None)?;
     Ok(LoadOptions {
         radar: radar.unwrap_or_default(),
@@ -546,7 +549,7 @@ fn load_options(cfg: &ModelConfig) -> Result<LoadOptions, NetError> {
 
 /// Each run's curves.png copied into the report, and both runs on one picture: training loss
 /// (left) and validation RMSE (right).
-fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), NetError> {
+fn write_run_curves(runs: &[DemoRun], report_dir: &Path) -> Result<(), ExperimentError> {
     for (name, dir, ..) in runs {
         let src = dir.join(depthsense_dataset::outputs::CURVES_FILE);
         if src.exists() {
@@ -655,7 +658,7 @@ fn stage_commands(opts: &DemoOptions, plan: &DemoPlan, version: &str) -> Vec<Str
 
 /// `report/report.html`: the demo's one self-contained page (README, tables, curves, every
 /// sample row with its colour bar, the commands), built by `depthsense report`'s renderer.
-fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), NetError> {
+fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), ExperimentError> {
     let ropts = depthsense_report::ReportOptions {
         runs: vec![report_dir.to_path_buf()],
         // Only rendered, never written as a folder; discovery skips `out`, so it must not be
@@ -666,42 +669,50 @@ fn write_page(report_dir: &Path, opts: &DemoOptions) -> Result<(), NetError> {
         command_line: opts.command_line.clone(),
         ..depthsense_report::ReportOptions::default()
     };
-    let (_, page) = depthsense_report::render(&ropts).map_err(|e| NetError::Stage {
+    let (_, page) = depthsense_report::render(&ropts).map_err(|e| ExperimentError::Stage {
         stage: "report",
         source: Box::new(e),
     })?;
     let p = report_dir.join("report.html");
-    write_atomic(&p, page.as_bytes()).map_err(|e| NetError::io(&p, e))
+    Ok(write_atomic(&p, page.as_bytes()).map_err(|e| NetError::io(&p, e))?)
 }
 
 /// The demo's network: a model preset ([`depthsense_config::presets`]).
-pub fn demo_model(preset: &str) -> Result<ModelConfig, NetError> {
+pub fn demo_model(preset: &str) -> Result<ModelConfig, ExperimentError> {
     Ok(ModelConfig::preset(preset)?)
 }
 
-#[allow(clippy::too_many_arguments)]
+/// One test sample's prediction for the pictures, kept from an evaluation batch.
+struct Picture {
+    token: String,
+    pred_m: Vec<f32>,
+    gt_m: Vec<f32>,
+    width: u32,
+    height: u32,
+}
+
+/// `model`'s panels of one picture sample into `dir` (the image, radar and ground-truth
+/// panels once, by the first model).
 fn write_pictures(
     dir: &Path,
     model: &str,
     ds: &Dataset,
-    token: &str,
-    pred: &[f32],
-    gt: &[f32],
-    w: u32,
-    h: u32,
-) -> Result<(), NetError> {
+    pic: &Picture,
+) -> Result<(), ExperimentError> {
     use depthsense_viz::plot::{colorize_depth, encode_rgb, error_map, overlay_points};
-    let save = |name: &str, img: &image::RgbImage| -> Result<(), NetError> {
+    let save = |name: &str, img: &image::RgbImage| -> Result<(), ExperimentError> {
         let p = dir.join(name);
-        write_atomic(&p, &encode_rgb(img)?).map_err(|e| NetError::io(&p, e))
+        Ok(write_atomic(&p, &encode_rgb(img)?).map_err(|e| NetError::io(&p, e))?)
     };
+    let (token, pred, gt) = (pic.token.as_str(), &pic.pred_m, &pic.gt_m);
+    let (w, h) = (pic.width, pic.height);
     let max_m = PICTURE_MAX_M;
     let e = ds
         .index
         .samples
         .iter()
         .find(|e| e.sample_token == token)
-        .ok_or_else(|| NetError::Data(format!("sample {token} not in the index")))?;
+        .ok_or_else(|| ExperimentError::SampleNotInIndex(token.to_string()))?;
     let input = depthsense_eval::predict::input_from_prepared(&ds.sample_dir(e))?;
     if !dir.join("image.png").exists() {
         save("image.png", &input.image)?;
@@ -724,8 +735,8 @@ fn write_pictures(
 
 /// `dir/row.png`: image, radar, GT, RGB-only and fusion predictions side by side with one
 /// colour bar in metres (the panels written by [`write_pictures`]).
-fn write_picture_row(dir: &Path) -> Result<(), NetError> {
-    let read = |name: &str| -> Result<image::RgbImage, NetError> {
+fn write_picture_row(dir: &Path) -> Result<(), ExperimentError> {
+    let read = |name: &str| -> Result<image::RgbImage, ExperimentError> {
         Ok(depthsense_dataset::decode_rgb(&dir.join(name))?)
     };
     let panels = [
@@ -737,7 +748,7 @@ fn write_picture_row(dir: &Path) -> Result<(), NetError> {
     ];
     let png = depthsense_viz::plot::picture_row_png(&panels, PICTURE_MAX_M)?;
     let p = dir.join("row.png");
-    write_atomic(&p, &png).map_err(|e| NetError::io(&p, e))
+    Ok(write_atomic(&p, &png).map_err(|e| NetError::io(&p, e))?)
 }
 
 /// The demo's headline difference, said to be one seed: each model is trained once (README:
@@ -762,7 +773,7 @@ fn write_readme(
     models: &[(&str, &Report)],
     test: &[IndexEntry],
     opts: &DemoOptions,
-) -> Result<(), NetError> {
+) -> Result<(), ExperimentError> {
     let mut doc = Doc::new();
     doc.heading(1, "depthsense demo report");
     readme_setup(&mut doc, s, plan, test);
@@ -791,7 +802,8 @@ fn write_readme(
         }))?
         .as_bytes(),
     )
-    .map_err(|e| NetError::io(&p, e))
+    .map_err(|e| NetError::io(&p, e))?;
+    Ok(())
 }
 
 /// The README's setup paragraphs: device and schedule, the training set, and the split into

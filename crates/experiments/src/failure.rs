@@ -8,6 +8,7 @@ use depthsense_metrics::table::{csv_quoted, csv_row, md_num, Align, MdTable};
 use crate::runner::RowValues;
 use serde::{Deserialize, Serialize};
 
+use crate::{ExperimentError, SpecRefusal};
 use depthsense_infer::NetError;
 
 use depthsense_data::radar_failure::RadarFailure;
@@ -25,7 +26,7 @@ pub struct Scenario {
 
 /// Parse "none;radar-drop=0.5;drop-radars=RADAR_FRONT_LEFT+RADAR_FRONT_RIGHT;beyond=30;
 /// clutter=20" (`;` between scenarios, `,` between settings of one scenario).
-pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, NetError> {
+pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, ExperimentError> {
     let mut out = vec![];
     for item in s.split(';').map(str::trim).filter(|x| !x.is_empty()) {
         let mut sc = Scenario {
@@ -34,8 +35,9 @@ pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, NetError> {
             failure: RadarFailure::default(),
         };
         for kv in item.split(',').map(str::trim).filter(|x| *x != "none") {
-            let bad = || {
-                NetError::Config(format!("failure scenario {item:?}: cannot read {kv:?} (radar-drop=F, drop-radars=A+B, beyond=M, clutter=N, none)"))
+            let bad = || SpecRefusal::UnreadableScenario {
+                scenario: item.to_string(),
+                setting: kv.to_string(),
             };
             let (k, v) = kv.split_once('=').ok_or_else(bad)?;
             match k {
@@ -43,19 +45,20 @@ pub fn parse_scenarios(s: &str) -> Result<Vec<Scenario>, NetError> {
                 "drop-radars" => sc.failure.drop_radars = v.split('+').map(String::from).collect(),
                 "beyond" => sc.failure.drop_beyond_m = Some(v.parse().map_err(|_| bad())?),
                 "clutter" => sc.failure.clutter = v.parse().map_err(|_| bad())?,
-                _ => return Err(bad()),
+                _ => return Err(bad().into()),
             }
         }
         sc.failure.validate()?;
         if !(0.0..=1.0).contains(&sc.radar_drop) {
-            return Err(NetError::Config(format!(
-                "{item}: radar-drop must be within [0, 1]"
-            )));
+            return Err(SpecRefusal::RadarDropOutOfRange {
+                scenario: item.to_string(),
+            }
+            .into());
         }
         out.push(sc);
     }
     if out.is_empty() {
-        return Err(NetError::Config("no failure scenarios given".into()));
+        return Err(SpecRefusal::NothingGiven("failure scenarios").into());
     }
     Ok(out)
 }
@@ -99,7 +102,7 @@ pub fn run_failure(
     out: &std::path::Path,
     command_line: Option<String>,
     mp: &depthsense_progress::Board,
-) -> Result<FailureResult, NetError> {
+) -> Result<FailureResult, ExperimentError> {
     let device = depthsense_model::device::parse_device(&base.device)?;
     let (loaded, _) = depthsense_eval::evaluate::load_model(
         &base.checkpoint,
@@ -136,7 +139,7 @@ pub fn run_failure(
     Ok(r)
 }
 
-fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), NetError> {
+fn write_failure(out: &std::path::Path, r: &FailureResult) -> Result<(), ExperimentError> {
     let (json, md) = (out.join(FAILURE_JSON), out.join(FAILURE_MD));
     super::save_record(&json, &md, r, &failure_document(r))?;
     super::save(&out.join(FAILURE_CSV), failure_csv(r).as_bytes())?;

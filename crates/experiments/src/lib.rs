@@ -11,11 +11,14 @@ pub mod ablation;
 pub mod cost;
 pub mod data_scale;
 pub mod demo;
+pub mod error;
 pub mod failure;
 pub mod paired;
 pub mod perturb;
 pub mod reduced_data;
 pub mod runner;
+
+pub use error::{ExperimentError, SpecRefusal};
 
 use serde::{Deserialize, Serialize};
 
@@ -103,9 +106,10 @@ impl Machine {
 }
 
 /// Writes one experiment output file atomically; an error names the file.
-pub(crate) fn save(path: &std::path::Path, bytes: &[u8]) -> Result<(), depthsense_infer::NetError> {
+pub(crate) fn save(path: &std::path::Path, bytes: &[u8]) -> Result<(), crate::ExperimentError> {
     depthsense_base::fsutil::write_atomic(path, bytes)
-        .map_err(|e| depthsense_infer::NetError::io(path, e))
+        .map_err(|e| depthsense_infer::NetError::io(path, e))?;
+    Ok(())
 }
 
 /// `record` as pretty JSON at `json` with `doc` inside it (after the record's own fields:
@@ -115,7 +119,7 @@ pub(crate) fn save_record<T: Serialize>(
     md: &std::path::Path,
     record: &T,
     doc: &depthsense_metrics::doc::Doc,
-) -> Result<(), depthsense_infer::NetError> {
+) -> Result<(), crate::ExperimentError> {
     let text = serde_json::to_string_pretty(&depthsense_metrics::doc::Documented {
         record,
         document: doc,

@@ -10,6 +10,7 @@
 
 use std::path::Path;
 
+use crate::{ExperimentError, SpecRefusal};
 use depthsense_eval::evaluate::EvalOptions;
 use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
@@ -47,7 +48,7 @@ impl Default for PerturbOptions {
 
 impl PerturbOptions {
     /// Every (axis, magnitude) to evaluate, axis by axis.
-    pub fn grid(&self) -> Result<Vec<Perturbation>, NetError> {
+    pub fn grid(&self) -> Result<Vec<Perturbation>, SpecRefusal> {
         let mut out = vec![];
         for &axis in &self.axes {
             let mags = match axis.is_rotation() {
@@ -56,15 +57,13 @@ impl PerturbOptions {
             };
             for &amount in mags {
                 if !(amount.is_finite() && amount >= 0.0) {
-                    return Err(NetError::Config(format!(
-                        "perturbation magnitudes must be non-negative numbers, got {amount}"
-                    )));
+                    return Err(SpecRefusal::NegativeMagnitude(amount));
                 }
                 out.push(Perturbation { axis, amount });
             }
         }
         if out.is_empty() {
-            return Err(NetError::Config("no perturbation to evaluate".into()));
+            return Err(SpecRefusal::NothingGiven("perturbations"));
         }
         Ok(out)
     }
@@ -128,7 +127,7 @@ pub fn run_perturb(
     out: &Path,
     command_line: Option<String>,
     mp: &depthsense_progress::Board,
-) -> Result<PerturbResult, NetError> {
+) -> Result<PerturbResult, ExperimentError> {
     let grid = opts.grid()?;
     let device = depthsense_model::device::parse_device(&base.device)?;
     let (loaded, _) = depthsense_eval::evaluate::load_model(
@@ -144,22 +143,23 @@ pub fn run_perturb(
     };
     let total = mp.bar("perturbations");
     total.set_length(grid.len() as u64 + 1);
-    let eval_one = |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, NetError> {
-        let pb = run_bar(mp, label);
-        let t = std::time::Instant::now();
-        let o = perturbed(base, p);
-        let report = depthsense_eval::evaluate::run_eval_loaded(&o, &loaded, &pb)?;
-        pb.finish_and_clear();
-        total.inc(1);
-        Ok(PerturbRow {
-            axis: axis.into(),
-            magnitude: p.amount,
-            unit: unit(p.axis).into(),
-            rows: row_values(&report),
-            report,
-            seconds: t.elapsed().as_secs_f64(),
-        })
-    };
+    let eval_one =
+        |p: Perturbation, axis: &str, label: &str| -> Result<PerturbRow, ExperimentError> {
+            let pb = run_bar(mp, label);
+            let t = std::time::Instant::now();
+            let o = perturbed(base, p);
+            let report = depthsense_eval::evaluate::run_eval_loaded(&o, &loaded, &pb)?;
+            pb.finish_and_clear();
+            total.inc(1);
+            Ok(PerturbRow {
+                axis: axis.into(),
+                magnitude: p.amount,
+                unit: unit(p.axis).into(),
+                rows: row_values(&report),
+                report,
+                seconds: t.elapsed().as_secs_f64(),
+            })
+        };
     let baseline = eval_one(zero, "none", "baseline")?;
     let mut rows = vec![];
     for p in grid {
@@ -179,7 +179,7 @@ pub fn run_perturb(
     Ok(r)
 }
 
-fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), NetError> {
+fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), ExperimentError> {
     let (json, md) = (out.join(PERTURB_JSON), out.join(PERTURB_MD));
     super::save_record(&json, &md, r, &perturb_document(r))?;
     super::save(&out.join(PERTURB_CSV), perturb_csv(r).as_bytes())?;
@@ -188,7 +188,7 @@ fn write_perturb(out: &Path, r: &PerturbResult) -> Result<(), NetError> {
 
 /// RMSE against magnitude, one line per axis (from the baseline at 0): rotations left,
 /// translations right.
-fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, NetError> {
+fn perturb_png(r: &PerturbResult) -> Result<Vec<u8>, ExperimentError> {
     let base = r.baseline.combined().map_or(f64::NAN, |x| x.rmse);
     let series = |rotation: bool| -> Vec<(&str, Vec<(f64, f64)>)> {
         PerturbAxis::ALL
@@ -288,4 +288,25 @@ fn perturb_csv(r: &PerturbResult) -> String {
         }
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A negative or missing magnitude is refused with its value; no axis is nothing to do.
+    #[test]
+    fn the_grid_refuses_what_it_cannot_evaluate() {
+        let o = PerturbOptions {
+            rotate_deg: vec![1.0, -0.5],
+            ..PerturbOptions::default()
+        };
+        assert_eq!(o.grid(), Err(SpecRefusal::NegativeMagnitude(-0.5)));
+        let o = PerturbOptions {
+            axes: vec![],
+            ..PerturbOptions::default()
+        };
+        assert_eq!(o.grid(), Err(SpecRefusal::NothingGiven("perturbations")));
+        assert_eq!(PerturbOptions::default().grid().map(|g| g.len()), Ok(21));
+    }
 }

@@ -13,9 +13,9 @@ use std::collections::BTreeSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use crate::{ExperimentError, SpecRefusal};
 use depthsense_config::ModelConfig;
 use depthsense_dataset::{partition, Dataset, Partition};
-use depthsense_infer::NetError;
 use depthsense_metrics::doc::Doc;
 use depthsense_metrics::table::{csv_quoted, csv_row, Align, MdTable};
 use depthsense_metrics::{EvalConfig, CONDITIONS};
@@ -43,7 +43,7 @@ pub struct Cell {
 }
 
 /// Parse "full;night=1;rain=1;day=0.5" (cells separated by `;`).
-pub fn parse_grid(s: &str) -> Result<Vec<Cell>, NetError> {
+pub fn parse_grid(s: &str) -> Result<Vec<Cell>, ExperimentError> {
     s.split(';')
         .filter(|c| !c.trim().is_empty())
         .map(|c| {
@@ -98,15 +98,19 @@ impl ReducedDataResult {
     }
 }
 
-fn check(opts: &ReducedDataOptions) -> Result<(), NetError> {
-    if opts.grid.is_empty() || opts.seeds.is_empty() {
-        return Err(NetError::Config(
-            "the grid and the seeds must not be empty".into(),
-        ));
+fn check(opts: &ReducedDataOptions) -> Result<(), SpecRefusal> {
+    if opts.grid.is_empty() {
+        return Err(SpecRefusal::NothingGiven("grid cells"));
     }
-    let names: BTreeSet<&str> = opts.grid.iter().map(|c| c.name.as_str()).collect();
-    if names.len() != opts.grid.len() {
-        return Err(NetError::Config("a grid cell is given twice".into()));
+    if opts.seeds.is_empty() {
+        return Err(SpecRefusal::NothingGiven("seeds"));
+    }
+    let mut names = BTreeSet::new();
+    if let Some(c) = opts.grid.iter().find(|c| !names.insert(c.name.as_str())) {
+        return Err(SpecRefusal::GivenTwice {
+            what: "grid cell",
+            item: c.name.clone(),
+        });
     }
     Ok(())
 }
@@ -124,13 +128,13 @@ fn topts(opts: &ReducedDataOptions, model: &ModelConfig, cell: &Cell, seed: u64)
 }
 
 /// A partition with test samples: reduced-data reports on the test scenes.
-fn require_test(opts: &ReducedDataOptions, part: &Partition) -> Result<(), NetError> {
+fn require_test(opts: &ReducedDataOptions, part: &Partition) -> Result<(), ExperimentError> {
     if part.test.is_empty() {
-        return Err(NetError::Data(format!(
-            "{}: no test samples ({}): reduced-data reports on the test scenes",
-            opts.run.data.display(),
-            part.method
-        )));
+        return Err(ExperimentError::NoTestSamples {
+            data: opts.run.data.clone(),
+            method: part.method.to_string(),
+            experiment: "reduced-data",
+        });
     }
     Ok(())
 }
@@ -139,7 +143,7 @@ fn require_test(opts: &ReducedDataOptions, part: &Partition) -> Result<(), NetEr
 pub fn run_reduced_data(
     opts: &ReducedDataOptions,
     mp: &Board,
-) -> Result<ReducedDataResult, NetError> {
+) -> Result<ReducedDataResult, ExperimentError> {
     let t0 = Instant::now();
     check(opts)?;
     let model = super::ablation::base_model(&opts.run.preset)?.with_options(&opts.run.set)?;
@@ -193,7 +197,7 @@ pub fn run_reduced_data(
     Ok(result)
 }
 
-fn write_outputs(r: &ReducedDataResult) -> Result<(), NetError> {
+fn write_outputs(r: &ReducedDataResult) -> Result<(), ExperimentError> {
     let dir = &r.options.out;
     super::save_record(&dir.join(JSON_FILE), &dir.join(MD_FILE), r, &document(r))?;
     super::save(&dir.join(CSV_FILE), csv(r).as_bytes())?;
@@ -209,7 +213,7 @@ fn stat_of(
     r.row(cell, cond).and_then(f)
 }
 
-fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, NetError> {
+fn chart(r: &ReducedDataResult) -> Result<Vec<u8>, ExperimentError> {
     let names: Vec<&str> = r.cells.iter().map(|c| c.name.as_str()).collect();
     let mut cols: Vec<(String, Vec<f64>, Vec<f64>)> = vec![];
     for cond in CONDITIONS {
@@ -314,4 +318,41 @@ fn csv(r: &ReducedDataResult) -> String {
         }
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn with(grid: &str, seeds: Vec<u64>) -> ReducedDataOptions {
+        ReducedDataOptions {
+            run: RunSettings::default(),
+            out: PathBuf::from("out"),
+            grid: parse_grid(grid).unwrap_or_default(),
+            seeds,
+            eval: EvalConfig::default(),
+            command_line: None,
+        }
+    }
+
+    /// An empty grid or seed list and a cell given twice are refused by name.
+    #[test]
+    fn the_grid_and_seeds_are_checked() {
+        assert_eq!(check(&with("full;night=1", vec![0])), Ok(()));
+        assert_eq!(
+            check(&with("", vec![0])),
+            Err(SpecRefusal::NothingGiven("grid cells"))
+        );
+        assert_eq!(
+            check(&with("full", vec![])),
+            Err(SpecRefusal::NothingGiven("seeds"))
+        );
+        assert_eq!(
+            check(&with("full;night=1;full", vec![0])),
+            Err(SpecRefusal::GivenTwice {
+                what: "grid cell",
+                item: "full".into()
+            })
+        );
+    }
 }

@@ -8,6 +8,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::ExperimentError;
 use depthsense_base::fsutil::write_atomic;
 use depthsense_checkpoint as checkpoint;
 use depthsense_config::training::{
@@ -234,7 +235,7 @@ impl From<&Partition> for PartitionInfo {
 /// Training options as compared across invocations: without where the data and run live,
 /// the device, the thread counts (the loader is thread-count independent), `resume`, `force`,
 /// `stop_after` and `checkpoint_every` (an exact resume continues the same computation).
-pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, NetError> {
+pub fn fingerprint(t: &TrainOptions) -> Result<serde_json::Value, ExperimentError> {
     let mut v = serde_json::to_value(t)?;
     if let Some(m) = v.as_object_mut() {
         for k in [
@@ -275,12 +276,13 @@ pub fn same_json(a: &serde_json::Value, b: &serde_json::Value) -> bool {
     }
 }
 
-pub fn read_json(path: &Path) -> Result<serde_json::Value, NetError> {
+pub fn read_json(path: &Path) -> Result<serde_json::Value, ExperimentError> {
     let text = std::fs::read_to_string(path).map_err(|e| NetError::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| NetError::Parse {
+    let value = serde_json::from_str(&text).map_err(|e| NetError::Parse {
         path: path.to_path_buf(),
         reason: e.to_string(),
-    })
+    })?;
+    Ok(value)
 }
 
 /// True when RUN/metrics.jsonl records the end of epoch `epochs` and RUN/best.safetensors
@@ -306,17 +308,12 @@ pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
 
 /// A run folder made with other options than the experiment asks for: each differing key
 /// named (`differences`, from [`json_differences`]).
-pub fn mismatch(run: &Path, file: &str, differences: &[String]) -> NetError {
-    NetError::Config(format!(
-        "{}: this run was made with other training options (see its {file}) than this \
-         experiment asks for ({}); use another --out, or delete the run to redo it",
-        run.display(),
-        if differences.is_empty() {
-            "no key differs".to_string()
-        } else {
-            differences.join("; ")
-        }
-    ))
+pub fn mismatch(run: &Path, file: &'static str, differences: Vec<String>) -> ExperimentError {
+    ExperimentError::OtherRun {
+        run: run.to_path_buf(),
+        file,
+        differences,
+    }
 }
 
 /// The keys in which `stored` and `asked` differ (as [`same_json`] compares), dotted below
@@ -406,7 +403,7 @@ pub fn train_and_test(
     test: &[IndexEntry],
     device: tch::Device,
     mp: &Board,
-) -> Result<(RunRecord, RunStatus), NetError> {
+) -> Result<(RunRecord, RunStatus), ExperimentError> {
     let run = topts.out.clone();
     let seed = topts.schedule.seed;
     let eval_path = run.join(RUN_EVAL_FILE);
@@ -446,7 +443,10 @@ pub fn train_and_test(
 
 /// The run's finished record (RUN/eval.json) when it exists and was made with these options;
 /// refuses a run folder whose record or config.json was made with other options.
-fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<RunRecord>, NetError> {
+fn finished_record(
+    topts: &TrainOptions,
+    eval: &EvalConfig,
+) -> Result<Option<RunRecord>, ExperimentError> {
     let run = &topts.out;
     let fp = fingerprint(topts)?;
     let eval_path = run.join(RUN_EVAL_FILE);
@@ -463,7 +463,7 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
                 &serde_json::to_value(&rec.report.config)?,
                 &serde_json::to_value(eval)?,
             ));
-            return Err(mismatch(run, RUN_EVAL_FILE, &diffs));
+            return Err(mismatch(run, RUN_EVAL_FILE, diffs));
         }
         // A run is recognised by its options, not by where it was trained: one moved here
         // from another --out (a second process's share of the seeds) names its folder now.
@@ -484,7 +484,7 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
             return Err(mismatch(
                 run,
                 CONFIG_FILE,
-                &json_differences("", &stored_fp, &fp),
+                json_differences("", &stored_fp, &fp),
             ));
         }
     }
@@ -496,7 +496,7 @@ fn finished_record(topts: &TrainOptions, eval: &EvalConfig) -> Result<Option<Run
 fn train_or_reuse(
     topts: &TrainOptions,
     pb: &Progress,
-) -> Result<(RunStatus, f64, Option<f64>), NetError> {
+) -> Result<(RunStatus, f64, Option<f64>), ExperimentError> {
     let run = &topts.out;
     let cfg_path = run.join(CONFIG_FILE);
     let (finished, earlier_secs) = training_finished(run, topts.schedule.epochs);
@@ -520,7 +520,7 @@ fn train_or_reuse(
             return Ok(reuse());
         }
         if s.interrupted || s.iterations_done < s.total_iterations {
-            return Err(NetError::TrainingStopped {
+            return Err(ExperimentError::TrainingStopped {
                 run: run.to_path_buf(),
                 done: s.iterations_done,
                 total: s.total_iterations,
@@ -544,13 +544,10 @@ fn test_best(
     test: &[IndexEntry],
     device: tch::Device,
     pb: &Progress,
-) -> Result<Report, NetError> {
+) -> Result<Report, ExperimentError> {
     let best = topts.out.join(BEST_CKPT);
     if !best.exists() {
-        return Err(NetError::Data(format!(
-            "{}: missing — no epoch improved the validation RMSE (non-finite?)",
-            best.display()
-        )));
+        return Err(ExperimentError::NoBestCheckpoint(best));
     }
     let loaded = checkpoint::load(&best, device)?;
     loaded
@@ -566,7 +563,7 @@ fn test_best(
     pb.set_length(test.len() as u64);
     pb.set_position(0);
     pb.set_message("test evaluation");
-    validate_net(
+    Ok(validate_net(
         &loaded.net,
         ds,
         test,
@@ -576,7 +573,7 @@ fn test_best(
         topts.loading.jobs,
         device,
         pb,
-    )
+    )?)
 }
 
 #[cfg(test)]
@@ -601,7 +598,7 @@ mod tests {
         let e = mismatch(
             Path::new("run"),
             "config.json",
-            &json_differences("", &stored, &asked),
+            json_differences("", &stored, &asked),
         );
         assert_eq!(
             e.to_string(),

@@ -26,10 +26,56 @@ pub enum NetError {
     /// Data-parallel training: the process group, a collective, the launcher's environment.
     #[error(transparent)]
     Dist(#[from] depthsense_dist::DistError),
-    #[error("data: {0}")]
-    Data(String),
+    /// A request that the model does not serve (a radar input it does not read, a variant
+    /// word it does not know): the request is at fault, not the model.
     #[error("configuration: {0}")]
-    Config(String),
+    Request(depthsense_config::ConfigError),
+    /// `eval --radar-drop` outside [0, 1].
+    #[error("configuration: --radar-drop must be within [0, 1], got {0}")]
+    RadarDropNotAFraction(f64),
+    /// `explain` of a network or an input it cannot explain.
+    #[error("configuration: {0}")]
+    Explain(#[from] depthsense_config::refusal::ExplainRefusal),
+    /// `mer apply` onto MER maps of another PDA checkpoint, without `--force`.
+    #[error(
+        "configuration: {}: MER maps of another PDA model ({there}, fnv64 {there_fnv64}) are \
+         there; pass --force to replace them with {}",
+        .record.display(),
+        .requested.display()
+    )]
+    OtherMerMaps {
+        /// The maps' record (`mer.json`).
+        record: PathBuf,
+        there: String,
+        there_fnv64: String,
+        requested: PathBuf,
+    },
+    /// One batch of the PDA network holding frames of two sizes: (width, height) of the first
+    /// frame and of the first that differs.
+    #[error(
+        "data: MER grids differ within a batch ({}x{} vs {}x{}): frames of one size are needed",
+        .other.0, .other.1, .first.0, .first.1
+    )]
+    MerGridsDiffer {
+        first: (usize, usize),
+        other: (usize, usize),
+    },
+    /// No optimiser state beside a checkpoint is at the checkpoint's iteration: the state
+    /// file and its previous generation at theirs (`None`: absent).
+    #[error(
+        "data: {} is {} and {} {}, but {} is at iteration {iteration}: no optimiser state \
+         belongs to the checkpoint",
+        .state.display(), at_iteration(*.state_at), .previous.display(),
+        at_iteration(*.previous_at), .checkpoint.display()
+    )]
+    NoMatchingOptimiserState {
+        state: PathBuf,
+        state_at: Option<u64>,
+        previous: PathBuf,
+        previous_at: Option<u64>,
+        checkpoint: PathBuf,
+        iteration: u64,
+    },
     /// A training run's options refused: by themselves, against the data or the ranks, or
     /// against the checkpoint they continue.
     #[error("configuration: {0}")]
@@ -61,12 +107,6 @@ pub enum NetError {
         iteration: u64,
         kept: String,
     },
-    #[error("{dir} already holds {what}; nothing was changed: {advice}")]
-    OutputExists {
-        dir: String,
-        what: String,
-        advice: String,
-    },
     #[error(transparent)]
     Lock(#[from] depthsense_base::lock::LockError),
     /// The data layer's errors (prepared folders, the loader, unreadable samples), with their
@@ -85,17 +125,6 @@ pub enum NetError {
         rank: usize,
         iteration: u64,
         max_abs_diff: f64,
-    },
-    /// An experiment's training run ended before its last iteration (interrupted or stopped).
-    #[error("{}: training stopped at iteration {done} of {total}", .run.display())]
-    TrainingStopped { run: PathBuf, done: u64, total: u64 },
-    /// One stage of a pipeline of commands (the demo's `synth`, `prepare`, `report`), its own
-    /// error kept whole.
-    #[error("{stage}: {source}")]
-    Stage {
-        stage: &'static str,
-        #[source]
-        source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// The network's decoded output has not the shape its input asks for (a bug, not a bad
     /// input).
@@ -124,6 +153,10 @@ pub enum NetError {
     GradientsNotAttached,
 }
 
+fn at_iteration(i: Option<u64>) -> String {
+    i.map_or("absent".to_string(), |i| format!("at iteration {i}"))
+}
+
 impl NetError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
@@ -140,7 +173,7 @@ impl From<depthsense_config::ConfigError> for NetError {
         match e {
             // a mismatch between a request and the model, not an invalid model (same message
             // as when the trainer owned the rule)
-            C::RadarChannels { .. } | C::UnknownVariant(_) => NetError::Config(e.to_string()),
+            C::RadarChannels { .. } | C::UnknownVariant(_) => NetError::Request(e),
             e => NetError::Model(e.into()),
         }
     }
@@ -161,15 +194,6 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "rank 1: the model differs from rank 0's after iteration 7 (max |Δ| = 5e-1)"
-        );
-        let e = NetError::TrainingStopped {
-            run: PathBuf::from("runs/a/rgb"),
-            done: 3,
-            total: 10,
-        };
-        assert_eq!(
-            e.to_string(),
-            "runs/a/rgb: training stopped at iteration 3 of 10"
         );
         let e = NetError::SyncBatchNorm(depthsense_dist::DistError::Collective("timeout".into()));
         assert_eq!(e.to_string(), "sync batch norm: timeout");
@@ -210,25 +234,37 @@ mod tests {
             NetError::GradientsNotAttached.to_string(),
             "distributed: gradients synchronised before attach"
         );
-    }
-
-    /// A stage's error is its cause, kept whole: the message holds it once, and the chain
-    /// reaches the stage's own error.
-    #[test]
-    fn a_stage_keeps_its_error_as_the_cause() {
-        use std::error::Error;
-        let inner = depthsense_prep::error::PrepError::BenchNoKeyframes;
-        let e = NetError::Stage {
-            stage: "prepare",
-            source: Box::new(inner),
+        let e = NetError::MerGridsDiffer {
+            first: (100, 44),
+            other: (50, 22),
         };
         assert_eq!(
             e.to_string(),
-            "prepare: the bench world needs at least one keyframe"
+            "data: MER grids differ within a batch (50x22 vs 100x44): frames of one size are \
+             needed"
         );
-        let cause = e.source().unwrap();
-        assert!(cause
-            .downcast_ref::<depthsense_prep::error::PrepError>()
-            .is_some());
+        let e = NetError::OtherMerMaps {
+            record: PathBuf::from("p/mer.json"),
+            there: "a.safetensors".into(),
+            there_fnv64: "1f".into(),
+            requested: PathBuf::from("b.safetensors"),
+        };
+        assert_eq!(
+            e.to_string(),
+            "configuration: p/mer.json: MER maps of another PDA model (a.safetensors, fnv64 \
+             1f) are there; pass --force to replace them with b.safetensors"
+        );
+        assert_eq!(
+            NetError::RadarDropNotAFraction(1.5).to_string(),
+            "configuration: --radar-drop must be within [0, 1], got 1.5"
+        );
+        let e = NetError::from(depthsense_config::refusal::ExplainRefusal::NoSuchLayers(
+            vec!["rgb.layer9".into()],
+        ));
+        assert_eq!(
+            e.to_string(),
+            "configuration: none of the layers [\"rgb.layer9\"] exists in this network \
+             (rgb.layer1..4, decoder, radar)"
+        );
     }
 }

@@ -154,10 +154,10 @@ struct PdaBatch {
 fn stack(samples: &[(PdaInput, Vec<i8>)], device: Device) -> Result<PdaBatch, NetError> {
     let g = samples[0].0.grid;
     if let Some((s, _)) = samples.iter().find(|(s, _)| s.grid != g) {
-        return Err(NetError::Data(format!(
-            "MER grids differ within a batch ({}x{} vs {}x{}): frames of one size are needed",
-            s.grid.w, s.grid.h, g.w, g.h
-        )));
+        return Err(NetError::MerGridsDiffer {
+            first: (g.w, g.h),
+            other: (s.grid.w, s.grid.h),
+        });
     }
     let b = samples.len() as i64;
     let (h, w) = (g.h as i64, g.w as i64);

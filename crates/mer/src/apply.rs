@@ -117,10 +117,11 @@ pub fn predict_probs(
     device: Device,
 ) -> Result<Vec<Vec<f32>>, NetError> {
     let g = inputs[0].grid;
-    if inputs.iter().any(|s| s.grid != g) {
-        return Err(NetError::Data(
-            "frames of different sizes in one batch".into(),
-        ));
+    if let Some(s) = inputs.iter().find(|s| s.grid != g) {
+        return Err(NetError::MerGridsDiffer {
+            first: (g.w, g.h),
+            other: (s.grid.w, s.grid.h),
+        });
     }
     let (b, h, w) = (inputs.len() as i64, g.h as i64, g.w as i64);
     let image: Vec<f32> = inputs
@@ -201,14 +202,12 @@ fn prepare_record(
     if let Some(old) = read_record(&ds.root)? {
         let same = old.checkpoint_fnv64 == record.checkpoint_fnv64;
         if !same && !opts.force {
-            return Err(NetError::Config(format!(
-                "{}: MER maps of another PDA model ({}, fnv64 {}) are there; pass --force to \
-                 replace them with {}",
-                ds.root.join(MER_RECORD_FILE).display(),
-                old.checkpoint,
-                old.checkpoint_fnv64,
-                opts.checkpoint.display()
-            )));
+            return Err(NetError::OtherMerMaps {
+                record: ds.root.join(MER_RECORD_FILE),
+                there: old.checkpoint.to_string(),
+                there_fnv64: old.checkpoint_fnv64.to_string(),
+                requested: opts.checkpoint.clone(),
+            });
         }
     }
     if opts.force {

@@ -17,7 +17,7 @@ use std::path::Path;
 
 use depthsense_config::pda::PdaConfig;
 use depthsense_data::{IMAGENET_MEAN, IMAGENET_STD};
-use depthsense_dataset::{decode_rgb, read_depth};
+use depthsense_dataset::{decode_rgb, read_depth, DataError};
 use depthsense_prep::layout::{IMAGE_FILE, LIDAR_DENSE_FILE, META_FILE, RADAR_RAW_FILE};
 
 use depthsense_infer::NetError;
@@ -222,26 +222,27 @@ pub fn pda_input(
     }
 }
 
+/// What the accumulated lidar is needed for here, in the data errors.
+const MER_LABELS: &str = "MER association labels";
+
 /// Reads a prepared sample's image and raw radar → [`PdaInput`].
 pub fn load_input(dir: &Path, cfg: &PdaConfig, flip: bool) -> Result<PdaInput, NetError> {
     if !dir.join(META_FILE).exists() {
-        return Err(NetError::Data(format!(
-            "{}: incomplete sample directory (no {META_FILE})",
-            dir.display()
-        )));
+        return Err(DataError::IncompleteSample {
+            dir: dir.to_path_buf(),
+        }
+        .into());
     }
     let rgb = decode_rgb(&dir.join(IMAGE_FILE))?;
     let rp = dir.join(RADAR_RAW_FILE);
     let raw = read_depth(&rp)?;
     if (raw.width, raw.height) != rgb.dimensions() {
-        return Err(NetError::Data(format!(
-            "{}: {}x{} but the image is {}x{}",
-            rp.display(),
-            raw.width,
-            raw.height,
-            rgb.width(),
-            rgb.height()
-        )));
+        return Err(DataError::MapSize {
+            path: rp,
+            size: (raw.width as usize, raw.height as usize),
+            image: (rgb.width() as usize, rgb.height() as usize),
+        }
+        .into());
     }
     Ok(pda_input(&rgb, &raw.depth_m, cfg, flip))
 }
@@ -256,11 +257,11 @@ pub fn check_accumulated(dir: &Path) -> Result<(), NetError> {
         reason: e.to_string(),
     })?;
     if meta["settings"]["lidar_sweeps_k"].as_u64() == Some(0) {
-        return Err(NetError::Data(format!(
-            "{}: prepared with --lidar-sweeps 0; MER association labels need the accumulated \
-             lidar of `depthsense prepare --lidar-sweeps K` with K > 0 (SPEC §4–5)",
-            p.display()
-        )));
+        return Err(DataError::NotAccumulated {
+            meta: p,
+            needs: MER_LABELS,
+        }
+        .into());
     }
     Ok(())
 }
@@ -275,23 +276,21 @@ pub fn load_labelled(
     let input = load_input(dir, cfg, flip)?;
     let lp = dir.join(LIDAR_DENSE_FILE);
     if !lp.exists() {
-        return Err(NetError::Data(format!(
-            "{}: missing; MER labels need the accumulated lidar map of `depthsense prepare \
-             --lidar-sweeps K` (K > 0, SPEC §5)",
-            lp.display()
-        )));
+        return Err(DataError::NoAccumulatedLidar {
+            path: lp,
+            needs: MER_LABELS,
+        }
+        .into());
     }
     let dense = read_depth(&lp)?;
     let g = input.grid;
     if (dense.width as usize, dense.height as usize) != (g.frame_w, g.frame_h) {
-        return Err(NetError::Data(format!(
-            "{}: {}x{} but the image is {}x{}",
-            lp.display(),
-            dense.width,
-            dense.height,
-            g.frame_w,
-            g.frame_h
-        )));
+        return Err(DataError::MapSize {
+            path: lp,
+            size: (dense.width as usize, dense.height as usize),
+            image: (g.frame_w, g.frame_h),
+        }
+        .into());
     }
     let mut lidar = g.nearest_depth(&dense.depth_m);
     if flip {

@@ -140,16 +140,14 @@ pub fn load_matching(
     if older == Some(iteration) {
         return Ok(false);
     }
-    let at = |x: Option<u64>| x.map_or("absent".to_string(), |i| format!("at iteration {i}"));
-    Err(NetError::Data(format!(
-        "{} is {} and {} {}, but {} is at iteration {iteration}: no optimiser state belongs to \
-         the checkpoint",
-        path.display(),
-        at(main),
-        prev.display(),
-        at(older),
-        checkpoint.display()
-    )))
+    Err(NetError::NoMatchingOptimiserState {
+        state: path.to_path_buf(),
+        state_at: main,
+        previous: prev,
+        previous_at: older,
+        checkpoint: checkpoint.to_path_buf(),
+        iteration,
+    })
 }
 
 #[cfg(test)]
@@ -193,10 +191,29 @@ mod tests {
         // a consistent pair
         assert!(load_matching(&p, &ck, 10, read).unwrap());
         // neither fits: an error naming all three
-        let e = load_matching(&p, &ck, 11, read).unwrap_err().to_string();
+        let e = load_matching(&p, &ck, 11, read).unwrap_err();
+        let text = e.to_string();
         assert!(
-            e.contains("at iteration 10") && e.contains("at iteration 9") && e.contains("11"),
-            "{e}"
+            matches!(
+                e,
+                NetError::NoMatchingOptimiserState {
+                    state_at: Some(10),
+                    previous_at: Some(9),
+                    iteration: 11,
+                    ..
+                }
+            ),
+            "{text}"
+        );
+        assert_eq!(
+            text,
+            format!(
+                "data: {} is at iteration 10 and {} at iteration 9, but {} is at iteration 11: \
+                 no optimiser state belongs to the checkpoint",
+                p.display(),
+                prev_path(&p).display(),
+                ck.display()
+            )
         );
     }
 }

@@ -228,6 +228,20 @@ fn failure_experiment_tables_every_scenario() {
     for bad in ["radar-drop=2", "beyond=-1", "wobble=1"] {
         assert!(parse_scenarios(bad).is_err(), "{bad}");
     }
+    use depthsense_experiments::{ExperimentError::Spec, SpecRefusal as R};
+    assert!(matches!(
+        parse_scenarios("none;radar-drop=2"),
+        Err(Spec(R::RadarDropOutOfRange { scenario })) if scenario == "radar-drop=2"
+    ));
+    assert!(matches!(
+        parse_scenarios("clutter=5,wobble=1"),
+        Err(Spec(R::UnreadableScenario { scenario, setting }))
+            if scenario == "clutter=5,wobble=1" && setting == "wobble=1"
+    ));
+    assert!(matches!(
+        parse_scenarios(" ; "),
+        Err(Spec(R::NothingGiven("failure scenarios")))
+    ));
     let out = tmp.path().join("failure");
     let mp = depthsense_progress::Board::hidden();
     let r = run_failure(&eo, &sc, &out, Some("cmd".into()), &mp).unwrap();
