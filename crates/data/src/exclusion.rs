@@ -16,8 +16,8 @@ use depthsense_prep::layout::{Condition, IndexEntry};
 use serde::{Deserialize, Serialize};
 
 use depthsense_base::hash::splitmix64;
-use depthsense_dataset::DataError;
 use depthsense_dataset::Partition;
+use depthsense_dataset::{DataError, ExclusionFault};
 
 /// Withhold `fraction` of the training scenes of `condition`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -43,22 +43,25 @@ impl std::fmt::Display for Exclusion {
 impl FromStr for Exclusion {
     type Err = DataError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let bad = |why: &str| DataError::Config(format!("--exclude {s:?}: {why}"));
+        let bad = |fault| DataError::BadExclusion {
+            word: s.to_string(),
+            fault,
+        };
         let (c, f) = s
             .split_once('=')
-            .ok_or_else(|| bad("expected CONDITION=FRACTION, e.g. night=1.0"))?;
+            .ok_or_else(|| bad(ExclusionFault::NoFraction))?;
         let condition = match c.trim() {
             "day" => Condition::Day,
             "night" => Condition::Night,
             "rain" => Condition::Rain,
-            _ => return Err(bad("condition must be day, night or rain")),
+            _ => return Err(bad(ExclusionFault::UnknownCondition)),
         };
         let fraction: f64 = f
             .trim()
             .parse()
-            .map_err(|_| bad("fraction must be a number"))?;
+            .map_err(|_| bad(ExclusionFault::NotANumber))?;
         if !(0.0..=1.0).contains(&fraction) {
-            return Err(bad("fraction must be within [0, 1]"));
+            return Err(bad(ExclusionFault::OutOfRange));
         }
         Ok(Exclusion {
             condition,
@@ -123,4 +126,44 @@ pub fn apply_exclusions(part: &mut Partition, exclude: &[Exclusion]) -> Vec<Stri
         gone.join(", ")
     );
     gone
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each malformed `--exclude` word is refused with the word and what is wrong with it.
+    #[test]
+    fn a_malformed_exclusion_names_the_word_and_the_fault() {
+        let fault = |s: &str| match s.parse::<Exclusion>() {
+            Err(DataError::BadExclusion { word, fault }) => {
+                assert_eq!(word, s);
+                Some(fault)
+            }
+            Err(e) => panic!("{s}: {e}"),
+            Ok(_) => None,
+        };
+        assert_eq!(fault("night"), Some(ExclusionFault::NoFraction));
+        assert_eq!(fault("fog=1"), Some(ExclusionFault::UnknownCondition));
+        assert_eq!(fault("rain=half"), Some(ExclusionFault::NotANumber));
+        assert_eq!(fault("day=1.5"), Some(ExclusionFault::OutOfRange));
+        assert_eq!(fault(" night = 0.5 "), None);
+        let text = |s: &str| parse_exclusions(s).unwrap_err().to_string();
+        assert_eq!(
+            text("night=1,night"),
+            "configuration: --exclude \"night\": expected CONDITION=FRACTION, e.g. night=1.0"
+        );
+        assert_eq!(
+            text("fog=1"),
+            "configuration: --exclude \"fog=1\": condition must be day, night or rain"
+        );
+        assert_eq!(
+            text("rain=half"),
+            "configuration: --exclude \"rain=half\": fraction must be a number"
+        );
+        assert_eq!(
+            text("day=1.5"),
+            "configuration: --exclude \"day=1.5\": fraction must be within [0, 1]"
+        );
+    }
 }

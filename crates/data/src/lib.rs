@@ -269,10 +269,9 @@ pub fn load_sample(
         root: ds.root.display().to_string(),
         samples: vec![(entry.sample_token.clone(), why)],
     };
-    read_sample(ds, entry, opts, rng).map_err(|e| match e {
-        DataError::Data(why) => unreadable(why),
-        DataError::Io { .. } | DataError::Parse { .. } => unreadable(e.to_string()),
-        other => other,
+    read_sample(ds, entry, opts, rng).map_err(|e| match e.unreadable_reason() {
+        Some(why) => unreadable(why),
+        None => e,
     })
 }
 
@@ -435,11 +434,7 @@ fn corrupt_radar(
         height_px: h,
     } = maps;
     if opts.radar_oracle && (opts.failure.is_active() || opts.radar == RadarInput::Mer) {
-        return Err(DataError::Config(
-            "the oracle radar is not combined with sensor failures or MER inputs (it replaces \
-             the maps those are built from): drop one of them"
-                .into(),
-        ));
+        return Err(DataError::OracleRadarCombined);
     }
     let failure_seed = opts.seed ^ hash_str(&entry.sample_token) ^ 0xfa11;
     let meta = match opts.failure.is_active() {
@@ -448,11 +443,7 @@ fn corrupt_radar(
     };
     // SPEC §10.7/§10.8: perturbed calibration or a subset of radars, from the points.
     if opts.radar == RadarInput::Mer && opts.failure.perturb.is_some() {
-        return Err(DataError::Config(
-            "a calibration perturbation of MER inputs would need `mer apply` on the \
-             perturbed maps: not supported (use a raw / height-extended model)"
-                .into(),
-        ));
+        return Err(DataError::MerPerturbation);
     }
     if let Some(meta) = &meta {
         if let Some((r, hm)) = opts.failure.reraster(dir, meta, failure_seed)? {
@@ -626,10 +617,11 @@ impl Batch {
             .iter()
             .find(|s| s.width != w || s.height != h || s.radar_channels != c)
         {
-            return Err(DataError::Data(format!(
-                "sample {} is {}x{} with {} radar channels, but the batch is {w}x{h} with {c}",
-                s.token, s.width, s.height, s.radar_channels
-            )));
+            return Err(DataError::BatchMismatch {
+                sample: s.token.clone(),
+                shape: (s.width, s.height, s.radar_channels),
+                batch: (w, h, c),
+            });
         }
         let b = samples.len();
         let mut image = Vec::with_capacity(b * 3 * w * h);
@@ -703,7 +695,7 @@ impl Loader {
         world: usize,
     ) -> Result<Loader, DataError> {
         if plan.batch_size == 0 {
-            return Err(DataError::Config("batch size must be at least 1".into()));
+            return Err(DataError::ZeroBatchSize);
         }
         let groups = batch_groups(opts, plan, rank, world)?;
         let batches = groups.len();
@@ -774,9 +766,10 @@ fn batch_groups(
         for g in groups.iter_mut() {
             let n = g.len();
             if n < world {
-                return Err(DataError::Config(format!(
-                    "a batch of {n} sample(s) cannot be shared by {world} ranks"
-                )));
+                return Err(DataError::BatchNotShared {
+                    batch: n,
+                    ranks: world,
+                });
             }
             *g = g[rank * n / world..(rank + 1) * n / world].to_vec();
         }
@@ -1019,5 +1012,114 @@ mod tests {
         let mut r = Rng::new(7);
         assert_eq!(r.next_u64(), 11984929618412882174);
         assert_eq!(r.next_u64(), 10134167572453724827);
+    }
+
+    fn entry(token: &str) -> IndexEntry {
+        IndexEntry {
+            sample_token: token.into(),
+            scene_token: "t0".into(),
+            scene_name: "scene-0".into(),
+            splits: vec![],
+            conditions: vec![],
+            dir: token.into(),
+        }
+    }
+
+    fn plan(samples: usize, batch_size: usize) -> EpochPlan {
+        EpochPlan {
+            entries: (0..samples).map(|i| entry(&format!("s{i}"))).collect(),
+            batch_size,
+            epoch: 0,
+            shuffle: false,
+            drop_last: false,
+            skip_batches: 0,
+            jobs: 1,
+            prefetch: 1,
+        }
+    }
+
+    /// A batch size of 0, and a batch of fewer samples than ranks, are refused with the sizes.
+    #[test]
+    fn batches_that_cannot_be_made_are_refused_with_their_sizes() {
+        let opts = LoadOptions::default();
+        // 5 samples in batches of 4: the last batch of 1 cannot be shared by 2 ranks.
+        let e = batch_groups(&opts, &plan(5, 4), 0, 2).unwrap_err();
+        assert!(matches!(
+            e,
+            DataError::BatchNotShared { batch: 1, ranks: 2 }
+        ));
+        assert_eq!(
+            e.to_string(),
+            "configuration: a batch of 1 sample(s) cannot be shared by 2 ranks"
+        );
+        assert_eq!(
+            batch_groups(&opts, &plan(4, 4), 1, 2).unwrap(),
+            [vec![2, 3]]
+        );
+        let ds = Dataset {
+            root: "toy".into(),
+            index: Default::default(),
+        };
+        let e = Loader::start(&ds, &opts, &plan(1, 0)).err().unwrap();
+        assert!(matches!(e, DataError::ZeroBatchSize));
+        assert_eq!(
+            e.to_string(),
+            "configuration: batch size must be at least 1"
+        );
+    }
+
+    /// Samples of another frame or radar than their batch's are refused, naming the sample.
+    #[test]
+    fn a_sample_of_another_shape_than_its_batch_is_named() {
+        let sample = |token: &str, width: usize, radar_channels: usize| Sample {
+            token: token.into(),
+            conditions: vec![],
+            width,
+            height: 2,
+            image: vec![0.0; 3 * width * 2],
+            radar: vec![0.0; radar_channels * width * 2],
+            radar_channels,
+            target_m: vec![0.0; width * 2],
+            sparse_m: vec![],
+            lowheight: vec![],
+            flipped: false,
+        };
+        assert!(Batch::stack(0, vec![sample("a", 4, 1), sample("b", 4, 1)]).is_ok());
+        let e = Batch::stack(0, vec![sample("a", 4, 1), sample("b", 4, 2)]).unwrap_err();
+        assert!(matches!(
+            &e,
+            DataError::BatchMismatch {
+                sample,
+                shape: (4, 2, 2),
+                batch: (4, 2, 1),
+            } if sample == "b"
+        ));
+        assert_eq!(
+            e.to_string(),
+            "data: sample b is 4x2 with 2 radar channels, but the batch is 4x2 with 1"
+        );
+    }
+
+    /// A sample folder that `prepare` did not finish (no meta.json) is an unreadable sample,
+    /// named with its reason, like a truncated file.
+    #[test]
+    fn an_incomplete_sample_is_an_unreadable_one() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::create_dir(d.path().join("s0")).unwrap();
+        let ds = Dataset {
+            root: d.path().to_path_buf(),
+            index: Default::default(),
+        };
+        let mut rng = Rng::new(0);
+        let e = load_sample(&ds, &entry("s0"), &LoadOptions::default(), &mut rng).unwrap_err();
+        let DataError::Unreadable { root, samples } = e else {
+            panic!("{e}");
+        };
+        assert_eq!(root, d.path().display().to_string());
+        let why = format!(
+            "{}: incomplete sample directory (no {META_FILE})",
+            d.path().join("s0").display()
+        );
+        assert_eq!(samples, [("s0".to_string(), why)]);
     }
 }

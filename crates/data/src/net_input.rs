@@ -77,13 +77,12 @@ pub fn net_inputs(input: &PredictInput, radar: Option<RadarInput>) -> Result<Net
     let radar_planes = match radar {
         None => vec![],
         Some(RadarInput::Mer) => {
-            let (d, c) = input.mer.as_ref().ok_or_else(|| {
-                DataError::Config(format!(
-                    "{}: the model takes MER radar (SPEC §5) but the input has no MER maps: \
-                     run `depthsense mer apply` on the prepared data or pass --mer-checkpoint",
-                    input.name
-                ))
-            })?;
+            let (d, c) = input
+                .mer
+                .as_ref()
+                .ok_or_else(|| DataError::InputWithoutMer {
+                    input: input.name.clone(),
+                })?;
             crate::radar_planes(
                 RadarInput::Mer,
                 &input.radar_raw,
@@ -95,10 +94,10 @@ pub fn net_inputs(input: &PredictInput, radar: Option<RadarInput>) -> Result<Net
     };
     let plane = width * height;
     if radar_planes.len() % plane.max(1) != 0 {
-        return Err(DataError::Data(format!(
-            "{}: radar maps do not have the image's {width}x{height} pixels",
-            input.name
-        )));
+        return Err(DataError::RadarPlanesSize {
+            input: input.name.clone(),
+            image: (width, height),
+        });
     }
     Ok(NetInputs {
         width,
@@ -138,16 +137,11 @@ pub fn input_from_prepared(dir: &Path) -> Result<PredictInput, DataError> {
     })
 }
 
-/// `prepare`'s and the readers' errors as the data layer's (`data: …`).
-fn data_err(e: impl std::fmt::Display) -> DataError {
-    DataError::Data(e.to_string())
-}
-
 /// A map as `prepare` stores it and the loader reads it back: through the 16-bit PNG
 /// (depth × 256, SPEC §3), so that a map computed here equals the prepared file bit for bit.
 pub fn as_stored(map: DepthMap) -> Result<DepthMap, DataError> {
-    let bytes = encode_png(&map).map_err(data_err)?;
-    decode_png(&bytes, "radar map").map_err(data_err)
+    let bytes = encode_png(&map)?;
+    Ok(decode_png(&bytes, "radar map")?)
 }
 
 /// Run the `prepare` computation for one sample token of a dataroot (nothing is written); the
@@ -158,7 +152,7 @@ pub fn input_from_token(
     token: &str,
     opts: &depthsense_prep::PrepareOptions,
 ) -> Result<PredictInput, DataError> {
-    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version).map_err(data_err)?;
+    let nu = depthsense_nuscenes::tables::NuScenes::load(dataroot, version)?;
     input_from_tables(&nu, token, opts)
 }
 
@@ -170,17 +164,27 @@ pub fn input_from_tables(
     opts: &depthsense_prep::PrepareOptions,
 ) -> Result<PredictInput, DataError> {
     let want = depthsense_nuscenes::tables::Token::parse(token);
-    let sample = nu.sample.iter().find(|s| s.token == want).ok_or_else(|| {
-        DataError::Data(format!(
-            "{}/{}: no sample with token {token}",
-            opts.dataroot.display(),
-            opts.version
-        ))
+    let no_such_token = || DataError::NoSuchToken {
+        dataroot: opts.dataroot.clone(),
+        version: opts.version.clone(),
+        token: token.to_string(),
+    };
+    let sample = nu
+        .sample
+        .iter()
+        .find(|s| s.token == want)
+        .ok_or_else(no_such_token)?;
+    let maps = depthsense_prep::pipeline::compute_sample(nu, sample, opts).map_err(|e| {
+        DataError::TokenPrepare {
+            token: token.to_string(),
+            source: Box::new(e),
+        }
     })?;
-    let maps = depthsense_prep::pipeline::compute_sample(nu, sample, opts)
-        .map_err(|e| DataError::Data(format!("sample {token}: {e}")))?;
-    let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, maps.image_rgb)
-        .ok_or_else(|| DataError::Data(format!("sample {token}: image has the wrong size")))?;
+    let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, maps.image_rgb).ok_or_else(|| {
+        DataError::FrameImage {
+            sample: Some(token.to_string()),
+        }
+    })?;
     Ok(PredictInput {
         name: token.to_string(),
         image,
@@ -189,6 +193,14 @@ pub fn input_from_tables(
         gt: Some(as_stored(maps.lidar_sparse)?),
         mer: None,
         radar_settings: Some(RadarSettings::of(opts)),
+    })
+}
+
+/// The calibration JSON at `path` (either form, [`depthsense_prep::calibration::read`]).
+fn read_calibration(path: &Path) -> Result<Calibration, DataError> {
+    depthsense_prep::calibration::read(path).map_err(|e| DataError::Calibration {
+        path: path.to_path_buf(),
+        source: Box::new(e),
     })
 }
 
@@ -213,18 +225,14 @@ fn chosen_entries<'a>(
             .radar
             .iter()
             .position(|e| name(Path::new(&e.file)) == name(f))
-            .ok_or_else(|| {
-                DataError::Data(format!(
-                    "{}: no cam_from_radar entry for radar file {:?} (entries: {:?}); write \
-                     the calibration with `depthsense calibration`, which lists every sweep",
-                    calibration.display(),
-                    name(f).unwrap_or_default(),
-                    calib
-                        .radar
-                        .iter()
-                        .filter_map(|e| name(Path::new(&e.file)))
-                        .collect::<Vec<_>>()
-                ))
+            .ok_or_else(|| DataError::NoCalibrationEntry {
+                calibration: calibration.to_path_buf(),
+                file: name(f).unwrap_or_default(),
+                entries: calib
+                    .radar
+                    .iter()
+                    .filter_map(|e| name(Path::new(&e.file)))
+                    .collect(),
             })?;
         chosen.push((i, f.clone()));
     }
@@ -245,7 +253,7 @@ pub fn input_from_raw(
     calibration: &Path,
     radar_filters: bool,
 ) -> Result<PredictInput, DataError> {
-    let calib = depthsense_prep::calibration::read(calibration).map_err(data_err)?;
+    let calib = read_calibration(calibration)?;
     let full = decode_rgb(jpeg)?;
     let name = jpeg
         .file_stem()
@@ -270,7 +278,7 @@ pub fn input_from_raw_bytes(
     calibration: &Path,
     radar_filters: bool,
 ) -> Result<PredictInput, DataError> {
-    let calib = depthsense_prep::calibration::read(calibration).map_err(data_err)?;
+    let calib = read_calibration(calibration)?;
     let full = depthsense_dataset::maps::decode_rgb_bytes(image_bytes, Path::new(name))?;
     input_from_decoded(
         full,
@@ -291,20 +299,19 @@ fn input_from_decoded(
     radar_filters: bool,
 ) -> Result<PredictInput, DataError> {
     let (w, h) = full.dimensions();
-    let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| {
-        DataError::Data(format!(
-            "{label}: image is {w}x{h}; a nuScenes CAM_FRONT image is 1600x900"
-        ))
+    let frame = image_to_frame(full.as_raw(), w, h).ok_or_else(|| DataError::NotCamFront {
+        input: label.to_string(),
+        size: (w, h),
     })?;
     let image = image::RgbImage::from_raw(FRAME_W, FRAME_H, frame)
-        .ok_or_else(|| DataError::Data("frame has the wrong size".into()))?;
+        .ok_or(DataError::FrameImage { sample: None })?;
     let cam = Camera::from_intrinsic(&calib.camera_intrinsic, w, h);
     let filters = radar_filters && calib.settings.radar_filters;
     let velocity = calib.settings.radar_velocity_compensation;
     let mut points = RadarPoints::new(cam);
     let mut sweeps: BTreeMap<String, usize> = BTreeMap::new();
     for (e, path) in chosen_entries(calibration, calib, radar_files)? {
-        let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path).map_err(data_err)?;
+        let scan = depthsense_nuscenes::pcd::read_radar_pcd(&path)?;
         let dt_s = match (velocity, calib.camera_timestamp_us, e.timestamp_us) {
             (true, Some(c), Some(s)) => Some(velocity_dt_s(c, s)),
             _ => None,
@@ -409,6 +416,18 @@ mod tests {
         assert_eq!(
             x.image[13 * 7],
             inp.image.get_pixel(0, 0).0[1] as f32 / 255.0
+        );
+    }
+
+    /// A model fed MER radar refuses an input without MER maps, naming the input.
+    #[test]
+    fn a_mer_model_refuses_an_input_without_mer_maps() {
+        let e = net_inputs(&input(5, 4), Some(RadarInput::Mer)).unwrap_err();
+        assert!(matches!(&e, DataError::InputWithoutMer { input } if input == "t"));
+        assert_eq!(
+            e.to_string(),
+            "configuration: t: the model takes MER radar (SPEC §5) but the input has no MER \
+             maps: run `depthsense mer apply` on the prepared data or pass --mer-checkpoint"
         );
     }
 

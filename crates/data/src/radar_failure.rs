@@ -106,8 +106,11 @@ impl RadarFailure {
         if !self.needs_points(meta) {
             return Ok(None);
         }
-        let points = RadarPoints::read_from_sample(dir)
-            .map_err(|e| DataError::Data(format!("sample {}: {e}", meta.sample_token)))?;
+        let points =
+            RadarPoints::read_from_sample(dir).map_err(|source| DataError::SampleRadarPoints {
+                sample: meta.sample_token.clone(),
+                source,
+            })?;
         let mut points = if self.drops_all(meta) {
             points.without_channels(|_| true)
         } else {
@@ -154,17 +157,12 @@ impl RadarFailure {
     pub fn validate(&self) -> Result<(), DataError> {
         if let Some(r) = self.drop_beyond_m {
             if !(r.is_finite() && r > 0.0) {
-                return Err(DataError::Config(format!(
-                    "--drop-beyond-m must be a positive number of metres, got {r}"
-                )));
+                return Err(DataError::DropBeyondNotPositive { metres: r });
             }
         }
         if let Some(p) = self.perturb {
             if !(p.amount.is_finite() && p.amount >= 0.0) {
-                return Err(DataError::Config(format!(
-                    "perturbation magnitude must be a non-negative number, got {}",
-                    p.amount
-                )));
+                return Err(DataError::NegativePerturbation { amount: p.amount });
             }
         }
         Ok(())
@@ -354,5 +352,43 @@ mod tests {
             assert_eq!(decode_value(encode_value(*d)), *d);
         }
         assert!(a.valid_count() > 0);
+    }
+
+    /// A range cut that is not a positive distance and a negative perturbation are refused
+    /// with the value given; a sample without radar points is named by its token.
+    #[test]
+    fn refused_settings_and_missing_points_carry_their_values() {
+        let cut = RadarFailure {
+            drop_beyond_m: Some(-2.5),
+            ..Default::default()
+        };
+        let e = cut.validate().unwrap_err();
+        assert!(matches!(e, DataError::DropBeyondNotPositive { metres } if metres == -2.5));
+        assert_eq!(
+            e.to_string(),
+            "configuration: --drop-beyond-m must be a positive number of metres, got -2.5"
+        );
+        let perturb = RadarFailure {
+            perturb: Some(Perturbation {
+                axis: depthsense_prep::radar_points::PerturbAxis::Yaw,
+                amount: -1.0,
+            }),
+            ..Default::default()
+        };
+        let e = perturb.validate().unwrap_err();
+        assert!(matches!(e, DataError::NegativePerturbation { amount } if amount == -1.0));
+        assert_eq!(
+            e.to_string(),
+            "configuration: perturbation magnitude must be a non-negative number, got -1"
+        );
+        let sub = RadarFailure {
+            drop_radars: vec!["RADAR_FRONT".into()],
+            ..Default::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let m = meta(&["RADAR_FRONT", "RADAR_FRONT_LEFT"]);
+        let e = sub.reraster(dir.path(), &m, 0).unwrap_err();
+        assert!(matches!(&e, DataError::SampleRadarPoints { sample, .. } if sample == "t"));
+        assert!(e.to_string().starts_with("data: sample t: "), "{e}");
     }
 }

@@ -22,11 +22,8 @@ pub fn oracle_maps(
     width: usize,
     height: usize,
 ) -> Result<(DepthMap, DepthMap), DataError> {
-    let points = RadarPoints::read_from_sample(dir).map_err(|e| {
-        DataError::Data(format!(
-            "{e} (the oracle radar is rebuilt from each sample's radar points)"
-        ))
-    })?;
+    let points = RadarPoints::read_from_sample(dir)
+        .map_err(|source| DataError::OracleRadarPoints { source })?;
     let (oracle, _) = oracle_points(&points, target_m, width, height);
     let maps = oracle.rasterise();
     Ok((quantised(&maps.raw), quantised(&maps.height)))

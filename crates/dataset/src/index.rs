@@ -76,10 +76,7 @@ impl Dataset {
                 reason: e.to_string(),
             })?;
         if index.samples.is_empty() {
-            return Err(DataError::Data(format!(
-                "{} lists no samples: run `depthsense prepare` first",
-                path.display()
-            )));
+            return Err(DataError::EmptyIndex { index: path });
         }
         Ok(Self {
             root: root.to_path_buf(),
@@ -94,12 +91,13 @@ impl Dataset {
         if let Some([w, h]) = self.index.frame_size {
             return Ok((w, h));
         }
-        let first = self.index.samples.first().ok_or_else(|| {
-            DataError::Data(format!(
-                "{} lists no samples",
-                self.root.join(INDEX_FILE).display()
-            ))
-        })?;
+        let first = self
+            .index
+            .samples
+            .first()
+            .ok_or_else(|| DataError::EmptyIndex {
+                index: self.root.join(INDEX_FILE),
+            })?;
         let image = self
             .sample_dir(first)
             .join(depthsense_prep::layout::IMAGE_FILE);
@@ -165,13 +163,12 @@ impl Partition {
     /// prepared folder `data`, both counts and how the partition was made.
     pub fn require_train_and_val(&self, data: &Path) -> Result<(), DataError> {
         if self.train.is_empty() || self.val.is_empty() {
-            return Err(DataError::Data(format!(
-                "{}: {} training and {} validation samples ({}): need both",
-                data.display(),
-                self.train.len(),
-                self.val.len(),
-                self.method
-            )));
+            return Err(DataError::NoTrainOrVal {
+                data: data.to_path_buf(),
+                train: self.train.len(),
+                val: self.val.len(),
+                method: self.method.clone(),
+            });
         }
         Ok(())
     }
@@ -270,11 +267,10 @@ fn partition_scene_modulo(ds: &Dataset, every: usize) -> Result<Partition, DataE
     let mut scenes = ds.scenes();
     scenes.sort();
     if scenes.len() < 3 {
-        return Err(DataError::Data(format!(
-            "{}: need at least 3 scenes for train / validation / test, found {}",
-            ds.root.display(),
-            scenes.len()
-        )));
+        return Err(DataError::TooFewScenes {
+            root: ds.root.clone(),
+            scenes: scenes.len(),
+        });
     }
     let every = every.max(3);
     let (val_scenes, test_scenes) = modulo_val_test_scenes(&scenes, every);
@@ -364,6 +360,51 @@ mod tests {
         std::fs::write(d.path().join(INDEX_FILE), json).unwrap();
         let ds = Dataset::open(d.path()).unwrap();
         (d, ds)
+    }
+
+    /// A partition without validation samples, a split-less folder of fewer than 3 scenes
+    /// and an index without samples are refused with the counts and files at fault.
+    #[test]
+    fn partitions_that_cannot_be_made_say_why() {
+        let (d, mut ds) = folder(8, 4, true);
+        let root = d.path().display();
+        // One training scene: none is left for validation.
+        let p = partition(&ds, 5).unwrap();
+        let e = p.require_train_and_val(d.path()).unwrap_err();
+        assert!(matches!(
+            e,
+            DataError::NoTrainOrVal {
+                train: 1,
+                val: 0,
+                ..
+            }
+        ));
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "data: {root}: 1 training and 0 validation samples ({}): need both",
+                p.method
+            )
+        );
+        ds.index.samples[0].splits.clear();
+        let e = partition(&ds, 5).unwrap_err();
+        assert!(matches!(e, DataError::TooFewScenes { scenes: 1, .. }));
+        assert_eq!(
+            e.to_string(),
+            format!("data: {root}: need at least 3 scenes for train / validation / test, found 1")
+        );
+        let index = d.path().join(INDEX_FILE);
+        let json = serde_json::to_vec(&PreparedIndex::default()).unwrap();
+        std::fs::write(&index, json).unwrap();
+        let e = Dataset::open(d.path()).unwrap_err();
+        assert!(matches!(&e, DataError::EmptyIndex { index: i } if i == &index));
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "data: {} lists no samples: run `depthsense prepare` first",
+                index.display()
+            )
+        );
     }
 
     #[test]

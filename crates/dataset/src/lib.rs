@@ -11,7 +11,7 @@ pub mod maps;
 pub mod mer_maps;
 pub mod outputs;
 
-pub use error::{DataError, SampleFolder};
+pub use error::{DataError, ExclusionFault, SampleFolder};
 pub use index::{partition, subsample, Dataset, Partition};
 pub use maps::{
     check_sample_dir, check_size, decode_rgb, read_depth, read_lowheight_mask, read_meta,

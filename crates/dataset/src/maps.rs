@@ -42,7 +42,7 @@ fn read_file(path: &Path) -> Result<Vec<u8>, DataError> {
 
 pub fn read_depth(path: &Path) -> Result<DepthMap, DataError> {
     let bytes = read_file(path)?;
-    decode_png(&bytes, &path.display().to_string()).map_err(|e| DataError::Data(e.to_string()))
+    Ok(decode_png(&bytes, &path.display().to_string())?)
 }
 
 pub fn decode_rgb(path: &Path) -> Result<image::RgbImage, DataError> {
@@ -79,12 +79,11 @@ pub fn read_lowheight_mask(dir: &Path, w: usize, h: usize) -> Result<Vec<bool>, 
     }
     let m = decode_rgb_luma(&mpath)?;
     if m.len() != w * h {
-        return Err(DataError::Data(format!(
-            "{}: mask has {} pixels, expected {}",
-            mpath.display(),
-            m.len(),
-            w * h
-        )));
+        return Err(DataError::MaskSize {
+            path: mpath,
+            pixels: m.len(),
+            expected: w * h,
+        });
     }
     Ok(m)
 }
@@ -124,6 +123,34 @@ mod tests {
                 ..
             }
         ));
+    }
+
+    /// A low-height mask of another size than its image is refused with both pixel counts; a
+    /// depth PNG that cannot be decoded keeps the decoder's words behind `data: `.
+    #[test]
+    fn a_mask_of_another_size_and_a_broken_png_are_named() {
+        let d = tempfile::tempdir().unwrap();
+        let mask = d.path().join(LOWHEIGHT_MASK_FILE);
+        image::RgbImage::new(2, 2).save(&mask).unwrap();
+        assert_eq!(read_lowheight_mask(d.path(), 2, 2).unwrap().len(), 4);
+        let e = read_lowheight_mask(d.path(), 4, 2).unwrap_err();
+        assert!(matches!(
+            &e,
+            DataError::MaskSize { path, pixels: 4, expected: 8 } if path == &mask
+        ));
+        assert_eq!(
+            e.to_string(),
+            format!("data: {}: mask has 4 pixels, expected 8", mask.display())
+        );
+        let png = d.path().join("radar.png");
+        std::fs::write(&png, b"not a png").unwrap();
+        let e = read_depth(&png).unwrap_err();
+        assert!(matches!(e, DataError::Png(_)), "{e:?}");
+        assert!(
+            e.to_string()
+                .starts_with(&format!("data: {}: ", png.display())),
+            "{e}"
+        );
     }
 
     /// A folder passed as one sample that is not one says what it is and what to pass, in the

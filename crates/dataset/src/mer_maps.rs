@@ -42,14 +42,13 @@ pub fn quantise_conf(c: f32) -> f32 {
 /// depth maps are ([`encode_png16_fast`]).
 pub fn encode_conf_png(conf: &[f32], w: u32, h: u32) -> Result<Vec<u8>, DataError> {
     let values: Vec<u16> = conf.iter().map(|&c| conf_to_u16(c)).collect();
-    encode_png16_fast(w, h, &values).map_err(|e| DataError::Data(e.to_string()))
+    Ok(encode_png16_fast(w, h, &values)?)
 }
 
 /// Reads a confidence map written by [`encode_conf_png`] → (width, height, conf in [0, 1]).
 pub fn read_conf_png(path: &Path) -> Result<DepthMap, DataError> {
     let bytes = std::fs::read(path).map_err(|e| DataError::io(path, e))?;
-    let mut m = decode_png(&bytes, &path.display().to_string())
-        .map_err(|e| DataError::Data(e.to_string()))?;
+    let mut m = decode_png(&bytes, &path.display().to_string())?;
     for v in m.depth_m.iter_mut() {
         *v = (*v * 256.0).round() / 65535.0;
     }
@@ -85,25 +84,18 @@ pub fn read_mer_maps(dir: &Path) -> Result<(DepthMap, DepthMap), DataError> {
     let cp = dir.join(MER_CONF_FILE);
     for p in [&dp, &cp] {
         if !p.exists() {
-            return Err(DataError::Data(format!(
-                "{}: missing; radar input `mer` needs `depthsense mer apply --checkpoint \
-                 PDA.safetensors --data <prepared>` first (SPEC §5)",
-                p.display()
-            )));
+            return Err(DataError::NoMerMap { path: p.clone() });
         }
     }
     let depth = crate::read_depth(&dp)?;
     let conf = read_conf_png(&cp)?;
     if (depth.width, depth.height) != (conf.width, conf.height) {
-        return Err(DataError::Data(format!(
-            "{}: {}x{} but {} is {}x{}",
-            cp.display(),
-            conf.width,
-            conf.height,
-            dp.display(),
-            depth.width,
-            depth.height
-        )));
+        return Err(DataError::MerMapSizes {
+            conf: cp,
+            conf_size: (conf.width, conf.height),
+            depth: dp,
+            depth_size: (depth.width, depth.height),
+        });
     }
     Ok((depth, conf))
 }
@@ -152,5 +144,42 @@ mod tests {
         for (a, b) in conf.iter().zip(&back.depth_m) {
             assert_eq!(quantise_conf(*a), *b);
         }
+    }
+
+    /// A sample without its MER maps, or with a confidence map of another size than its depth
+    /// map, is refused naming the files and sizes.
+    #[test]
+    fn missing_or_mismatched_mer_maps_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let (dp, cp) = (
+            dir.path().join(MER_DEPTH_FILE),
+            dir.path().join(MER_CONF_FILE),
+        );
+        let e = read_mer_maps(dir.path()).unwrap_err();
+        assert!(matches!(&e, DataError::NoMerMap { path } if path == &dp));
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "data: {}: missing; radar input `mer` needs `depthsense mer apply --checkpoint \
+                 PDA.safetensors --data <prepared>` first (SPEC §5)",
+                dp.display()
+            )
+        );
+        let depth = depthsense_nuscenes::depth_png::encode_png(&DepthMap::zeros(4, 2)).unwrap();
+        std::fs::write(&dp, depth).unwrap();
+        std::fs::write(&cp, encode_conf_png(&[0.5; 4], 2, 2).unwrap()).unwrap();
+        let e = read_mer_maps(dir.path()).unwrap_err();
+        assert!(matches!(
+            e,
+            DataError::MerMapSizes {
+                conf_size: (2, 2),
+                depth_size: (4, 2),
+                ..
+            }
+        ));
+        assert_eq!(
+            e.to_string(),
+            format!("data: {}: 2x2 but {} is 4x2", cp.display(), dp.display())
+        );
     }
 }

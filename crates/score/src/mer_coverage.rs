@@ -59,10 +59,10 @@ fn sample_stats(dir: &Path, cap_m: f32) -> Result<(u64, SampleStats), DataError>
         ("height", height.depth_m.len()),
     ] {
         if len != n || md.depth_m.len() != n {
-            return Err(DataError::Data(format!(
-                "{}: {name} / MER maps and the lidar GT differ in size",
-                dir.display()
-            )));
+            return Err(DataError::CoverageMapSizes {
+                dir: dir.to_path_buf(),
+                map: name,
+            });
         }
     }
     let ch = derive_channels(&md.depth_m, &mc.depth_m);
@@ -107,10 +107,11 @@ fn entries_of(ds: &Dataset, split: &str) -> Result<Vec<IndexEntry>, DataError> {
         ds.split(split)
     };
     if e.is_empty() {
-        return Err(DataError::Data(format!(
-            "{}: no samples in split {split:?}",
-            ds.root.display()
-        )));
+        return Err(DataError::EmptySplit {
+            root: ds.root.clone(),
+            split: split.to_string(),
+            present: ds.split_names(),
+        });
     }
     Ok(e)
 }

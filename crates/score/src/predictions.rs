@@ -26,11 +26,11 @@ pub fn select_split(ds: &Dataset, split: &str, every: usize) -> Result<Vec<Index
         ds.split(split)
     };
     if v.is_empty() {
-        return Err(DataError::Data(format!(
-            "{}: split {split:?} has no samples (splits present: {:?})",
-            ds.root.display(),
-            ds.split_names()
-        )));
+        return Err(DataError::EmptySplit {
+            root: ds.root.clone(),
+            split: split.to_string(),
+            present: ds.split_names(),
+        });
     }
     Ok(v)
 }
@@ -128,8 +128,7 @@ pub fn write_prediction(
                 width: w as u32,
                 height: h as u32,
                 depth_m: pred.to_vec(),
-            })
-            .map_err(|e| DataError::Data(e.to_string()))?
+            })?
         }
     };
     write_atomic(&p, &bytes).map_err(|e| DataError::io(&p, e))?;
@@ -164,11 +163,9 @@ pub struct PredictionsSummary {
 /// `--predictions` must be a folder.
 fn check_folder(dir: &Path) -> Result<(), DataError> {
     if !dir.is_dir() {
-        return Err(DataError::Data(format!(
-            "{}: no such folder; --predictions takes a folder of <sample token>.png (16-bit, \
-             depth×256) or .npy (float32 metres) files, as `depthsense predict --data` writes",
-            dir.display()
-        )));
+        return Err(DataError::NoPredictionsFolder {
+            dir: dir.to_path_buf(),
+        });
     }
     Ok(())
 }
@@ -176,13 +173,11 @@ fn check_folder(dir: &Path) -> Result<(), DataError> {
 /// A prediction `(w, h)` (pixels) read from `path` must be in the frame of its ground truth.
 fn check_frame(path: &Path, (w, h): (usize, usize), gt: &GroundTruth) -> Result<(), DataError> {
     if (w, h) != (gt.width, gt.height) {
-        return Err(DataError::Data(format!(
-            "{}: prediction is {w}x{h} but the ground truth of the training frame is {}x{} \
-             (SPEC §3: predictions must be in the 800x350 frame `prepare` writes)",
-            path.display(),
-            gt.width,
-            gt.height
-        )));
+        return Err(DataError::PredictionFrame {
+            path: path.to_path_buf(),
+            size: (w, h),
+            frame: (gt.width, gt.height),
+        });
     }
     Ok(())
 }
@@ -229,15 +224,55 @@ pub fn run_eval_predictions(
         }
     }
     if !sum.missing.is_empty() && !opts.allow_missing {
-        return Err(DataError::Data(format!(
-            "{}: {} of {} samples of split {:?} have no prediction (e.g. {}.png / .npy); pass \
-             --allow-missing to score the others",
-            opts.dir.display(),
-            sum.missing.len(),
-            entries.len(),
-            opts.split,
-            sum.missing[0]
-        )));
+        return Err(DataError::MissingPredictions {
+            dir: opts.dir.clone(),
+            missing: sum.missing.len(),
+            samples: entries.len(),
+            split: opts.split.clone(),
+            first: sum.missing[0].clone(),
+        });
     }
     Ok((ev.finish(), sum))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--predictions` that is not a folder, and a prediction of another frame than its ground
+    /// truth, are refused with the folder, the file and both sizes.
+    #[test]
+    fn a_missing_folder_and_a_prediction_of_another_frame_are_named() {
+        let d = tempfile::tempdir().unwrap();
+        assert!(check_folder(d.path()).is_ok());
+        let missing = d.path().join("preds");
+        let e = check_folder(&missing).unwrap_err();
+        assert!(matches!(&e, DataError::NoPredictionsFolder { dir } if dir == &missing));
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "data: {}: no such folder; --predictions takes a folder of <sample token>.png \
+                 (16-bit, depth×256) or .npy (float32 metres) files, as `depthsense predict \
+                 --data` writes",
+                missing.display()
+            )
+        );
+        let gt = GroundTruth {
+            width: 8,
+            height: 4,
+            sparse_m: vec![0.0; 32],
+            lowheight: vec![],
+        };
+        let p = Path::new("preds/tok.npy");
+        assert!(check_frame(p, (8, 4), &gt).is_ok());
+        let e = check_frame(p, (4, 8), &gt).unwrap_err();
+        assert!(matches!(
+            e,
+            DataError::PredictionFrame {
+                size: (4, 8),
+                frame: (8, 4),
+                ..
+            }
+        ));
+    }
 }
