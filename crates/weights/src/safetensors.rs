@@ -106,7 +106,8 @@ fn metadata_of(header: &serde_json::Map<String, serde_json::Value>) -> BTreeMap<
 
 /// The metadata of the safetensors file at `path`, reading its header only (8 bytes and the
 /// JSON): a model config or a training state without the tensors' hundreds of megabytes.
-/// The tensors' entries are not checked here; [`parse`] checks them when they are read.
+/// Of the tensors' entries only their extent is checked — a file cut inside its data section
+/// is an error here too; [`parse`] checks each entry whole when the tensors are read.
 pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, WeightsError> {
     use std::io::Read;
     let io = |e| WeightsError::io(path, e);
@@ -117,7 +118,31 @@ pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, WeightsErr
     let n = header_len(path, &first8, total)?;
     let mut text = vec![0u8; n];
     f.read_exact(&mut text).map_err(io)?;
-    Ok(metadata_of(&header_json(path, &text)?))
+    let header = header_json(path, &text)?;
+    let data_len = total - 8 - n as u64;
+    if let Some((name, end)) = last_tensor_end(&header).filter(|&(_, end)| end > data_len) {
+        return Err(WeightsError::format(
+            path,
+            format!(
+                "truncated: tensor {name} ends at byte {end} of the data section but it holds \
+                 only {data_len} bytes"
+            ),
+        ));
+    }
+    Ok(metadata_of(&header))
+}
+
+/// The tensor entry of `header` whose `data_offsets` end last, with that end (entries without
+/// readable offsets are left to [`parse`]).
+fn last_tensor_end(header: &serde_json::Map<String, serde_json::Value>) -> Option<(&str, u64)> {
+    header
+        .iter()
+        .filter(|(name, _)| *name != "__metadata__")
+        .filter_map(|(name, v)| {
+            let end = v.get("data_offsets")?.as_array()?.get(1)?.as_u64()?;
+            Some((name.as_str(), end))
+        })
+        .max_by_key(|&(_, end)| end)
 }
 
 /// Tensor `name` of a safetensors header: its entry `v` checked against the `data` section.
@@ -290,7 +315,7 @@ mod tests {
     }
 
     /// The header alone gives the metadata that the whole parse gives; a file cut inside its
-    /// header, or with a header length beyond its end, is an error naming it.
+    /// header or its data, or with a header length beyond its end, is an error naming it.
     #[test]
     fn the_metadata_is_read_from_the_header_alone() {
         let d = tempfile::tempdir().unwrap();
@@ -303,10 +328,18 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         assert_eq!(read_metadata(&path).unwrap(), meta);
         assert_eq!(parse(&path, &bytes).unwrap().1, meta);
-        // The data section is not read: a file cut after its header still gives its metadata.
+        // The data section is not read, but its length is checked against the entries: a file
+        // cut inside it is refused as parse refuses it (a checkpoint whose write was cut short
+        // is not said finished).
         let n = 8 + u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-        std::fs::write(&path, &bytes[..n]).unwrap();
-        assert_eq!(read_metadata(&path).unwrap(), meta);
+        for cut in [n, bytes.len() - 1] {
+            std::fs::write(&path, &bytes[..cut]).unwrap();
+            let e = read_metadata(&path).unwrap_err().to_string();
+            let parsed = parse(&path, &bytes[..cut]).unwrap_err().to_string();
+            let truncated = format!("{}: truncated: tensor ", path.display());
+            assert!(e.starts_with(&truncated), "{cut}: {e}");
+            assert!(parsed.starts_with(&truncated), "{cut}: {parsed}");
+        }
         for cut in [0, 5, 8, n - 1] {
             std::fs::write(&path, &bytes[..cut]).unwrap();
             let e = read_metadata(&path).unwrap_err().to_string();
