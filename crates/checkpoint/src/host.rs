@@ -52,11 +52,9 @@ pub fn all_to_tch(tensors: &[(String, HostTensor)]) -> Result<Vec<(String, Tenso
 /// The bytes of tensor `name` in host memory (detached, on the CPU, contiguous).
 pub fn to_host(name: &str, t: &Tensor) -> Result<HostTensor<'static>, ModelError> {
     let t = t.detach().to_device(Device::Cpu).contiguous();
-    let dtype = dtype_of(t.kind()).ok_or_else(|| {
-        ModelError::InvalidConfig(format!(
-            "tensor {name}: dtype {:?} cannot be saved",
-            t.kind()
-        ))
+    let dtype = dtype_of(t.kind()).ok_or_else(|| ModelError::UnsavableDtype {
+        name: name.to_string(),
+        kind: t.kind(),
     })?;
     let numel = t.numel();
     let mut data = vec![0u8; numel * dtype.size()];

@@ -509,18 +509,7 @@ fn evaluate_both(
             device,
             &pb,
             |batch, preds| {
-                let hw = batch.width * batch.height;
-                for (i, s) in batch.samples.iter().enumerate() {
-                    if pic_tokens.contains(&s.token) {
-                        pictures.push(Picture {
-                            token: s.token.clone(),
-                            pred_m: preds[i * hw..(i + 1) * hw].to_vec(),
-                            gt_m: s.sparse_m.clone(),
-                            width: batch.width as u32,
-                            height: batch.height as u32,
-                        });
-                    }
-                }
+                pictures.extend(Picture::of_batch(batch, preds, &pic_tokens));
                 Ok(())
             },
         )?;
@@ -689,6 +678,24 @@ struct Picture {
     gt_m: Vec<f32>,
     width: u32,
     height: u32,
+}
+
+impl Picture {
+    /// The pictures among `batch`'s samples (`tokens`), with their predictions `preds_m`.
+    fn of_batch(batch: &depthsense_data::Batch, preds_m: &[f32], tokens: &[String]) -> Vec<Self> {
+        let hw = batch.width * batch.height;
+        let samples = batch.samples.iter().enumerate();
+        samples
+            .filter(|(_, s)| tokens.contains(&s.token))
+            .map(|(i, s)| Picture {
+                token: s.token.clone(),
+                pred_m: preds_m[i * hw..(i + 1) * hw].to_vec(),
+                gt_m: s.sparse_m.clone(),
+                width: batch.width as u32,
+                height: batch.height as u32,
+            })
+            .collect()
+    }
 }
 
 /// `model`'s panels of one picture sample into `dir` (the image, radar and ground-truth

@@ -42,9 +42,9 @@ impl Batch {
             "dynamic" => Ok(Self::Dynamic),
             n => match n.parse::<u32>() {
                 Ok(n) if n > 0 => Ok(Self::Fixed(n)),
-                _ => Err(ExportError::Options(format!(
-                    "--batch {n}: a positive number or 'dynamic'"
-                ))),
+                _ => Err(ExportError::BadBatch {
+                    batch: n.to_string(),
+                }),
             },
         }
     }
@@ -83,8 +83,43 @@ pub enum ExportError {
     /// The checkpoint or config could not be loaded (or do not fit together).
     #[error(transparent)]
     Load(#[from] NetError),
-    #[error("{0}")]
-    Options(String),
+
+    // --- What `depthsense export` is told ---
+    /// `--batch` (`batch`, as written) that is neither `dynamic` nor a positive number.
+    #[error("--batch {batch}: a positive number or 'dynamic'")]
+    BadBatch { batch: String },
+    /// `--precision fp16` asked for a PyTorch state dict, which is stored in float32.
+    #[error(
+        "--precision fp16 applies to the onnx and torchscript graphs; a pytorch state dict is \
+         stored in float32 (`.half()` it in PyTorch)"
+    )]
+    Fp16StateDict,
+    /// An export of one target that produced no file.
+    #[error("nothing was exported")]
+    NothingExported,
+
+    // --- The files handed to the Python exporter, and the sidecar ---
+    /// The network's variables that cannot be written (`path`) for the Python exporter.
+    #[error("{}: {source}", .path.display())]
+    StageWeights {
+        path: PathBuf,
+        #[source]
+        source: tch::TchError,
+    },
+    /// The network's config that cannot be written as JSON for the Python exporter.
+    #[error("{source}")]
+    StageConfig {
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A sidecar whose record cannot be built or encoded (the record's error names the file).
+    #[error("{source}")]
+    Sidecar {
+        #[source]
+        source: depthsense_records::RecordError,
+    },
+
+    // --- Writing the files: the targets, the conversion in Python ---
     #[error("{path}: exists (a file of an earlier export); --force replaces it")]
     Exists { path: String },
     #[error("{path}: {source}")]
@@ -129,8 +164,7 @@ pub fn sidecar_path(out: &Path) -> PathBuf {
 /// Exports `opts.checkpoint` (see the module docs).
 pub fn export(opts: &ExportOptions) -> Result<Exported, ExportError> {
     let mut done = export_many(opts, &[(opts.format, opts.out.clone())])?;
-    done.pop()
-        .ok_or_else(|| ExportError::Options("nothing was exported".into()))
+    done.pop().ok_or(ExportError::NothingExported)
 }
 
 /// Exports `opts.checkpoint` once into every `(format, file)` of `targets` — one load, one
@@ -191,10 +225,13 @@ fn stage_network(
 ) -> Result<(PathBuf, PathBuf), ExportError> {
     let weights = work.join("weights.safetensors");
     vs.save(&weights)
-        .map_err(|e| ExportError::Options(format!("{}: {e}", weights.display())))?;
+        .map_err(|source| ExportError::StageWeights {
+            path: weights.clone(),
+            source,
+        })?;
     let config = work.join("config.json");
     let cfg_json =
-        serde_json::to_string_pretty(cfg).map_err(|e| ExportError::Options(e.to_string()))?;
+        serde_json::to_string_pretty(cfg).map_err(|source| ExportError::StageConfig { source })?;
     std::fs::write(&config, cfg_json).map_err(|e| ExportError::io(&config, e))?;
     Ok((weights, config))
 }
@@ -252,7 +289,7 @@ fn finish_target(
     let sidecar = sidecar_path(&o.out);
     let text = info
         .to_json(&sidecar)
-        .map_err(|e| ExportError::Options(e.to_string()))?;
+        .map_err(|source| ExportError::Sidecar { source })?;
     write_atomic(&sidecar, text.as_bytes()).map_err(|e| ExportError::io(&sidecar, e))?;
     Ok(Exported {
         out: o.out,
@@ -273,11 +310,7 @@ fn check_target(opts: &ExportOptions) -> Result<(), ExportError> {
         }
     }
     if opts.precision == Precision::Fp16 && opts.format == Format::PyTorch {
-        return Err(ExportError::Options(
-            "--precision fp16 applies to the onnx and torchscript graphs; a pytorch state dict \
-             is stored in float32 (`.half()` it in PyTorch)"
-                .into(),
-        ));
+        return Err(ExportError::Fp16StateDict);
     }
     Ok(())
 }

@@ -576,6 +576,43 @@ fn bad_inputs_are_clear_errors_and_write_nothing() {
     assert_eq!(std::fs::read(&out).unwrap().len(), before.len());
 }
 
+/// The refusals of what `export` is told carry the values at fault and read as they always
+/// have; they need no Python (a target is checked before the network is loaded).
+#[test]
+fn option_refusals_name_what_is_wrong() {
+    for bad in ["0", "-2", "many", ""] {
+        let e = Batch::parse(bad).unwrap_err();
+        assert!(
+            matches!(&e, ExportError::BadBatch { batch } if batch == bad),
+            "{bad}: {e:?}"
+        );
+    }
+    assert_eq!(
+        Batch::parse(" 0 ").unwrap_err().to_string(),
+        "--batch 0: a positive number or 'dynamic'"
+    );
+    assert_eq!(Batch::parse(" 4 ").unwrap(), Batch::Fixed(4));
+    let dir = tempfile::tempdir().unwrap();
+    let mut o = options(
+        &dir.path().join("never-read.safetensors"),
+        Format::PyTorch,
+        &dir.path().join("m.pth"),
+        Path::new("/bin/false"),
+    );
+    o.precision = Precision::Fp16;
+    let e = export(&o).unwrap_err();
+    assert!(matches!(e, ExportError::Fp16StateDict), "{e:?}");
+    assert_eq!(
+        e.to_string(),
+        "--precision fp16 applies to the onnx and torchscript graphs; a pytorch state dict is \
+         stored in float32 (`.half()` it in PyTorch)"
+    );
+    assert_eq!(
+        ExportError::NothingExported.to_string(),
+        "nothing was exported"
+    );
+}
+
 /// The `paper` preset (ResNet-101, 57 M parameters) with random weights at batch 2, full frame:
 /// the real network's size through both converters.
 #[test]

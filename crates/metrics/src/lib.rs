@@ -120,8 +120,19 @@ pub enum MetricsError {
         gt: usize,
         mask: usize,
     },
-    #[error("invalid metric settings: {0}")]
-    Config(String),
+
+    // --- The settings of an evaluation ([`EvalConfig`]) ---
+    /// Depth caps (`caps`, metres) that are none, or one of them not a positive finite number.
+    #[error("invalid metric settings: caps must be positive and finite, got {caps:?}")]
+    BadCaps { caps: Vec<f64> },
+    /// A clip range [`min`, `max`] (metres) that is not 0 < min < max.
+    #[error("invalid metric settings: clip range must satisfy 0 < min < max, got [{min}, {max}]")]
+    BadClipRange { min: f64, max: f64 },
+    /// The `radarnet` protocol asked for with the `pooled` aggregation: it averages per image.
+    #[error(
+        "invalid metric settings: the radarnet protocol averages per image: it cannot be pooled"
+    )]
+    PooledRadarnet,
 }
 
 /// Settings of an evaluation.
@@ -151,21 +162,18 @@ impl Default for EvalConfig {
 impl EvalConfig {
     fn validate(&self) -> Result<(), MetricsError> {
         if self.caps_m.is_empty() || self.caps_m.iter().any(|c| !(c.is_finite() && *c > 0.0)) {
-            return Err(MetricsError::Config(format!(
-                "caps must be positive and finite, got {:?}",
-                self.caps_m
-            )));
+            return Err(MetricsError::BadCaps {
+                caps: self.caps_m.clone(),
+            });
         }
         if !(self.clip_min_m > 0.0 && self.clip_max_m > self.clip_min_m) {
-            return Err(MetricsError::Config(format!(
-                "clip range must satisfy 0 < min < max, got [{}, {}]",
-                self.clip_min_m, self.clip_max_m
-            )));
+            return Err(MetricsError::BadClipRange {
+                min: self.clip_min_m,
+                max: self.clip_max_m,
+            });
         }
         if self.protocol == Protocol::Radarnet && self.aggregate == Aggregate::Pooled {
-            return Err(MetricsError::Config(
-                "the radarnet protocol averages per image: it cannot be pooled".into(),
-            ));
+            return Err(MetricsError::PooledRadarnet);
         }
         Ok(())
     }
@@ -529,6 +537,53 @@ mod word_tests {
         assert_eq!(
             "sum".parse::<Aggregate>().unwrap_err().to_string(),
             "unknown aggregation \"sum\" (allowed: image, pooled)"
+        );
+    }
+}
+
+#[cfg(test)]
+mod settings_tests {
+    use super::*;
+
+    /// Refused settings carry the values at fault and read as the strings they replaced did.
+    #[test]
+    fn refused_settings_name_their_values() {
+        let refusal = |cfg: EvalConfig| Evaluator::new(cfg).unwrap_err();
+        let e = refusal(EvalConfig {
+            caps_m: vec![50.0, -1.0],
+            ..EvalConfig::default()
+        });
+        assert!(
+            matches!(&e, MetricsError::BadCaps { caps } if caps == &[50.0, -1.0]),
+            "{e:?}"
+        );
+        assert_eq!(
+            e.to_string(),
+            "invalid metric settings: caps must be positive and finite, got [50.0, -1.0]"
+        );
+        let e = refusal(EvalConfig {
+            clip_min_m: 2.0,
+            clip_max_m: 1.5,
+            ..EvalConfig::default()
+        });
+        assert!(
+            matches!(e, MetricsError::BadClipRange { min, max } if min == 2.0 && max == 1.5),
+            "{e:?}"
+        );
+        assert_eq!(
+            e.to_string(),
+            "invalid metric settings: clip range must satisfy 0 < min < max, got [2, 1.5]"
+        );
+        let e = refusal(EvalConfig {
+            protocol: Protocol::Radarnet,
+            aggregate: Aggregate::Pooled,
+            ..EvalConfig::default()
+        });
+        assert!(matches!(e, MetricsError::PooledRadarnet), "{e:?}");
+        assert_eq!(
+            e.to_string(),
+            "invalid metric settings: the radarnet protocol averages per image: it cannot be \
+             pooled"
         );
     }
 }

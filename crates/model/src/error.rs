@@ -37,9 +37,16 @@ pub enum ModelError {
     /// A PDA preset or config file that is unknown, unreadable or invalid.
     #[error(transparent)]
     PdaConfig(#[from] depthsense_config::pda::PdaConfigError),
-    /// A configuration field has a value the network cannot be built with.
-    #[error("invalid model config: {0}")]
-    InvalidConfig(String),
+    /// A PDA config that cannot be written as JSON into its checkpoint's header.
+    #[error("invalid model config: {source}")]
+    PdaConfigJson {
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A tensor (`name`, a variable of the network) whose element type (`kind`) no weight
+    /// file stores.
+    #[error("invalid model config: tensor {name}: dtype {kind:?} cannot be saved")]
+    UnsavableDtype { name: String, kind: tch::Kind },
     /// `parse_device` got a string it does not understand.
     #[error(transparent)]
     InvalidDevice(#[from] depthsense_config::device::InvalidDevice),
@@ -99,5 +106,31 @@ impl ModelError {
             path: path.to_path_buf(),
             msg: msg.into(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The checkpoint writer's refusals read as the strings they replaced did.
+    #[test]
+    fn unsavable_config_and_dtype_messages() {
+        let e = ModelError::UnsavableDtype {
+            name: "rgb.conv1.weight".into(),
+            kind: tch::Kind::ComplexFloat,
+        };
+        assert_eq!(
+            e.to_string(),
+            "invalid model config: tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
+        );
+        let json = || serde_json::from_str::<u8>("x").unwrap_err();
+        let e = ModelError::PdaConfigJson { source: json() };
+        assert_eq!(e.to_string(), format!("invalid model config: {}", json()));
+        assert_eq!(
+            e.to_string(),
+            "invalid model config: expected value at line 1 column 1"
+        );
+        assert!(std::error::Error::source(&e).is_some());
     }
 }

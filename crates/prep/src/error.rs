@@ -1,6 +1,7 @@
 //! Errors of `prepare`, `index` and `inspect`: each names the file, split or setting at fault.
 
-use std::path::Path;
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
 
 use depthsense_nuscenes::NuError;
 
@@ -44,8 +45,32 @@ pub enum PrepError {
         input: String,
         reason: String,
     },
-    #[error("{0}")]
-    Shard(String),
+
+    // --- Sharded `prepare` (`--shard I/N`) and the merge of its shard indexes ---
+    /// A `--shard` value (`value`, as written) that is not I/N with 0 ≤ I < N; `fault` says
+    /// why.
+    #[error("--shard {value:?}: {}; expected I/N with 0 ≤ I < N", .fault.text())]
+    BadShard { value: String, fault: ShardFault },
+    /// Shard indexes of different shard counts (`counts`: the Ns) among the sources of a
+    /// merge into `out`.
+    #[error(
+        "shard indexes of different N ({counts:?}) in {}; merge one sharding at a time",
+        .out.display()
+    )]
+    MixedShardCounts {
+        out: PathBuf,
+        counts: BTreeSet<usize>,
+    },
+    /// Shard `index` of `count` found in more than one source of a merge.
+    #[error("shard {index}/{count} appears twice among the sources")]
+    DuplicateShard { index: usize, count: usize },
+    /// Shards (`missing`, by number) of `count` whose index no source of a merge holds.
+    #[error(
+        "shards {missing:?} of {count} are missing (no {} for them); run them first",
+        missing_shard_files(.missing, *.count)
+    )]
+    MissingShards { missing: Vec<usize>, count: usize },
+
     /// A file that cannot be encoded before it is written (a sample's PNG or `meta.json`, an
     /// index, a calibration JSON, a bench table); `path` names it.
     #[error("{path}: cannot encode: {source}")]
@@ -76,6 +101,40 @@ pub enum PrepError {
     /// A sample of the bench's world failed to prepare.
     #[error("bench prepare failed on {sample}: {reason}")]
     BenchPrepareFailed { sample: String, reason: String },
+}
+
+/// Why a `--shard` value is not I/N with 0 ≤ I < N.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ShardFault {
+    /// No `/` between I and N.
+    NoSlash,
+    /// I is not a number.
+    IndexNotANumber,
+    /// N is not a number.
+    CountNotANumber,
+    /// N is 0, or I is not below N.
+    OutOfRange,
+}
+
+impl ShardFault {
+    /// The words of the message.
+    pub fn text(self) -> &'static str {
+        match self {
+            Self::NoSlash => "no '/'",
+            Self::IndexNotANumber => "I is not a number",
+            Self::CountNotANumber => "N is not a number",
+            Self::OutOfRange => "out of range",
+        }
+    }
+}
+
+/// The shard index files of the `missing` shards of `count`, comma-separated.
+fn missing_shard_files(missing: &[usize], count: usize) -> String {
+    missing
+        .iter()
+        .map(|i| crate::layout::shard_index_file(*i, count))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 impl PrepError {
@@ -143,6 +202,53 @@ mod tests {
             reason: "no lidar".into(),
         };
         assert_eq!(e.to_string(), "bench prepare failed on s1: no lidar");
+    }
+
+    /// A `--shard` value that is not I/N says why, with the words it always had.
+    #[test]
+    fn a_bad_shard_value_says_why() {
+        let cases = [
+            ("1", ShardFault::NoSlash, "no '/'"),
+            ("a/3", ShardFault::IndexNotANumber, "I is not a number"),
+            ("1/b", ShardFault::CountNotANumber, "N is not a number"),
+            ("16/16", ShardFault::OutOfRange, "out of range"),
+            ("0/0", ShardFault::OutOfRange, "out of range"),
+        ];
+        for (value, want, why) in cases {
+            let e = value.parse::<crate::Shard>().unwrap_err();
+            assert!(
+                matches!(&e, PrepError::BadShard { value: v, fault } if v == value && *fault == want),
+                "{value}: {e:?}"
+            );
+            assert_eq!(
+                e.to_string(),
+                format!("--shard {value:?}: {why}; expected I/N with 0 ≤ I < N")
+            );
+        }
+    }
+
+    /// A merge's refused shard sets name the shards, counts and files at fault.
+    #[test]
+    fn shard_set_refusals_read_as_before() {
+        let e = PrepError::MixedShardCounts {
+            out: "prepared".into(),
+            counts: [2, 3].into(),
+        };
+        assert_eq!(
+            e.to_string(),
+            "shard indexes of different N ({2, 3}) in prepared; merge one sharding at a time"
+        );
+        let e = PrepError::DuplicateShard { index: 1, count: 3 };
+        assert_eq!(e.to_string(), "shard 1/3 appears twice among the sources");
+        let e = PrepError::MissingShards {
+            missing: vec![0, 2],
+            count: 3,
+        };
+        assert_eq!(
+            e.to_string(),
+            "shards [0, 2] of 3 are missing (no index.shard-0-of-3.json, \
+             index.shard-2-of-3.json for them); run them first"
+        );
     }
 
     /// A bad depth PNG given to `inspect` is the reader's own error, its cause kept.

@@ -360,19 +360,19 @@ fn check_shard_set(out: &Path, sources: &[Source]) -> Result<Option<ShardSet>, P
         .filter_map(|(_, _, ix)| ix.shard.as_ref().map(|s| s.count))
         .collect();
     if shard_counts.len() > 1 {
-        return Err(PrepError::Shard(format!(
-            "shard indexes of different N ({shard_counts:?}) in {}; merge one sharding at a time",
-            out.display()
-        )));
+        return Err(PrepError::MixedShardCounts {
+            out: out.to_path_buf(),
+            counts: shard_counts,
+        });
     }
     let mut shards: BTreeMap<usize, usize> = BTreeMap::new();
     for (i, (_, _, ix)) in sources.iter().enumerate() {
         if let Some(s) = &ix.shard {
             if shards.insert(s.index, i).is_some() {
-                return Err(PrepError::Shard(format!(
-                    "shard {}/{} appears twice among the sources",
-                    s.index, s.count
-                )));
+                return Err(PrepError::DuplicateShard {
+                    index: s.index,
+                    count: s.count,
+                });
             }
         }
     }
@@ -381,14 +381,7 @@ fn check_shard_set(out: &Path, sources: &[Source]) -> Result<Option<ShardSet>, P
     };
     let missing: Vec<usize> = (0..n).filter(|i| !shards.contains_key(i)).collect();
     if !missing.is_empty() {
-        return Err(PrepError::Shard(format!(
-            "shards {missing:?} of {n} are missing (no {} for them); run them first",
-            missing
-                .iter()
-                .map(|i| layout::shard_index_file(*i, n))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )));
+        return Err(PrepError::MissingShards { missing, count: n });
     }
     Ok(Some(ShardSet {
         count: n,

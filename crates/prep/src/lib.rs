@@ -15,4 +15,6 @@ pub mod radar_points;
 pub mod splits;
 pub mod verify;
 
-pub use pipeline::{prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary, Shard};
+pub use pipeline::{
+    prepare, split_scene_tokens, PrepError, PrepareOptions, PrepareSummary, Shard, ShardFault,
+};

@@ -69,14 +69,21 @@ impl std::str::FromStr for Shard {
     type Err = PrepError;
     /// "I/N" with 0 ≤ I < N (Slurm: `--shard $SLURM_ARRAY_TASK_ID/16`).
     fn from_str(s: &str) -> Result<Shard, PrepError> {
-        let bad = |why: &str| {
-            PrepError::Shard(format!("--shard {s:?}: {why}; expected I/N with 0 ≤ I < N"))
+        let bad = |fault| PrepError::BadShard {
+            value: s.to_string(),
+            fault,
         };
-        let (i, n) = s.split_once('/').ok_or_else(|| bad("no '/'"))?;
-        let index: usize = i.trim().parse().map_err(|_| bad("I is not a number"))?;
-        let count: usize = n.trim().parse().map_err(|_| bad("N is not a number"))?;
+        let (i, n) = s.split_once('/').ok_or_else(|| bad(ShardFault::NoSlash))?;
+        let index: usize = i
+            .trim()
+            .parse()
+            .map_err(|_| bad(ShardFault::IndexNotANumber))?;
+        let count: usize = n
+            .trim()
+            .parse()
+            .map_err(|_| bad(ShardFault::CountNotANumber))?;
         if count == 0 || index >= count {
-            return Err(bad("out of range"));
+            return Err(bad(ShardFault::OutOfRange));
         }
         Ok(Shard { index, count })
     }
@@ -121,7 +128,7 @@ pub struct PrepareSummary {
     pub mer_lost: usize,
 }
 
-pub use crate::error::PrepError;
+pub use crate::error::{PrepError, ShardFault};
 
 pub use crate::motion::{BOX_MARGIN_M, MAX_TIME_DIFF_S, MOVING_SPEED_MPS};
 

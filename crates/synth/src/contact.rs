@@ -8,7 +8,7 @@ use depthsense_nuscenes::depth_png::read_depth_png;
 use depthsense_nuscenes::geometry::{apply_f32, cam_from_sensor, Camera, Rigid};
 use depthsense_nuscenes::pcd::{read_lidar_pcd_bin, read_radar_pcd};
 use depthsense_nuscenes::tables::{SampleData, Scene};
-use depthsense_nuscenes::{NuError, NuScenes, Token};
+use depthsense_nuscenes::{NuScenes, Token};
 
 use crate::calib::{IMG_H, IMG_W, RADAR_CHANNELS};
 use crate::{SynthError, TRUTH_DIR};
@@ -96,20 +96,15 @@ fn project(cam: &Camera, cam_from_sensor: &Rigid, pts: &[[f32; 3]]) -> Vec<(f64,
         .collect()
 }
 
-fn nu_err(e: NuError) -> SynthError {
-    SynthError::Data(e.to_string())
-}
-
 /// Write a contact sheet PNG of `dataroot` (version folder `version`) to `out_png`.
 /// The dataroot is read with depthsense's own reader (`depthsense_nuscenes`).
 pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(), SynthError> {
-    let nu = NuScenes::load(dataroot, version).map_err(nu_err)?;
+    let nu = NuScenes::load(dataroot, version)?;
     let columns = condition_scenes(&nu);
     if columns.is_empty() {
-        return Err(SynthError::Data(format!(
-            "{}: no scenes",
-            dataroot.display()
-        )));
+        return Err(SynthError::NoScenes {
+            dataroot: dataroot.to_path_buf(),
+        });
     }
     let ncol = columns.len() as u32;
     let (w, h) = (TW * ncol, TH * 3);
@@ -136,7 +131,7 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
             image::codecs::png::FilterType::Adaptive,
         )
         .write_image(sheet.as_raw(), w, h, image::ExtendedColorType::Rgb8)
-        .map_err(|e| SynthError::Encode(format!("contact sheet: {e}")))?;
+        .map_err(|source| SynthError::ContactSheetPng { source })?;
     }
     depthsense_base::fsutil::write_atomic(out_png, &buf).map_err(|source| SynthError::Io {
         path: out_png.display().to_string(),
@@ -163,10 +158,14 @@ fn condition_scenes(nu: &NuScenes) -> Vec<&Scene> {
     columns
 }
 
-/// The keyframe of channel `ch` of `sample`.
-fn keyframe<'a>(nu: &'a NuScenes, sample: Token, ch: &str) -> Result<&'a SampleData, SynthError> {
-    nu.keyframe(sample, ch)
-        .ok_or_else(|| SynthError::Data(format!("sample {sample} has no {ch} keyframe")))
+/// The keyframe of channel `channel` of `sample`.
+fn keyframe<'a>(
+    nu: &'a NuScenes,
+    sample: Token,
+    channel: &'static str,
+) -> Result<&'a SampleData, SynthError> {
+    nu.keyframe(sample, channel)
+        .ok_or(SynthError::NoKeyframe { sample, channel })
 }
 
 /// The three tiles (lidar, radar, truth depth) of the middle keyframe of `scene`.
@@ -175,26 +174,26 @@ fn scene_tiles(nu: &NuScenes, dataroot: &Path, scene: &Scene) -> Result<[Tile; 3
     let samples = nu.scene_samples(scene.token);
     let sample = samples
         .get((scene.nbr_samples as usize / 2).min(samples.len().saturating_sub(1)))
-        .ok_or_else(|| SynthError::Data(format!("scene {} has no samples", scene.token)))?;
+        .ok_or(SynthError::SceneWithoutSamples { scene: scene.token })?;
     let cam_sd = keyframe(nu, sample.token, "CAM_FRONT")?;
-    let cam_cs = nu
-        .get_calibrated_sensor(
-            cam_sd.calibrated_sensor_token,
-            "sample_data",
-            cam_sd.token,
-            "calibrated_sensor_token",
-        )
-        .map_err(nu_err)?;
-    let k = cam_cs.camera_intrinsic.ok_or_else(|| {
-        SynthError::Data(format!(
-            "calibrated_sensor {}: CAM_FRONT has no 3x3 camera_intrinsic",
-            cam_cs.token
-        ))
-    })?;
+    let cam_cs = nu.get_calibrated_sensor(
+        cam_sd.calibrated_sensor_token,
+        "sample_data",
+        cam_sd.token,
+        "calibrated_sensor_token",
+    )?;
+    let k = cam_cs
+        .camera_intrinsic
+        .ok_or(SynthError::NoCameraIntrinsic {
+            calibrated_sensor: cam_cs.token,
+        })?;
     let cam = Camera::from_intrinsic(&k, IMG_W, IMG_H);
     let img_path = nu.path_of(cam_sd);
     let img = image::open(&img_path)
-        .map_err(|e| SynthError::Data(format!("{}: {e}", img_path.display())))?
+        .map_err(|source| SynthError::CameraImage {
+            path: img_path,
+            source,
+        })?
         .to_rgb8();
     let t1 = lidar_tile(nu, &img, &cam, cam_sd, sample.token)?;
     let t2 = radar_tile(nu, &img, &cam, cam_sd, sample.token)?;
@@ -213,9 +212,9 @@ fn lidar_tile(
     let mut t1 = Tile::from_image(img);
     t1.dim(0.6);
     let lid = keyframe(nu, sample, "LIDAR_TOP")?;
-    let scan = read_lidar_pcd_bin(&nu.path_of(lid)).map_err(nu_err)?;
+    let scan = read_lidar_pcd_bin(&nu.path_of(lid))?;
     let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p[0], p[1], p[2]]).collect();
-    let tf = cam_from_sensor(nu, lid, cam_sd).map_err(nu_err)?;
+    let tf = cam_from_sensor(nu, lid, cam_sd)?;
     let mut pts = project(cam, &tf, &xyz);
     pts.sort_by(|a, b| b.2.total_cmp(&a.2));
     for (u, v, z) in pts {
@@ -236,9 +235,9 @@ fn radar_tile(
     t2.dim(0.6);
     for ch in RADAR_CHANNELS {
         for sd in nu.sweeps_back(keyframe(nu, sample, ch)?, 5) {
-            let scan = read_radar_pcd(&nu.path_of(sd)).map_err(nu_err)?;
+            let scan = read_radar_pcd(&nu.path_of(sd))?;
             let xyz: Vec<[f32; 3]> = scan.points.iter().map(|p| [p.x, p.y, 0.0]).collect();
-            let tf = cam_from_sensor(nu, sd, cam_sd).map_err(nu_err)?;
+            let tf = cam_from_sensor(nu, sd, cam_sd)?;
             for (u, v, z) in project(cam, &tf, &xyz) {
                 let c = depth_colour(z);
                 t2.dot(u, v, 1, c);
@@ -257,7 +256,7 @@ fn truth_tile(dataroot: &Path, cam_sd: &SampleData) -> Result<Tile, SynthError> 
             .join(TRUTH_DIR)
             .join(format!("{}.png", cam_sd.token)),
     )
-    .map_err(|e| SynthError::Data(e.to_string()))?;
+    .map_err(|source| SynthError::TruthMap { source })?;
     let mut t3 = Tile {
         px: vec![[0u8; 3]; (TW * TH) as usize],
     };

@@ -14,7 +14,7 @@ use crate::calib::{self, Mount, IMG_H, IMG_W};
 use crate::rng::{hash_str, name_token, token, Rng};
 use crate::tables::*;
 use crate::world::{ActorKind, ActorState, Ground, Motion, World, STATIC_OBJ_BASE};
-use crate::{camera, lidar, radar, SynthConfig, SynthError, SynthSummary, Weather};
+use crate::{camera, lidar, radar, JpegError, SynthConfig, SynthError, SynthSummary, Weather};
 
 /// File name of the marker written at the dataroot (config + summary).
 pub const MARKER_FILE: &str = ".depthsense-synth.json";
@@ -123,7 +123,7 @@ pub fn generate(
             .next()
             .is_some();
         if non_empty && !out.join(MARKER_FILE).exists() {
-            return Err(SynthError::Exists(out.display().to_string()));
+            return Err(SynthError::Exists(out.to_path_buf()));
         }
     }
     let parent = match out.parent() {
@@ -652,7 +652,10 @@ fn render_frames(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(cfg.jobs)
         .build()
-        .map_err(|e| SynthError::Config(format!("thread pool: {e}")))?;
+        .map_err(|source| SynthError::ThreadPool {
+            jobs: cfg.jobs,
+            source,
+        })?;
     let outs: Vec<Result<JobOut, SynthError>> = pool.install(|| {
         jobs.par_iter()
             .map(|job| {
@@ -914,7 +917,7 @@ fn write_tables(vdir: &Path, tb: &Tables) -> Result<u64, SynthError> {
     let mut bytes = 0;
     for (stem, json) in tb
         .to_json()
-        .map_err(|e| SynthError::Encode(format!("tables: {e}")))?
+        .map_err(|source| SynthError::Tables { source })?
     {
         let p = vdir.join(format!("{stem}.json"));
         bytes += json.len() as u64;
@@ -975,7 +978,7 @@ fn write_marker(root: &Path, cfg: &SynthConfig) -> Result<(), SynthError> {
     let p = root.join(MARKER_FILE);
     std::fs::write(
         &p,
-        serde_json::to_vec_pretty(&marker).map_err(|e| SynthError::Encode(e.to_string()))?,
+        serde_json::to_vec_pretty(&marker).map_err(|source| SynthError::Marker { source })?,
     )
     .map_err(io_err(&p))
 }
@@ -989,8 +992,10 @@ fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> 
             jpeg_420,
         } => {
             let f = camera::render_scaled(world, job.t, job.salt, *scale);
-            let jpg = encode_jpeg(&f.rgb, *jpeg_420)
-                .map_err(|e| SynthError::Encode(format!("{}: {e}", job.filename)))?;
+            let jpg = encode_jpeg(&f.rgb, *jpeg_420).map_err(|source| SynthError::CameraJpeg {
+                file: PathBuf::from(&job.filename),
+                source,
+            })?;
             std::fs::write(&path, &jpg).map_err(io_err(&path))?;
             let mut bytes = jpg.len() as u64;
             if let Some(truth) = truth {
@@ -999,7 +1004,10 @@ fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> 
                     height: IMG_H,
                     depth_m: f.depth_m,
                 })
-                .map_err(|e| SynthError::Encode(format!("{truth}: {e}")))?;
+                .map_err(|source| SynthError::TruthPng {
+                    file: PathBuf::from(truth),
+                    source,
+                })?;
                 let tp = root.join(truth);
                 std::fs::write(&tp, &png).map_err(io_err(&tp))?;
                 bytes += png.len() as u64;
@@ -1036,7 +1044,7 @@ fn run_job(root: &Path, world: &World, job: &Job) -> Result<JobOut, SynthError> 
 
 /// CAM_FRONT as JPEG, quality 90: 4:4:4 by the `image` crate, or 4:2:0 (as nuScenes' images)
 /// by `jpeg-encoder`.
-fn encode_jpeg(rgb: &[u8], jpeg_420: bool) -> Result<Vec<u8>, String> {
+fn encode_jpeg(rgb: &[u8], jpeg_420: bool) -> Result<Vec<u8>, JpegError> {
     let mut jpg = Vec::with_capacity(400_000);
     if jpeg_420 {
         let mut e = jpeg_encoder::Encoder::new(&mut jpg, 90);
@@ -1046,12 +1054,14 @@ fn encode_jpeg(rgb: &[u8], jpeg_420: bool) -> Result<Vec<u8>, String> {
             IMG_W as u16,
             IMG_H as u16,
             jpeg_encoder::ColorType::Rgb,
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
     } else {
-        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
-            .encode(rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
-            .map_err(|e| e.to_string())?;
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90).encode(
+            rgb,
+            IMG_W,
+            IMG_H,
+            image::ExtendedColorType::Rgb8,
+        )?;
     }
     Ok(jpg)
 }
@@ -1100,11 +1110,13 @@ fn render_map(plans: &[ScenePlan]) -> Result<Vec<u8>, SynthError> {
             }
         }
     }
-    let buf = image::GrayImage::from_raw(wpx, hpx, img)
-        .ok_or_else(|| SynthError::Encode("map buffer size".into()))?;
+    let buf = image::GrayImage::from_raw(wpx, hpx, img).ok_or(SynthError::MapBuffer {
+        width: wpx,
+        height: hpx,
+    })?;
     let mut out = std::io::Cursor::new(Vec::new());
     buf.write_to(&mut out, image::ImageFormat::Png)
-        .map_err(|e| SynthError::Encode(format!("map png: {e}")))?;
+        .map_err(|source| SynthError::MapPng { source })?;
     Ok(out.into_inner())
 }
 
@@ -1127,18 +1139,17 @@ pub fn profile_stages(seed: u64, frames: usize) -> Result<StageTimes, SynthError
     let world = World::build(seed, 0, Weather::Day, 2.0 + frames as f64);
     let ms = |t: Instant| t.elapsed().as_secs_f64() * 1e3 / frames as f64;
     let t = Instant::now();
-    let mut last = None;
-    for k in 0..frames {
-        last = Some(camera::render(&world, 1.0 + k as f64, k as u64));
+    let mut f = camera::render(&world, 1.0, 0);
+    for k in 1..frames {
+        f = camera::render(&world, 1.0 + k as f64, k as u64);
     }
     let camera_render_ms = ms(t);
-    let f = last.ok_or_else(|| SynthError::Data("no frame".into()))?;
     let t = Instant::now();
     for _ in 0..frames {
         let mut jpg = Vec::new();
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
             .encode(&f.rgb, IMG_W, IMG_H, image::ExtendedColorType::Rgb8)
-            .map_err(|e| SynthError::Encode(e.to_string()))?;
+            .map_err(|source| SynthError::ProfileJpeg { source })?;
     }
     let camera_jpeg_ms = ms(t);
     let dm = DepthMap {
@@ -1148,7 +1159,7 @@ pub fn profile_stages(seed: u64, frames: usize) -> Result<StageTimes, SynthError
     };
     let t = Instant::now();
     for _ in 0..frames {
-        encode_png(&dm).map_err(|e| SynthError::Encode(e.to_string()))?;
+        encode_png(&dm).map_err(|source| SynthError::ProfilePng { source })?;
     }
     let truth_png_ms = ms(t);
     let t = Instant::now();

@@ -878,6 +878,22 @@ fn a_checkpoint_whose_header_length_starts_with_0x80_is_not_taken_for_a_pickle()
     checkpoint::load_any(&path, None, Device::Cpu).unwrap();
 }
 
+/// A tensor of an element type no weight file stores is refused by name and kind, not saved.
+#[test]
+fn a_tensor_of_an_unsavable_dtype_is_named() {
+    let t = Tensor::zeros([2], (Kind::ComplexFloat, Device::Cpu));
+    let e = host::to_host("rgb.conv1.weight", &t).unwrap_err();
+    assert!(
+        matches!(&e, ModelError::UnsavableDtype { name, kind: Kind::ComplexFloat }
+            if name == "rgb.conv1.weight"),
+        "{e:?}"
+    );
+    assert_eq!(
+        e.to_string(),
+        "invalid model config: tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
+    );
+}
+
 /// `torch.save(state_dict)` of named tensors (the test-support writer of depthsense-weights).
 fn write_pth(path: &std::path::Path, tensors: &[(String, tch::Tensor)]) {
     depthsense_weights::pth_writer::write_torch_state_dict(
