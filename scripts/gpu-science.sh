@@ -104,6 +104,15 @@ LOG="$W/science.log"
 log() { echo "[science +$(( $(date +%s) - T0 ))s] $*" | tee -a "$LOG" >&2; }
 left() { echo $(( BUDGET - ($(date +%s) - T0) )); }
 
+# The last lines of each parallel run's own log (W/train_ARM_SEED.log) into the log: a failed
+# run says why even when the work folder is gone (a test's temporary folder).
+runs_said() {
+  local f
+  for f in "$W"/train_*.log; do
+    [ -f "$f" ] && log "$(basename "$f"): $(tail -n 4 "$f" | tr '\n' ' ')"
+  done
+}
+
 # stage NAME CAP cmd... : runs under timeout min(CAP, time left − END_RESERVE); output → W/NAME.log.
 stage() {
   local name="$1" cap="$2"; shift 2
@@ -171,7 +180,7 @@ run_science() {
       done
     done
     stage train 100000 bash -c 'rc=0; for c in "$@"; do bash -c "$c" & done; for c in "$@"; do wait -n || rc=1; done; exit $rc' \
-      _ "${cmds[@]}" || return 1
+      _ "${cmds[@]}" || { runs_said; return 1; }
     mkdir -p "$W/ds"
     for a in "${ARMS[@]}"; do
       for s in "${SEEDS[@]}"; do
