@@ -18,8 +18,57 @@ pub enum PrepError {
         version: String,
         scenes: usize,
     },
-    #[error("{path}: {reason}")]
-    Output { path: String, reason: String },
+    /// A write of the output folder's shared files (index, locks, a moved sample) that failed.
+    #[error("{}: {source}", .path.display())]
+    Output {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// `index merge`: a folder to merge that holds no index.
+    #[error("{}: holds no index.json or index.shard-*.json", .dir.display())]
+    NoIndexToMerge { dir: PathBuf },
+    /// `index merge OUT` with neither shard indexes in OUT nor other folders.
+    #[error(
+        "{}: nothing to merge: no index.shard-*.json here and no other folder given (`index \
+         merge OUT` combines the index.shard-I-of-N.json files that `prepare --shard I/N --out \
+         OUT` wrote; `index merge OUT OTHER…` adds the samples of other prepared folders)",
+        .out.display()
+    )]
+    NothingToMerge { out: PathBuf },
+    /// `index merge`: a sample folder that `index` lists but that is not complete.
+    #[error(
+        "{}: listed in {} but not complete (no meta.json)",
+        .sample.display(),
+        .index.display()
+    )]
+    IncompleteSource { sample: PathBuf, index: PathBuf },
+    /// `index merge`: a sample folder that cannot be moved into the output folder.
+    #[error(
+        "{}: cannot move to {} ({source}); shard folders must be on the output's filesystem",
+        .from.display(),
+        .to.display()
+    )]
+    CannotMove {
+        from: PathBuf,
+        to: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A prepared sample's meta.json that cannot be parsed (checked against this run's settings).
+    #[error("{}: unreadable meta.json: {source}", .path.display())]
+    UnreadableMeta {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A split list (`--splits`) that exists but cannot be read.
+    #[error("{}: cannot read split list: {source}", .path.display())]
+    SplitList {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Lock(#[from] depthsense_base::lock::LockError),
     #[error("{path} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it")]
@@ -157,8 +206,8 @@ impl PrepError {
     /// A failed write of the output folder's shared files (index, locks).
     pub(crate) fn output(path: &Path, e: std::io::Error) -> Self {
         PrepError::Output {
-            path: path.display().to_string(),
-            reason: e.to_string(),
+            path: path.to_path_buf(),
+            source: e,
         }
     }
 }
@@ -262,6 +311,43 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "a.png: expected a 16-bit single-channel PNG, found Rgb8"
+        );
+    }
+
+    /// The output folder's failures read as the strings they replaced, the io error kept as the
+    /// source.
+    #[test]
+    fn output_failures_keep_their_cause() {
+        use std::error::Error;
+        let io = || std::io::Error::from(std::io::ErrorKind::PermissionDenied);
+        let e = PrepError::output(Path::new("out/index.json"), io());
+        assert_eq!(e.to_string(), format!("out/index.json: {}", io()));
+        assert!(e.source().is_some());
+        let e = PrepError::CannotMove {
+            from: "a/s1".into(),
+            to: "out/s1".into(),
+            source: io(),
+        };
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "a/s1: cannot move to out/s1 ({}); shard folders must be on the output's \
+                 filesystem",
+                io()
+            )
+        );
+        let e = PrepError::IncompleteSource {
+            sample: "a/s1".into(),
+            index: "a/index.json".into(),
+        };
+        assert_eq!(
+            e.to_string(),
+            "a/s1: listed in a/index.json but not complete (no meta.json)"
+        );
+        let e = PrepError::NoIndexToMerge { dir: "b".into() };
+        assert_eq!(
+            e.to_string(),
+            "b: holds no index.json or index.shard-*.json"
         );
     }
 }

@@ -299,10 +299,7 @@ fn merge_sources(out: &Path, others: &[PathBuf], target: &Path) -> Result<Vec<So
         }
         let files = index_files(d)?;
         if files.is_empty() {
-            return Err(PrepError::Output {
-                path: d.display().to_string(),
-                reason: "holds no index.json or index.shard-*.json".into(),
-            });
+            return Err(PrepError::NoIndexToMerge { dir: d.clone() });
         }
         for p in files {
             if let Some(ix) = read_index(&p)? {
@@ -311,13 +308,8 @@ fn merge_sources(out: &Path, others: &[PathBuf], target: &Path) -> Result<Vec<So
         }
     }
     if sources.is_empty() {
-        return Err(PrepError::Output {
-            path: out.display().to_string(),
-            reason: "nothing to merge: no index.shard-*.json here and no other folder given \
-                     (`index merge OUT` combines the index.shard-I-of-N.json files that \
-                     `prepare --shard I/N --out OUT` wrote; `index merge OUT OTHER…` adds the \
-                     samples of other prepared folders)"
-                .into(),
+        return Err(PrepError::NothingToMerge {
+            out: out.to_path_buf(),
         });
     }
     Ok(sources)
@@ -403,20 +395,18 @@ fn move_sample_folders(out: &Path, sources: &[Source]) -> Result<usize, PrepErro
                 continue;
             }
             if !src.join(layout::META_FILE).is_file() {
-                return Err(PrepError::Output {
-                    path: src.display().to_string(),
-                    reason: format!("listed in {} but not complete (no meta.json)", p.display()),
+                return Err(PrepError::IncompleteSource {
+                    sample: src,
+                    index: p.to_path_buf(),
                 });
             }
             if dst.exists() {
                 std::fs::remove_dir_all(&dst).map_err(|e| PrepError::output(&dst, e))?;
             }
-            std::fs::rename(&src, &dst).map_err(|err| PrepError::Output {
-                path: src.display().to_string(),
-                reason: format!(
-                    "cannot move to {} ({err}); shard folders must be on the output's filesystem",
-                    dst.display()
-                ),
+            std::fs::rename(&src, &dst).map_err(|source| PrepError::CannotMove {
+                from: src.clone(),
+                to: dst.clone(),
+                source,
             })?;
             moved += 1;
         }

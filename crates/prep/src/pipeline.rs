@@ -1344,10 +1344,11 @@ pub fn settings_map(opts: &PrepareOptions) -> BTreeMap<String, serde_json::Value
 
 fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepError> {
     let bytes = std::fs::read(meta_path).map_err(|e| PrepError::io(meta_path, e))?;
-    let meta: SampleMeta = serde_json::from_slice(&bytes).map_err(|e| PrepError::Output {
-        path: meta_path.display().to_string(),
-        reason: format!("unreadable meta.json: {e}"),
-    })?;
+    let meta: SampleMeta =
+        serde_json::from_slice(&bytes).map_err(|source| PrepError::UnreadableMeta {
+            path: meta_path.to_path_buf(),
+            source,
+        })?;
     for (k, v) in map_settings(opts) {
         let old = &meta.settings[k];
         if *old != v {

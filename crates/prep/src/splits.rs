@@ -148,9 +148,9 @@ pub fn read_dataroot_lists(
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
             Err(e) => {
-                return Err(PrepError::Output {
-                    path: p.display().to_string(),
-                    reason: format!("cannot read split list: {e}"),
+                return Err(PrepError::SplitList {
+                    path: p.to_path_buf(),
+                    source: e,
                 })
             }
         };
