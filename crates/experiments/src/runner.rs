@@ -306,16 +306,6 @@ pub fn training_finished(run: &Path, epochs: usize) -> (bool, Option<f64>) {
     (done && run.join(BEST_CKPT).exists(), secs)
 }
 
-/// A run folder made with other options than the experiment asks for: each differing key
-/// named (`differences`, from [`json_differences`]).
-pub fn mismatch(run: &Path, file: &'static str, differences: Vec<String>) -> ExperimentError {
-    ExperimentError::OtherRun {
-        run: run.to_path_buf(),
-        file,
-        differences,
-    }
-}
-
 /// The keys in which `stored` and `asked` differ (as [`same_json`] compares), dotted below
 /// `prefix` (`model.dropout: 0.5 there, 0.3 asked`), in key order.
 pub fn json_differences(
@@ -456,14 +446,19 @@ fn finished_record(
             path: eval_path.to_path_buf(),
             reason: e.to_string(),
         })?;
-        if !same_json(&fingerprint(&rec.train_options)?, &fp) || rec.report.config != *eval {
-            let mut diffs = json_differences("", &fingerprint(&rec.train_options)?, &fp);
-            diffs.extend(json_differences(
+        let stored_fp = fingerprint(&rec.train_options)?;
+        if !same_json(&stored_fp, &fp) || rec.report.config != *eval {
+            let mut differences = json_differences("", &stored_fp, &fp);
+            differences.extend(json_differences(
                 "eval",
                 &serde_json::to_value(&rec.report.config)?,
                 &serde_json::to_value(eval)?,
             ));
-            return Err(mismatch(run, RUN_EVAL_FILE, diffs));
+            return Err(ExperimentError::OtherRun {
+                run: run.clone(),
+                file: RUN_EVAL_FILE,
+                differences,
+            });
         }
         // A run is recognised by its options, not by where it was trained: one moved here
         // from another --out (a second process's share of the seeds) names its folder now.
@@ -481,11 +476,11 @@ fn finished_record(
             })?;
         let stored_fp = fingerprint(&stored_opts)?;
         if !same_json(&stored_fp, &fp) {
-            return Err(mismatch(
-                run,
-                CONFIG_FILE,
-                json_differences("", &stored_fp, &fp),
-            ));
+            return Err(ExperimentError::OtherRun {
+                run: run.clone(),
+                file: CONFIG_FILE,
+                differences: json_differences("", &stored_fp, &fp),
+            });
         }
     }
     Ok(None)
@@ -595,11 +590,11 @@ mod tests {
             ]
         );
         assert!(json_differences("", &stored, &stored).is_empty());
-        let e = mismatch(
-            Path::new("run"),
-            "config.json",
-            json_differences("", &stored, &asked),
-        );
+        let e = ExperimentError::OtherRun {
+            run: "run".into(),
+            file: "config.json",
+            differences: json_differences("", &stored, &asked),
+        };
         assert_eq!(
             e.to_string(),
             "configuration: run: this run was made with other training options (see its \
