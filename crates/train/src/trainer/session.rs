@@ -721,7 +721,7 @@ fn finished_state(
     let (ck_cfg, extra) = checkpoint::read_config(&last)?;
     let state = train_state(&last, &extra)?;
     let done = state.iteration >= plan_of(opts, bpe).total_iterations();
-    let same = &ck_cfg == cfg && check_same_schedule(&state, opts, &last).is_ok();
+    let same = &ck_cfg == cfg && state.schedule_key() == opts.schedule.key();
     Ok((done && same).then_some(state))
 }
 
