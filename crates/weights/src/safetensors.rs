@@ -121,15 +121,20 @@ pub fn read_metadata(path: &Path) -> Result<BTreeMap<String, String>, WeightsErr
     let header = header_json(path, &text)?;
     let data_len = total - 8 - n as u64;
     if let Some((name, end)) = last_tensor_end(&header).filter(|&(_, end)| end > data_len) {
-        return Err(WeightsError::format(
-            path,
-            format!(
-                "truncated: tensor {name} ends at byte {end} of the data section but it holds \
-                 only {data_len} bytes"
-            ),
-        ));
+        return Err(truncated(path, name, end, data_len));
     }
     Ok(metadata_of(&header))
+}
+
+/// A file whose data section (`data_len` bytes) ends before tensor `name`'s end.
+fn truncated(path: &Path, name: &str, end: u64, data_len: u64) -> WeightsError {
+    WeightsError::format(
+        path,
+        format!(
+            "truncated: tensor {name} ends at byte {end} of the data section but it holds only \
+             {data_len} bytes"
+        ),
+    )
 }
 
 /// The tensor entry of `header` whose `data_offsets` end last, with that end (entries without
@@ -194,11 +199,7 @@ fn tensor<'b>(
         )));
     }
     if offs[1] > data.len() {
-        return Err(bad(format!(
-            "truncated: tensor {name} ends at byte {} of the data section but it holds only {} bytes",
-            offs[1],
-            data.len()
-        )));
+        return Err(truncated(path, name, offs[1] as u64, data.len() as u64));
     }
     Ok(HostTensor {
         dtype,
