@@ -57,10 +57,9 @@ pub fn save(
     let tensors: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
     let mut meta = BTreeMap::new();
     meta.insert(KEY_FORMAT.to_string(), FORMAT.to_string());
-    meta.insert(
-        KEY_CONFIG.to_string(),
-        serde_json::to_string(cfg).unwrap_or_default(),
-    );
+    let config_json =
+        serde_json::to_string(cfg).map_err(|source| ModelError::ConfigJson { source })?;
+    meta.insert(KEY_CONFIG.to_string(), config_json);
     meta.insert(
         KEY_EXTRA.to_string(),
         serde_json::to_string(extra).unwrap_or_else(|_| "null".into()),

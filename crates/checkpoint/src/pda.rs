@@ -37,8 +37,7 @@ pub fn save(
     let tensors: Vec<(String, Tensor)> = vs.variables().into_iter().collect();
     let mut meta = BTreeMap::new();
     meta.insert(KEY_FORMAT.to_string(), FORMAT.to_string());
-    let cfg_s =
-        serde_json::to_string(cfg).map_err(|source| ModelError::PdaConfigJson { source })?;
+    let cfg_s = serde_json::to_string(cfg).map_err(|source| ModelError::ConfigJson { source })?;
     meta.insert(KEY_CONFIG.to_string(), cfg_s);
     meta.insert(
         KEY_EXTRA.to_string(),

@@ -22,9 +22,9 @@ pub enum DataError {
     Parse { path: PathBuf, reason: String },
     #[error(transparent)]
     Metrics(#[from] depthsense_metrics::MetricsError),
-    #[error("{dir} already holds {what}; nothing was changed: {advice}")]
+    #[error("{} already holds {what}; nothing was changed: {advice}", .dir.display())]
     OutputExists {
-        dir: String,
+        dir: PathBuf,
         what: String,
         advice: String,
     },

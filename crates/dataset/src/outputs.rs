@@ -122,7 +122,7 @@ pub fn claim_run_folder(
     }
     if !force {
         return Err(DataError::OutputExists {
-            dir: dir.display().to_string(),
+            dir: dir.to_path_buf(),
             what: holds.to_string(),
             advice: format!(
                 "continue it with `{command} --resume`, start over with `{command} --force` \
@@ -157,11 +157,12 @@ pub fn refuse_existing(files: &[PathBuf], force: bool, command: &str) -> Result<
     }
     let dir = existing[0]
         .parent()
-        .map_or_else(|| ".".to_string(), |p| p.display().to_string());
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     if force {
         eprintln!(
-            "--force: replacing {} file(s) of an earlier `{command}` in {dir}",
-            existing.len()
+            "--force: replacing {} file(s) of an earlier `{command}` in {}",
+            existing.len(),
+            dir.display()
         );
         return Ok(());
     }

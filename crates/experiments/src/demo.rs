@@ -299,7 +299,7 @@ fn clear_earlier_demo(opts: &DemoOptions) -> Result<(), ExperimentError> {
     if let Some(what) = demo_in(out) {
         if !opts.force {
             return Err(ExperimentError::OutputExists {
-                dir: out.display().to_string(),
+                dir: out.to_path_buf(),
                 what,
                 advice:
                     "replace it with `depthsense demo --force` (`make demo DEMO_ARGS=--force`) \

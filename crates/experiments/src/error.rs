@@ -68,9 +68,9 @@ pub enum ExperimentError {
     #[error("data: sample {0} not in the index")]
     SampleNotInIndex(String),
     /// The output folder holds an earlier result, kept.
-    #[error("{dir} already holds {what}; nothing was changed: {advice}")]
+    #[error("{} already holds {what}; nothing was changed: {advice}", .dir.display())]
     OutputExists {
-        dir: String,
+        dir: PathBuf,
         what: String,
         advice: String,
     },

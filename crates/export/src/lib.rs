@@ -120,11 +120,11 @@ pub enum ExportError {
     },
 
     // --- Writing the files: the targets, the conversion in Python ---
-    #[error("{path}: exists (a file of an earlier export); --force replaces it")]
-    Exists { path: String },
-    #[error("{path}: {source}")]
+    #[error("{}: exists (a file of an earlier export); --force replaces it", .path.display())]
+    Exists { path: PathBuf },
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
@@ -140,7 +140,7 @@ pub enum ExportError {
 impl ExportError {
     pub(crate) fn io(path: &Path, e: std::io::Error) -> Self {
         Self::Io {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source: e,
         }
     }
@@ -303,9 +303,7 @@ fn check_target(opts: &ExportOptions) -> Result<(), ExportError> {
     if !opts.force {
         for p in [&opts.out, &sidecar_path(&opts.out)] {
             if p.exists() {
-                return Err(ExportError::Exists {
-                    path: p.display().to_string(),
-                });
+                return Err(ExportError::Exists { path: p.clone() });
             }
         }
     }

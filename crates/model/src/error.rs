@@ -37,15 +37,16 @@ pub enum ModelError {
     /// A PDA preset or config file that is unknown, unreadable or invalid.
     #[error(transparent)]
     PdaConfig(#[from] depthsense_config::pda::PdaConfigError),
-    /// A PDA config that cannot be written as JSON into its checkpoint's header.
+    /// A network's or PDA's config that cannot be written as JSON into its checkpoint's
+    /// header.
     #[error("invalid model config: {source}")]
-    PdaConfigJson {
+    ConfigJson {
         #[source]
         source: serde_json::Error,
     },
     /// A tensor (`name`, a variable of the network) whose element type (`kind`) no weight
     /// file stores.
-    #[error("invalid model config: tensor {name}: dtype {kind:?} cannot be saved")]
+    #[error("tensor {name}: dtype {kind:?} cannot be saved")]
     UnsavableDtype { name: String, kind: tch::Kind },
     /// `parse_device` got a string it does not understand.
     #[error(transparent)]
@@ -113,7 +114,7 @@ impl ModelError {
 mod tests {
     use super::*;
 
-    /// The checkpoint writer's refusals read as the strings they replaced did.
+    /// The checkpoint writer's refusals: a tensor's type, a config's JSON.
     #[test]
     fn unsavable_config_and_dtype_messages() {
         let e = ModelError::UnsavableDtype {
@@ -122,10 +123,10 @@ mod tests {
         };
         assert_eq!(
             e.to_string(),
-            "invalid model config: tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
+            "tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
         );
         let json = || serde_json::from_str::<u8>("x").unwrap_err();
-        let e = ModelError::PdaConfigJson { source: json() };
+        let e = ModelError::ConfigJson { source: json() };
         assert_eq!(e.to_string(), format!("invalid model config: {}", json()));
         assert_eq!(
             e.to_string(),

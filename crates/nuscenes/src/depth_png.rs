@@ -3,7 +3,7 @@
 //! Shared by `prep` (training-frame maps), `synth` (rendered truth) and `train`
 //! (predictions), so that every map in the project has one encoding.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use depthsense_base::fsutil::write_atomic;
 
@@ -14,9 +14,9 @@ pub const MAX_DEPTH_M: f32 = u16::MAX as f32 / DEPTH_SCALE;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DepthPngError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
@@ -146,7 +146,7 @@ fn encode_u16(
 pub fn write_depth_png(path: &Path, map: &DepthMap) -> Result<(), DepthPngError> {
     let bytes = encode_png(map)?;
     write_atomic(path, &bytes).map_err(|source| DepthPngError::Io {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         source,
     })
 }
@@ -212,7 +212,7 @@ pub fn decode_png(bytes: &[u8], name: &str) -> Result<DepthMap, DepthPngError> {
 /// Read a 16-bit depth PNG into metres.
 pub fn read_depth_png(path: &Path) -> Result<DepthMap, DepthPngError> {
     let bytes = std::fs::read(path).map_err(|source| DepthPngError::Io {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         source,
     })?;
     decode_png(&bytes, &path.display().to_string())

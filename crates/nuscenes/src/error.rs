@@ -1,15 +1,15 @@
 //! Errors of the nuScenes data layer: each names the file or record and the problem.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Result alias of this crate.
 pub type Result<T, E = NuError> = std::result::Result<T, E>;
 
 #[derive(Debug, thiserror::Error)]
 pub enum NuError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
@@ -74,7 +74,7 @@ fn version_not_found(dataroot: &str, version: &str, found: &[String]) -> String 
 impl NuError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         NuError::Io {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source,
         }
     }

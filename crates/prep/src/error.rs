@@ -71,20 +71,44 @@ pub enum PrepError {
     },
     #[error(transparent)]
     Lock(#[from] depthsense_base::lock::LockError),
-    #[error("{path} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it")]
+    /// A prepared folder (or sample folder, `path`) made with other map settings: `what` is
+    /// the first setting that differs, `old` its value there, `new` this run's.
+    #[error("{} was prepared with different settings ({what}: {old} there, {new} now); use another --out or remove it", .path.display())]
     SettingsMismatch {
-        path: String,
+        path: PathBuf,
         what: String,
         old: String,
         new: String,
     },
+    /// An index file (`path`) that exists but is not a prepared index.
     #[error(
-        "{path}: unreadable prepared index ({reason}); it is not replaced: repair or remove it"
+        "{}: unreadable prepared index ({source}); it is not replaced: repair or remove it",
+        .path.display()
     )]
-    CorruptIndex { path: String, reason: String },
-    #[error("{path} holds dataset version {old:?}, this run is {new:?}; use another --out")]
+    CorruptIndex {
+        path: PathBuf,
+        #[source]
+        source: serde_json::Error,
+    },
+    /// A prepared index (`path`) of another dataset version than this run's.
+    #[error("{} holds dataset version {old:?}, this run is {new:?}; use another --out", .path.display())]
     VersionMismatch {
-        path: String,
+        path: PathBuf,
+        old: String,
+        new: String,
+    },
+    /// Two indexes given to `index merge` that were not prepared alike: `what` (the dataset
+    /// version or a map setting) is `old` in `against`, `new` in `path`.
+    #[error(
+        "{}: {what} is {new}, but {old} in {}; index merge takes indexes prepared with the same \
+         version and settings only",
+        .path.display(),
+        .against.display()
+    )]
+    IndexesDisagree {
+        path: PathBuf,
+        against: PathBuf,
+        what: String,
         old: String,
         new: String,
     },

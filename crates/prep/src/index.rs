@@ -71,9 +71,9 @@ pub fn read_index(path: &Path) -> Result<Option<PreparedIndex>, PrepError> {
     };
     serde_json::from_slice(&bytes)
         .map(Some)
-        .map_err(|e| PrepError::CorruptIndex {
-            path: path.display().to_string(),
-            reason: e.to_string(),
+        .map_err(|source| PrepError::CorruptIndex {
+            path: path.to_path_buf(),
+            source,
         })
 }
 
@@ -86,7 +86,7 @@ pub fn check_index(
 ) -> Result<(), PrepError> {
     if !index.version.is_empty() && index.version != version {
         return Err(PrepError::VersionMismatch {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             old: index.version.clone(),
             new: version.to_string(),
         });
@@ -94,31 +94,41 @@ pub fn check_index(
     if index.settings.is_empty() {
         return Ok(());
     }
-    check_settings_maps(path, &index.settings, settings)
+    match first_difference(&index.settings, settings) {
+        None => Ok(()),
+        Some(d) => Err(PrepError::SettingsMismatch {
+            path: path.to_path_buf(),
+            what: d.key,
+            old: d.old,
+            new: d.new,
+        }),
+    }
 }
 
-/// Compare two settings maps key by key; the first difference is reported with both values.
-pub fn check_settings_maps(
-    path: &Path,
+/// The first setting (in key order) whose value differs between two settings maps, with both
+/// values as JSON (`null` where a map lacks the key).
+struct SettingDifference {
+    key: String,
+    old: String,
+    new: String,
+}
+
+fn first_difference(
     old: &BTreeMap<String, serde_json::Value>,
     new: &BTreeMap<String, serde_json::Value>,
-) -> Result<(), PrepError> {
+) -> Option<SettingDifference> {
     let keys: std::collections::BTreeSet<&String> = old.keys().chain(new.keys()).collect();
-    for k in keys {
+    keys.into_iter().find_map(|k| {
         let (o, n) = (
             old.get(k).unwrap_or(&serde_json::Value::Null),
             new.get(k).unwrap_or(&serde_json::Value::Null),
         );
-        if o != n {
-            return Err(PrepError::SettingsMismatch {
-                path: path.display().to_string(),
-                what: k.clone(),
-                old: o.to_string(),
-                new: n.to_string(),
-            });
-        }
-    }
-    Ok(())
+        (o != n).then(|| SettingDifference {
+            key: k.clone(),
+            old: o.to_string(),
+            new: n.to_string(),
+        })
+    })
 }
 
 /// Index files of a folder: `index.json` (if present) and every `index.shard-*.json`, sorted.
@@ -323,18 +333,24 @@ fn check_sources_agree(
     ref_index: &PreparedIndex,
 ) -> Result<(), PrepError> {
     for (p, _, ix) in sources {
-        if ix.version != ref_index.version {
-            return Err(PrepError::VersionMismatch {
-                path: format!("{} (against {})", p.display(), ref_path.display()),
-                old: ref_index.version.clone(),
-                new: ix.version.clone(),
+        let difference = if ix.version != ref_index.version {
+            Some(SettingDifference {
+                key: "dataset version".to_string(),
+                old: format!("{:?}", ref_index.version),
+                new: format!("{:?}", ix.version),
+            })
+        } else {
+            first_difference(&ref_index.settings, &ix.settings)
+        };
+        if let Some(d) = difference {
+            return Err(PrepError::IndexesDisagree {
+                path: p.clone(),
+                against: ref_path.to_path_buf(),
+                what: d.key,
+                old: d.old,
+                new: d.new,
             });
         }
-        check_settings_maps(
-            &PathBuf::from(format!("{} (against {})", p.display(), ref_path.display())),
-            &ref_index.settings,
-            &ix.settings,
-        )?;
     }
     Ok(())
 }

@@ -1353,11 +1353,7 @@ fn check_settings(meta_path: &Path, opts: &PrepareOptions) -> Result<(), PrepErr
         let old = &meta.settings[k];
         if *old != v {
             return Err(PrepError::SettingsMismatch {
-                path: meta_path
-                    .parent()
-                    .unwrap_or(meta_path)
-                    .display()
-                    .to_string(),
+                path: meta_path.parent().unwrap_or(meta_path).to_path_buf(),
                 what: k.to_string(),
                 old: old.to_string(),
                 new: v.to_string(),

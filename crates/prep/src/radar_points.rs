@@ -35,9 +35,9 @@ const MAX_GROUPS: usize = 1 << 16;
 
 #[derive(Debug, thiserror::Error)]
 pub enum RadarPointsError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
@@ -349,7 +349,7 @@ impl RadarPoints {
                 path: path.display().to_string(),
             }),
             Err(e) => Err(RadarPointsError::Io {
-                path: path.display().to_string(),
+                path: path.to_path_buf(),
                 source: e,
             }),
         }

@@ -229,3 +229,53 @@ fn shard_spec_parses_i_of_n() {
         assert!(bad.parse::<Shard>().is_err(), "{bad}");
     }
 }
+
+/// `index merge` of two folders prepared differently names both index files and the first
+/// difference (the dataset version, else a map setting), and moves nothing.
+#[test]
+fn merge_refuses_indexes_prepared_differently() {
+    let tmp = tempfile::tempdir().unwrap();
+    let folder = |name: &str, version: &str, k: i64| {
+        let dir = tmp.path().join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut ix = PreparedIndex {
+            version: version.into(),
+            ..Default::default()
+        };
+        ix.settings
+            .insert("lidar_sweeps_k".into(), serde_json::json!(k));
+        let json = serde_json::to_vec(&ix).unwrap();
+        std::fs::write(dir.join(layout::INDEX_FILE), json).unwrap();
+        dir
+    };
+    let (a, b) = (folder("a", "v1.0-mini", 1), folder("b", "v1.0-mini", 3));
+    let c = folder("c", "v1.0-trainval", 1);
+    let merged = tmp.path().join("merged");
+
+    let err = merge(&merged, &[a.clone(), b.clone()]).unwrap_err();
+    let PrepError::IndexesDisagree {
+        path,
+        against,
+        what,
+        old,
+        new,
+    } = &err
+    else {
+        panic!("{err}");
+    };
+    assert_eq!(path, &b.join(layout::INDEX_FILE));
+    assert_eq!(against, &a.join(layout::INDEX_FILE));
+    assert_eq!(
+        (what.as_str(), old.as_str(), new.as_str()),
+        ("lidar_sweeps_k", "1", "3")
+    );
+    let msg = err.to_string();
+    assert!(msg.contains("lidar_sweeps_k is 3, but 1 in"), "{msg}");
+
+    let err = merge(&merged, &[a, c]).unwrap_err();
+    assert!(
+        matches!(&err, PrepError::IndexesDisagree { what, .. } if what == "dataset version"),
+        "{err}"
+    );
+    assert!(!merged.join(layout::INDEX_FILE).exists());
+}

@@ -35,34 +35,41 @@ pub use images::{base64, Embedded};
 /// Errors of the report: each names the file or folder at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },
-    #[error("{path}: {reason}")]
-    Invalid { path: String, reason: String },
-    #[error("no experiment output found under {0}")]
-    Nothing(String),
+    #[error("{}: {reason}", .path.display())]
+    Invalid { path: PathBuf, reason: String },
+    #[error("no experiment output found under {}", display_list(.0))]
+    Nothing(Vec<PathBuf>),
     #[error(
-        "{dir} already holds a report ({files}); nothing was changed: pass --force to replace \
-         it (only report.html, report.md, report.json and img/ are replaced) or choose another --out"
+        "{} already holds a report ({files}); nothing was changed: pass --force to replace \
+         it (only report.html, report.md, report.json and img/ are replaced) or choose another --out",
+        .dir.display()
     )]
-    Exists { dir: String, files: String },
+    Exists { dir: PathBuf, files: String },
+}
+
+/// `a, b, c` of paths, for a message.
+fn display_list(paths: &[PathBuf]) -> String {
+    let shown: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    shown.join(", ")
 }
 
 impl ReportError {
     pub fn io(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             source,
         }
     }
 
     pub fn invalid(path: &Path, reason: impl Into<String>) -> Self {
         Self::Invalid {
-            path: path.display().to_string(),
+            path: path.to_path_buf(),
             reason: reason.into(),
         }
     }
@@ -294,8 +301,7 @@ pub fn render(opts: &ReportOptions) -> Result<(ReportSummary, String), ReportErr
         found.sections.insert(0, models);
     }
     if found.sections.is_empty() {
-        let dirs: Vec<String> = opts.runs.iter().map(|p| p.display().to_string()).collect();
-        return Err(ReportError::Nothing(dirs.join(", ")));
+        return Err(ReportError::Nothing(opts.runs.clone()));
     }
     let mut skipped = found.skipped;
     let mut sections = vec![];
@@ -324,7 +330,7 @@ pub fn build_report(opts: &ReportOptions) -> Result<ReportSummary, ReportError> 
         .collect();
     if !existing.is_empty() && !opts.force {
         return Err(ReportError::Exists {
-            dir: opts.out.display().to_string(),
+            dir: opts.out.clone(),
             files: existing.join(", "),
         });
     }

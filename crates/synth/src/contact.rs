@@ -134,7 +134,7 @@ pub fn contact_sheet(dataroot: &Path, version: &str, out_png: &Path) -> Result<(
         .map_err(|source| SynthError::ContactSheetPng { source })?;
     }
     depthsense_base::fsutil::write_atomic(out_png, &buf).map_err(|source| SynthError::Io {
-        path: out_png.display().to_string(),
+        path: out_png.to_path_buf(),
         source,
     })
 }

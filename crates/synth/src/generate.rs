@@ -103,7 +103,7 @@ pub fn allocate_conditions(n: usize, mix: &[(Weather, f64)]) -> Vec<Weather> {
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError + '_ {
     move |source| SynthError::Io {
-        path: path.display().to_string(),
+        path: path.to_path_buf(),
         source,
     }
 }

@@ -232,9 +232,9 @@ pub struct SynthSummary {
 /// setting, file, scene or sample at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
-    #[error("{path}: {source}")]
+    #[error("{}: {source}", .path.display())]
     Io {
-        path: String,
+        path: PathBuf,
         #[source]
         source: std::io::Error,
     },

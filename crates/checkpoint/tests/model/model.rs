@@ -890,7 +890,7 @@ fn a_tensor_of_an_unsavable_dtype_is_named() {
     );
     assert_eq!(
         e.to_string(),
-        "invalid model config: tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
+        "tensor rgb.conv1.weight: dtype ComplexFloat cannot be saved"
     );
 }
 
