@@ -43,9 +43,9 @@ $(MATURIN_STAMP):
 # onnx + onnxruntime for `depthsense export` (its ONNX check and tests), maturin (builds the
 # Python module, `make python`) and pytest (its tests). One pip call, so that onnx's ml_dtypes
 # is resolved against the devkit's numpy < 2 (a later, separate install of onnx upgrades numpy
-# to 2 and breaks the devkit). --no-cache-dir: pip would keep a second copy of the ≈ 3 GB of
-# torch and CUDA wheels in ~/.cache/pip; on a clean clone's machine that copy is what filled the
-# disk (CI, 2026-12-05: "No space left on device" during this install).
+# to 2 and breaks the devkit). --no-cache-dir: pip keeps no second copy of the ≈ 3 GB of torch
+# and CUDA wheels in ~/.cache/pip (CI's clean clone once ran out of disk during this install,
+# 2026-12-05, on a disk shared with other work; the venv itself is 5.4 GB).
 $(STAMP): $(MATURIN_STAMP)
 	$(VENV)/bin/python -m pip install --disable-pip-version-check --no-cache-dir -q "torch==$(TORCH_VERSION)" "numpy<2" nuscenes-devkit onnx onnxruntime "maturin>=1.9.4,<2" pytest
 	@$(VENV)/bin/python -c "import torch; assert torch.__version__.split('+')[0] == '$(TORCH_VERSION)', torch.__version__"
