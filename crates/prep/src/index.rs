@@ -244,8 +244,43 @@ type Source = (PathBuf, PathBuf, PreparedIndex);
 /// another version or with other map settings (naming both files), a shard set with a missing
 /// part, and shard sets of different N. The merged order is the unsharded run's: shard scene
 /// lists are interleaved (scene j came from shard j mod N).
+/// A refusal leaves no output folder behind that the merge created.
 pub fn merge(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
+    let created = !out.exists();
     std::fs::create_dir_all(out).map_err(|e| PrepError::output(out, e))?;
+    let merged = merge_into(out, others);
+    if merged.is_err() && created {
+        remove_if_only_locks(out);
+    }
+    merged
+}
+
+/// Removes `out` when it holds nothing but this crate's two lock files (a merge refused before
+/// anything moved) and nobody holds its lock; anything else in it keeps it.
+fn remove_if_only_locks(out: &Path) {
+    let locks = [depthsense_base::lock::LOCK_FILE, layout::INDEX_LOCK_FILE];
+    let Ok(_lock) = OutputLock::exclusive(out, "depthsense index merge") else {
+        return;
+    };
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return;
+    };
+    let only_locks = entries.into_iter().all(|e| {
+        e.is_ok_and(|e| {
+            locks
+                .iter()
+                .any(|l| e.file_name() == std::ffi::OsStr::new(l))
+        })
+    });
+    if only_locks {
+        for l in locks {
+            let _ = std::fs::remove_file(out.join(l));
+        }
+        let _ = std::fs::remove_dir(out);
+    }
+}
+
+fn merge_into(out: &Path, others: &[PathBuf]) -> Result<MergeSummary, PrepError> {
     let _writing = lock_folders(out, others)?;
     let _lock = lock_index(out)?;
     let target = out.join(layout::INDEX_FILE);
