@@ -113,6 +113,12 @@ runs_said() {
   done
 }
 
+# RUN_ALL: bash -c "$RUN_ALL" _ CMD... runs every CMD at once and fails when any failed. Each
+# is waited for by its pid: `wait -n` misses a command that ends while another is being reaped
+# (bash 5.2 then answers 127 to the last wait: a failed stage of runs that all succeeded, the
+# dry run's one-in-many failure). python/tests/test_science_runs.py runs this line.
+RUN_ALL='rc=0; pids=(); for c in "$@"; do bash -c "$c" & pids+=($!); done; for p in "${pids[@]}"; do wait "$p" || rc=1; done; exit $rc'
+
 # stage NAME CAP cmd... : runs under timeout min(CAP, time left − END_RESERVE); output → W/NAME.log.
 stage() {
   local name="$1" cap="$2"; shift 2
@@ -179,7 +185,7 @@ run_science() {
           --out "$W/ds_${a}_$s") > $(printf '%q' "$W/train_${a}_$s.log") 2>&1")
       done
     done
-    stage train 100000 bash -c 'rc=0; for c in "$@"; do bash -c "$c" & done; for c in "$@"; do wait -n || rc=1; done; exit $rc' \
+    stage train 100000 bash -c "$RUN_ALL" \
       _ "${cmds[@]}" || { runs_said; return 1; }
     mkdir -p "$W/ds"
     for a in "${ARMS[@]}"; do
