@@ -27,8 +27,9 @@
 #
 # Options:
 #   --out DIR          where the results go (default: $OUT, else ./gpu-check-out)
-#   --budget SECONDS   total time budget (default 570; the dry run: 450)
-#   --science-budget S the science step's share (default 360; the dry run: 150)
+#   --budget SECONDS   total time budget (default 550; the dry run: 450)
+#   --science-budget S the science step's share (default 350, at most the time left − 40; the
+#                      dry run: 150)
 #   --demo-epochs N    epochs of each demo model (default 4; 0 = the CUDA plan's own 30)
 #   --only REGEX       run only the steps whose name matches (bash =~), e.g. 'demo' or
 #                      'released' to rerun part of the check within a slot; names: science,
@@ -62,7 +63,7 @@ while [ $# -gt 0 ]; do
     --demo-epochs) DEMO_EPOCHS="$2"; shift ;;
     --make-bundle) MAKE_BUNDLE="$2"; shift ;;
     --only) ONLY="$2"; shift ;;
-    -h|--help) sed -n '2,42p' "${BASH_SOURCE[0]}"; exit 0 ;;
+    -h|--help) sed -n '2,45p' "${BASH_SOURCE[0]}"; exit 0 ;;
     *) echo "gpu-check: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -75,6 +76,30 @@ if ! "$PY" -c 'import torch' 2>/dev/null; then
     if [ -x "$c" ] && "$c" -c 'import torch' 2>/dev/null; then PY="$c"; break; fi
   done
 fi
+
+# SOURCES_PY list REPO < paths: "sha256  path" of each file; SOURCES_PY check REPO LISTING: the
+# paths whose file differs from the listing (or is missing), "N path path …" (at most five).
+SOURCES_PY='
+import hashlib, os, sys
+def digest(path):
+    try:
+        with open(path, "rb") as f:
+            return hashlib.sha256(f.read()).hexdigest()
+    except OSError:
+        return None
+mode, repo = sys.argv[1], sys.argv[2]
+if mode == "list":
+    for p in sys.stdin.read().split("\0"):
+        if p:
+            print(digest(os.path.join(repo, p)), p, sep="  ")
+else:
+    bad = []
+    for line in open(sys.argv[3], encoding="utf-8"):
+        want, p = line.rstrip("\n").split("  ", 1)
+        if digest(os.path.join(repo, p)) != want:
+            bad.append(p)
+    print(len(bad), *bad[:5])
+'
 
 # ------------------------------------------------------------------------------------------
 # --make-bundle DIR (CPU machine)
@@ -97,6 +122,10 @@ if [ -n "$MAKE_BUNDLE" ]; then
     "$REPO/scripts/ort_latency.py" \
     "$REPO/scripts/torch_reference.py" "$REPO/python/depthsense_torch.py" "$B/"
   chmod +x "$B/gpu-check.sh" "$B/gpu-science.sh" "$B/depthsense" "$B/depthsense-net"
+  # What the bundle was built from: every tracked source file's digest, so that the run on the
+  # GPU machine refuses a bundle older than the tree it arrives with (sources.txt).
+  git -C "$REPO" ls-files -z crates scripts python Cargo.toml Cargo.lock \
+    | "$PY" -c "$SOURCES_PY" list "$REPO" > "$B/sources.txt"
   # A small world: 10 scenes × 5 keyframes (val/test scenes held out by the loader's rule),
   # prepared like the demo (K = 2 lidar sweeps for the dense target).
   "$B/depthsense" synth --out "$WORLD_TMP" --force --scenes 10 --keyframes-per-scene 5 --seed 7 \
@@ -126,7 +155,10 @@ fi
 
 # ------------------------------------------------------------------------------------------
 # The run
-if [ "$DRY" = 1 ]; then : "${BUDGET:=450}" "${SCI_BUDGET:=150}"; else : "${BUDGET:=570}" "${SCI_BUDGET:=360}"; fi
+# The GPU budget leaves the device call's 600 s room for what runs outside it: python's import
+# of torch before T0, the summary after, each step's --kill-after.
+if [ "$DRY" = 1 ]; then : "${BUDGET:=450}" "${SCI_BUDGET:=150}"; else : "${BUDGET:=550}" "${SCI_BUDGET:=350}"; fi
+
 T0=$(date +%s)
 [ -n "$OUTDIR" ] || OUTDIR="$PWD/gpu-check-out"
 mkdir -p "$OUTDIR"
@@ -170,6 +202,12 @@ fail() {
   exit 3
 }
 [ -n "$BIN" ] || fail "no depthsense binary (make gpu-bundle on the CPU machine, bring .gpu/)"
+# A bundle carried beside a newer tree would time old code: refused in seconds, not after the
+# budget is spent (the tree's files travel with every device call).
+if [ -f "$HERE/sources.txt" ] && [ -f "$REPO/Cargo.lock" ]; then
+  STALE="$("$PY" -c "$SOURCES_PY" check "$REPO" "$HERE/sources.txt")"
+  [ "${STALE%% *}" = 0 ] || fail "the bundle in $HERE was built from other sources than this tree (${STALE%% *} files differ: ${STALE#* }): run make gpu-bundle and carry it again"
+fi
 [ -n "$REF" ] || fail "no torch_reference.py"
 "$PY" -c 'import torch' 2>/dev/null || fail "python $PY cannot import torch"
 
@@ -283,6 +321,11 @@ SCI_OUT="$S/science"
 SCI_DRY=(); [ "$DRY" = 1 ] && SCI_DRY=(--cpu-dry-run)
 if [ -n "$SCI_SH" ]; then
   export PYTHON="$PY"
+  # Its own budget within the time left, so that its inner timeouts end before the step's outer
+  # one (an outer timeout does not reach the inner ones' process groups: runs would go on
+  # training under every later step).
+  SCI_MAX=$(( BUDGET - ($(date +%s) - T0) - 40 ))
+  [ "$SCI_BUDGET" -le "$SCI_MAX" ] || SCI_BUDGET=$SCI_MAX
   step science $(( SCI_BUDGET + 30 )) 60 bash "$SCI_SH" --out "$SCI_OUT" \
     --budget "$SCI_BUDGET" --bin "$BIN" --device "$DEV" "${SCI_DRY[@]}"
 else
@@ -317,7 +360,13 @@ else
 fi
 
 # 4. onnxruntime's CUDA provider (CPU provider in the dry run) on the trained checkpoint's graph.
-if [ -n "$SCI_CKPT" ]; then
+ORT_CUDA=1
+if [ "$DRY" = 0 ] && ! "$PY" -c 'import onnxruntime as o,sys; sys.exit("CUDAExecutionProvider" not in o.get_available_providers())' 2>/dev/null; then
+  ORT_CUDA=0
+fi
+if [ "$ORT_CUDA" = 0 ]; then
+  printf 'ort_cuda\tskipped\t0\tonnxruntime without its CUDA provider here (the CPU build, or none)\n' >> "$STEPS"
+elif [ -n "$SCI_CKPT" ]; then
   step ort_cuda 90 20 bash -c '"$1" export --checkpoint "$2" --format onnx --out "$3/model.onnx" \
       --python "$4" && "$4" "$5" --onnx "$3/model.onnx" --device "$6" --batch "$7" --height "$8" \
       --width "$9" --out "$3/ort_cuda.json"' _ "$BIN" "$SCI_CKPT" "$S" "$PY" "$ORT_PY" "$DEV" \

@@ -4,7 +4,8 @@
   science_json.py plan  --work W --runs 4 --batch B --epochs E --size N --time-left S --run-overhead O
                         [--mode auto|parallel|sequential] [--max-iterations K]
       reads W/probe_one.json and W/probe_four_*.json (`depthsense bench train`), chooses one
-      process at a time or four at once (four when ≥ 10 % more images per second) and the largest
+      process at a time or four at once (four when four times the slowest of the four probes
+      is ≥ 10 % more images per second than one process) and the largest
       iteration count that fits the time left; writes W/plan.json, prints "MODE ITERATIONS N".
   science_json.py write --work W --out FILE [...]
       science.json: the world, the plan, wall times, each run's test metrics and the margin of
@@ -23,8 +24,9 @@ import time
 SCHEMA = "depthsense-science/1"
 # Four runs at once only when the probe measured at least this much more throughput.
 PARALLEL_GAIN = 1.10
-# The share of the time left that the plan spends on training steps (the rest: slack).
-SAFETY = 0.85
+# The share of the time left that the plan spends on training steps (the rest: slack; a run
+# that outlives the stage's timeout loses the whole science step, a shorter one only steps).
+SAFETY = 0.8
 
 
 def load(path):
@@ -46,7 +48,9 @@ def plan(a):
         print("probe_one.json has no train_images_per_s", file=sys.stderr)
         return 1
     fours = [rate(load(p)) for p in sorted(glob.glob(os.path.join(a.work, "probe_four_*.json")))]
-    four = sum(fours) if len(fours) == a.runs and all(fours) else None
+    # Four at once: the slowest probe's rate, four times. Each probe times its own 20-step window
+    # and the windows need not overlap, so their sum can count a probe that ran alone for a while.
+    four = a.runs * min(fours) if len(fours) == a.runs and all(fours) else None
     gain = four / one if four else None
     mode = "parallel" if gain is not None and gain >= PARALLEL_GAIN else "sequential"
     if a.mode != "auto":

@@ -25,8 +25,8 @@ def test_four_at_once_when_the_probe_measures_ten_percent_more(tmp_path):
     p, rec = plan(tmp_path, 130.0, [40.0, 40.0, 40.0, 40.0])
     assert p.returncode == 0, p.stderr
     assert rec["mode"] == "parallel" and abs(rec["parallel_gain"] - 160 / 130) < 1e-9
-    # (240 − 2·20) · 0.85 s at 160 images/s shared by 4 runs, batch 8, a multiple of 4.
-    expect = int((200 * 0.85 * 160 / 4) // 8) // 4 * 4
+    # (240 − 2·20) · 0.8 s at 160 images/s shared by 4 runs, batch 8, a multiple of 4.
+    expect = int((200 * 0.8 * 160 / 4) // 8) // 4 * 4
     assert rec["iterations"] == expect and p.stdout.split() == ["parallel", str(expect), "3000"]
 
 
@@ -34,8 +34,8 @@ def test_one_after_another_otherwise_and_n_shrinks_to_one_pass(tmp_path):
     p, rec = plan(tmp_path, 130.0, [30.0, 30.0, 30.0, 30.0], **{"time-left": 150})
     assert p.returncode == 0, p.stderr
     assert rec["mode"] == "sequential"
-    # (150 − 4·20) · 0.85 / 4 s per run at 130 images/s: fewer images than 3,000.
-    expect = int((70 * 0.85 / 4 * 130) // 8) // 4 * 4
+    # (150 − 4·20) · 0.8 / 4 s per run at 130 images/s: fewer images than 3,000.
+    expect = int((70 * 0.8 / 4 * 130) // 8) // 4 * 4
     assert rec["iterations"] == expect
     assert rec["size"] == expect * 8 < 3000, "N: what one pass of the iterations covers"
 
@@ -51,3 +51,13 @@ def test_a_forced_mode_and_a_cap(tmp_path):
                   **{"max-iterations": 12, "size": 24, "batch": 2, "epochs": 2})
     assert p.returncode == 0, p.stderr
     assert (rec["mode"], rec["iterations"], rec["size"]) == ("parallel", 12, 24)
+
+
+def test_four_at_once_is_rated_by_the_slowest_probe(tmp_path):
+    # Summed, these probes claim 180 images/s (1.38× one process); their windows need not
+    # overlap, so the plan counts four times the slowest, 120: less than one process alone.
+    p, rec = plan(tmp_path, 130.0, [60.0, 40.0, 50.0, 30.0])
+    assert p.returncode == 0, p.stderr
+    assert rec["probe_four_images_per_s"] == 120.0 and rec["mode"] == "sequential"
+    p, rec = plan(tmp_path, 100.0, [60.0, 40.0, 50.0, 30.0])
+    assert rec["mode"] == "parallel" and abs(rec["parallel_gain"] - 1.2) < 1e-9
