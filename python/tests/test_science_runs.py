@@ -22,7 +22,7 @@ def test_runs_that_end_together_all_succeed():
     # Four runs ending at the same moment: `wait -n` lost one of them about every other time
     # (bash 5.2), so twenty tries would fail an implementation that uses it.
     for _ in range(20):
-        assert run_all(*["sleep 0.2"] * 4) == 0
+        assert run_all(*["sleep 0.1"] * 4) == 0
 
 
 def test_one_failed_run_fails_the_stage_whichever_ends_first():
