@@ -152,8 +152,17 @@ def write(a):
     plan_rec = load(os.path.join(w, "plan.json")) or {}
     ds = load(os.path.join(w, "ds", "data_scale.json"))
     index = load(os.path.join(w, "prepared", "index.json"))
+    # Without the experiment's table (a stage that ran out of time), the runs that finished
+    # still say what they measured: each run folder's eval.json holds the same record.
+    run_records = (ds or {}).get("runs")
+    runs_from = "ds/data_scale.json"
+    if run_records is None:
+        run_records = [load(p) or {} for p in
+                       sorted(glob.glob(os.path.join(w, "ds*", "runs", "n*", "*", "seed*",
+                                                     "eval.json")))]
+        runs_from = "eval.json of each run that finished (no data_scale.json)"
     runs = []
-    for r in (ds or {}).get("runs", []):
+    for r in run_records:
         h = headline(r)
         runs.append({"arm": r.get("variant"), "seed": r.get("seed"),
                      "test_rmse_m": h.get("rmse"), "test_mae_m": h.get("mae"),
@@ -166,8 +175,12 @@ def write(a):
              "passes": r.get("passes"), "test_rmse_m": stat(r.get("rmse")),
              "test_mae_m": stat(r.get("mae")), "test_abs_rel": stat(r.get("abs_rel")),
              "test_delta1": stat(r.get("delta1"))} for r in (ds or {}).get("rows", [])]
-    best = sorted(glob.glob(os.path.join(w, "ds", "runs", "n*", "late-sam", "seed0",
-                                         "best.safetensors")))
+    # The gathered seed 0 first; else any late-sam run's best checkpoint (the runs' own folders
+    # when the stage stopped before they were gathered).
+    best = (sorted(glob.glob(os.path.join(w, "ds", "runs", "n*", "late-sam", "seed0",
+                                          "best.safetensors")))
+            or sorted(glob.glob(os.path.join(w, "ds*", "runs", "n*", "late-sam", "seed*",
+                                             "best.safetensors"))))
     walls = {s["stage"]: s["seconds"] for s in stages}
     iterations = (ds or {}).get("iterations", plan_rec.get("iterations"))
     batch = plan_rec.get("batch_size")
@@ -193,6 +206,7 @@ def write(a):
         "wall_seconds": {**walls, "total": int(time.time()) - int(a.t0)},
         "budget_s": int(a.budget),
         "runs": runs,
+        "runs_from": runs_from,
         "arms": arms,
         "margin": margin_of(ds),
         "trend": (ds or {}).get("trend"),

@@ -61,3 +61,31 @@ def test_four_at_once_is_rated_by_the_slowest_probe(tmp_path):
     assert rec["probe_four_images_per_s"] == 120.0 and rec["mode"] == "sequential"
     p, rec = plan(tmp_path, 100.0, [60.0, 40.0, 50.0, 30.0])
     assert rec["mode"] == "parallel" and abs(rec["parallel_gain"] - 1.2) < 1e-9
+
+
+def test_runs_that_finished_are_recorded_when_the_table_is_missing(tmp_path):
+    # The parallel stage ran out of time: rgb seed 0 finished in its own folder (eval.json,
+    # best.safetensors), late-sam seed 0 wrote a best checkpoint before it was stopped; the
+    # experiment's table (ds/data_scale.json) was never written.
+    run = {"variant": "rgb", "seed": 0, "best_val_rmse": 9.5, "status": "trained",
+           "rows": [{"condition": "combined", "region": "full", "rmse": 10.25, "n_images": 660}]}
+    rgb = tmp_path / "ds_rgb_0" / "runs" / "n3000" / "rgb" / "seed0"
+    sam = tmp_path / "ds_late-sam_0" / "runs" / "n3000" / "late-sam" / "seed0"
+    for d in (rgb, sam):
+        d.mkdir(parents=True)
+    (rgb / "eval.json").write_text(json.dumps(run))
+    (sam / "best.safetensors").write_bytes(b"x")
+    (tmp_path / "stages.tsv").write_text("train\ttimeout after 300s\t300\n")
+    out = tmp_path / "science.json"
+    cmd = [sys.executable, SCRIPT, "write", "--work", str(tmp_path), "--out", str(out)]
+    for k, v in {"dry": 0, "device": "cuda", "seed": 45, "scenes": 360,
+                 "keyframes-per-scene": 12, "preset": "paper", "budget": 350, "t0": 0,
+                 "rc": 1}.items():
+        cmd += [f"--{k}", str(v)]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    rec = json.loads(out.read_text())
+    assert p.returncode == 1 and rec["ok"] is False
+    assert [(r["arm"], r["seed"], r["test_rmse_m"]) for r in rec["runs"]] == [("rgb", 0, 10.25)]
+    assert rec["runs_from"].startswith("eval.json") and rec["margin"]["margin_m"] is None
+    assert rec["checkpoint_for_bf16"] == str(sam / "best.safetensors")
+    assert "rgb       seed 0: test RMSE 10.250 m" in p.stdout

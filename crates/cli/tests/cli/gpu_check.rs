@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// science.json's keys, the same on the GPU (scripts/science_json.py).
-const SCIENCE_KEYS: [&str; 20] = [
+const SCIENCE_KEYS: [&str; 21] = [
     "arms",
     "budget_s",
     "checkpoint_for_bf16",
@@ -24,6 +24,7 @@ const SCIENCE_KEYS: [&str; 20] = [
     "plan",
     "preset",
     "runs",
+    "runs_from",
     "schema",
     "stages",
     "training",
