@@ -424,6 +424,12 @@ fn every_variant_exports_and_runs_outside_depthsense_like_predict() {
 /// (`bench model --precision`'s target) and none non-finite; most pixels keep their bin.
 #[test]
 fn fp16_graphs_run_outside_depthsense_within_one_bin_of_predict() {
+    // Alone in a child process: its bounds were measured on the weights `manual_seed(4)` gives,
+    // and the other tests of this binary draw from libtorch's global generator meanwhile.
+    let me = "fp16_graphs_run_outside_depthsense_within_one_bin_of_predict";
+    if !depthsense_testkit::run_alone(me, std::time::Duration::from_secs(600)) {
+        return;
+    }
     let Some(py) = python() else { return };
     let cfg = ModelConfig::tiny()
         .with_options(&["out-height=64", "out-width=128", "radar-downscale=2"])

@@ -367,10 +367,14 @@ mod tests {
     #[test]
     fn decode_at_equals_the_dense_decode_at_those_pixels() {
         let s = SidConfig::default();
+        // Drawn from a local generator (crate::test_rng): libtorch's global one is shared with
+        // the tests running beside this one, and the bound below is tight (a flip in ~600).
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
         // upsampled 6x9 → 23x41 (both corner conventions), and the identity (23x41)
         for (h, w, align) in [(6, 9, false), (6, 9, true), (23, 41, false)] {
-            let z = tch::Tensor::randn([2, 80, h, w], (Kind::Float, Device::Cpu)) * 3.0;
-            let t = target(2, 23, 41, 0.3);
+            let z = (crate::test_rng::uniform(&[2, 80, h, w], &mut seed) - 0.5) * 12.0;
+            let depth = crate::test_rng::uniform(&[2, 1, 23, 41], &mut seed) * 85.0 + 0.5;
+            let t = depth * crate::test_rng::uniform(&[2, 1, 23, 41], &mut seed).lt(0.3);
             let host: Vec<f32> = Vec::try_from(t.reshape([-1])).unwrap();
             let at = SparseTarget::from_host(&host, (2, 23, 41), Device::Cpu);
             let sparse: Vec<f32> = Vec::try_from(ordinal_decode_at(&z, &at, &s, align)).unwrap();

@@ -18,7 +18,7 @@
 //! The shared fixtures (`../shared/fixtures/`, outside the repository) are data, not a tool:
 //! their absence is a counted skip ([`fixture`]).
 
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -185,5 +185,97 @@ mod tests {
         // Set and read within this thread only; no other test uses this variable.
         std::env::set_var("DEPTHSENSE_TESTKIT_REQUIRED", "1");
         let _: Option<()> = unavailable("DEPTHSENSE_TESTKIT_REQUIRED", "the tool is missing");
+    }
+}
+
+/// Environment variable under which a test binary runs one test alone ([`run_alone`]).
+const ALONE_ENV: &str = "DEPTHSENSE_TEST_ALONE";
+
+/// Runs the calling test alone, in a child process of this test binary (`--exact TEST
+/// --test-threads=1`), for a test whose outcome depends on the values it draws from libtorch's
+/// process-wide generator after `manual_seed`: beside the other tests of the binary, which draw
+/// from the same generator at the same time, those values change from run to run.
+///
+/// `test` is the test's path within the binary (`module::name`). Returns `true` in the child —
+/// run the test's body — and `false` in the parent once the child passed; the child's failure,
+/// a name that matches no test, or `timeout` passing (the child is killed) fail the parent with
+/// the child's output.
+pub fn run_alone(test: &str, timeout: std::time::Duration) -> bool {
+    if std::env::var(ALONE_ENV).as_deref() == Ok(test) {
+        return true;
+    }
+    let exe = std::env::current_exe().expect("the test binary's path");
+    let mut child = Command::new(exe)
+        .args(["--exact", test, "--test-threads=1"])
+        .env(ALONE_ENV, test)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("start the test binary again");
+    // Read both pipes while the child runs, so that a full pipe cannot stall it.
+    let drain = |pipe: Option<Box<dyn std::io::Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut text = String::new();
+            if let Some(mut p) = pipe {
+                let _ = p.read_to_string(&mut text);
+            }
+            text
+        })
+    };
+    let stdout = drain(child.stdout.take().map(|p| Box::new(p) as _));
+    let stderr = drain(child.stderr.take().map(|p| Box::new(p) as _));
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for the test alone") {
+            break status;
+        }
+        if start.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{test} alone: still running after {timeout:?}, killed");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let (stdout, stderr) = (
+        stdout.join().unwrap_or_default(),
+        stderr.join().unwrap_or_default(),
+    );
+    assert!(
+        status.success() && stdout.contains("test result: ok. 1 passed"),
+        "{test} alone: {status}\n{stdout}\n{stderr}"
+    );
+    false
+}
+
+#[cfg(test)]
+mod alone_tests {
+    use super::*;
+    use std::time::Duration;
+
+    const LIMIT: Duration = Duration::from_secs(60);
+
+    #[test]
+    fn run_alone_runs_the_body_in_a_child() {
+        let me = "alone_tests::run_alone_runs_the_body_in_a_child";
+        if !run_alone(me, LIMIT) {
+            return;
+        }
+        assert_eq!(std::env::var(ALONE_ENV).as_deref(), Ok(me));
+    }
+
+    /// Passes in the parent; fails when run alone (for the test below).
+    #[test]
+    fn fails_when_alone() {
+        if std::env::var(ALONE_ENV).as_deref() == Ok("alone_tests::fails_when_alone") {
+            panic!("fails on purpose when alone");
+        }
+    }
+
+    #[test]
+    fn run_alone_fails_with_the_child_or_a_name_of_no_test() {
+        for name in ["alone_tests::fails_when_alone", "alone_tests::no_such_test"] {
+            let r = std::panic::catch_unwind(|| run_alone(name, LIMIT));
+            assert!(r.is_err(), "{name}");
+        }
     }
 }
