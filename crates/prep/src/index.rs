@@ -105,14 +105,15 @@ pub fn check_index(
     }
 }
 
-/// The first setting (in key order) whose value differs between two settings maps, with both
-/// values as JSON (`null` where a map lacks the key).
+/// A setting whose value differs between two settings maps, with both values as JSON (`null`
+/// where a map lacks the key).
 struct SettingDifference {
     key: String,
     old: String,
     new: String,
 }
 
+/// The first setting (in key order) whose value differs between `old` and `new`.
 fn first_difference(
     old: &BTreeMap<String, serde_json::Value>,
     new: &BTreeMap<String, serde_json::Value>,

@@ -20,7 +20,8 @@
 
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Child, Command, ExitStatus};
+use std::time::{Duration, Instant};
 
 /// Environment variable naming the file that collects one line per skipped test.
 pub const SKIP_LOG_ENV: &str = "DEPTHSENSE_SKIP_LOG";
@@ -200,7 +201,7 @@ const ALONE_ENV: &str = "DEPTHSENSE_TEST_ALONE";
 /// run the test's body — and `false` in the parent once the child passed; the child's failure,
 /// a name that matches no test, or `timeout` passing (the child is killed) fail the parent with
 /// the child's output.
-pub fn run_alone(test: &str, timeout: std::time::Duration) -> bool {
+pub fn run_alone(test: &str, timeout: Duration) -> bool {
     if std::env::var(ALONE_ENV).as_deref() == Ok(test) {
         return true;
     }
@@ -213,28 +214,10 @@ pub fn run_alone(test: &str, timeout: std::time::Duration) -> bool {
         .spawn()
         .expect("start the test binary again");
     // Read both pipes while the child runs, so that a full pipe cannot stall it.
-    let drain = |pipe: Option<Box<dyn std::io::Read + Send>>| {
-        std::thread::spawn(move || {
-            let mut text = String::new();
-            if let Some(mut p) = pipe {
-                let _ = p.read_to_string(&mut text);
-            }
-            text
-        })
-    };
-    let stdout = drain(child.stdout.take().map(|p| Box::new(p) as _));
-    let stderr = drain(child.stderr.take().map(|p| Box::new(p) as _));
-    let start = std::time::Instant::now();
-    let status = loop {
-        if let Some(status) = child.try_wait().expect("wait for the test alone") {
-            break status;
-        }
-        if start.elapsed() > timeout {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("{test} alone: still running after {timeout:?}, killed");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
+    let stdout = drain(child.stdout.take());
+    let stderr = drain(child.stderr.take());
+    let Some(status) = wait_within(&mut child, timeout) else {
+        panic!("{test} alone: still running after {timeout:?}, killed");
     };
     let (stdout, stderr) = (
         stdout.join().unwrap_or_default(),
@@ -247,10 +230,37 @@ pub fn run_alone(test: &str, timeout: std::time::Duration) -> bool {
     false
 }
 
+/// Waits for `child` at most `limit`: its exit status, or `None` once `limit` has passed (the
+/// child is then killed and reaped). The multi-process tests' deadline.
+pub fn wait_within(child: &mut Child, limit: Duration) -> Option<ExitStatus> {
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().expect("wait for a child process") {
+            return Some(status);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// A thread reading `pipe` to its end (a child's stdout or stderr).
+fn drain<R: Read + Send + 'static>(pipe: Option<R>) -> std::thread::JoinHandle<String> {
+    std::thread::spawn(move || {
+        let mut text = String::new();
+        if let Some(mut p) = pipe {
+            let _ = p.read_to_string(&mut text);
+        }
+        text
+    })
+}
+
 #[cfg(test)]
 mod alone_tests {
     use super::*;
-    use std::time::Duration;
 
     const LIMIT: Duration = Duration::from_secs(60);
 

@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Kills the child when dropped (a failing assertion must not leave it running).
 pub struct Guard(pub Option<Child>);
@@ -27,18 +27,8 @@ impl Guard {
     /// Wait for the end, at most `limit` (then kill it and fail).
     pub fn wait(mut self, limit: Duration) -> ExitStatus {
         let mut c = self.0.take().unwrap();
-        let t = Instant::now();
-        loop {
-            if let Some(s) = c.try_wait().unwrap() {
-                return s;
-            }
-            if t.elapsed() > limit {
-                let _ = c.kill();
-                let _ = c.wait();
-                panic!("child did not finish within {limit:?}");
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        depthsense_testkit::wait_within(&mut c, limit)
+            .unwrap_or_else(|| panic!("child did not finish within {limit:?}"))
     }
 
     /// SIGKILL and reap.
